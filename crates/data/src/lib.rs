@@ -1,0 +1,33 @@
+//! diffkfc-data: the HumanML3D / KIT-ML file formats, skeletons and motion representation.
+
+pub mod fixtures;
+pub mod npy;
+pub mod quat;
+pub mod representation;
+pub mod skeleton;
+
+pub use representation::{features_from_joints, recover_from_ric, Joints, Layout};
+pub use skeleton::{Skeleton, KIT, T2M};
+
+use std::path::PathBuf;
+
+/// Errors of the data layer; each names the file or value at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum DataError {
+    #[error("{path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("{path}: {msg}")]
+    Npy { path: PathBuf, msg: String },
+    #[error("{0}")]
+    Invalid(String),
+}
+
+impl DataError {
+    /// Attach a file name to a content error.
+    pub fn in_file(self, path: &std::path::Path) -> DataError {
+        match self {
+            DataError::Invalid(msg) => DataError::Npy { path: path.to_path_buf(), msg },
+            other => other,
+        }
+    }
+}
