@@ -1,1 +1,46 @@
-fn main(){}
+//! `diffkfc`: train, sample and evaluate DiffKFC (text + keyframes -> human motion).
+
+mod commands;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(
+    name = "diffkfc",
+    version,
+    about = "Text-driven human motion diffusion with keyframes collaborated (DiffKFC, AAAI 2024)",
+    after_help = "Examples:\n  diffkfc data features joints.npy -o features.npy\n  diffkfc data joints features.npy -o joints.npy\n\nRun `diffkfc <command> --help` for each command's options."
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Datasets and motion files: convert between joint positions and HumanML3D features.
+    #[command(after_help = "Examples:\n  diffkfc data features joints.npy -o features.npy\n  diffkfc data joints features.npy -o joints.npy")]
+    Data(commands::data::DataArgs),
+}
+
+fn main() {
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) if !e.use_stderr() => e.exit(), // --help, --version
+        Err(e) => {
+            // Usage errors in one line, like every other error of the tool.
+            let text = e.to_string();
+            let first = text.lines().next().unwrap_or("invalid arguments").trim_start_matches("error: ");
+            eprintln!("error: {first} (see --help)");
+            std::process::exit(2);
+        }
+    };
+    let result = match cli.command {
+        Command::Data(args) => commands::data::run(args),
+    };
+    if let Err(e) = result {
+        // One line, no backtrace: the cause chain joined with ": ".
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
+}

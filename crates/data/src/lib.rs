@@ -1,6 +1,7 @@
 //! diffkfc-data: the HumanML3D / KIT-ML file formats, skeletons and motion representation.
 
 pub mod fixtures;
+pub mod motion_file;
 pub mod npy;
 pub mod quat;
 pub mod representation;

@@ -1,0 +1,125 @@
+//! `diffkfc data ...`: motion-file conversions (and, later, dataset tools).
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Subcommand, ValueEnum};
+use diffkfc_data::motion_file::{load_features, load_joints};
+use diffkfc_data::representation::{self as rep, FOOT_CONTACT_THRESHOLD};
+use diffkfc_data::{npy, Skeleton};
+
+#[derive(Args)]
+pub struct DataArgs {
+    #[command(subcommand)]
+    command: DataCommand,
+}
+
+#[derive(Subcommand)]
+enum DataCommand {
+    /// Joint positions (T,22,3) -- or SMPL-H (T,52,3), first 22 joints used -- to HumanML3D
+    /// features (T-1,263), exactly as HumanML3D's `process_file`.
+    #[command(after_help = "Examples:\n  diffkfc data features 000021.npy -o 000021_features.npy\n  diffkfc data features amass_clip.npy --fps 120 --up z -o clip.npy")]
+    Features(FeaturesArgs),
+    /// HumanML3D features (T,263) to global joint positions (T,22,3) (`recover_from_ric`).
+    #[command(after_help = "Example:\n  diffkfc data joints new_joint_vecs/012314.npy -o 012314_joints.npy")]
+    Joints(JointsArgs),
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum SkeletonArg {
+    /// HumanML3D: 22 joints, 263 features, 20 fps, metres.
+    T2m,
+    /// KIT-ML: 21 joints, 251 features, 12.5 fps, millimetres.
+    Kit,
+}
+
+impl SkeletonArg {
+    fn skeleton(self) -> &'static Skeleton {
+        match self {
+            SkeletonArg::T2m => &diffkfc_data::T2M,
+            SkeletonArg::Kit => &diffkfc_data::KIT,
+        }
+    }
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum Up {
+    Y,
+    /// Z-up input (AMASS / SMPL world), turned to Y-up as HumanML3D does: (x,y,z) -> (-x,z,y).
+    Z,
+}
+
+#[derive(Args)]
+struct FeaturesArgs {
+    /// Joint positions .npy, float32 or float64, shape (T, J, 3).
+    input: PathBuf,
+    /// Output features .npy (float32).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Frame rate of the input; it is resampled (linear interpolation) to the skeleton's rate.
+    #[arg(long)]
+    fps: Option<f64>,
+    /// Up axis of the input.
+    #[arg(long, value_enum, default_value = "y")]
+    up: Up,
+    /// Foot-contact threshold (squared displacement per frame).
+    #[arg(long, default_value_t = FOOT_CONTACT_THRESHOLD)]
+    feet_threshold: f64,
+    #[arg(long, value_enum, default_value = "t2m")]
+    skeleton: SkeletonArg,
+}
+
+#[derive(Args)]
+struct JointsArgs {
+    /// Features .npy, shape (T, 263) (KIT: 251).
+    input: PathBuf,
+    /// Output joint positions .npy (float32, (T, J, 3)).
+    #[arg(short, long)]
+    output: PathBuf,
+    #[arg(long, value_enum, default_value = "t2m")]
+    skeleton: SkeletonArg,
+}
+
+pub fn run(args: DataArgs) -> Result<()> {
+    match args.command {
+        DataCommand::Features(a) => features(a),
+        DataCommand::Joints(a) => joints(a),
+    }
+}
+
+fn features(a: FeaturesArgs) -> Result<()> {
+    let skel = a.skeleton.skeleton();
+    let mut joints = load_joints(&a.input, skel, 2)?;
+    let frames_in = joints.len();
+    if a.up == Up::Z {
+        rep::z_up_to_y_up(&mut joints);
+    }
+    if let Some(fps) = a.fps {
+        if !(fps.is_finite() && fps > 0.0) {
+            bail!("--fps: must be a positive number, got {fps}");
+        }
+        joints = rep::resample(&joints, fps, skel.fps);
+        if joints.len() < 2 {
+            bail!("{}: only {} frame(s) after resampling from {fps} to {} fps", a.input.display(), joints.len(), skel.fps);
+        }
+    }
+    let feats = rep::features_from_joints(skel, &joints, a.feet_threshold)
+        .map_err(|e| e.in_file(&a.input))?;
+    let dim = skel.feature_dim();
+    let t = feats.len() / dim;
+    npy::write(&a.output, &[t, dim], &feats).with_context(|| format!("writing {}", a.output.display()))?;
+    println!("{}: ({t}, {dim}) features from {frames_in} input frames ({} at {} fps)", a.output.display(), joints.len(), skel.fps);
+    Ok(())
+}
+
+fn joints(a: JointsArgs) -> Result<()> {
+    let skel = a.skeleton.skeleton();
+    let feats = load_features(&a.input, skel, 1)?;
+    let data: Vec<f64> = feats.data.iter().map(|&v| v as f64).collect();
+    let joints = rep::recover_from_ric(skel, &data);
+    let jn = skel.num_joints();
+    npy::write(&a.output, &[joints.len(), jn, 3], &rep::joints_to_f32(&joints))
+        .with_context(|| format!("writing {}", a.output.display()))?;
+    println!("{}: ({}, {jn}, 3) joint positions", a.output.display(), joints.len());
+    Ok(())
+}

@@ -1,0 +1,154 @@
+//! End-to-end tests of `diffkfc data features|joints`, `--version` and `--help`.
+
+mod common;
+use common::*;
+use diffkfc_data::{fixtures, npy};
+
+fn max_abs(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+}
+
+#[test]
+fn features_of_raw_mocap_reproduce_reference() {
+    let (Some(raw), Some(reference)) =
+        (fixtures::require("humanml3d/000021.npy"), fixtures::require("humanml3d/000021_features_reference.npy"))
+    else {
+        return;
+    };
+    let d = scratch("features");
+    let out = d.join("f.npy");
+    let o = diffkfc(&["data", "features", s(&raw), "-o", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("(179, 263)"), "{}", stdout(&o));
+    let got = npy::read_f32(&out).unwrap();
+    let want = npy::read_f32(&reference).unwrap();
+    assert_eq!(got.shape, vec![179, 263]);
+    let e = max_abs(&got.data, &want.data);
+    eprintln!("data features 000021.npy vs reference: max abs error {e:.2e}");
+    assert!(e < 1e-4, "{e}");
+
+    // And back to joints, against HumanML3D's own recover_from_ric of the reference.
+    let joints = d.join("j.npy");
+    let o = diffkfc(&["data", "joints", s(&out), "-o", s(&joints)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let refj = npy::read_f32(fixtures::require("humanml3d/000021_joints_reference.npy").unwrap()).unwrap();
+    let got = npy::read_f32(&joints).unwrap();
+    assert_eq!(got.shape, vec![179, 22, 3]);
+    assert!(max_abs(&got.data, &refj.data) < 1e-4);
+}
+
+#[test]
+fn joints_of_released_features_match_released_joints() {
+    let (Some(feats), Some(joints)) =
+        (fixtures::require("humanml3d/new_joint_vecs/012314.npy"), fixtures::require("humanml3d/new_joints/012314.npy"))
+    else {
+        return;
+    };
+    let d = scratch("joints");
+    let out = d.join("j.npy");
+    let o = diffkfc(&["data", "joints", s(&feats), "-o", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let e = max_abs(&npy::read_f32(&out).unwrap().data, &npy::read_f32(&joints).unwrap().data);
+    assert!(e < 1e-5, "{e}");
+}
+
+/// 000021 rewritten Z-up and at 40 fps (midpoints inserted) must give the same features with
+/// `--up z --fps 40`.
+#[test]
+fn z_up_and_frame_rate_options() {
+    let (Some(raw), Some(reference)) =
+        (fixtures::require("humanml3d/000021.npy"), fixtures::require("humanml3d/000021_features_reference.npy"))
+    else {
+        return;
+    };
+    let a = npy::read_f64(&raw).unwrap();
+    let (t, j) = (a.shape[0], a.shape[1]);
+    let frame = |f: usize| &a.data[f * j * 3..(f + 1) * j * 3];
+    let mut data = Vec::new();
+    for f in 0..t {
+        let cur = frame(f);
+        let pts: Vec<Vec<f64>> = if f + 1 < t {
+            let mid: Vec<f64> = cur.iter().zip(frame(f + 1)).map(|(x, y)| 0.5 * (x + y)).collect();
+            vec![cur.to_vec(), mid]
+        } else {
+            vec![cur.to_vec()]
+        };
+        for p in pts {
+            for k in p.chunks(3) {
+                // Y-up (x, y, z) -> Z-up (-x, z, y), the inverse of HumanML3D's turn.
+                data.extend_from_slice(&[-k[0], k[2], k[1]]);
+            }
+        }
+    }
+    let d = scratch("zup");
+    let input = d.join("zup40.npy");
+    npy::write(&input, &[2 * t - 1, j, 3], &data).unwrap();
+    let out = d.join("f.npy");
+    let o = diffkfc(&["data", "features", s(&input), "--up", "z", "--fps", "40", "-o", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let e = max_abs(&npy::read_f32(&out).unwrap().data, &npy::read_f32(&reference).unwrap().data);
+    eprintln!("--up z --fps 40 vs reference: max abs error {e:.2e}");
+    assert!(e < 1e-4, "{e}");
+}
+
+/// `bytes` with the first occurrence of `from` overwritten by `to` (same length).
+fn patch(bytes: &[u8], from: &str, to: &str) -> Vec<u8> {
+    let mut b = bytes.to_vec();
+    let at = b.windows(from.len()).position(|w| w == from.as_bytes()).unwrap();
+    b[at..at + to.len()].copy_from_slice(to.as_bytes());
+    b
+}
+
+#[test]
+fn bad_inputs_give_one_line_errors() {
+    let d = scratch("bad");
+    let good = npy::encode(&[3, 22, 3], &[0.5f32; 198]);
+    let cases: Vec<(&str, Vec<u8>, &str, Vec<&str>)> = vec![
+        ("truncated.npy", good[..good.len() - 7].to_vec(), "features", vec!["truncated.npy", "truncated data"]),
+        ("garbage.npy", b"not an array".to_vec(), "features", vec!["garbage.npy", "not a .npy file"]),
+        ("ints.npy", patch(&good, "<f4", "<i4"), "features", vec!["ints.npy", "'<i4' is not supported"]),
+        ("width.npy", npy::encode(&[10, 200], &[0f32; 2000]), "joints", vec!["width.npy", "(T, 263)", "[10, 200]"]),
+        ("shape.npy", npy::encode(&[10, 20, 3], &[0f32; 600]), "features", vec!["shape.npy", "(T, 22, 3)", "[10, 20, 3]"]),
+        ("one_frame.npy", npy::encode(&[1, 22, 3], &[0.1f32; 66]), "features", vec!["one_frame.npy", "at least 2"]),
+        ("empty.npy", npy::encode(&[0, 263], &[0f32; 0]), "joints", vec!["empty.npy", "at least 1"]),
+    ];
+    for (name, bytes, cmd, needles) in cases {
+        let p = d.join(name);
+        std::fs::write(&p, bytes).unwrap();
+        let o = diffkfc(&["data", cmd, s(&p), "-o", s(&d.join("out.npy"))]);
+        assert_one_line_error(&o, &needles);
+    }
+    // NaN in a joint we use and in a feature.
+    let mut j = vec![0.1f32; 4 * 22 * 3];
+    j[2 * 66 + 5 * 3 + 1] = f32::NAN;
+    let p = d.join("nan_joints.npy");
+    npy::write(&p, &[4, 22, 3], &j).unwrap();
+    assert_one_line_error(&diffkfc(&["data", "features", s(&p), "-o", s(&d.join("o.npy"))]), &["nan_joints.npy", "frame 2, joint 5"]);
+    let mut f = vec![0.0f32; 3 * 263];
+    f[263 + 7] = f32::INFINITY;
+    let p = d.join("nan_feats.npy");
+    npy::write(&p, &[3, 263], &f).unwrap();
+    assert_one_line_error(&diffkfc(&["data", "joints", s(&p), "-o", s(&d.join("o.npy"))]), &["nan_feats.npy", "frame 1, feature 7"]);
+    // A missing file and a bad flag value.
+    assert_one_line_error(&diffkfc(&["data", "joints", s(&d.join("missing.npy")), "-o", "x.npy"]), &["missing.npy", "No such file"]);
+    let p = d.join("ok.npy");
+    npy::write(&p, &[5, 22, 3], &(0..330).map(|i| i as f32 * 0.01).collect::<Vec<_>>()).unwrap();
+    assert_one_line_error(&diffkfc(&["data", "features", s(&p), "--fps=-3", "-o", "o.npy"]), &["--fps"]);
+    assert_one_line_error(&diffkfc(&["data", "features", s(&p), "--bogus"]), &["--bogus"]);
+    // Nothing half-written is left behind by failures.
+    assert!(!d.join("out.npy").exists() && !d.join("o.npy").exists());
+}
+
+#[test]
+fn version_and_help_with_examples() {
+    let o = diffkfc(&["--version"]);
+    assert!(o.status.success());
+    assert!(stdout(&o).starts_with(&format!("diffkfc {}", env!("CARGO_PKG_VERSION"))));
+    for cmd in [vec!["--help"], vec!["data", "--help"], vec!["data", "features", "--help"], vec!["data", "joints", "--help"]] {
+        let o = diffkfc(&cmd);
+        assert!(o.status.success(), "{cmd:?}");
+        let out = stdout(&o);
+        assert!(out.contains("Example"), "{cmd:?} has no example:\n{out}");
+    }
+}
