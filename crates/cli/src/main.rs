@@ -1,6 +1,7 @@
 //! `diffkfc`: train, sample and evaluate DiffKFC (text + keyframes -> human motion).
 
 mod commands;
+mod progress;
 
 use clap::{Parser, Subcommand};
 

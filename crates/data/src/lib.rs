@@ -1,11 +1,18 @@
 //! diffkfc-data: the HumanML3D / KIT-ML file formats, skeletons and motion representation.
 
+pub mod batch;
+pub mod cache;
+pub mod check;
+pub mod dataset;
 pub mod fixtures;
+pub mod keyframes;
 pub mod motion_file;
 pub mod npy;
 pub mod quat;
 pub mod representation;
+pub mod rng;
 pub mod skeleton;
+pub mod texts;
 
 pub use representation::{features_from_joints, recover_from_ric, Joints, Layout};
 pub use skeleton::{Skeleton, KIT, T2M};

@@ -20,6 +20,10 @@ enum DataCommand {
     /// features (T-1,263), exactly as HumanML3D's `process_file`.
     #[command(after_help = "Examples:\n  diffkfc data features 000021.npy -o 000021_features.npy\n  diffkfc data features amass_clip.npy --fps 120 --up z -o clip.npy")]
     Features(FeaturesArgs),
+    /// Validate a HumanML3D / KIT-ML dataset directory and print its statistics. Lists every
+    /// problem (file and problem, one per line) and exits non-zero if there is any.
+    #[command(after_help = "Examples:\n  diffkfc data check ~/data/HumanML3D\n  diffkfc data check ~/data/HumanML3D --json > check.json")]
+    Check(CheckArgs),
     /// HumanML3D features (T,263) to global joint positions (T,22,3) (`recover_from_ric`).
     #[command(after_help = "Example:\n  diffkfc data joints new_joint_vecs/012314.npy -o 012314_joints.npy")]
     Joints(JointsArgs),
@@ -70,6 +74,15 @@ struct FeaturesArgs {
 }
 
 #[derive(Args)]
+struct CheckArgs {
+    /// Dataset root (holding new_joint_vecs/, texts/, Mean.npy, Std.npy, train.txt ...).
+    dir: PathBuf,
+    /// Print the report as JSON on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Args)]
 struct JointsArgs {
     /// Features .npy, shape (T, 263) (KIT: 251).
     input: PathBuf,
@@ -84,7 +97,22 @@ pub fn run(args: DataArgs) -> Result<()> {
     match args.command {
         DataCommand::Features(a) => features(a),
         DataCommand::Joints(a) => joints(a),
+        DataCommand::Check(a) => check(a),
     }
+}
+
+fn check(a: CheckArgs) -> Result<()> {
+    let report = diffkfc_data::check::check(&a.dir, crate::progress::bar("checking"));
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print!("{}", report.to_text());
+    }
+    if !report.ok() {
+        // The list is printed above; the exit status carries the verdict.
+        std::process::exit(1);
+    }
+    Ok(())
 }
 
 fn features(a: FeaturesArgs) -> Result<()> {

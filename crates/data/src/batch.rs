@@ -1,0 +1,136 @@
+//! Training batches: random item order per epoch, MDM crops, z-normalisation, zero padding,
+//! and keyframe masks. Every random choice comes from a generator derived from
+//! (seed, epoch, position), so a batch is the same whatever the number of loader threads.
+
+use serde::{Deserialize, Serialize};
+
+use crate::cache::PackedSplit;
+use crate::dataset::{crop, Dataset, MAX_FRAMES};
+use crate::keyframes::{self, Strategy};
+use crate::rng::Rng;
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct KeyframeConfig {
+    pub strategy: Strategy,
+    /// Fraction of a clip's frames that are keyframes (at least one when > 0).
+    pub rate: f64,
+    /// Probability of dropping all keyframes of a sample (classifier-free guidance).
+    pub drop_prob: f64,
+}
+
+impl Default for KeyframeConfig {
+    fn default() -> Self {
+        KeyframeConfig { strategy: Strategy::Random, rate: 0.05, drop_prob: 0.1 }
+    }
+}
+
+/// A batch in flat row-major buffers, ready to become tensors.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Batch {
+    pub batch_size: usize,
+    pub frames: usize,
+    pub dim: usize,
+    /// [B, N, D] normalised features, zero on padding.
+    pub x0: Vec<f32>,
+    /// [B, N]: 1 for real frames, 0 for padding.
+    pub valid: Vec<f32>,
+    /// [B, N, D]: 1 where a keyframe observes the feature.
+    pub kf_mask: Vec<f32>,
+    pub lengths: Vec<usize>,
+    pub captions: Vec<String>,
+    /// Item indices in the split.
+    pub items: Vec<usize>,
+}
+
+/// One drawn sample.
+struct Sample {
+    x0: Vec<f32>,
+    len: usize,
+    kf: Vec<usize>,
+    caption: String,
+}
+
+pub struct Loader<'a> {
+    pub ds: &'a Dataset,
+    pub split: &'a PackedSplit,
+    pub batch_size: usize,
+    pub seed: u64,
+    pub keyframes: KeyframeConfig,
+    pub threads: usize,
+}
+
+impl<'a> Loader<'a> {
+    pub fn new(ds: &'a Dataset, split: &'a PackedSplit, batch_size: usize, seed: u64, keyframes: KeyframeConfig) -> Self {
+        Loader { ds, split, batch_size, seed, keyframes, threads: 1 }
+    }
+
+    /// Full batches per epoch (the last partial one is dropped, as MDM does); at least one when
+    /// the split has any item (a tiny split repeats items).
+    pub fn batches_per_epoch(&self) -> usize {
+        (self.split.items.len() / self.batch_size).max(usize::from(!self.split.items.is_empty()))
+    }
+
+    /// Item order of an epoch.
+    fn order(&self, epoch: u64) -> Vec<usize> {
+        let mut v: Vec<usize> = (0..self.split.items.len()).collect();
+        Rng::derive(self.seed, u64::MAX, epoch).shuffle(&mut v);
+        v
+    }
+
+    /// Batch `b` of `epoch`.
+    pub fn batch(&self, epoch: u64, b: usize) -> Batch {
+        let order = self.order(epoch);
+        let picks: Vec<(usize, usize)> =
+            (0..self.batch_size).map(|k| { let pos = b * self.batch_size + k; (pos, order[pos % order.len()]) }).collect();
+        let samples: Vec<Sample> = if self.threads <= 1 {
+            picks.iter().map(|&(pos, item)| self.sample(epoch, pos, item)).collect()
+        } else {
+            let chunk = picks.len().div_ceil(self.threads);
+            std::thread::scope(|s| {
+                let handles: Vec<_> = picks
+                    .chunks(chunk)
+                    .map(|c| s.spawn(move || c.iter().map(|&(pos, item)| self.sample(epoch, pos, item)).collect::<Vec<_>>()))
+                    .collect();
+                handles.into_iter().flat_map(|h| h.join().expect("loader thread")).collect()
+            })
+        };
+        self.assemble(samples, picks.iter().map(|p| p.1).collect())
+    }
+
+    fn sample(&self, epoch: u64, pos: usize, item: usize) -> Sample {
+        let mut rng = Rng::derive(self.seed, epoch, pos as u64);
+        let spec = &self.split.items[item];
+        let caption = rng.pick(&spec.captions).clone();
+        let (start, len) = crop(spec.len, &mut rng);
+        let dim = self.ds.dim();
+        let mut x0 = self.split.clip_frames(&spec.clip, spec.start + start, len).to_vec();
+        self.ds.normalise(&mut x0);
+        let kc = &self.keyframes;
+        let kf = if rng.chance(kc.drop_prob) {
+            vec![]
+        } else {
+            keyframes::select(kc.strategy, len, kc.rate, &x0, dim, &mut rng)
+        };
+        Sample { x0, len, kf, caption }
+    }
+
+    fn assemble(&self, samples: Vec<Sample>, items: Vec<usize>) -> Batch {
+        let (n, d) = (MAX_FRAMES, self.ds.dim());
+        let bsz = samples.len();
+        let mut x0 = vec![0f32; bsz * n * d];
+        let mut valid = vec![0f32; bsz * n];
+        let mut kf_mask = vec![0f32; bsz * n * d];
+        let all_dims = vec![true; d];
+        let mut lengths = Vec::with_capacity(bsz);
+        let mut captions = Vec::with_capacity(bsz);
+        for (i, s) in samples.into_iter().enumerate() {
+            x0[i * n * d..i * n * d + s.len * d].copy_from_slice(&s.x0);
+            valid[i * n..i * n + s.len].iter_mut().for_each(|v| *v = 1.0);
+            kf_mask[i * n * d..(i + 1) * n * d].copy_from_slice(&keyframes::frame_mask(n, &s.kf, &all_dims));
+            lengths.push(s.len);
+            captions.push(s.caption);
+        }
+        Batch { batch_size: bsz, frames: n, dim: d, x0, valid, kf_mask, lengths, captions, items }
+    }
+}

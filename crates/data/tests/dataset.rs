@@ -1,0 +1,126 @@
+//! Dataset reading, packed cache and batching on small datasets written from the fixture clip.
+
+use std::path::{Path, PathBuf};
+
+use diffkfc_data::batch::{KeyframeConfig, Loader};
+use diffkfc_data::cache::PackedSplit;
+use diffkfc_data::dataset::Dataset;
+use diffkfc_data::keyframes::Strategy;
+use diffkfc_data::{fixtures, npy};
+
+fn write_clip(root: &Path, id: &str, feats: &[f32], dim: usize, captions: &[&str]) {
+    npy::write(root.join("new_joint_vecs").join(format!("{id}.npy")), &[feats.len() / dim, dim], feats).unwrap();
+    std::fs::write(root.join("texts").join(format!("{id}.txt")), captions.join("\n")).unwrap();
+}
+
+/// A dataset from the fixture clip 012314 (170 frames): A whole, B too short, C with a tagged
+/// sub-clip caption, M012314 a mirrored id. Returns (root, clip features).
+fn small_dataset(name: &str) -> Option<(PathBuf, Vec<f32>)> {
+    let clip = npy::read_f32(fixtures::require("humanml3d/new_joint_vecs/012314.npy")?).unwrap().data;
+    let dir = std::env::temp_dir().join(format!("diffkfc-ds-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    for sub in ["new_joint_vecs", "texts"] {
+        std::fs::create_dir_all(dir.join(sub)).unwrap();
+    }
+    for f in ["Mean.npy", "Std.npy"] {
+        std::fs::copy(fixtures::require(&format!("humanml3d/{f}")).unwrap(), dir.join(f)).unwrap();
+    }
+    let d = 263;
+    write_clip(&dir, "A", &clip, d, &["a person walks.#a/DET person/NOUN walk/VERB#0.0#0.0", "someone strolls.#someone/PRON stroll/VERB#0.0#0.0"]);
+    write_clip(&dir, "B", &clip[..30 * d], d, &["too short.#too/ADV short/ADJ#0.0#0.0"]);
+    write_clip(&dir, "C", &clip[..100 * d], d, &["whole c.#whole/ADJ c/NOUN#0.0#0.0", "part of c.#part/NOUN of/ADP c/NOUN#1.0#4.0"]);
+    write_clip(&dir, "M012314", &clip, d, &["a person walks.#a/DET person/NOUN walk/VERB#0.0#0.0"]);
+    std::fs::write(dir.join("train.txt"), "A\nB\nC\nM012314\n").unwrap();
+    std::fs::write(dir.join("val.txt"), "C\n").unwrap();
+    std::fs::write(dir.join("test.txt"), "A\n").unwrap();
+    Some((dir, clip))
+}
+
+#[test]
+fn items_follow_mdm_rules_and_cache_maps_the_features() {
+    let Some((root, clip)) = small_dataset("items") else { return };
+    let ds = Dataset::open(&root).unwrap();
+    assert_eq!(ds.skeleton.name, "t2m");
+    let cache = root.join(".cache");
+    let split = PackedSplit::open(&ds, "train", &cache, |_, _| {}).unwrap();
+    assert!(split.built);
+    let items: Vec<(String, usize, usize, usize)> =
+        split.items.iter().map(|i| (i.clip.clone(), i.start, i.len, i.captions.len())).collect();
+    assert_eq!(
+        items,
+        vec![("A".into(), 0, 170, 2), ("C".into(), 0, 100, 1), ("C".into(), 20, 60, 1), ("M012314".into(), 0, 170, 1)]
+    );
+    assert_eq!(split.skipped.len(), 1);
+    assert!(split.skipped[0].1.contains("30 frames"), "{:?}", split.skipped);
+    assert_eq!(split.item_frames(0), &clip[..]);
+    assert_eq!(split.item_frames(2), &clip[20 * 263..80 * 263]);
+    assert_eq!(split.total_frames(), 170 + 100 + 170);
+
+    // Reopened unchanged: reused, not rebuilt.
+    let again = PackedSplit::open(&ds, "train", &cache, |_, _| {}).unwrap();
+    assert!(!again.built);
+    assert_eq!(again.item_frames(2), split.item_frames(2));
+
+    // A changed source file rebuilds the cache and the new data is seen.
+    let mut changed = clip.clone();
+    changed[0] += 1.0;
+    changed.extend_from_slice(&clip[..263]);
+    write_clip(&root, "A", &changed, 263, &["a person walks.#a/DET person/NOUN walk/VERB#0.0#0.0"]);
+    let rebuilt = PackedSplit::open(&ds, "train", &cache, |_, _| {}).unwrap();
+    assert!(rebuilt.built);
+    assert_eq!(rebuilt.item_frames(0), &changed[..]);
+    std::fs::remove_dir_all(root).unwrap();
+}
+
+#[test]
+fn batches_are_normalised_padded_and_deterministic() {
+    let Some((root, _)) = small_dataset("batch") else { return };
+    let ds = Dataset::open(&root).unwrap();
+    let split = PackedSplit::open(&ds, "train", &root.join(".cache"), |_, _| {}).unwrap();
+    let kf = KeyframeConfig { strategy: Strategy::Random, rate: 0.05, drop_prob: 0.0 };
+    let mut loader = Loader::new(&ds, &split, 3, 42, kf.clone());
+    let b = loader.batch(0, 0);
+    let (n, d) = (b.frames, b.dim);
+    assert_eq!((n, d), (196, 263));
+    for i in 0..3 {
+        let len = b.lengths[i];
+        assert_eq!(len % 4, 0);
+        let item = &split.items[b.items[i]];
+        assert!(len == item.len / 4 * 4 || len == (item.len / 4 - 1) * 4, "{len} from {}", item.len);
+        assert!(item.captions.contains(&b.captions[i]));
+        // Valid mask and zero padding.
+        assert!(b.valid[i * n..i * n + len].iter().all(|&v| v == 1.0));
+        assert!(b.valid[i * n + len..(i + 1) * n].iter().all(|&v| v == 0.0));
+        assert!(b.x0[(i * n + len) * d..(i + 1) * n * d].iter().all(|&v| v == 0.0));
+        // The sample is a normalised window of the item.
+        let raw = split.item_frames(b.items[i]);
+        let first: Vec<f32> = (0..d).map(|k| b.x0[i * n * d + k] * ds.std[k] + ds.mean[k]).collect();
+        let start = (0..=item.len - len)
+            .find(|&s| (0..d).all(|k| (raw[s * d + k] - first[k]).abs() < 1e-4))
+            .expect("crop start");
+        for f in 0..len {
+            for k in 0..d {
+                let want = (raw[(start + f) * d + k] - ds.mean[k]) / ds.std[k];
+                assert!((b.x0[(i * n + f) * d + k] - want).abs() < 1e-5);
+            }
+        }
+        // Keyframes: 5% of the length, whole frames, never on padding.
+        let kf_frames: Vec<usize> = (0..n).filter(|&f| b.kf_mask[(i * n + f) * d] == 1.0).collect();
+        assert_eq!(kf_frames.len(), ((len as f64) * 0.05).round().max(1.0) as usize);
+        assert!(kf_frames.iter().all(|&f| f < len));
+        for &f in &kf_frames {
+            assert!(b.kf_mask[(i * n + f) * d..(i * n + f + 1) * d].iter().all(|&v| v == 1.0));
+        }
+    }
+    // Same seed: same batch, whatever the number of threads; another seed: another batch.
+    assert_eq!(loader.batch(0, 0), b);
+    loader.threads = 3;
+    assert_eq!(loader.batch(0, 0), b);
+    let other = Loader::new(&ds, &split, 3, 43, kf);
+    assert_ne!(other.batch(0, 0), b);
+    assert_ne!(loader.batch(1, 0), b);
+    // Dropped keyframes (classifier-free guidance).
+    let drop = Loader::new(&ds, &split, 3, 42, KeyframeConfig { drop_prob: 1.0, ..Default::default() });
+    assert!(drop.batch(0, 0).kf_mask.iter().all(|&v| v == 0.0));
+    std::fs::remove_dir_all(root).unwrap();
+}

@@ -1,0 +1,99 @@
+//! End-to-end tests of `diffkfc data check`.
+
+mod common;
+use common::*;
+use diffkfc_data::{fixtures, npy};
+use std::path::Path;
+
+fn clip(root: &Path, id: &str, data: &[f32], frames: usize, caption: &str) {
+    npy::write(root.join(format!("new_joint_vecs/{id}.npy")), &[frames, data.len() / frames.max(1)], data).unwrap();
+    std::fs::write(root.join(format!("texts/{id}.txt")), caption).unwrap();
+}
+
+fn base(name: &str) -> Option<(std::path::PathBuf, Vec<f32>)> {
+    let feats = npy::read_f32(fixtures::require("humanml3d/new_joint_vecs/012314.npy")?).unwrap().data;
+    let d = scratch(name);
+    std::fs::create_dir_all(d.join("new_joint_vecs")).unwrap();
+    std::fs::create_dir_all(d.join("texts")).unwrap();
+    for f in ["Mean.npy", "Std.npy"] {
+        std::fs::copy(fixtures::require(&format!("humanml3d/{f}")).unwrap(), d.join(f)).unwrap();
+    }
+    Some((d, feats))
+}
+
+const CAP: &str = "a person walks forward.#a/DET person/NOUN walk/VERB forward/ADV#0.0#0.0\nsomeone walks.#someone/PRON walk/VERB#0.0#0.0\n";
+
+#[test]
+fn clean_dataset_passes_with_statistics() {
+    let Some((d, feats)) = base("check-clean") else { return };
+    clip(&d, "000001", &feats, 170, CAP);
+    clip(&d, "M000001", &feats, 170, CAP);
+    clip(&d, "000002", &feats[..100 * 263], 100, CAP);
+    std::fs::write(d.join("train.txt"), "000001\nM000001\n").unwrap();
+    std::fs::write(d.join("val.txt"), "000002\n").unwrap();
+    std::fs::write(d.join("test.txt"), "000002\n").unwrap();
+    let o = diffkfc(&["data", "check", s(&d)]);
+    assert!(o.status.success(), "{}{}", stdout(&o), stderr(&o));
+    let out = stdout(&o);
+    assert!(out.contains("OK: no problems found"), "{out}");
+    assert!(out.contains("distinct words: 5"), "{out}");
+    let o = diffkfc(&["data", "check", s(&d), "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["splits"][0]["clips"], 2);
+    assert_eq!(v["splits"][0]["items"], 2);
+    assert_eq!(v["splits"][0]["frames"], 340);
+    assert_eq!(v["splits"][0]["captions"], 4);
+    assert_eq!(v["problems"].as_array().unwrap().len(), 0);
+    // 170-frame clips fall in the 160-179 bin.
+    assert_eq!(v["length_histogram"][8][2], 2);
+}
+
+#[test]
+fn every_problem_is_listed() {
+    let Some((d, feats)) = base("check-broken") else { return };
+    clip(&d, "good", &feats, 170, CAP);
+    let mut nan = feats.clone();
+    nan[5 * 263 + 9] = f32::NAN;
+    clip(&d, "nan", &nan, 170, CAP);
+    clip(&d, "width", &vec![0.0; 50 * 100], 50, CAP);
+    clip(&d, "short", &feats[..263], 1, CAP);
+    clip(&d, "badcap", &feats, 170, "a caption without tags\n");
+    npy::write(d.join("new_joint_vecs/notext.npy"), &[170, 263], &feats).unwrap();
+    std::fs::write(d.join("texts/nomotion.txt"), CAP).unwrap();
+    let bytes = std::fs::read(d.join("new_joint_vecs/good.npy")).unwrap();
+    std::fs::write(d.join("new_joint_vecs/trunc.npy"), &bytes[..1000]).unwrap();
+    std::fs::write(d.join("texts/trunc.txt"), CAP).unwrap();
+    std::fs::write(d.join("train.txt"), "good\nnan\nwidth\nshort\nbadcap\nnotext\nnomotion\ntrunc\n").unwrap();
+    std::fs::write(d.join("test.txt"), "good\n").unwrap();
+    // val.txt missing
+    let o = diffkfc(&["data", "check", s(&d)]);
+    assert!(!o.status.success());
+    let out = stdout(&o);
+    let expect = [
+        ("val.txt", "split list unreadable"),
+        ("nan.npy", "NaN or infinite value at frame 5, feature 9"),
+        ("width.npy", "expected (T, 263)"),
+        ("short.npy", "1 frame(s)"),
+        ("badcap.txt", "line 1: expected 4 '#'-separated fields"),
+        ("notext.txt", "No such file"),
+        ("nomotion.npy", "No such file"),
+        ("trunc.npy", "truncated data"),
+    ];
+    for (file, problem) in expect {
+        assert!(out.lines().any(|l| l.contains(file) && l.contains(problem)), "{file}: {problem} missing in\n{out}");
+    }
+    assert!(out.contains("8 problem(s) found"), "{out}");
+    let o = diffkfc(&["data", "check", s(&d), "--json"]);
+    assert!(!o.status.success());
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["problems"].as_array().unwrap().len(), 8);
+    assert_eq!(v["splits"][0]["clips"], 1);
+}
+
+#[test]
+fn missing_normalisation_is_reported() {
+    let d = scratch("check-empty");
+    let o = diffkfc(&["data", "check", s(&d)]);
+    assert!(!o.status.success());
+    assert!(stdout(&o).contains("Mean.npy"), "{}", stdout(&o));
+}
