@@ -8,10 +8,12 @@ pub mod fixtures;
 pub mod keyframes;
 pub mod motion_file;
 pub mod npy;
+pub mod plausibility;
 pub mod quat;
 pub mod representation;
 pub mod rng;
 pub mod skeleton;
+pub mod synth;
 pub mod texts;
 
 pub use representation::{features_from_joints, recover_from_ric, Joints, Layout};

@@ -24,6 +24,9 @@ enum DataCommand {
     /// problem (file and problem, one per line) and exits non-zero if there is any.
     #[command(after_help = "Examples:\n  diffkfc data check ~/data/HumanML3D\n  diffkfc data check ~/data/HumanML3D --json > check.json")]
     Check(CheckArgs),
+    /// Write a synthetic text-motion dataset in the HumanML3D layout (the default data).
+    #[command(after_help = "Examples:\n  diffkfc data synth --out work/synth\n  diffkfc data synth --out work/small --clips 200 --seed 7")]
+    Synth(SynthArgs),
     /// HumanML3D features (T,263) to global joint positions (T,22,3) (`recover_from_ric`).
     #[command(after_help = "Example:\n  diffkfc data joints new_joint_vecs/012314.npy -o 012314_joints.npy")]
     Joints(JointsArgs),
@@ -74,6 +77,21 @@ struct FeaturesArgs {
 }
 
 #[derive(Args)]
+struct SynthArgs {
+    /// Output directory (must not exist or be empty).
+    #[arg(long)]
+    out: PathBuf,
+    /// Number of clips.
+    #[arg(long, default_value_t = 3000)]
+    clips: usize,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Worker threads (default: all cores). The output does not depend on it.
+    #[arg(long)]
+    threads: Option<usize>,
+}
+
+#[derive(Args)]
 struct CheckArgs {
     /// Dataset root (holding new_joint_vecs/, texts/, Mean.npy, Std.npy, train.txt ...).
     dir: PathBuf,
@@ -98,7 +116,28 @@ pub fn run(args: DataArgs) -> Result<()> {
         DataCommand::Features(a) => features(a),
         DataCommand::Joints(a) => joints(a),
         DataCommand::Check(a) => check(a),
+        DataCommand::Synth(a) => synth(a),
     }
+}
+
+fn synth(a: SynthArgs) -> Result<()> {
+    if a.clips == 0 {
+        bail!("--clips: must be at least 1");
+    }
+    let threads = a.threads.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1));
+    let bar = std::sync::Mutex::new(crate::progress::bar("synthesising"));
+    let t0 = std::time::Instant::now();
+    let s = diffkfc_data::synth::write_dataset(&a.out, a.clips, a.seed, threads, &|d, n| (bar.lock().unwrap())(d, n))?;
+    println!(
+        "{}: {} clips, {} frames ({:.2} h at 20 fps), seed {}, in {:.1} s",
+        s.out.display(),
+        s.clips,
+        s.frames,
+        s.frames as f64 / 20.0 / 3600.0,
+        a.seed,
+        t0.elapsed().as_secs_f64()
+    );
+    Ok(())
 }
 
 fn check(a: CheckArgs) -> Result<()> {
