@@ -22,6 +22,9 @@ enum Command {
     /// Datasets and motion files: convert between joint positions and HumanML3D features.
     #[command(after_help = "Examples:\n  diffkfc data features joints.npy -o features.npy\n  diffkfc data joints features.npy -o joints.npy")]
     Data(commands::data::DataArgs),
+    /// Draw motions: an animated GIF of one motion, or a PNG contact sheet of several.
+    #[command(after_help = "Examples:\n  diffkfc render work/synth/new_joint_vecs/000000.npy -o walk.gif --keyframes 0,40,80\n  diffkfc render a.npy b.npy c.npy --sheet -o sheet.png")]
+    Render(commands::render::RenderArgs),
 }
 
 fn main() {
@@ -38,6 +41,7 @@ fn main() {
     };
     let result = match cli.command {
         Command::Data(args) => commands::data::run(args),
+        Command::Render(args) => commands::render::run(args),
     };
     if let Err(e) = result {
         // One line, no backtrace: the cause chain joined with ": ".

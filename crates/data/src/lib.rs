@@ -10,6 +10,7 @@ pub mod motion_file;
 pub mod npy;
 pub mod plausibility;
 pub mod quat;
+pub mod render;
 pub mod representation;
 pub mod rng;
 pub mod skeleton;

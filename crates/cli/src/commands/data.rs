@@ -111,6 +111,18 @@ struct JointsArgs {
     skeleton: SkeletonArg,
 }
 
+/// Joint positions from a motion file: features (T, D) are recovered, joints (T, J, 3) taken
+/// as they are.
+pub fn load_motion(path: &std::path::Path, skel: &Skeleton) -> Result<rep::Joints> {
+    let a = npy::read_f64(path)?;
+    if a.ndim() == 2 {
+        let f = load_features(path, skel, 1)?;
+        Ok(rep::recover_from_ric(skel, &f.data.iter().map(|&v| v as f64).collect::<Vec<_>>()))
+    } else {
+        Ok(load_joints(path, skel, 1)?)
+    }
+}
+
 pub fn run(args: DataArgs) -> Result<()> {
     match args.command {
         DataCommand::Features(a) => features(a),

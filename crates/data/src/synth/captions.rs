@@ -2,7 +2,40 @@
 
 use crate::rng::Rng;
 
-pub const SUBJECTS: &[&str] = &["a person", "someone", "a man", "a woman", "the person", "a figure"];
+pub const SUBJECTS: &[&str] = &[
+    "a person", "someone", "a man", "a woman", "the person", "a figure", "a guy", "a girl", "an individual",
+    "a human", "the man", "the woman", "a character", "the character", "an athlete", "a dancer", "a performer",
+    "a kid", "a boy", "an adult", "the actor", "a young man", "an old man", "a tall person",
+];
+
+/// Adverbial modifiers chosen from an action's parameters, so that text says coarsely what
+/// the parameters say exactly ("slowly" for a slow walk, "twice" for two jumps).
+pub fn modifiers(params: &serde_json::Value) -> Vec<&'static str> {
+    let mut m = Vec::new();
+    if let Some(v) = params.get("speed").and_then(|v| v.as_f64()) {
+        m.extend_from_slice(match v {
+            v if v < 0.6 => &["slowly", "carefully", "cautiously"][..],
+            v if v < 1.0 => &["slowly", "leisurely", "calmly", "casually"][..],
+            v if v < 1.4 => &["at a normal pace", "steadily", "normally"][..],
+            v if v < 2.8 => &["quickly", "briskly", "at a fast pace", "energetically"][..],
+            _ => &["very fast", "at full speed", "rapidly"][..],
+        });
+    }
+    if let Some(r) = params.get("reps").and_then(|v| v.as_u64()) {
+        m.extend_from_slice(match r {
+            1 => &["once", "one time"][..],
+            2 => &["twice", "two times"][..],
+            3 => &["three times", "a few times"][..],
+            _ => &["several times", "repeatedly", "many times"][..],
+        });
+    }
+    if let Some(h) = params.get("height").and_then(|v| v.as_f64()) {
+        if params.get("distance").is_some() || params.get("reps").is_some() {
+            m.extend_from_slice(if h > 0.25 { &["high", "powerfully"][..] } else { &["lightly", "gently"][..] });
+        }
+    }
+    m
+}
 
 /// Verb lemmas and their surface forms used by the phrase templates.
 const VERBS: &[(&str, &[&str])] = &[
@@ -20,7 +53,12 @@ const VERBS: &[(&str, &[&str])] = &[
     ("sway", &["sways", "swaying"]), ("wave", &["waves", "waving"]), ("raise", &["raises", "raising"]),
     ("lift", &["lifts", "lifting"]), ("put", &["puts", "putting"]), ("clap", &["claps", "clapping"]),
     ("applaud", &["applauds", "applauding"]), ("punch", &["punches", "punching"]), ("throw", &["throws", "throwing"]),
-    ("box", &["boxes", "boxing"]),
+    ("box", &["boxes", "boxing"]), ("perform", &["performs", "performing"]), ("strike", &["strikes", "striking"]),
+    ("bounce", &["bounces", "bouncing"]), ("march", &["marches", "marching"]), ("stroll", &["strolls", "strolling"]),
+    ("dash", &["dashes", "dashing"]), ("kneel", &["kneels", "kneeling"]), ("grab", &["grabs", "grabbing"]),
+    ("greet", &["greets", "greeting"]), ("salute", &["salutes", "saluting"]), ("lean", &["leans", "leaning"]),
+    ("retreat", &["retreats", "retreating"]), ("pivot", &["pivots", "pivoting"]), ("groove", &["grooves", "grooving"]),
+    ("hit", &["hits", "hitting"]), ("extend", &["extends", "extending"]), ("touch", &["touches", "touching"]),
 ];
 
 const TAGS: &[(&str, &str)] = &[
@@ -31,7 +69,13 @@ const TAGS: &[(&str, &str)] = &[
     ("slowly", "ADV"), ("quickly", "ADV"), ("then", "ADV"), ("down", "ADV"), ("up", "ADV"), ("back", "ADV"),
     ("again", "ADV"), ("first", "ADV"), ("straight", "ADV"), ("hello", "INTJ"), ("left", "ADJ"),
     ("right", "ADJ"), ("full", "ADJ"), ("long", "ADJ"), ("few", "ADJ"), ("one", "NUM"), ("and", "CCONJ"),
-    ("while", "SCONJ"), ("before", "SCONJ"), ("after", "SCONJ"),
+    ("while", "SCONJ"), ("before", "SCONJ"), ("after", "SCONJ"), ("same", "ADJ"), ("time", "NOUN"),
+    ("slowly", "ADV"), ("carefully", "ADV"), ("cautiously", "ADV"), ("leisurely", "ADV"), ("calmly", "ADV"),
+    ("casually", "ADV"), ("steadily", "ADV"), ("normally", "ADV"), ("briskly", "ADV"), ("energetically", "ADV"),
+    ("rapidly", "ADV"), ("very", "ADV"), ("fast", "ADV"), ("once", "ADV"), ("twice", "ADV"), ("repeatedly", "ADV"),
+    ("high", "ADV"), ("powerfully", "ADV"), ("lightly", "ADV"), ("gently", "ADV"), ("two", "NUM"), ("three", "NUM"),
+    ("several", "ADJ"), ("many", "ADJ"), ("normal", "ADJ"), ("young", "ADJ"), ("old", "ADJ"), ("tall", "ADJ"),
+    ("his", "PRON"), ("her", "PRON"), ("their", "PRON"), ("at", "ADP"), ("by", "ADP"), ("across", "ADP"),
 ];
 
 /// `word/POS` tokens of a caption (verbs lemmatised, as HumanML3D's spaCy pass writes them).

@@ -182,13 +182,28 @@ fn clip_attempt(seed: u64, index: usize, attempt: u64) -> Clip {
         let (p, g) = *r.pick(actions::by_name(name).phrases);
         captions::fill(if ing { g } else { p }, side)
     };
+    // Half the time, say coarsely what the parameters are ("slowly", "twice").
+    let modify = |r: &mut Rng, phrase: String, params: &Value| {
+        let m = captions::modifiers(params);
+        if !m.is_empty() && r.chance(0.5) {
+            format!("{phrase} {}", r.pick(&m))
+        } else {
+            phrase
+        }
+    };
     match pattern {
         Pattern::Single => {
             let a = r.pick(ACTIONS);
             let n = frames_in(&mut r, a.frames, max).max(40);
             let seg = perform(&mut r, a.name, &start, n);
             spans.push(ActionSpan { action: a.name, start: 0, end: n, params: seg.params.clone() });
-            caps = (0..3).map(|_| { let p = pick_phrase(&mut r, a.name, seg.side, false); captions::sentence(&mut r, &p) }).collect();
+            caps = (0..3)
+                .map(|_| {
+                    let p = pick_phrase(&mut r, a.name, seg.side, false);
+                    let p = modify(&mut r, p, &seg.params);
+                    captions::sentence(&mut r, &p)
+                })
+                .collect();
             poses = seg.poses;
         }
         Pattern::Sequence | Pattern::Ambiguous => {
@@ -236,6 +251,7 @@ fn clip_attempt(seed: u64, index: usize, attempt: u64) -> Clip {
                     caps = (0..3)
                         .map(|_| {
                             let p1 = pick_phrase(&mut r, names[0], s1.side, false);
+                            let p1 = modify(&mut r, p1, &s1.params);
                             let (p2, g2) = (pick_phrase(&mut r, names[1], s2.side, false), pick_phrase(&mut r, names[1], s2.side, true));
                             let pred = match r.below(4) {
                                 0 => format!("{p1}, then {p2}"),

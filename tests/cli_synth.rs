@@ -1,0 +1,49 @@
+//! End-to-end: `diffkfc data synth` output passes `data check`, and `render` draws it.
+
+mod common;
+use common::*;
+
+#[test]
+fn synth_check_and_render() {
+    let d = scratch("synth");
+    let out = d.join("synth");
+    let o = diffkfc(&["data", "synth", "--out", s(&out), "--clips", "30", "--seed", "4"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("30 clips"), "{}", stdout(&o));
+    let o = diffkfc(&["data", "check", s(&out)]);
+    assert!(o.status.success(), "{}", stdout(&o));
+    // Refuses to overwrite.
+    assert_one_line_error(&diffkfc(&["data", "synth", "--out", s(&out), "--clips", "3"]), &["already exists"]);
+
+    // GIF: one frame per motion frame; keyframe frames use the highlight colour.
+    let clip = out.join("new_joint_vecs/000000.npy");
+    let frames = diffkfc_data::npy::read_f32(&clip).unwrap().shape[0];
+    let gif_path = d.join("m.gif");
+    let o = diffkfc(&["render", s(&clip), "-o", s(&gif_path), "--keyframes", "0,10"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let mut opts = gif::DecodeOptions::new();
+    opts.set_color_output(gif::ColorOutput::Indexed);
+    let mut dec = opts.read_info(std::fs::File::open(&gif_path).unwrap()).unwrap();
+    let mut n = 0;
+    let mut orange = Vec::new();
+    while let Some(f) = dec.read_next_frame().unwrap() {
+        // Palette index 7 is the keyframe highlight.
+        orange.push(f.buffer.iter().filter(|&&p| p == 7).count());
+        n += 1;
+    }
+    assert_eq!(n, frames);
+    assert!(orange[0] > 50 && orange[10] > 50, "keyframes not highlighted");
+    assert!(orange[5] < orange[0], "a non-keyframe drawn as a keyframe");
+
+    // Contact sheet of three clips in two columns: 2x2 cells of 240 px.
+    let sheet = d.join("sheet.png");
+    let clips: Vec<String> = (0..3).map(|i| s(&out.join(format!("new_joints/{i:06}.npy"))).to_string()).collect();
+    let mut args = vec!["render", "--sheet", "--columns", "2", "-o", s(&sheet)];
+    args.extend(clips.iter().map(String::as_str));
+    let o = diffkfc(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let info = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&sheet).unwrap())).read_info().unwrap().info().clone();
+    assert_eq!((info.width, info.height), (480, 480));
+
+    assert_one_line_error(&diffkfc(&["render", s(&clip), "-o", s(&gif_path), "--keyframes", "9999"]), &["--keyframes", "9999"]);
+}
