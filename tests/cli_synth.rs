@@ -46,4 +46,14 @@ fn synth_check_and_render() {
     assert_eq!((info.width, info.height), (480, 480));
 
     assert_one_line_error(&diffkfc(&["render", s(&clip), "-o", s(&gif_path), "--keyframes", "9999"]), &["--keyframes", "9999"]);
+
+    // The loader benchmark builds the cache once, then reuses it.
+    for built in [true, false] {
+        let o = diffkfc(&["data", "bench-loader", s(&out), "--batches", "3", "--batch-size", "4"]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(v["cache_built"], built);
+        assert!(v["items_per_s"].as_f64().unwrap() > 0.0);
+    }
+    assert!(out.join(".diffkfc-cache/train.f32").exists());
 }

@@ -27,6 +27,10 @@ enum DataCommand {
     /// Write a synthetic text-motion dataset in the HumanML3D layout (the default data).
     #[command(after_help = "Examples:\n  diffkfc data synth --out work/synth\n  diffkfc data synth --out work/small --clips 200 --seed 7")]
     Synth(SynthArgs),
+    /// Benchmark the data loader: cache build/open time, items per second, resident memory.
+    /// Prints one JSON line.
+    #[command(after_help = "Example:\n  diffkfc data bench-loader work/synth --batches 200 --batch-size 64")]
+    BenchLoader(BenchLoaderArgs),
     /// HumanML3D features (T,263) to global joint positions (T,22,3) (`recover_from_ric`).
     #[command(after_help = "Example:\n  diffkfc data joints new_joint_vecs/012314.npy -o 012314_joints.npy")]
     Joints(JointsArgs),
@@ -92,6 +96,19 @@ struct SynthArgs {
 }
 
 #[derive(Args)]
+struct BenchLoaderArgs {
+    dir: PathBuf,
+    #[arg(long, default_value = "train")]
+    split: String,
+    #[arg(long, default_value_t = 200)]
+    batches: usize,
+    #[arg(long, default_value_t = 64)]
+    batch_size: usize,
+    #[arg(long, default_value_t = 1)]
+    threads: usize,
+}
+
+#[derive(Args)]
 struct CheckArgs {
     /// Dataset root (holding new_joint_vecs/, texts/, Mean.npy, Std.npy, train.txt ...).
     dir: PathBuf,
@@ -129,7 +146,70 @@ pub fn run(args: DataArgs) -> Result<()> {
         DataCommand::Joints(a) => joints(a),
         DataCommand::Check(a) => check(a),
         DataCommand::Synth(a) => synth(a),
+        DataCommand::BenchLoader(a) => bench_loader(a),
     }
+}
+
+/// Resident memory of this process in MiB (Linux): (total, anonymous). Memory-mapped cache
+/// pages count in the total but are clean file pages the kernel can drop; the anonymous part is
+/// what the process itself holds.
+pub fn rss_mib() -> (f64, f64) {
+    let s = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    let field = |name: &str| -> f64 {
+        s.lines()
+            .find(|l| l.starts_with(name))
+            .and_then(|l| l.split_whitespace().nth(1))
+            .and_then(|v| v.parse::<f64>().ok())
+            .unwrap_or(0.0)
+            / 1024.0
+    };
+    (field("VmRSS:"), field("RssAnon:"))
+}
+
+fn bench_loader(a: BenchLoaderArgs) -> Result<()> {
+    use diffkfc_data::batch::{KeyframeConfig, Loader};
+    use diffkfc_data::cache::{default_cache_dir, PackedSplit};
+    let ds = diffkfc_data::dataset::Dataset::open(&a.dir)?;
+    let rss0 = rss_mib();
+    let t0 = std::time::Instant::now();
+    let split = PackedSplit::open(&ds, &a.split, &default_cache_dir(&ds), crate::progress::bar("caching"))?;
+    let open_s = t0.elapsed().as_secs_f64();
+    let mut loader = Loader::new(&ds, &split, a.batch_size, 0, KeyframeConfig::default());
+    loader.threads = a.threads;
+    let per_epoch = loader.batches_per_epoch();
+    let t1 = std::time::Instant::now();
+    let (mut peak, mut peak_anon) = rss0;
+    let mut checksum = 0.0f64;
+    for b in 0..a.batches {
+        let batch = loader.batch((b / per_epoch) as u64, b % per_epoch);
+        checksum += batch.x0[0] as f64;
+        if b % 10 == 0 {
+            let (r, an) = rss_mib();
+            peak = peak.max(r);
+            peak_anon = peak_anon.max(an);
+        }
+    }
+    let secs = t1.elapsed().as_secs_f64();
+    let line = serde_json::json!({
+        "case": "loader",
+        "split": a.split,
+        "frames_in_split": split.total_frames(),
+        "cache_bytes": split.total_frames() * ds.dim() * 4,
+        "cache_built": split.built,
+        "open_s": open_s,
+        "batches": a.batches,
+        "batch_size": a.batch_size,
+        "threads": a.threads,
+        "items_per_s": (a.batches * a.batch_size) as f64 / secs,
+        "ms_per_batch": secs * 1000.0 / a.batches as f64,
+        "rss_mib_before": rss0.0,
+        "rss_mib_peak": peak,
+        "rss_anon_mib_before": rss0.1,
+        "rss_anon_mib_peak": peak_anon,
+        "checksum": checksum,
+    });
+    println!("{line}");
+    Ok(())
 }
 
 fn synth(a: SynthArgs) -> Result<()> {
