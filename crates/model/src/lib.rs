@@ -1,1 +1,12 @@
-pub fn placeholder() {}
+//! diffkfc-model: the DiffKFC network in Burn (text encoder, Dilated Mask Attention keyframe
+//! encoder, transformer decoder) and its diffusion, guidance and losses.
+
+pub mod batch;
+pub mod config;
+pub mod decoder;
+pub mod denoiser;
+pub mod dma;
+pub mod embed;
+
+pub use config::DiffKfcConfig;
+pub use denoiser::{Condition, Denoiser, Encoded};

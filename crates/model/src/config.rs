@@ -1,0 +1,54 @@
+//! Network configuration: the paper's, and smaller ones for CPU work.
+
+use burn::prelude::*;
+
+/// DiffKFC denoiser hyper-parameters.
+#[derive(Config, Debug, PartialEq)]
+pub struct DiffKfcConfig {
+    /// Motion feature width (HumanML3D 263, KIT-ML 251).
+    #[config(default = 263)]
+    pub feat_dim: usize,
+    /// Width of the frozen text embedding (MiniLM: 384).
+    #[config(default = 384)]
+    pub text_dim: usize,
+    #[config(default = 512)]
+    pub d_model: usize,
+    #[config(default = 8)]
+    pub heads: usize,
+    #[config(default = 1024)]
+    pub ffn: usize,
+    #[config(default = 8)]
+    pub dec_layers: usize,
+    /// Window size of each Dilated Mask Attention block; 0 stands for the whole sequence (N).
+    #[config(default = "vec![2, 2, 4, 4, 6, 6, 8, 0]")]
+    pub dma_sizes: Vec<usize>,
+    #[config(default = 196)]
+    pub max_frames: usize,
+    #[config(default = 0.1)]
+    pub dropout: f64,
+}
+
+impl DiffKfcConfig {
+    /// The paper: d 512, 8 heads, FFN 1024, 8 decoder layers, 8 DMA blocks {2,2,4,4,6,6,8,N}.
+    pub fn paper() -> Self {
+        Self::new()
+    }
+
+    pub fn small() -> Self {
+        Self::new().with_d_model(256).with_heads(4).with_ffn(512).with_dec_layers(4).with_dma_sizes(vec![2, 4, 8, 0])
+    }
+
+    /// Fast on a CPU: for tests, the quick start and smoke benchmarks.
+    pub fn tiny() -> Self {
+        Self::new().with_d_model(64).with_heads(4).with_ffn(128).with_dec_layers(2).with_dma_sizes(vec![2, 4, 0])
+    }
+
+    pub fn preset(name: &str) -> Option<Self> {
+        match name {
+            "paper" => Some(Self::paper()),
+            "small" => Some(Self::small()),
+            "tiny" => Some(Self::tiny()),
+            _ => None,
+        }
+    }
+}

@@ -1,0 +1,46 @@
+//! The denoising decoder: L layers of self-attention over [y_t, y_c, frame tokens],
+//! cross-attention to the keyframe encoder's output (keys masked to valid tokens), and a
+//! feed-forward block; post-norm residuals as in MDM.
+
+use burn::nn::attention::{MhaInput, MultiHeadAttention, MultiHeadAttentionConfig};
+use burn::nn::{Dropout, DropoutConfig, LayerNorm, LayerNormConfig, Linear, LinearConfig};
+use burn::prelude::*;
+use burn::tensor::activation::gelu;
+
+#[derive(Module, Debug)]
+pub struct DecoderLayer {
+    self_attn: MultiHeadAttention,
+    cross_attn: MultiHeadAttention,
+    ff1: Linear,
+    ff2: Linear,
+    ln1: LayerNorm,
+    ln2: LayerNorm,
+    ln3: LayerNorm,
+    drop: Dropout,
+}
+
+impl DecoderLayer {
+    pub fn new(d: usize, heads: usize, ffn: usize, dropout: f64, device: &Device) -> Self {
+        DecoderLayer {
+            self_attn: MultiHeadAttentionConfig::new(d, heads).with_dropout(dropout).init(device),
+            cross_attn: MultiHeadAttentionConfig::new(d, heads).with_dropout(dropout).init(device),
+            ff1: LinearConfig::new(d, ffn).init(device),
+            ff2: LinearConfig::new(ffn, d).init(device),
+            ln1: LayerNormConfig::new(d).init(device),
+            ln2: LayerNormConfig::new(d).init(device),
+            ln3: LayerNormConfig::new(d).init(device),
+            drop: DropoutConfig::new(dropout).init(),
+        }
+    }
+
+    /// `h` [B, 2+N, d] with `self_pad` [B, 2+N] (true = padding); `enc` [B, 1+N, d] with
+    /// `enc_pad` [B, 1+N] (true = not a valid key) -> [B, 2+N, d].
+    pub fn forward(&self, h: Tensor<3>, self_pad: Tensor<2, Bool>, enc: Tensor<3>, enc_pad: Tensor<2, Bool>) -> Tensor<3> {
+        let a = self.self_attn.forward(MhaInput::self_attn(h.clone()).mask_pad(self_pad)).context;
+        let h = self.ln1.forward(h + self.drop.forward(a));
+        let c = self.cross_attn.forward(MhaInput::new(h.clone(), enc.clone(), enc).mask_pad(enc_pad)).context;
+        let h = self.ln2.forward(h + self.drop.forward(c));
+        let f = self.ff2.forward(self.drop.forward(gelu(self.ff1.forward(h.clone()))));
+        self.ln3.forward(h + self.drop.forward(f))
+    }
+}

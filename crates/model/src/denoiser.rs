@@ -1,0 +1,131 @@
+//! The DiffKFC denoiser X_theta(x_t, keyframes, text, t) -> x0, with the keyframe encoder
+//! callable once per sample and reused at every denoising step (it does not see t).
+
+use burn::nn::{Linear, LinearConfig};
+use burn::prelude::*;
+
+use crate::config::DiffKfcConfig;
+use crate::decoder::DecoderLayer;
+use crate::dma::{DmaPlan, KeyframeEncoder};
+use crate::embed::{positions, TimestepEmbed};
+
+/// What the model is conditioned on, for a batch of B samples of N frames.
+#[derive(Clone, Debug)]
+pub struct Condition {
+    /// [B, text_dim] frozen text embeddings.
+    pub text: Tensor<2>,
+    /// [B, N, D] normalised keyframe features, zero where unobserved.
+    pub kf: Tensor<3>,
+    /// [B, N, D] 1 where a keyframe observes a feature.
+    pub kf_mask: Tensor<3>,
+    /// [B*N] frames with any observed feature.
+    pub kf_frames: Vec<bool>,
+    /// [B*N] real (non-padding) frames.
+    pub real: Vec<bool>,
+}
+
+impl Condition {
+    /// The same condition with all keyframes dropped (keyframe classifier-free guidance).
+    pub fn without_keyframes(&self) -> Condition {
+        Condition {
+            text: self.text.clone(),
+            kf: self.kf.zeros_like(),
+            kf_mask: self.kf_mask.zeros_like(),
+            kf_frames: vec![false; self.kf_frames.len()],
+            real: self.real.clone(),
+        }
+    }
+}
+
+/// The encoder's output for a condition, reused across denoising steps.
+#[derive(Clone, Debug)]
+pub struct Encoded {
+    /// [B, 1+N, d]
+    pub tokens: Tensor<3>,
+    /// [B, 1+N] true where the decoder must not attend (never-valid tokens, padding).
+    pub key_pad: Tensor<2, Bool>,
+    /// [B, 1, d] text token y_c.
+    pub text_tok: Tensor<3>,
+    /// [B, 2+N] true on padding frames of the decoder sequence.
+    pub self_pad: Tensor<2, Bool>,
+}
+
+#[derive(Module, Debug)]
+pub struct Denoiser {
+    x_in: Linear,
+    text_in: Linear,
+    time: TimestepEmbed,
+    encoder: KeyframeEncoder,
+    layers: Vec<DecoderLayer>,
+    out: Linear,
+    d_model: usize,
+    dma_sizes: Vec<usize>,
+}
+
+impl DiffKfcConfig {
+    pub fn init(&self, device: &Device) -> Denoiser {
+        let d = self.d_model;
+        Denoiser {
+            x_in: LinearConfig::new(self.feat_dim, d).init(device),
+            text_in: LinearConfig::new(self.text_dim, d).init(device),
+            time: TimestepEmbed::new(d, device),
+            encoder: KeyframeEncoder::new(self.feat_dim, d, self.heads, self.ffn, self.dma_sizes.len(), self.dropout, device),
+            layers: (0..self.dec_layers).map(|_| DecoderLayer::new(d, self.heads, self.ffn, self.dropout, device)).collect(),
+            out: LinearConfig::new(d, self.feat_dim).init(device),
+            d_model: d,
+            dma_sizes: self.dma_sizes.clone(),
+        }
+    }
+}
+
+fn bool_tensor(v: Vec<bool>, shape: [usize; 2], device: &Device) -> Tensor<2, Bool> {
+    Tensor::from_data(TensorData::new(v, shape), device)
+}
+
+impl Denoiser {
+    /// Run the keyframe encoder (once per condition).
+    pub fn encode(&self, c: &Condition) -> Encoded {
+        let device = c.kf.device();
+        let [b, n, _] = c.kf.dims();
+        let text_tok = self.text_in.forward(c.text.clone()).unsqueeze_dim::<3>(1);
+        let plan = DmaPlan::new(&c.kf_frames, &c.real, b, n, &self.dma_sizes);
+        let pos = positions(n, self.d_model, &device);
+        let tokens = self.encoder.forward(text_tok.clone(), c.kf.clone(), c.kf_mask.clone(), pos, &plan);
+        let l = n + 1;
+        let initial: Vec<bool> = (0..b * l).map(|k| k % l == 0 || (c.kf_frames[k / l * n + k % l - 1] && c.real[k / l * n + k % l - 1])).collect();
+        let key_pad = plan.final_valid(&initial).iter().map(|v| !v).collect();
+        let self_pad = (0..b * (n + 2)).map(|k| k % (n + 2) >= 2 && !c.real[k / (n + 2) * n + k % (n + 2) - 2]).collect();
+        Encoded {
+            tokens,
+            key_pad: bool_tensor(key_pad, [b, l], &device),
+            text_tok,
+            self_pad: bool_tensor(self_pad, [b, n + 2], &device),
+        }
+    }
+
+    /// Predict x0 from x_t [B, N, D] at timesteps `t` (one per sample) -> [B, N, D].
+    pub fn decode(&self, x_t: Tensor<3>, t: &[usize], e: &Encoded) -> Tensor<3> {
+        let device = x_t.device();
+        let [b, n, _] = x_t.dims();
+        let frames = self.x_in.forward(x_t) + positions(n, self.d_model, &device);
+        let y_t = self.time.forward(t, &device);
+        let mut h = Tensor::cat(vec![y_t, e.text_tok.clone(), frames], 1);
+        for layer in &self.layers {
+            h = layer.forward(h, e.self_pad.clone(), e.tokens.clone(), e.key_pad.clone());
+        }
+        let d = self.d_model;
+        self.out.forward(h.slice([0..b, 2..n + 2, 0..d]))
+    }
+
+    pub fn forward(&self, x_t: Tensor<3>, t: &[usize], c: &Condition) -> Tensor<3> {
+        self.decode(x_t, t, &self.encode(c))
+    }
+
+    /// Parameter counts: (keyframe encoder, decoder and the rest, total).
+    pub fn param_counts(&self) -> Vec<(&'static str, usize)> {
+        let enc = self.encoder.num_params();
+        let dec: usize = self.layers.iter().map(|l| l.num_params()).sum();
+        let emb = self.x_in.num_params() + self.text_in.num_params() + self.time.num_params() + self.out.num_params();
+        vec![("keyframe encoder (DMA)", enc), ("decoder layers", dec), ("input/output/timestep/text projections", emb), ("total", self.num_params())]
+    }
+}

@@ -1,0 +1,183 @@
+//! The keyframe encoder: a stack of Dilated Mask Attention (DMA) blocks (paper Eq. 6-7).
+//!
+//! Token 0 is the text token y_c (always valid); tokens 1..=N are frames. In a block of window
+//! size s, a frame is *active* iff a valid frame lies within s of it; active frames attend to
+//! the valid frames within s and to y_c; inactive frames are left unchanged and stay invalid;
+//! afterwards every active frame is valid, so the valid region dilates block by block.
+//! Padding is never valid. Block: Z' = FC([DMA(Z) || Z]), Z = MLP(Z'); no LayerNorm; a global
+//! skip from the encoder input to its output.
+
+use burn::nn::attention::{MhaInput, MultiHeadAttention, MultiHeadAttentionConfig};
+use burn::nn::{Linear, LinearConfig};
+use burn::prelude::*;
+use burn::tensor::activation::gelu;
+
+/// Per-block validity and attention masks of a batch, computed on the host from the keyframe
+/// frames and the padding (they do not depend on any tensor value).
+#[derive(Clone, Debug)]
+pub struct DmaPlan {
+    pub batch: usize,
+    pub frames: usize,
+    /// Per block: [B * (1+N)] whether a token is updated (text token always).
+    pub active: Vec<Vec<bool>>,
+    /// Per block: [B * (1+N)] validity after the block.
+    pub valid_after: Vec<Vec<bool>>,
+    /// Per block: [B * (1+N) * (1+N)] true where query i must not see key j.
+    pub blocked: Vec<Vec<bool>>,
+}
+
+impl DmaPlan {
+    /// `keyframe[b*N+i]`: frame i of sample b is observed; `real`: it is not padding.
+    pub fn new(keyframe: &[bool], real: &[bool], batch: usize, frames: usize, sizes: &[usize]) -> DmaPlan {
+        let (n, l) = (frames, frames + 1);
+        let mut valid: Vec<bool> = (0..batch * l)
+            .map(|k| {
+                let (b, i) = (k / l, k % l);
+                i == 0 || (keyframe[b * n + i - 1] && real[b * n + i - 1])
+            })
+            .collect();
+        let (mut active_all, mut valid_all, mut blocked_all) = (Vec::new(), Vec::new(), Vec::new());
+        for &size in sizes {
+            let s = if size == 0 { n } else { size };
+            let mut active = vec![false; batch * l];
+            let mut blocked = vec![true; batch * l * l];
+            for b in 0..batch {
+                let v = &valid[b * l..(b + 1) * l];
+                active[b * l] = true;
+                // Text query: every valid token.
+                for j in 0..l {
+                    blocked[(b * l) * l + j] = !v[j];
+                }
+                for i in 1..l {
+                    let row = (b * l + i) * l;
+                    // Every query may see y_c, so no row is empty (inactive rows are discarded).
+                    blocked[row] = false;
+                    if !real[b * n + i - 1] {
+                        continue;
+                    }
+                    let (lo, hi) = (i.saturating_sub(s).max(1), (i + s).min(n));
+                    for j in lo..=hi {
+                        if v[j] {
+                            active[b * l + i] = true;
+                            blocked[row + j] = false;
+                        }
+                    }
+                }
+            }
+            for (v, a) in valid.iter_mut().zip(&active) {
+                *v |= *a;
+            }
+            active_all.push(active);
+            valid_all.push(valid.clone());
+            blocked_all.push(blocked);
+        }
+        DmaPlan { batch, frames, active: active_all, valid_after: valid_all, blocked: blocked_all }
+    }
+
+    /// Valid tokens at the encoder output (text token included): what the decoder may attend.
+    pub fn final_valid(&self, initial: &[bool]) -> Vec<bool> {
+        self.valid_after.last().cloned().unwrap_or_else(|| initial.to_vec())
+    }
+}
+
+#[derive(Module, Debug)]
+pub struct DmaBlock {
+    attn: MultiHeadAttention,
+    fc: Linear,
+    mlp1: Linear,
+    mlp2: Linear,
+}
+
+impl DmaBlock {
+    pub fn new(d: usize, heads: usize, ffn: usize, dropout: f64, device: &Device) -> Self {
+        DmaBlock {
+            attn: MultiHeadAttentionConfig::new(d, heads).with_dropout(dropout).init(device),
+            fc: LinearConfig::new(2 * d, d).init(device),
+            mlp1: LinearConfig::new(d, ffn).init(device),
+            mlp2: LinearConfig::new(ffn, d).init(device),
+        }
+    }
+
+    /// `z`: [B, 1+N, d]; `blocked`: [B, 1+N, 1+N]; `active`: [B, 1+N, d] (broadcast rows).
+    pub fn forward(&self, z: Tensor<3>, blocked: Tensor<3, Bool>, active: Tensor<3, Bool>) -> Tensor<3> {
+        let a = self.attn.forward(MhaInput::self_attn(z.clone()).mask_attn(blocked)).context;
+        let zp = self.fc.forward(Tensor::cat(vec![a, z.clone()], 2));
+        let zk = self.mlp2.forward(gelu(self.mlp1.forward(zp)));
+        z.mask_where(active, zk)
+    }
+}
+
+#[derive(Module, Debug)]
+pub struct KeyframeEncoder {
+    /// Keyframe values and their per-feature mask -> d (the mask tells partial keyframes apart).
+    kf_in: Linear,
+    blocks: Vec<DmaBlock>,
+}
+
+impl KeyframeEncoder {
+    pub fn new(feat: usize, d: usize, heads: usize, ffn: usize, blocks: usize, dropout: f64, device: &Device) -> Self {
+        KeyframeEncoder {
+            kf_in: LinearConfig::new(2 * feat, d).init(device),
+            blocks: (0..blocks).map(|_| DmaBlock::new(d, heads, ffn, dropout, device)).collect(),
+        }
+    }
+
+    /// `text_tok` [B,1,d], `kf` [B,N,D] (zeros where unobserved), `kf_mask` [B,N,D], `pos`
+    /// [1,N,d] -> [B, 1+N, d].
+    pub fn forward(&self, text_tok: Tensor<3>, kf: Tensor<3>, kf_mask: Tensor<3>, pos: Tensor<3>, plan: &DmaPlan) -> Tensor<3> {
+        let device = kf.device();
+        let [b, n, _] = kf.dims();
+        let l = n + 1;
+        let frames = self.kf_in.forward(Tensor::cat(vec![kf * kf_mask.clone(), kf_mask], 2)) + pos;
+        let z0 = Tensor::cat(vec![text_tok, frames], 1);
+        let d = z0.dims()[2];
+        let mut z = z0.clone();
+        for (k, block) in self.blocks.iter().enumerate() {
+            let blocked = Tensor::<3, Bool>::from_data(TensorData::new(plan.blocked[k].clone(), [b, l, l]), &device);
+            let active = Tensor::<2, Bool>::from_data(TensorData::new(plan.active[k].clone(), [b, l]), &device)
+                .unsqueeze_dim::<3>(2)
+                .expand([b, l, d]);
+            z = block.forward(z, blocked, active);
+        }
+        z + z0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn dilate(keys: &[usize], real: usize, r: usize) -> Vec<bool> {
+        (0..real).map(|i| keys.iter().any(|&k| (k as i64 - i as i64).unsigned_abs() as usize <= r)).collect()
+    }
+
+    #[test]
+    fn valid_region_dilates_by_the_sizes_so_far() {
+        let (n, real) = (40, 33);
+        let keys = [3usize, 20];
+        let kf: Vec<bool> = (0..n).map(|i| keys.contains(&i)).collect();
+        let re: Vec<bool> = (0..n).map(|i| i < real).collect();
+        let sizes = [2, 2, 4, 0];
+        let plan = DmaPlan::new(&kf, &re, 1, n, &sizes);
+        let mut total = 0;
+        for (k, &s) in sizes.iter().enumerate() {
+            total += if s == 0 { n } else { s };
+            let want = dilate(&keys, real, total);
+            for i in 0..n {
+                let got = plan.valid_after[k][1 + i];
+                assert_eq!(got, i < real && want[i], "block {k} frame {i}");
+            }
+            assert!(plan.valid_after[k][0], "text token always valid");
+        }
+    }
+
+    #[test]
+    fn no_keyframes_no_active_frames() {
+        let plan = DmaPlan::new(&[false; 10], &[true; 10], 1, 10, &[2, 0]);
+        for a in &plan.active {
+            assert!(a[0] && a[1..].iter().all(|x| !x));
+        }
+        // The text query sees only itself; frame rows see only the text token.
+        assert!(!plan.blocked[0][0] && plan.blocked[0][1..11].iter().all(|&x| x));
+    }
+}
