@@ -1,0 +1,61 @@
+//! Caption embeddings computed once per dataset and stored as safetensors (one tensor per
+//! caption, named by the caption), so training never runs the text encoder per step.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use safetensors::tensor::{Dtype, TensorView};
+
+use super::{TextEncoder, TextError};
+
+pub struct EmbeddingCache {
+    pub dim: usize,
+    pub map: HashMap<String, Vec<f32>>,
+}
+
+impl EmbeddingCache {
+    pub fn get(&self, caption: &str) -> Option<&[f32]> {
+        self.map.get(caption).map(|v| v.as_slice())
+    }
+
+    /// Load `path` if it holds all `captions` from the same encoder; otherwise embed the missing
+    /// ones (in chunks, calling `progress(done, total)`) and rewrite the file atomically.
+    pub fn build(path: &Path, encoder: &dyn TextEncoder, captions: &[String], mut progress: impl FnMut(usize, usize)) -> Result<EmbeddingCache, TextError> {
+        let bad = |msg: String| TextError::Bad { path: path.to_path_buf(), msg };
+        let mut map = HashMap::new();
+        if let Ok(bytes) = std::fs::read(path) {
+            if let Ok((_, meta)) = safetensors::SafeTensors::read_metadata(&bytes) {
+                let same = meta.metadata().as_ref().and_then(|m| m.get("encoder")).map(|e| e == encoder.name()).unwrap_or(false);
+                if same {
+                    let st = safetensors::SafeTensors::deserialize(&bytes).map_err(|e| bad(e.to_string()))?;
+                    for (name, t) in st.tensors() {
+                        let v: Vec<f32> = t.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+                        map.insert(name, v);
+                    }
+                }
+            }
+        }
+        let mut missing: Vec<&String> = captions.iter().filter(|c| !map.contains_key(c.as_str())).collect();
+        missing.sort();
+        missing.dedup();
+        if !missing.is_empty() {
+            for (k, chunk) in missing.chunks(64).enumerate() {
+                progress(k * 64, missing.len());
+                let texts: Vec<&str> = chunk.iter().map(|s| s.as_str()).collect();
+                for (c, e) in chunk.iter().zip(encoder.embed(&texts)?) {
+                    map.insert((*c).clone(), e);
+                }
+            }
+            progress(missing.len(), missing.len());
+            let bytes_of: HashMap<&String, Vec<u8>> = map.iter().map(|(k, v)| (k, v.iter().flat_map(|f| f.to_le_bytes()).collect())).collect();
+            let views: Vec<(&str, TensorView)> = bytes_of
+                .iter()
+                .map(|(k, b)| (k.as_str(), TensorView::new(Dtype::F32, vec![b.len() / 4], b).expect("view")))
+                .collect();
+            let meta = HashMap::from([("encoder".to_string(), encoder.name().to_string())]);
+            let out = safetensors::serialize(views, Some(meta)).map_err(|e| bad(e.to_string()))?;
+            diffkfc_data::npy::write_atomic(path, &out).map_err(|e| bad(e.to_string()))?;
+        }
+        Ok(EmbeddingCache { dim: encoder.dim(), map })
+    }
+}
