@@ -1,6 +1,7 @@
 //! `diffkfc`: train, sample and evaluate DiffKFC (text + keyframes -> human motion).
 
 mod commands;
+mod device;
 mod progress;
 
 use clap::{Parser, Subcommand};
@@ -25,6 +26,12 @@ enum Command {
     /// Draw motions: an animated GIF of one motion, or a PNG contact sheet of several.
     #[command(after_help = "Examples:\n  diffkfc render work/synth/new_joint_vecs/000000.npy -o walk.gif --keyframes 0,40,80\n  diffkfc render a.npy b.npy c.npy --sheet -o sheet.png")]
     Render(commands::render::RenderArgs),
+    /// Inspect the network: parameter counts, forward timing.
+    #[command(after_help = "Examples:\n  diffkfc model summary --config configs/paper-humanml3d.json\n  diffkfc model bench --config configs/paper-humanml3d.json")]
+    Model(commands::model::ModelArgs),
+    /// Print a sentence's token ids and text embedding as JSON (checks the text encoder).
+    #[command(after_help = "Example:\n  diffkfc text-embed --text \"a person walks forward and waves his left hand.\"")]
+    TextEmbed(commands::model::TextEmbedArgs),
 }
 
 fn main() {
@@ -42,6 +49,8 @@ fn main() {
     let result = match cli.command {
         Command::Data(args) => commands::data::run(args),
         Command::Render(args) => commands::render::run(args),
+        Command::Model(args) => commands::model::run(args),
+        Command::TextEmbed(args) => commands::model::text_embed(args),
     };
     if let Err(e) = result {
         // One line, no backtrace: the cause chain joined with ": ".

@@ -7,6 +7,7 @@ pub mod decoder;
 pub mod denoiser;
 pub mod dma;
 pub mod embed;
+pub mod run_config;
 pub mod text;
 
 pub use config::DiffKfcConfig;

@@ -1,0 +1,58 @@
+//! End-to-end: `model summary`, `model bench`, `text-embed`, config errors.
+
+mod common;
+use common::*;
+
+fn config(name: &str) -> String {
+    format!("{}/../../configs/{name}.json", env!("CARGO_MANIFEST_DIR"))
+}
+
+#[test]
+fn summary_counts_parameters() {
+    let o = diffkfc(&["model", "summary", "--config", &config("paper-humanml3d")]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = stdout(&o);
+    let total: usize = out.lines().find(|l| l.trim_start().starts_with("total")).unwrap().split_whitespace().nth(1).unwrap().parse().unwrap();
+    assert!((total as f64 - 47e6).abs() < 4.7e6, "{out}");
+    let o = diffkfc(&["model", "bench", "--config", &config("tiny"), "--frames", "40", "--repeats", "1"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(v["forward_ms"].as_f64().unwrap() > 0.0);
+}
+
+#[test]
+fn bad_configs_name_the_key() {
+    let d = scratch("cfg");
+    let p = d.join("bad.json");
+    std::fs::write(&p, r#"{"model": "tiny", "training": {"batchsize": 3}}"#).unwrap();
+    assert_one_line_error(&diffkfc(&["model", "summary", "--config", s(&p)]), &["bad.json", "training.batchsize"]);
+    std::fs::write(&p, "{not json").unwrap();
+    assert_one_line_error(&diffkfc(&["model", "summary", "--config", s(&p)]), &["bad.json", "not valid JSON"]);
+    assert_one_line_error(&diffkfc(&["model", "summary", "--config", s(&d.join("none.json"))]), &["none.json"]);
+    assert_one_line_error(&diffkfc(&["model", "bench", "--config", &config("tiny"), "--device", "quantum"]), &["--device", "quantum"]);
+}
+
+#[test]
+fn text_embed_prints_ids_and_embedding() {
+    let Some(reference) = diffkfc_data::fixtures::require("minilm/reference_embeddings.json") else { return };
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(reference).unwrap()).unwrap();
+    let item = &r["items"][0];
+    let o = diffkfc(&["text-embed", "--text", item["text"].as_str().unwrap()]);
+    if !o.status.success() {
+        let err = stderr(&o);
+        assert!(err.contains("fetch-text-encoder.sh"), "{err}");
+        if std::env::var("DIFFKFC_REQUIRE_FIXTURES").is_ok_and(|v| v == "1") {
+            panic!("text encoder required: {err}");
+        }
+        eprintln!("SKIPPED: {err}");
+        return;
+    }
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["token_ids"], item["token_ids"]);
+    let e: Vec<f64> = v["embedding"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+    let re: Vec<f64> = item["embedding"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+    let cos: f64 = e.iter().zip(&re).map(|(a, b)| a * b).sum::<f64>() / re.iter().map(|b| b * b).sum::<f64>().sqrt();
+    assert!(cos > 0.9999, "{cos}");
+    assert_one_line_error(&diffkfc(&["text-embed", "--text", "   "]), &["--text", "empty"]);
+    assert_one_line_error(&diffkfc(&["text-embed", "--text", "x", "--encoder-dir", "/nonexistent"]), &["fetch-text-encoder.sh"]);
+}
