@@ -2,13 +2,20 @@
 //! encoder, transformer decoder) and its diffusion, guidance and losses.
 
 pub mod batch;
+pub mod checkpoint;
 pub mod config;
 pub mod decoder;
 pub mod denoiser;
+pub mod diffusion;
 pub mod dma;
 pub mod embed;
+pub mod kinematics;
+pub mod losses;
+pub mod optim;
+pub mod params;
 pub mod run_config;
 pub mod text;
+pub mod trainer;
 
 pub use config::DiffKfcConfig;
 pub use denoiser::{Condition, Denoiser, Encoded};

@@ -1,0 +1,137 @@
+//! Checkpoints: model, EMA, Adam state, step and the resolved config in one safetensors file,
+//! written to a temporary name and renamed, so a run killed at any moment leaves either the
+//! previous checkpoint or the new one, never half of one.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use safetensors::tensor::{Dtype, TensorView};
+
+#[derive(Clone, Debug)]
+pub struct Checkpoint {
+    pub step: usize,
+    pub shapes: Vec<Vec<usize>>,
+    pub model: Vec<Vec<f32>>,
+    pub ema: Option<Vec<Vec<f32>>>,
+    pub adam_step: u64,
+    pub adam_m: Vec<Vec<f32>>,
+    pub adam_v: Vec<Vec<f32>>,
+    /// The resolved run config (JSON).
+    pub config: String,
+    pub seed: u64,
+}
+
+const FORMAT: &str = "diffkfc-checkpoint-1";
+
+fn bytes(v: &[f32]) -> Vec<u8> {
+    v.iter().flat_map(|f| f.to_le_bytes()).collect()
+}
+
+impl Checkpoint {
+    pub fn file_name(step: usize) -> String {
+        format!("ckpt-{step:08}.safetensors")
+    }
+
+    pub fn save(&self, dir: &Path) -> Result<PathBuf, String> {
+        let mut owned: Vec<(String, Vec<usize>, Vec<u8>)> = Vec::new();
+        for (i, shape) in self.shapes.iter().enumerate() {
+            owned.push((format!("model/{i:04}"), shape.clone(), bytes(&self.model[i])));
+            owned.push((format!("adam_m/{i:04}"), shape.clone(), bytes(&self.adam_m[i])));
+            owned.push((format!("adam_v/{i:04}"), shape.clone(), bytes(&self.adam_v[i])));
+            if let Some(e) = &self.ema {
+                owned.push((format!("ema/{i:04}"), shape.clone(), bytes(&e[i])));
+            }
+        }
+        let views: Vec<(String, TensorView)> =
+            owned.iter().map(|(n, s, b)| (n.clone(), TensorView::new(Dtype::F32, s.clone(), b).expect("view"))).collect();
+        let meta = HashMap::from([
+            ("format".to_string(), FORMAT.to_string()),
+            ("step".to_string(), self.step.to_string()),
+            ("adam_step".to_string(), self.adam_step.to_string()),
+            ("seed".to_string(), self.seed.to_string()),
+            ("params".to_string(), self.shapes.len().to_string()),
+            ("config".to_string(), self.config.clone()),
+        ]);
+        let data = safetensors::serialize(views, Some(meta)).map_err(|e| e.to_string())?;
+        let path = dir.join(Self::file_name(self.step));
+        diffkfc_data::npy::write_atomic(&path, &data).map_err(|e| e.to_string())?;
+        Ok(path)
+    }
+
+    pub fn load(path: &Path) -> Result<Checkpoint, String> {
+        let err = |m: String| format!("{}: {m}", path.display());
+        let data = std::fs::read(path).map_err(|e| err(e.to_string()))?;
+        let (_, meta) = safetensors::SafeTensors::read_metadata(&data).map_err(|e| err(format!("not a checkpoint ({e})")))?;
+        let meta = meta.metadata().clone().unwrap_or_default();
+        if meta.get("format").map(String::as_str) != Some(FORMAT) {
+            return Err(err("not a diffkfc checkpoint".into()));
+        }
+        let num = |k: &str| -> Result<u64, String> { meta.get(k).and_then(|v| v.parse().ok()).ok_or_else(|| err(format!("metadata '{k}' missing"))) };
+        let n = num("params")? as usize;
+        let st = safetensors::SafeTensors::deserialize(&data).map_err(|e| err(e.to_string()))?;
+        let get = |name: String| -> Result<(Vec<usize>, Vec<f32>), String> {
+            let t = st.tensor(&name).map_err(|_| err(format!("tensor {name} missing")))?;
+            Ok((t.shape().to_vec(), t.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()))
+        };
+        let (mut shapes, mut model, mut m, mut v, mut ema) = (vec![], vec![], vec![], vec![], vec![]);
+        let has_ema = st.names().iter().any(|k| k.starts_with("ema/"));
+        for i in 0..n {
+            let (s, p) = get(format!("model/{i:04}"))?;
+            shapes.push(s);
+            model.push(p);
+            m.push(get(format!("adam_m/{i:04}"))?.1);
+            v.push(get(format!("adam_v/{i:04}"))?.1);
+            if has_ema {
+                ema.push(get(format!("ema/{i:04}"))?.1);
+            }
+        }
+        Ok(Checkpoint {
+            step: num("step")? as usize,
+            shapes,
+            model,
+            ema: has_ema.then_some(ema),
+            adam_step: num("adam_step")?,
+            adam_m: m,
+            adam_v: v,
+            config: meta.get("config").cloned().unwrap_or_default(),
+            seed: num("seed")?,
+        })
+    }
+
+    /// Checkpoint files of a run directory, by step.
+    pub fn list(dir: &Path) -> Vec<(usize, PathBuf)> {
+        let mut v: Vec<(usize, PathBuf)> = std::fs::read_dir(dir)
+            .into_iter()
+            .flatten()
+            .flatten()
+            .filter_map(|e| {
+                let name = e.file_name().to_string_lossy().into_owned();
+                let step = name.strip_prefix("ckpt-")?.strip_suffix(".safetensors")?.parse().ok()?;
+                Some((step, e.path()))
+            })
+            .collect();
+        v.sort();
+        v
+    }
+
+    /// The newest checkpoint that loads (a damaged one is skipped).
+    pub fn latest(dir: &Path) -> Option<Result<Checkpoint, String>> {
+        let list = Self::list(dir);
+        let mut last_err = None;
+        for (_, p) in list.iter().rev() {
+            match Self::load(p) {
+                Ok(c) => return Some(Ok(c)),
+                Err(e) => last_err = Some(e),
+            }
+        }
+        last_err.map(Err)
+    }
+
+    /// Delete all but the newest `keep` checkpoints.
+    pub fn prune(dir: &Path, keep: usize) {
+        let list = Self::list(dir);
+        for (_, p) in list.iter().take(list.len().saturating_sub(keep.max(1))) {
+            let _ = std::fs::remove_file(p);
+        }
+    }
+}

@@ -1,0 +1,109 @@
+//! Training losses: L_simple on the non-keyframe, non-padding elements (paper Eq. 3) and the
+//! MDM-style kinematic losses on recovered joints.
+
+use burn::prelude::*;
+
+use crate::kinematics::recover_from_ric;
+
+/// Loss terms of one batch (scalars on the device).
+pub struct Losses {
+    pub simple: Tensor<1>,
+    pub pos: Option<Tensor<1>>,
+    pub vel: Option<Tensor<1>>,
+    pub foot: Option<Tensor<1>>,
+}
+
+/// || (x0 - pred) * (1 - M) ||^2 averaged over the elements that count: not observed by a
+/// keyframe and not padding. `valid` [B, N]; `kf_mask` [B, N, D].
+pub fn l_simple(x0: Tensor<3>, pred: Tensor<3>, kf_mask: Tensor<3>, valid: Tensor<2>) -> Tensor<1> {
+    let w = (kf_mask.ones_like() - kf_mask) * valid.unsqueeze_dim::<3>(2);
+    let num = ((x0 - pred).powf_scalar(2.0) * w.clone()).sum();
+    num / w.sum().clamp_min(1.0)
+}
+
+/// Weights and normalisation the kinematic losses need.
+pub struct Kinematic<'a> {
+    pub mean: &'a [f32],
+    pub std: &'a [f32],
+    pub joints: usize,
+    /// Foot joints in the order of the four contact channels (l_ankle, l_foot, r_ankle, r_foot).
+    pub feet: [usize; 4],
+    pub lambda_pos: f64,
+    pub lambda_vel: f64,
+    pub lambda_foot: f64,
+}
+
+impl Kinematic<'_> {
+    pub fn any(&self) -> bool {
+        self.lambda_pos > 0.0 || self.lambda_vel > 0.0 || self.lambda_foot > 0.0
+    }
+}
+
+/// All loss terms; the kinematic ones only when their weight is positive.
+pub fn losses(x0: Tensor<3>, pred: Tensor<3>, kf_mask: Tensor<3>, valid: Tensor<2>, k: &Kinematic) -> Losses {
+    let simple = l_simple(x0.clone(), pred.clone(), kf_mask, valid.clone());
+    if !k.any() {
+        return Losses { simple, pos: None, vel: None, foot: None };
+    }
+    let device = x0.device();
+    let [b, n, d] = x0.dims();
+    let mean = Tensor::<1>::from_floats(k.mean, &device).reshape([1, 1, d]);
+    let std = Tensor::<1>::from_floats(k.std, &device).reshape([1, 1, d]);
+    let gt_feats = x0 * std.clone() + mean.clone();
+    let jg = recover_from_ric(gt_feats.clone(), k.joints);
+    let jp = recover_from_ric(pred * std + mean, k.joints);
+    let v4 = valid.clone().reshape([b, n, 1, 1]);
+    let frames = valid.clone().sum().clamp_min(1.0);
+    let per_joint = (k.joints * 3) as f64;
+    let pos = (k.lambda_pos > 0.0).then(|| ((jg.clone() - jp.clone()).powf_scalar(2.0) * v4.clone()).sum() / (frames.clone() * per_joint));
+    // Velocities between consecutive real frames.
+    let vel_of = |j: Tensor<4>| j.clone().slice([0..b, 1..n, 0..k.joints, 0..3]) - j.slice([0..b, 0..n - 1, 0..k.joints, 0..3]);
+    let pair_valid = valid.clone().slice([0..b, 1..n]) * valid.slice([0..b, 0..n - 1]);
+    let pv4 = pair_valid.clone().reshape([b, n - 1, 1, 1]);
+    let pairs = pair_valid.clone().sum().clamp_min(1.0);
+    let vp = vel_of(jp);
+    let vel = (k.lambda_vel > 0.0).then(|| ((vel_of(jg) - vp.clone()).powf_scalar(2.0) * pv4.clone()).sum() / (pairs.clone() * per_joint));
+    let foot = (k.lambda_foot > 0.0).then(|| {
+        // Predicted foot velocity where the ground truth says the foot is in contact.
+        let contact = gt_feats.slice([0..b, 0..n - 1, d - 4..d]);
+        let mut total = Tensor::<1>::zeros([1], &device);
+        for (c, &joint) in k.feet.iter().enumerate() {
+            let fv = vp.clone().slice([0..b, 0..n - 1, joint..joint + 1, 0..3]).reshape([b, n - 1, 3]);
+            let m = contact.clone().slice([0..b, 0..n - 1, c..c + 1]) * pair_valid.clone().unsqueeze_dim::<3>(2);
+            total = total + (fv.powf_scalar(2.0) * m).sum();
+        }
+        total / (pairs * 12.0)
+    });
+    Losses { simple, pos, vel, foot }
+}
+
+impl Losses {
+    /// The weighted sum that is optimised.
+    pub fn total(&self, k: &Kinematic) -> Tensor<1> {
+        let mut t = self.simple.clone();
+        for (term, w) in [(&self.pos, k.lambda_pos), (&self.vel, k.lambda_vel), (&self.foot, k.lambda_foot)] {
+            if let Some(x) = term {
+                t = t + x.clone() * w;
+            }
+        }
+        t
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn l_simple_ignores_keyframes_and_padding() {
+        let dev = Device::flex();
+        let x0 = Tensor::<1>::from_floats([1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0].as_slice(), &dev).reshape([1, 3, 2]);
+        let pred = Tensor::<1>::from_floats([1.0f32, 0.0, 0.0, 4.0, 0.0, 0.0].as_slice(), &dev).reshape([1, 3, 2]);
+        // Frame 0 dim 1 is a keyframe element; frame 2 is padding.
+        let m = Tensor::<1>::from_floats([0.0f32, 1.0, 0.0, 0.0, 0.0, 0.0].as_slice(), &dev).reshape([1, 3, 2]);
+        let valid = Tensor::<1>::from_floats([1.0f32, 1.0, 0.0].as_slice(), &dev).reshape([1, 3]);
+        let l: f32 = l_simple(x0, pred, m, valid).into_scalar();
+        // Counted elements: (0,0) err 0, (1,0) err 9, (1,1) err 0 -> 9 / 3.
+        assert!((l - 3.0).abs() < 1e-6, "{l}");
+    }
+}

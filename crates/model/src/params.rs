@@ -1,0 +1,72 @@
+//! Host-side access to a module's parameters, in visit order: read values and gradients out,
+//! write new values in. The optimiser, the EMA and checkpoints work on these flat vectors,
+//! which makes checkpoints exact and resume bit-for-bit.
+
+use burn::module::{ModuleMapper, ModuleVisitor, Param, ParamId};
+use burn::optim::GradientsParams;
+use burn::prelude::*;
+
+fn host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data().convert::<f32>().try_to_vec::<f32>().expect("float tensor")
+}
+
+struct Values(Vec<(Vec<usize>, Vec<f32>)>);
+impl ModuleVisitor for Values {
+    fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
+        let t = p.val();
+        self.0.push((t.dims().to_vec(), host(t)));
+    }
+}
+
+/// (shape, values) of every float parameter.
+pub fn values<M: Module>(m: &M) -> Vec<(Vec<usize>, Vec<f32>)> {
+    let mut v = Values(Vec::new());
+    m.visit(&mut v);
+    v.0
+}
+
+struct Grads<'a> {
+    grads: &'a GradientsParams,
+    out: Vec<Vec<f32>>,
+}
+impl ModuleVisitor for Grads<'_> {
+    fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
+        let g = self.grads.get::<D>(p.id).map(host).unwrap_or_else(|| vec![0.0; p.val().shape().num_elements()]);
+        self.out.push(g);
+    }
+}
+
+/// Gradients of every float parameter (zeros where a parameter got none).
+pub fn grads<M: Module>(m: &M, grads: &GradientsParams) -> Vec<Vec<f32>> {
+    let mut v = Grads { grads, out: Vec::new() };
+    m.visit(&mut v);
+    v.out
+}
+
+struct Load<'a> {
+    vals: &'a [Vec<f32>],
+    i: usize,
+}
+impl ModuleMapper for Load<'_> {
+    fn map_float<const D: usize>(&mut self, p: Param<Tensor<D>>) -> Param<Tensor<D>> {
+        let (id, t, mapper): (ParamId, Tensor<D>, _) = p.consume();
+        let device = t.device();
+        let shape = t.shape();
+        let v = &self.vals[self.i];
+        assert_eq!(v.len(), shape.num_elements(), "parameter {} has {} values, expected {}", self.i, v.len(), shape.num_elements());
+        self.i += 1;
+        let mut new = Tensor::<1>::from_floats(v.as_slice(), &device).reshape(shape);
+        if device.is_autodiff() {
+            new = new.require_grad();
+        }
+        Param::from_mapped_value(id, new, mapper)
+    }
+}
+
+/// The module with its parameters replaced by `vals` (visit order).
+pub fn load<M: Module>(m: M, vals: &[Vec<f32>]) -> M {
+    let mut l = Load { vals, i: 0 };
+    let m = m.map(&mut l);
+    assert_eq!(l.i, vals.len(), "parameter count mismatch");
+    m
+}

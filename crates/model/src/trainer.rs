@@ -1,0 +1,261 @@
+//! The training loop (paper section "Diffusion Model with Keyframe Collaborated"): x0
+//! prediction, L_simple on non-keyframe non-padding elements plus optional kinematic losses,
+//! keyframe dropout for classifier-free guidance, Adam with clipping, warm-up / cosine decay, an
+//! EMA, validation, atomic checkpoints and exact resume.
+//!
+//! Every random draw is derived from (seed, step): the batch, the timesteps, the noise and the
+//! dropout masks. A run of 2N steps and a run of N steps resumed to 2N are the same run.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use burn::optim::GradientsParams;
+use burn::prelude::*;
+use diffkfc_data::batch::{Batch, Loader};
+use diffkfc_data::cache::PackedSplit;
+use diffkfc_data::dataset::Dataset;
+use diffkfc_data::rng::Rng;
+
+use crate::batch::to_tensors;
+use crate::checkpoint::Checkpoint;
+use crate::diffusion::Schedule;
+use crate::losses::{losses, Kinematic};
+use crate::optim::{clip_grad_norm, ema_update, learning_rate, Adam};
+use crate::params;
+use crate::run_config::RunConfig;
+use crate::text::cache::EmbeddingCache;
+use crate::Denoiser;
+
+/// One optimisation step's record (a line of metrics.jsonl).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct StepRecord {
+    pub step: usize,
+    pub loss: f64,
+    pub l_simple: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub l_pos: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub l_vel: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub l_foot: Option<f64>,
+    pub lr: f64,
+    pub grad_norm: f64,
+    pub wall_s: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub val_loss: Option<f64>,
+}
+
+pub enum Event<'a> {
+    Step(&'a StepRecord),
+    Checkpoint(usize, &'a Path),
+}
+
+pub struct Trainer<'a> {
+    pub cfg: &'a RunConfig,
+    pub ds: &'a Dataset,
+    pub train: &'a PackedSplit,
+    pub val: Option<&'a PackedSplit>,
+    pub text: &'a EmbeddingCache,
+    pub device: Device,
+    pub run_dir: PathBuf,
+}
+
+/// How a training call ended.
+#[derive(Debug)]
+pub struct Outcome {
+    pub start_step: usize,
+    pub end_step: usize,
+    pub stopped_early: bool,
+    pub last: Option<StepRecord>,
+}
+
+fn scalar(t: Tensor<1>) -> f64 {
+    t.into_data().convert::<f64>().try_to_vec::<f64>().expect("scalar")[0]
+}
+
+impl Trainer<'_> {
+    fn text_of(&self, b: &Batch) -> Vec<f32> {
+        b.captions
+            .iter()
+            .flat_map(|c| self.text.get(c).unwrap_or_else(|| panic!("caption not embedded: {c}")).to_vec())
+            .collect()
+    }
+
+    fn kinematic(&self) -> Kinematic<'_> {
+        let s = self.ds.skeleton;
+        let t = &self.cfg.training;
+        Kinematic {
+            mean: &self.ds.mean,
+            std: &self.ds.std,
+            joints: s.num_joints(),
+            feet: [s.feet_left[0], s.feet_left[1], s.feet_right[0], s.feet_right[1]],
+            lambda_pos: t.lambda_pos,
+            lambda_vel: t.lambda_vel,
+            lambda_foot: t.lambda_foot,
+        }
+    }
+
+    /// Timesteps and noise of a step, from (seed, stream, index) only.
+    fn draw(&self, stream: u64, index: u64, b: usize, n: usize, d: usize, steps: usize, device: &Device) -> (Vec<usize>, Tensor<3>) {
+        let mut r = Rng::derive(self.cfg.training.seed, stream, index);
+        let t: Vec<usize> = (0..b).map(|_| r.below(steps)).collect();
+        let noise: Vec<f32> = (0..b * n * d).map(|_| r.normal() as f32).collect();
+        (t, Tensor::<1>::from_floats(noise.as_slice(), device).reshape([b, n, d]))
+    }
+
+    /// Loss of the model on a batch at the given timesteps and noise.
+    fn batch_loss(&self, model: &Denoiser, schedule: &Schedule, b: &Batch, t: &[usize], noise: Tensor<3>, device: &Device) -> crate::losses::Losses {
+        let tb = to_tensors(b, &self.text_of(b), self.text.dim, device);
+        let x_t = schedule.q_sample(tb.x0.clone(), t, noise);
+        let pred = model.forward(x_t, t, &tb.cond);
+        losses(tb.x0, pred, tb.cond.kf_mask, tb.valid, &self.kinematic())
+    }
+
+    /// Mean validation loss (L_simple + weighted kinematic terms) over fixed batches with the
+    /// EMA weights when present.
+    fn validate(&self, model: &Denoiser, schedule: &Schedule) -> Option<f64> {
+        let val = self.val?;
+        if val.items.is_empty() {
+            return None;
+        }
+        let tc = &self.cfg.training;
+        let loader = Loader::new(self.ds, val, tc.batch_size, tc.seed ^ 0x5A17, self.cfg.keyframes.clone());
+        let dev = model.devices().first().cloned().unwrap_or_else(|| self.device.clone());
+        let n = tc.val_batches.min(loader.batches_per_epoch()).max(1);
+        let mut total = 0.0;
+        for k in 0..n {
+            let b = loader.batch(0, k);
+            let (t, noise) = self.draw(0xFA11, k as u64, b.batch_size, b.frames, b.dim, schedule.steps, &dev);
+            let l = self.batch_loss(model, schedule, &b, &t, noise, &dev);
+            total += scalar(l.total(&self.kinematic()));
+        }
+        Some(total / n as f64)
+    }
+
+    /// Train to `max_steps` (from the latest checkpoint when `resume`). `stop()` is polled
+    /// before every step; when it says stop, a checkpoint is written and the call returns.
+    pub fn run(&self, resume: bool, max_steps: usize, stop: &dyn Fn() -> bool, on_event: &mut dyn FnMut(Event)) -> Result<Outcome, String> {
+        let tc = &self.cfg.training;
+        let dm = &self.cfg.diffusion;
+        let schedule = Schedule::by_name(&dm.schedule, dm.steps).ok_or(format!("diffusion.schedule: unknown '{}' (cosine, linear)", dm.schedule))?;
+        std::fs::create_dir_all(&self.run_dir).map_err(|e| format!("{}: {e}", self.run_dir.display()))?;
+        let device = self.device.clone().autodiff();
+        device.seed(tc.seed);
+        let mut model = self.cfg.model.init(&device);
+        let init = params::values(&model);
+        let shapes: Vec<Vec<usize>> = init.iter().map(|(s, _)| s.clone()).collect();
+        let mut vals: Vec<Vec<f32>> = init.into_iter().map(|(_, v)| v).collect();
+        let mut adam = Adam::new(&vals.iter().map(Vec::len).collect::<Vec<_>>());
+        let mut ema = (tc.ema_decay > 0.0).then(|| vals.clone());
+        let mut start = 0;
+        if resume {
+            if let Some(ck) = Checkpoint::latest(&self.run_dir) {
+                let ck = ck?;
+                if ck.shapes != shapes {
+                    return Err(format!("{}: checkpoint does not match the model in the config (different shapes)", self.run_dir.display()));
+                }
+                start = ck.step;
+                vals = ck.model;
+                adam.step = ck.adam_step;
+                adam.m = ck.adam_m;
+                adam.v = ck.adam_v;
+                if ema.is_some() {
+                    ema = Some(ck.ema.unwrap_or_else(|| vals.clone()));
+                }
+            }
+        }
+        model = params::load(model, &vals);
+        let metrics_path = self.run_dir.join("metrics.jsonl");
+        truncate_metrics(&metrics_path, start).map_err(|e| format!("{}: {e}", metrics_path.display()))?;
+        let mut metrics = std::fs::OpenOptions::new().create(true).append(true).open(&metrics_path).map_err(|e| format!("{}: {e}", metrics_path.display()))?;
+        let loader = Loader::new(self.ds, self.train, tc.batch_size, tc.seed, self.cfg.keyframes.clone());
+        let per_epoch = loader.batches_per_epoch().max(1);
+        let kin = self.kinematic();
+        let t0 = Instant::now();
+        let mut last = None;
+        let mut step = start;
+        let save = |step: usize, vals: &[Vec<f32>], ema: &Option<Vec<Vec<f32>>>, adam: &Adam| -> Result<PathBuf, String> {
+            let ck = Checkpoint { step, shapes: shapes.clone(), model: vals.to_vec(), ema: ema.clone(), adam_step: adam.step, adam_m: adam.m.clone(), adam_v: adam.v.clone(), config: self.cfg.to_json(), seed: tc.seed };
+            let p = ck.save(&self.run_dir)?;
+            Checkpoint::prune(&self.run_dir, tc.keep_checkpoints);
+            Ok(p)
+        };
+        let mut stopped = false;
+        while step < max_steps {
+            if stop() {
+                stopped = true;
+                break;
+            }
+            device.seed(tc.seed.wrapping_mul(0x9E37_79B9).wrapping_add(step as u64));
+            let b = loader.batch((step / per_epoch) as u64, step % per_epoch);
+            let (t, noise) = self.draw(0x7EA1, step as u64, b.batch_size, b.frames, b.dim, schedule.steps, &device);
+            let l = self.batch_loss(&model, &schedule, &b, &t, noise, &device);
+            let total = l.total(&kin);
+            let grads = GradientsParams::from_grads(total.backward(), &model);
+            let mut g = params::grads(&model, &grads);
+            let grad_norm = clip_grad_norm(&mut g, tc.grad_clip);
+            let lr = learning_rate(tc.lr, step, tc.warmup_steps, tc.cosine_decay, tc.max_steps);
+            adam.update(&mut vals, &g, lr);
+            if let Some(e) = ema.as_mut() {
+                // Early in training the EMA follows closely (as in common EMA warm-ups).
+                let decay = tc.ema_decay.min((1.0 + step as f64) / (10.0 + step as f64));
+                ema_update(e, &vals, decay);
+            }
+            model = params::load(model, &vals);
+            step += 1;
+            let mut rec = StepRecord {
+                step,
+                loss: scalar(total),
+                l_simple: scalar(l.simple),
+                l_pos: l.pos.map(scalar),
+                l_vel: l.vel.map(scalar),
+                l_foot: l.foot.map(scalar),
+                lr,
+                grad_norm,
+                wall_s: t0.elapsed().as_secs_f64(),
+                val_loss: None,
+            };
+            if tc.val_every > 0 && (step % tc.val_every == 0 || step == max_steps) {
+                let eval_vals = ema.as_ref().unwrap_or(&vals);
+                let vm = params::load(self.cfg.model.init(&self.device), eval_vals);
+                rec.val_loss = self.validate(&vm, &schedule);
+            }
+            writeln!(metrics, "{}", serde_json::to_string(&rec).expect("json")).map_err(|e| format!("{}: {e}", metrics_path.display()))?;
+            on_event(Event::Step(&rec));
+            if step % tc.checkpoint_every.max(1) == 0 || step == max_steps {
+                let p = save(step, &vals, &ema, &adam)?;
+                on_event(Event::Checkpoint(step, &p));
+            }
+            last = Some(rec);
+        }
+        if stopped && step > start && !Checkpoint::list(&self.run_dir).iter().any(|(s, _)| *s == step) {
+            let p = save(step, &vals, &ema, &adam)?;
+            on_event(Event::Checkpoint(step, &p));
+        }
+        Ok(Outcome { start_step: start, end_step: step, stopped_early: stopped, last })
+    }
+}
+
+/// Keep only the metrics lines of steps <= `step` (a resumed run rewrites what follows).
+fn truncate_metrics(path: &Path, step: usize) -> std::io::Result<()> {
+    let Ok(text) = std::fs::read_to_string(path) else { return Ok(()) };
+    let kept: Vec<&str> = text
+        .lines()
+        .filter(|l| serde_json::from_str::<serde_json::Value>(l).ok().and_then(|v| v["step"].as_u64()).is_some_and(|s| s as usize <= step))
+        .collect();
+    let mut out = kept.join("\n");
+    if !out.is_empty() {
+        out.push('\n');
+    }
+    diffkfc_data::npy::write_atomic(path, out.as_bytes()).map_err(std::io::Error::other)
+}
+
+/// Load the weights of a run for inference: the EMA when present, else the raw model.
+pub fn load_for_inference(run_dir: &Path, device: &Device) -> Result<(RunConfig, Denoiser, usize), String> {
+    let ck = Checkpoint::latest(run_dir).ok_or(format!("{}: no checkpoint found (train first)", run_dir.display()))??;
+    let cfg = RunConfig::parse(&ck.config).map_err(|e| format!("{}: stored config: {e}", run_dir.display()))?;
+    let model = cfg.model.init(device);
+    let weights = ck.ema.as_ref().unwrap_or(&ck.model);
+    Ok((cfg, params::load(model, weights), ck.step))
+}
