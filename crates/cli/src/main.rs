@@ -2,6 +2,7 @@
 
 mod commands;
 mod device;
+mod plot;
 mod progress;
 
 use clap::{Parser, Subcommand};
@@ -26,6 +27,9 @@ enum Command {
     /// Draw motions: an animated GIF of one motion, or a PNG contact sheet of several.
     #[command(after_help = "Examples:\n  diffkfc render work/synth/new_joint_vecs/000000.npy -o walk.gif --keyframes 0,40,80\n  diffkfc render a.npy b.npy c.npy --sheet -o sheet.png")]
     Render(commands::render::RenderArgs),
+    /// Train DiffKFC: diffusion with keyframe masking, checkpoints, exact resume.
+    #[command(after_help = "Examples:\n  diffkfc train --config configs/tiny.json --data work/synth --out runs/tiny --time-budget 10m\n  diffkfc train --config configs/tiny.json --data work/synth --out runs/tiny --resume")]
+    Train(commands::train::TrainArgs),
     /// Inspect the network: parameter counts, forward timing.
     #[command(after_help = "Examples:\n  diffkfc model summary --config configs/paper-humanml3d.json\n  diffkfc model bench --config configs/paper-humanml3d.json")]
     Model(commands::model::ModelArgs),
@@ -50,6 +54,7 @@ fn main() {
         Command::Data(args) => commands::data::run(args),
         Command::Render(args) => commands::render::run(args),
         Command::Model(args) => commands::model::run(args),
+        Command::Train(args) => commands::train::run(args),
         Command::TextEmbed(args) => commands::model::text_embed(args),
     };
     if let Err(e) = result {

@@ -1,3 +1,4 @@
 pub mod data;
 pub mod model;
 pub mod render;
+pub mod train;

@@ -1,0 +1,144 @@
+//! `diffkfc train`: diffusion training with keyframe masking, checkpoints and exact resume.
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use burn::prelude::*;
+use clap::Args;
+use diffkfc_data::cache::{default_cache_dir, PackedSplit};
+use diffkfc_data::dataset::Dataset;
+use diffkfc_model::run_config::RunConfig;
+use diffkfc_model::text::{self, cache::EmbeddingCache, minilm::MiniLm, TextEncoder};
+use diffkfc_model::trainer::{Event, Trainer};
+use indicatif::{ProgressBar, ProgressStyle};
+
+#[derive(Args)]
+pub struct TrainArgs {
+    /// Run config (configs/tiny.json, small.json, paper-humanml3d.json, paper-kit.json).
+    #[arg(long)]
+    config: PathBuf,
+    /// Dataset root (overrides data.dir of the config).
+    #[arg(long)]
+    data: Option<PathBuf>,
+    /// Run directory (default: runs/<config name>).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Continue from the run directory's latest checkpoint.
+    #[arg(long)]
+    resume: bool,
+    /// Stop at this step (default: training.max_steps of the config).
+    #[arg(long)]
+    max_steps: Option<usize>,
+    /// Stop cleanly (with a checkpoint) after this long: 90s, 10m, 2h.
+    #[arg(long, value_parser = parse_duration)]
+    time_budget: Option<Duration>,
+    #[arg(long, default_value = "flex")]
+    device: String,
+    /// Overrides training.seed.
+    #[arg(long)]
+    seed: Option<u64>,
+}
+
+pub fn parse_duration(s: &str) -> Result<Duration, String> {
+    let (num, unit) = s.trim().split_at(s.trim().find(|c: char| c.is_alphabetic()).unwrap_or(s.trim().len()));
+    let v: f64 = num.parse().map_err(|_| format!("'{s}' is not a duration like 90s, 10m or 2h"))?;
+    let secs = match unit {
+        "" | "s" => v,
+        "m" | "min" => v * 60.0,
+        "h" => v * 3600.0,
+        _ => return Err(format!("'{s}': unknown unit '{unit}' (s, m, h)")),
+    };
+    if !(secs.is_finite() && secs > 0.0) {
+        return Err(format!("'{s}' must be positive"));
+    }
+    Ok(Duration::from_secs_f64(secs))
+}
+
+pub fn run(a: TrainArgs) -> Result<()> {
+    let mut cfg = RunConfig::load(&a.config).map_err(anyhow::Error::msg)?;
+    if let Some(s) = a.seed {
+        cfg.training.seed = s;
+    }
+    if let Some(d) = &a.data {
+        cfg.data.dir = Some(d.display().to_string());
+    }
+    let data = cfg.data.dir.clone().map(PathBuf::from).context("--data: no dataset given (make one with `diffkfc data synth --out work/synth`)")?;
+    let max_steps = a.max_steps.unwrap_or(cfg.training.max_steps);
+    let stem = a.config.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "run".into());
+    let run_dir = a.out.clone().unwrap_or_else(|| PathBuf::from("runs").join(stem));
+    if !a.resume && diffkfc_model::checkpoint::Checkpoint::list(&run_dir).first().is_some() {
+        bail!("--out: {} already holds checkpoints; pass --resume to continue it or choose another --out", run_dir.display());
+    }
+    let device = crate::device::parse(&a.device)?;
+    let ds = Dataset::open(&data)?;
+    if ds.dim() != cfg.model.feat_dim {
+        bail!("{}: features are {}-dimensional but model.feat_dim is {}", data.display(), ds.dim(), cfg.model.feat_dim);
+    }
+    let cache_dir = default_cache_dir(&ds);
+    let train = PackedSplit::open(&ds, &cfg.data.train_split, &cache_dir, crate::progress::bar("caching train"))?;
+    if train.items.is_empty() {
+        bail!("{}: split '{}' has no usable items (run `diffkfc data check`)", data.display(), cfg.data.train_split);
+    }
+    let val = PackedSplit::open(&ds, &cfg.data.val_split, &cache_dir, crate::progress::bar("caching val")).ok();
+    for (id, why) in train.skipped.iter().take(3) {
+        eprintln!("warning: skipped clip {id}: {why}");
+    }
+    // Caption embeddings, computed once and cached beside the packed features.
+    let encoder = MiniLm::load(&text::default_dir(), &Device::flex())?;
+    let mut captions: Vec<String> = train.items.iter().flat_map(|i| i.captions.clone()).collect();
+    if let Some(v) = &val {
+        captions.extend(v.items.iter().flat_map(|i| i.captions.clone()));
+    }
+    let emb_path = cache_dir.join(format!("text-{}.safetensors", encoder.name()));
+    let text = EmbeddingCache::build(&emb_path, &encoder, &captions, crate::progress::bar("embedding"))?;
+    if text.dim != cfg.model.text_dim {
+        bail!("model.text_dim is {} but the text encoder gives {}", cfg.model.text_dim, text.dim);
+    }
+    std::fs::create_dir_all(&run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
+    diffkfc_data::npy::write_atomic(&run_dir.join("config.json"), cfg.to_json().as_bytes())?;
+
+    let interrupted = Arc::new(AtomicBool::new(false));
+    {
+        let flag = interrupted.clone();
+        let _ = ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst));
+    }
+    let started = Instant::now();
+    let budget = a.time_budget;
+    let stop = || interrupted.load(Ordering::SeqCst) || budget.is_some_and(|b| started.elapsed() >= b);
+    let pb = ProgressBar::new(max_steps as u64);
+    pb.set_style(ProgressStyle::with_template("{msg} [{bar:30}] step {pos}/{len} {per_sec} ETA {eta}").expect("template").progress_chars("=> "));
+    let trainer = Trainer { cfg: &cfg, ds: &ds, train: &train, val: val.as_ref(), text: &text, device, run_dir: run_dir.clone() };
+    let mut first: Option<(usize, f64)> = None;
+    let mut last_val = None;
+    let outcome = trainer
+        .run(a.resume, max_steps, &stop, &mut |e| match e {
+            Event::Step(r) => {
+                first.get_or_insert((r.step, r.loss));
+                if r.val_loss.is_some() {
+                    last_val = r.val_loss;
+                }
+                pb.set_position(r.step as u64);
+                pb.set_message(format!("loss {:.4}", r.loss));
+            }
+            Event::Checkpoint(_, _) => {}
+        })
+        .map_err(anyhow::Error::msg)?;
+    pb.finish_and_clear();
+    let metrics = std::fs::read_to_string(run_dir.join("metrics.jsonl")).unwrap_or_default();
+    diffkfc_data::npy::write_atomic(&run_dir.join("loss.svg"), crate::plot::loss_svg(&metrics).as_bytes())?;
+    let secs = started.elapsed().as_secs_f64();
+    let steps = outcome.end_step - outcome.start_step;
+    let why = if interrupted.load(Ordering::SeqCst) { " (interrupted)" } else if outcome.stopped_early { " (time budget reached)" } else { "" };
+    println!("{}: steps {}..{}{why} in {secs:.1} s ({:.2} s/step)", run_dir.display(), outcome.start_step, outcome.end_step, secs / steps.max(1) as f64);
+    if let (Some((s0, l0)), Some(last)) = (first, &outcome.last) {
+        println!("  train loss: step {s0} {l0:.4} -> step {} {:.4}", last.step, last.loss);
+    }
+    if let Some(v) = last_val {
+        println!("  validation loss (EMA): {v:.4}");
+    }
+    println!("  checkpoints, metrics.jsonl, loss.svg in {}", run_dir.display());
+    Ok(())
+}
