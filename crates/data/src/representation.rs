@@ -122,32 +122,32 @@ pub fn gaussian_filter_nearest(x: &[Vec3], sigma: f64) -> Vec<Vec3> {
         .collect()
 }
 
-/// Facing direction (unit, horizontal) of each frame: up x (right-to-left across hips and
-/// shoulders), which is +Z for a body facing +Z.
-fn forward_dirs(skel: &Skeleton, joints: &Joints) -> Vec<Vec3> {
-    let [r_hip, l_hip, r_sho, l_sho] = skel.face_joints;
-    joints
-        .iter()
-        .map(|f| {
-            let across = quat::add(quat::sub(f[r_hip], f[l_hip]), quat::sub(f[r_sho], f[l_sho]));
-            let across = quat::normalize(across);
-            quat::normalize(quat::cross([0.0, 1.0, 0.0], across))
-        })
-        .collect()
+/// How a facing direction is taken from the hips and shoulders.
+#[derive(Clone, Copy, PartialEq)]
+enum Facing {
+    /// `process_file`'s initial facing: (r_hip - l_hip) + (r_sho - l_sho), normalised.
+    Consistent,
+    /// `inverse_kinematics_np`'s: it unpacks the face joints as (l_hip, r_hip, r_sho, l_sho), so
+    /// its hip term is left-minus-right while its shoulder term is right-minus-left, and it
+    /// leaves the cross product unnormalised for the smoothing that follows. Released HumanML3D
+    /// features were made this way (the golden tests fail with the consistent version).
+    Reference,
 }
 
-/// The facing direction as `inverse_kinematics_np` computes it: it unpacks the face joints as
-/// (l_hip, r_hip, r_sho, l_sho), so its hip term is left-minus-right while its shoulder term is
-/// right-minus-left. Released HumanML3D features were made this way (the golden tests fail
-/// with the "consistent" version), so we reproduce it.
-fn ik_forward_dirs(skel: &Skeleton, joints: &Joints) -> Vec<Vec3> {
-    let [a, b, r_sho, l_sho] = skel.face_joints;
+/// up x across for each frame.
+fn facing(skel: &Skeleton, joints: &Joints, how: Facing) -> Vec<Vec3> {
+    let [r_hip, l_hip, r_sho, l_sho] = skel.face_joints;
+    let hips = |f: &[Vec3]| if how == Facing::Reference { quat::sub(f[l_hip], f[r_hip]) } else { quat::sub(f[r_hip], f[l_hip]) };
     joints
         .iter()
         .map(|f| {
-            let across = quat::add(quat::sub(f[b], f[a]), quat::sub(f[r_sho], f[l_sho]));
-            // Not normalised before smoothing: the reference smooths the raw cross product.
-            quat::cross([0.0, 1.0, 0.0], quat::normalize(across))
+            let across = quat::normalize(quat::add(hips(f), quat::sub(f[r_sho], f[l_sho])));
+            let fwd = quat::cross([0.0, 1.0, 0.0], across);
+            if how == Facing::Reference {
+                fwd
+            } else {
+                quat::normalize(fwd)
+            }
         })
         .collect()
 }
@@ -156,7 +156,7 @@ fn ik_forward_dirs(skel: &Skeleton, joints: &Joints) -> Vec<Vec3> {
 /// (HumanML3D `Skeleton.inverse_kinematics_np`). Frame 0's root rotation is set to identity, as
 /// the reference does (inputs are already turned to face +Z at frame 0).
 pub fn inverse_kinematics(skel: &Skeleton, joints: &Joints, smooth_forward: bool) -> Vec<Vec<Quat>> {
-    let mut forward = ik_forward_dirs(skel, joints);
+    let mut forward = facing(skel, joints, Facing::Reference);
     if smooth_forward {
         forward = gaussian_filter_nearest(&forward, 20.0);
     }
@@ -253,7 +253,7 @@ pub fn features_from_joints(skel: &Skeleton, joints: &Joints, feet_threshold: f6
         p[2] -= init_root[2];
     }
     // Turn the whole motion so that frame 0 faces +Z.
-    let fwd0 = forward_dirs(skel, &pos[..1].to_vec())[0];
+    let fwd0 = facing(skel, &pos[..1].to_vec(), Facing::Consistent)[0];
     let q_init = quat::qbetween(fwd0, [0.0, 0.0, 1.0]);
     for p in pos.iter_mut().flatten() {
         *p = quat::qrot(q_init, *p);

@@ -14,8 +14,10 @@ pub mod losses;
 pub mod optim;
 pub mod params;
 pub mod run_config;
+pub mod sampler;
 pub mod text;
 pub mod trainer;
+pub mod transition;
 
 pub use config::DiffKfcConfig;
 pub use denoiser::{Condition, Denoiser, Encoded};

@@ -35,6 +35,17 @@ fn embeddings(train: &PackedSplit, val: &PackedSplit) -> EmbeddingCache {
     EmbeddingCache { dim: 384, map }
 }
 
+/// A synthetic dataset with its opened splits and caption embeddings.
+fn prepared(name: &str) -> (PathBuf, Dataset, PackedSplit, PackedSplit, EmbeddingCache) {
+    let root = dataset(name);
+    let ds = Dataset::open(&root).unwrap();
+    let cache = root.join(".diffkfc-cache");
+    let train = PackedSplit::open(&ds, "train", &cache, |_, _| {}).unwrap();
+    let val = PackedSplit::open(&ds, "val", &cache, |_, _| {}).unwrap();
+    let text = embeddings(&train, &val);
+    (root, ds, train, val, text)
+}
+
 fn config() -> RunConfig {
     RunConfig::parse(r#"{"model": {"preset": "tiny", "dma_sizes": [2, 0], "dec_layers": 1, "dropout": 0.1},
         "training": {"batch_size": 4, "lr": 0.001, "max_steps": 6, "checkpoint_every": 3, "keep_checkpoints": 2,
@@ -56,12 +67,7 @@ fn losses(run: &Path) -> Vec<(u64, f64)> {
 #[test]
 fn resume_is_exact_and_checkpoints_rotate() {
     let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let root = dataset("resume");
-    let ds = Dataset::open(&root).unwrap();
-    let cache = root.join(".diffkfc-cache");
-    let train = PackedSplit::open(&ds, "train", &cache, |_, _| {}).unwrap();
-    let val = PackedSplit::open(&ds, "val", &cache, |_, _| {}).unwrap();
-    let text = embeddings(&train, &val);
+    let (root, ds, train, val, text) = prepared("resume");
     let cfg = config();
     let mk = |dir: &str| Trainer { cfg: &cfg, ds: &ds, train: &train, val: Some(&val), text: &text, device: Device::flex(), run_dir: root.join(dir) };
     let never = || false;
@@ -108,12 +114,7 @@ fn resume_is_exact_and_checkpoints_rotate() {
 #[test]
 fn loss_decreases_on_a_tiny_set() {
     let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let root = dataset("learn");
-    let ds = Dataset::open(&root).unwrap();
-    let cache = root.join(".diffkfc-cache");
-    let train = PackedSplit::open(&ds, "train", &cache, |_, _| {}).unwrap();
-    let val = PackedSplit::open(&ds, "val", &cache, |_, _| {}).unwrap();
-    let text = embeddings(&train, &val);
+    let (root, ds, train, _val, text) = prepared("learn");
     let mut cfg = config();
     cfg.training.lambda_pos = 0.0;
     cfg.training.lambda_vel = 0.0;
