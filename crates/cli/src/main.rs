@@ -30,6 +30,9 @@ enum Command {
     /// Train DiffKFC: diffusion with keyframe masking, checkpoints, exact resume.
     #[command(after_help = "Examples:\n  diffkfc train --config configs/tiny.json --data work/synth --out runs/tiny --time-budget 10m\n  diffkfc train --config configs/tiny.json --data work/synth --out runs/tiny --resume")]
     Train(commands::train::TrainArgs),
+    /// Generate motion from text and keyframes with keyframe and transition guidance.
+    #[command(after_help = "Examples:\n  diffkfc sample --checkpoint runs/tiny --text \"a person walks forward and waves\" --from clip.npy --frames 0,40,80\n  diffkfc sample --checkpoint runs/tiny --text \"a person squats\" --keyframes keys.json --out out/squat")]
+    Sample(commands::sample::SampleArgs),
     /// Inspect the network: parameter counts, forward timing.
     #[command(after_help = "Examples:\n  diffkfc model summary --config configs/paper-humanml3d.json\n  diffkfc model bench --config configs/paper-humanml3d.json")]
     Model(commands::model::ModelArgs),
@@ -55,6 +58,7 @@ fn main() {
         Command::Render(args) => commands::render::run(args),
         Command::Model(args) => commands::model::run(args),
         Command::Train(args) => commands::train::run(args),
+        Command::Sample(args) => commands::sample::run(args),
         Command::TextEmbed(args) => commands::model::text_embed(args),
     };
     if let Err(e) = result {

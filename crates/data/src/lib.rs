@@ -9,6 +9,7 @@ pub mod keyframes;
 pub mod motion_file;
 pub mod npy;
 pub mod plausibility;
+pub mod pose;
 pub mod quat;
 pub mod render;
 pub mod representation;

@@ -124,7 +124,7 @@ pub fn gaussian_filter_nearest(x: &[Vec3], sigma: f64) -> Vec<Vec3> {
 
 /// How a facing direction is taken from the hips and shoulders.
 #[derive(Clone, Copy, PartialEq)]
-enum Facing {
+pub(crate) enum Facing {
     /// `process_file`'s initial facing: (r_hip - l_hip) + (r_sho - l_sho), normalised.
     Consistent,
     /// `inverse_kinematics_np`'s: it unpacks the face joints as (l_hip, r_hip, r_sho, l_sho), so
@@ -135,7 +135,7 @@ enum Facing {
 }
 
 /// up x across for each frame.
-fn facing(skel: &Skeleton, joints: &Joints, how: Facing) -> Vec<Vec3> {
+pub(crate) fn facing(skel: &Skeleton, joints: &Joints, how: Facing) -> Vec<Vec3> {
     let [r_hip, l_hip, r_sho, l_sho] = skel.face_joints;
     let hips = |f: &[Vec3]| if how == Facing::Reference { quat::sub(f[l_hip], f[r_hip]) } else { quat::sub(f[r_hip], f[l_hip]) };
     joints

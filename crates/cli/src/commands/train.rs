@@ -99,6 +99,10 @@ pub fn run(a: TrainArgs) -> Result<()> {
     }
     std::fs::create_dir_all(&run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
     diffkfc_data::npy::write_atomic(&run_dir.join("config.json"), cfg.to_json().as_bytes())?;
+    // Sampling needs the normalisation the model was trained with.
+    let dims = [ds.dim()];
+    diffkfc_data::npy::write(run_dir.join("Mean.npy"), &dims, &ds.mean)?;
+    diffkfc_data::npy::write(run_dir.join("Std.npy"), &dims, &ds.std)?;
 
     let interrupted = Arc::new(AtomicBool::new(false));
     {

@@ -1,0 +1,304 @@
+//! `diffkfc sample`: text + keyframes -> motion, with keyframe and transition guidance.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use burn::prelude::*;
+use clap::{Args, ValueEnum};
+use diffkfc_data::keyframes::{self, Strategy};
+use diffkfc_data::rng::Rng;
+use diffkfc_data::{npy, pose, render, representation as rep, T2M};
+use diffkfc_eval::keyframe_metrics::{k_err_global, k_err_local, k_trans};
+use diffkfc_model::diffusion::Schedule;
+use diffkfc_model::sampler::{self, Options, Request, Sampler};
+use diffkfc_model::text::{self, minilm::MiniLm, TextEncoder};
+use diffkfc_model::trainer::load_for_inference;
+use serde_json::json;
+
+#[derive(Clone, Copy, ValueEnum)]
+enum SamplerArg {
+    Ddpm,
+    Ddim,
+}
+
+#[derive(Args)]
+pub struct SampleArgs {
+    /// Run directory of `diffkfc train` (its newest checkpoint; EMA weights when present).
+    #[arg(long)]
+    checkpoint: PathBuf,
+    /// The prompt.
+    #[arg(long)]
+    text: String,
+    /// Keyframes from a motion: features (T,263) or joints (T,22,3) .npy.
+    #[arg(long, conflicts_with = "keyframes")]
+    from: Option<PathBuf>,
+    /// Frames of --from that become keyframes: a list (0,40,80) or `all`.
+    #[arg(long, requires = "from")]
+    frames: Option<String>,
+    /// With --from: pick keyframes as in training at this rate instead of --frames.
+    #[arg(long, requires = "from", conflicts_with = "frames")]
+    keyframe_rate: Option<f64>,
+    #[arg(long, default_value = "random")]
+    keyframe_strategy: String,
+    /// Keyframes from a JSON file (see README).
+    #[arg(long)]
+    keyframes: Option<PathBuf>,
+    /// Restrict keyframes to body parts or joints (lower_body, left_arm, head, ...).
+    #[arg(long)]
+    joints: Option<String>,
+    /// Frames to generate (default: the keyframe source's length, else 120).
+    #[arg(long, conflicts_with = "seconds")]
+    length: Option<usize>,
+    #[arg(long)]
+    seconds: Option<f64>,
+    #[arg(long, default_value_t = 1)]
+    num_samples: usize,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    #[arg(long, value_enum, default_value = "ddim")]
+    sampler: SamplerArg,
+    /// DDIM steps (DDPM always runs every step of the schedule).
+    #[arg(long, default_value_t = 50)]
+    steps: usize,
+    #[arg(long, default_value_t = 2.5)]
+    kf_guidance: f64,
+    #[arg(long, default_value_t = 100.0)]
+    transition_guidance: f64,
+    /// Do not overwrite observed keyframe features after the last step.
+    #[arg(long)]
+    no_write_back: bool,
+    #[arg(long, default_value = "out/sample")]
+    out: PathBuf,
+    #[arg(long, default_value = "flex")]
+    device: String,
+}
+
+/// Keyframes in the raw (de-normalised) feature space.
+struct Keys {
+    length: usize,
+    frames: Vec<usize>,
+    /// [length, D]
+    values: Vec<f32>,
+    mask: Vec<f32>,
+    /// Source motion joints (for global K-Err and the real K-TranS), when there is one.
+    source: Option<rep::Joints>,
+    /// Joints the keyframes observe.
+    joints: Vec<usize>,
+}
+
+fn parse_frames(spec: &str, len: usize) -> Result<Vec<usize>> {
+    if spec.trim() == "all" {
+        return Ok((0..len).collect());
+    }
+    let mut v = Vec::new();
+    for p in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let f: usize = p.parse().map_err(|_| anyhow::anyhow!("--frames: '{p}' is not a frame number"))?;
+        if f >= len {
+            bail!("--frames: frame {f} is beyond the motion ({len} frames)");
+        }
+        v.push(f);
+    }
+    v.sort_unstable();
+    v.dedup();
+    Ok(v)
+}
+
+fn joint_set(spec: Option<&str>, flag: &str) -> Result<Vec<usize>> {
+    match spec {
+        None => Ok((0..T2M.num_joints()).collect()),
+        Some(s) => T2M.resolve_joints(s).map_err(|e| anyhow::anyhow!("{flag}: {e}")),
+    }
+}
+
+fn keys_from_motion(a: &SampleArgs, path: &Path, length: Option<usize>, joints: Vec<usize>) -> Result<Keys> {
+    let arr = npy::read_f64(path)?;
+    let feats: Vec<f32> = if arr.ndim() == 2 {
+        diffkfc_data::motion_file::load_features(path, &T2M, 1)?.data
+    } else {
+        let j = diffkfc_data::motion_file::load_joints(path, &T2M, 2)?;
+        rep::features_from_joints(&T2M, &j, rep::FOOT_CONTACT_THRESHOLD).map_err(|e| e.in_file(path))?
+    };
+    let d = T2M.feature_dim();
+    let t = feats.len() / d;
+    let length = length.unwrap_or(t.min(diffkfc_data::dataset::MAX_FRAMES));
+    if length > t {
+        bail!("--length {length} is longer than {} ({t} frames)", path.display());
+    }
+    let frames = if let Some(rate) = a.keyframe_rate {
+        if !(0.0..=1.0).contains(&rate) {
+            bail!("--keyframe-rate: {rate} is not in [0, 1]");
+        }
+        let strategy: Strategy = a.keyframe_strategy.parse().map_err(|e: String| anyhow::anyhow!("--keyframe-strategy: {e}"))?;
+        keyframes::select(strategy, length, rate, &feats, d, &mut Rng::new(a.seed))
+    } else {
+        parse_frames(a.frames.as_deref().context("--from needs --frames or --keyframe-rate")?, length)?
+    };
+    let dims = keyframes::dim_mask(&T2M, Some(&joints));
+    let mask = keyframes::frame_mask(length, &frames, &dims);
+    let values = feats[..length * d].iter().zip(&mask).map(|(v, m)| v * m).collect();
+    let source = rep::recover_from_ric(&T2M, &feats[..length * d].iter().map(|&v| v as f64).collect::<Vec<_>>());
+    Ok(Keys { length, frames, values, mask, source: Some(source), joints })
+}
+
+fn keys_from_json(path: &Path, length: Option<usize>, joints_flag: Option<&str>) -> Result<Keys> {
+    let err = |m: String| anyhow::anyhow!("{}: {m}", path.display());
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(path).with_context(|| format!("reading {}", path.display()))?).map_err(|e| err(format!("not valid JSON: {e}")))?;
+    let length = length.or(v["length"].as_u64().map(|l| l as usize)).ok_or_else(|| err("no \"length\" (or pass --length)".into()))?;
+    let spec = joints_flag.map(str::to_string).or(v["joints"].as_str().map(str::to_string));
+    let joints = joint_set(spec.as_deref(), "joints")?;
+    let d = T2M.feature_dim();
+    let dims = keyframes::dim_mask(&T2M, Some(&joints));
+    let (mut values, mut mask) = (vec![0f32; length * d], vec![0f32; length * d]);
+    let mut frames = Vec::new();
+    for (i, k) in v["keyframes"].as_array().ok_or_else(|| err("no \"keyframes\" array".into()))?.iter().enumerate() {
+        let f = k["frame"].as_u64().ok_or_else(|| err(format!("keyframe {i}: no \"frame\"")))? as usize;
+        if f >= length {
+            return Err(err(format!("keyframe {i}: frame {f} is beyond the length {length}")));
+        }
+        let (vals, obs): (Vec<f32>, Vec<bool>) = if let Some(j) = k["joints"].as_array() {
+            let pose: Vec<[f64; 3]> = j
+                .iter()
+                .map(|p| {
+                    let a = p.as_array().filter(|a| a.len() == 3).ok_or_else(|| err(format!("keyframe {i}: each joint must be [x, y, z]")))?;
+                    let c: Vec<f64> = a.iter().map(|x| x.as_f64().unwrap_or(f64::NAN)).collect();
+                    Ok([c[0], c[1], c[2]])
+                })
+                .collect::<Result<_>>()?;
+            pose::pose_features(&T2M, &pose).map_err(|e| err(format!("keyframe {i}: {e}")))?
+        } else if let Some(fe) = k["features"].as_array() {
+            if fe.len() != d {
+                return Err(err(format!("keyframe {i}: {} features, expected {d}", fe.len())));
+            }
+            let vals: Vec<f32> = fe.iter().map(|x| x.as_f64().unwrap_or(f64::NAN) as f32).collect();
+            if vals.iter().any(|x| !x.is_finite()) {
+                return Err(err(format!("keyframe {i}: NaN or non-numeric feature")));
+            }
+            (vals, vec![true; d])
+        } else {
+            return Err(err(format!("keyframe {i}: needs \"joints\" (22 x [x,y,z]) or \"features\" ({d} numbers)")));
+        };
+        for c in 0..d {
+            if obs[c] && dims[c] {
+                values[f * d + c] = vals[c];
+                mask[f * d + c] = 1.0;
+            }
+        }
+        frames.push(f);
+    }
+    frames.sort_unstable();
+    frames.dedup();
+    Ok(Keys { length, frames, values, mask, source: None, joints })
+}
+
+pub fn run(a: SampleArgs) -> Result<()> {
+    if a.text.trim().is_empty() {
+        bail!("--text: empty prompt");
+    }
+    if a.num_samples == 0 {
+        bail!("--num-samples: must be at least 1");
+    }
+    let device = crate::device::parse(&a.device)?;
+    let (cfg, model, step) = load_for_inference(&a.checkpoint, &device).map_err(anyhow::Error::msg)?;
+    let (mean, std) = normalisation(&a.checkpoint, &cfg)?;
+    let length = a.length.or(a.seconds.map(|s| (s * T2M.fps).round() as usize));
+    let keys = match (&a.from, &a.keyframes) {
+        (Some(p), _) => keys_from_motion(&a, p, length, joint_set(a.joints.as_deref(), "--joints")?)?,
+        (None, Some(p)) => keys_from_json(p, length, a.joints.as_deref())?,
+        (None, None) => {
+            let length = length.unwrap_or(120);
+            Keys { length, frames: vec![], values: vec![0.0; length * T2M.feature_dim()], mask: vec![0.0; length * T2M.feature_dim()], source: None, joints: vec![] }
+        }
+    };
+    let max = diffkfc_data::dataset::MAX_FRAMES;
+    if keys.length == 0 || keys.length > max {
+        bail!("--length: {} frames; must be 1 to {max}", keys.length);
+    }
+    let enc = MiniLm::load(&text::default_dir(), &Device::flex())?;
+    let emb = enc.embed(&[a.text.as_str()]).context("--text")?.remove(0);
+    let (b, n, d) = (a.num_samples, keys.length, T2M.feature_dim());
+    let norm = |v: &[f32], m: &[f32]| -> Vec<f32> { v.iter().zip(m).enumerate().map(|(k, (x, mk))| if *mk > 0.0 { (x - mean[k % d]) / std[k % d] } else { 0.0 }).collect() };
+    let kf_n = norm(&keys.values, &keys.mask);
+    let req = Request {
+        batch: b,
+        frames: n,
+        dim: d,
+        text: emb.iter().copied().cycle().take(b * emb.len()).collect(),
+        text_dim: emb.len(),
+        kf: kf_n.iter().copied().cycle().take(b * n * d).collect(),
+        mask: keys.mask.iter().copied().cycle().take(b * n * d).collect(),
+        lengths: vec![n; b],
+    };
+    let schedule = Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps).context("diffusion schedule of the checkpoint")?;
+    let opts = Options {
+        sampler: match a.sampler {
+            SamplerArg::Ddpm => Sampler::Ddpm,
+            SamplerArg::Ddim => Sampler::Ddim(a.steps),
+        },
+        kf_guidance: a.kf_guidance,
+        transition: a.transition_guidance,
+        write_back: !a.no_write_back,
+        seed: a.seed,
+        ..Options::default()
+    };
+    let t0 = std::time::Instant::now();
+    let x = sampler::sample(&model, &schedule, &req, &opts, crate::progress::bar("denoising"));
+    let secs = t0.elapsed().as_secs_f64();
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let mut samples = Vec::new();
+    for i in 0..b {
+        let mut f: Vec<f32> = x[i * n * d..(i + 1) * n * d].to_vec();
+        for (k, v) in f.iter_mut().enumerate() {
+            *v = *v * std[k % d] + mean[k % d];
+        }
+        let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
+        let stem = a.out.join(format!("sample{i}"));
+        npy::write(stem.with_extension("npy"), &[n, d], &f)?;
+        npy::write(stem.with_file_name(format!("sample{i}_joints.npy")), &[n, 22, 3], &rep::joints_to_f32(&j))?;
+        render::gif(&T2M, &j, &keys.frames, &stem.with_extension("gif"))?;
+        samples.push(json!({
+            "features": format!("sample{i}.npy"),
+            "joints": format!("sample{i}_joints.npy"),
+            "gif": format!("sample{i}.gif"),
+            "k_err_m": keys.source.as_ref().and_then(|s| k_err_global(&j, s, &keys.frames, &keys.joints)),
+            "k_err_root_relative_m": k_err_local(&T2M, &f, &keys.values, &keys.frames, &keys.joints),
+            "k_trans": k_trans(&j, &keys.frames, 2),
+        }));
+    }
+    let report = json!({
+        "text": a.text,
+        "checkpoint": a.checkpoint.display().to_string(),
+        "checkpoint_step": step,
+        "length": n,
+        "keyframes": keys.frames,
+        "keyframe_joints": keys.joints,
+        "sampler": format!("{:?}", opts.sampler),
+        "kf_guidance": opts.kf_guidance,
+        "transition_guidance": opts.transition,
+        "write_back": opts.write_back,
+        "seed": a.seed,
+        "seconds": secs,
+        "real_k_trans": keys.source.as_ref().and_then(|s| k_trans(s, &keys.frames, 2)),
+        "samples": samples,
+    });
+    npy::write_atomic(&a.out.join("sample.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
+    println!("{}: {b} sample(s) of {n} frames in {secs:.1} s ({:?}); see sample.json", a.out.display(), opts.sampler);
+    for (i, s) in report["samples"].as_array().unwrap().iter().enumerate() {
+        println!("  sample{i}: K-Err {} m, root-relative {} m, K-TranS {}", fmt(&s["k_err_m"]), fmt(&s["k_err_root_relative_m"]), fmt(&s["k_trans"]));
+    }
+    Ok(())
+}
+
+fn fmt(v: &serde_json::Value) -> String {
+    v.as_f64().map(|x| format!("{x:.4}")).unwrap_or_else(|| "-".into())
+}
+
+/// Mean/Std the model was trained with: copied into the run directory at training time, or
+/// read from the dataset the config names.
+pub fn normalisation(run: &Path, cfg: &diffkfc_model::run_config::RunConfig) -> Result<(Vec<f32>, Vec<f32>)> {
+    let dir = if run.join("Mean.npy").exists() {
+        run.to_path_buf()
+    } else {
+        PathBuf::from(cfg.data.dir.clone().with_context(|| format!("{}: no Mean.npy/Std.npy and no data.dir in its config", run.display()))?)
+    };
+    Ok((npy::read_f32(dir.join("Mean.npy"))?.data, npy::read_f32(dir.join("Std.npy"))?.data))
+}

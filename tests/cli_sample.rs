@@ -1,0 +1,95 @@
+//! End-to-end: `diffkfc sample` from a motion and from a keyframe JSON file; outputs,
+//! exact keyframes, determinism and one-line errors.
+
+mod common;
+use common::*;
+use diffkfc_data::npy;
+
+const CFG: &str = r#"{"model": {"preset": "tiny", "dec_layers": 1, "dma_sizes": [2, 0]},
+  "training": {"batch_size": 4, "max_steps": 2, "checkpoint_every": 2, "val_every": 0}}"#;
+
+#[test]
+fn sample_outputs_errors_and_determinism() {
+    let o = diffkfc(&["text-embed", "--text", "a person walks."]);
+    if !o.status.success() {
+        if std::env::var("DIFFKFC_REQUIRE_FIXTURES").is_ok_and(|v| v == "1") {
+            panic!("text encoder required: {}", stderr(&o));
+        }
+        eprintln!("SKIPPED: no text encoder");
+        return;
+    }
+    let d = scratch("sample");
+    let data = d.join("synth");
+    assert!(diffkfc(&["data", "synth", "--out", s(&data), "--clips", "12", "--seed", "3"]).status.success());
+    std::fs::write(d.join("cfg.json"), CFG).unwrap();
+    let run = d.join("run");
+    let o = diffkfc(&["train", "--config", s(&d.join("cfg.json")), "--data", s(&data), "--out", s(&run)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let src = data.join("new_joint_vecs/000000.npy");
+    let out = d.join("out");
+    let args = |out: &std::path::Path| -> Vec<String> {
+        ["sample", "--checkpoint", s(&run), "--text", "a person walks forward.", "--from", s(&src), "--frames", "0,20,39", "--length", "40", "--steps", "5", "--num-samples", "2", "--out", s(out)]
+            .iter()
+            .map(|x| x.to_string())
+            .collect()
+    };
+    let a: Vec<String> = args(&out);
+    let o = diffkfc(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(o.status.success(), "{}", stderr(&o));
+    for f in ["sample.json", "sample0.npy", "sample0_joints.npy", "sample0.gif", "sample1.gif"] {
+        assert!(out.join(f).exists(), "{f}");
+    }
+    let gen = npy::read_f32(out.join("sample0.npy")).unwrap();
+    assert_eq!(gen.shape, vec![40, 263]);
+    let source = npy::read_f32(&src).unwrap();
+    for f in [0usize, 20, 39] {
+        for c in 0..263 {
+            let (g, s) = (gen.data[f * 263 + c], source.data[f * 263 + c]);
+            assert!((g - s).abs() <= 1e-5 * (1.0 + s.abs()), "frame {f} dim {c}: {g} vs {s}");
+        }
+    }
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("sample.json")).unwrap()).unwrap();
+    assert_eq!(report["keyframes"], serde_json::json!([0, 20, 39]));
+    assert!(report["samples"][0]["k_err_root_relative_m"].as_f64().unwrap() < 1e-4);
+    assert!(report["samples"][0]["k_trans"].as_f64().unwrap().is_finite());
+    // Same seed, same bytes.
+    let out2 = d.join("out2");
+    let a2 = args(&out2);
+    assert!(diffkfc(&a2.iter().map(String::as_str).collect::<Vec<_>>()).status.success());
+    assert_eq!(std::fs::read(out.join("sample0.npy")).unwrap(), std::fs::read(out2.join("sample0.npy")).unwrap());
+
+    // A JSON keyframe file: one pose, one feature vector, the lower body only.
+    let joints = npy::read_f32(data.join("new_joints/000000.npy")).unwrap();
+    let pose: Vec<Vec<f32>> = (0..22).map(|j| joints.data[j * 3..j * 3 + 3].to_vec()).collect();
+    let feats: Vec<f32> = source.data[10 * 263..11 * 263].to_vec();
+    let kjson = d.join("keys.json");
+    std::fs::write(&kjson, serde_json::json!({"length": 30, "joints": "lower_body", "keyframes": [{"frame": 0, "joints": pose}, {"frame": 10, "features": feats}]}).to_string()).unwrap();
+    let out3 = d.join("out3");
+    let o = diffkfc(&["sample", "--checkpoint", s(&run), "--text", "a person squats.", "--keyframes", s(&kjson), "--steps", "3", "--out", s(&out3)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(out3.join("sample.json")).unwrap()).unwrap();
+    assert_eq!(r["length"], 30);
+    assert_eq!(r["keyframe_joints"], serde_json::json!([0, 1, 2, 4, 5, 7, 8, 10, 11]));
+
+    // Errors.
+    let base = ["sample", "--checkpoint", s(&run), "--text", "walk", "--steps", "2", "--out", s(&out3)];
+    let with = |extra: &[&str]| -> Vec<String> { base.iter().chain(extra).map(|x| x.to_string()).collect() };
+    let run_err = |extra: &[&str], needles: &[&str]| {
+        let v = with(extra);
+        assert_one_line_error(&diffkfc(&v.iter().map(String::as_str).collect::<Vec<_>>()), needles);
+    };
+    run_err(&["--from", s(&src), "--frames", "0,500"], &["--frames", "500", "beyond"]);
+    run_err(&["--from", s(&src), "--frames", "0", "--joints", "tail"], &["--joints", "'tail'"]);
+    run_err(&["--length", "300"], &["--length", "196"]);
+    let bad = d.join("bad.json");
+    std::fs::write(&bad, r#"{"length": 20, "keyframes": [{"frame": 25, "features": []}]}"#).unwrap();
+    run_err(&["--keyframes", s(&bad)], &["bad.json", "beyond the length"]);
+    std::fs::write(&bad, r#"{"length": 20, "keyframes": [{"frame": 2, "features": [1, 2]}]}"#).unwrap();
+    run_err(&["--keyframes", s(&bad)], &["bad.json", "2 features, expected 263"]);
+    std::fs::write(&bad, r#"{"length": 20, "keyframes": [{"frame": 2, "joints": [[0, "x", 0]]}]}"#).unwrap();
+    run_err(&["--keyframes", s(&bad)], &["bad.json", "keyframe 0"]);
+    let v: Vec<String> = ["sample", "--checkpoint", s(&run), "--text", "  "].iter().map(|x| x.to_string()).collect();
+    assert_one_line_error(&diffkfc(&v.iter().map(String::as_str).collect::<Vec<_>>()), &["--text", "empty"]);
+    let v: Vec<String> = ["sample", "--checkpoint", s(&d.join("norun")), "--text", "walk"].iter().map(|x| x.to_string()).collect();
+    assert_one_line_error(&diffkfc(&v.iter().map(String::as_str).collect::<Vec<_>>()), &["norun", "no checkpoint"]);
+}
