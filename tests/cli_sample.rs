@@ -36,7 +36,7 @@ fn sample_outputs_errors_and_determinism() {
     let a: Vec<String> = args(&out);
     let o = diffkfc(&a.iter().map(String::as_str).collect::<Vec<_>>());
     assert!(o.status.success(), "{}", stderr(&o));
-    for f in ["sample.json", "sample0.npy", "sample0_joints.npy", "sample0.gif", "sample1.gif"] {
+    for f in ["sample.json", "sample0.npy", "sample0_joints.npy", "sample0.gif", "sample1.gif", "sample0.bvh"] {
         assert!(out.join(f).exists(), "{f}");
     }
     let gen = npy::read_f32(out.join("sample0.npy")).unwrap();
@@ -58,6 +58,12 @@ fn sample_outputs_errors_and_determinism() {
     assert!(diffkfc(&a2.iter().map(String::as_str).collect::<Vec<_>>()).status.success());
     assert_eq!(std::fs::read(out.join("sample0.npy")).unwrap(), std::fs::read(out2.join("sample0.npy")).unwrap());
 
+    // The BVH reads back as keyframe source and as a picture.
+    let bvh = out.join("sample0.bvh");
+    let out4 = d.join("out4");
+    let o = diffkfc(&["sample", "--checkpoint", s(&run), "--text", "walk", "--from", s(&bvh), "--frames", "0,10", "--steps", "2", "--out", s(&out4)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(diffkfc(&["render", s(&bvh), "-o", s(&d.join("bvh.gif"))]).status.success());
     // A JSON keyframe file: one pose, one feature vector, the lower body only.
     let joints = npy::read_f32(data.join("new_joints/000000.npy")).unwrap();
     let pose: Vec<Vec<f32>> = (0..22).map(|j| joints.data[j * 3..j * 3 + 3].to_vec()).collect();

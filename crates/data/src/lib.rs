@@ -1,6 +1,7 @@
 //! diffkfc-data: the HumanML3D / KIT-ML file formats, skeletons and motion representation.
 
 pub mod batch;
+pub mod bvh;
 pub mod cache;
 pub mod check;
 pub mod dataset;

@@ -128,9 +128,21 @@ struct JointsArgs {
     skeleton: SkeletonArg,
 }
 
+fn is_bvh(path: &std::path::Path) -> bool {
+    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("bvh"))
+}
+
+fn read_bvh(path: &std::path::Path, skel: &Skeleton) -> Result<rep::Joints> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    diffkfc_data::bvh::read(skel, &text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
 /// Joint positions from a motion file: features (T, D) are recovered, joints (T, J, 3) taken
-/// as they are.
+/// as they are, a BVH written by diffkfc read back.
 pub fn load_motion(path: &std::path::Path, skel: &Skeleton) -> Result<rep::Joints> {
+    if is_bvh(path) {
+        return read_bvh(path, skel);
+    }
     let a = npy::read_f64(path)?;
     if a.ndim() == 2 {
         let f = load_features(path, skel, 1)?;
@@ -138,6 +150,19 @@ pub fn load_motion(path: &std::path::Path, skel: &Skeleton) -> Result<rep::Joint
     } else {
         Ok(load_joints(path, skel, 1)?)
     }
+}
+
+/// Features (T, D) of a motion file: features as they are, joints or BVH through
+/// `process_file` (one frame fewer).
+pub fn load_motion_features(path: &std::path::Path, skel: &Skeleton) -> Result<Vec<f32>> {
+    let joints = if is_bvh(path) {
+        read_bvh(path, skel)?
+    } else if npy::read_f64(path)?.ndim() == 2 {
+        return Ok(load_features(path, skel, 1)?.data);
+    } else {
+        load_joints(path, skel, 2)?
+    };
+    Ok(rep::features_from_joints(skel, &joints, FOOT_CONTACT_THRESHOLD).map_err(|e| e.in_file(path))?)
 }
 
 pub fn run(args: DataArgs) -> Result<()> {

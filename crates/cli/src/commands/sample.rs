@@ -29,7 +29,8 @@ pub struct SampleArgs {
     /// The prompt.
     #[arg(long)]
     text: String,
-    /// Keyframes from a motion: features (T,263) or joints (T,22,3) .npy.
+    /// Keyframes from a motion: features (T,263) or joints (T,22,3) .npy, or a BVH written by
+    /// diffkfc.
     #[arg(long, conflicts_with = "keyframes")]
     from: Option<PathBuf>,
     /// Frames of --from that become keyframes: a list (0,40,80) or `all`.
@@ -111,13 +112,7 @@ fn joint_set(spec: Option<&str>, flag: &str) -> Result<Vec<usize>> {
 }
 
 fn keys_from_motion(a: &SampleArgs, path: &Path, length: Option<usize>, joints: Vec<usize>) -> Result<Keys> {
-    let arr = npy::read_f64(path)?;
-    let feats: Vec<f32> = if arr.ndim() == 2 {
-        diffkfc_data::motion_file::load_features(path, &T2M, 1)?.data
-    } else {
-        let j = diffkfc_data::motion_file::load_joints(path, &T2M, 2)?;
-        rep::features_from_joints(&T2M, &j, rep::FOOT_CONTACT_THRESHOLD).map_err(|e| e.in_file(path))?
-    };
+    let feats = super::data::load_motion_features(path, &T2M)?;
     let d = T2M.feature_dim();
     let t = feats.len() / d;
     let length = length.unwrap_or(t.min(diffkfc_data::dataset::MAX_FRAMES));
@@ -255,10 +250,12 @@ pub fn run(a: SampleArgs) -> Result<()> {
         npy::write(stem.with_extension("npy"), &[n, d], &f)?;
         npy::write(stem.with_file_name(format!("sample{i}_joints.npy")), &[n, 22, 3], &rep::joints_to_f32(&j))?;
         render::gif(&T2M, &j, &keys.frames, &stem.with_extension("gif"))?;
+        npy::write_atomic(&stem.with_extension("bvh"), diffkfc_data::bvh::write(&T2M, &j).as_bytes())?;
         samples.push(json!({
             "features": format!("sample{i}.npy"),
             "joints": format!("sample{i}_joints.npy"),
             "gif": format!("sample{i}.gif"),
+            "bvh": format!("sample{i}.bvh"),
             "k_err_m": keys.source.as_ref().and_then(|s| k_err_global(&j, s, &keys.frames, &keys.joints)),
             "k_err_root_relative_m": k_err_local(&T2M, &f, &keys.values, &keys.frames, &keys.joints),
             "k_trans": k_trans(&j, &keys.frames, 2),
