@@ -77,6 +77,17 @@ fn sample_outputs_errors_and_determinism() {
     assert_eq!(r["length"], 30);
     assert_eq!(r["keyframe_joints"], serde_json::json!([0, 1, 2, 4, 5, 7, 8, 10, 11]));
 
+    // A prompts file: one output folder per line, `#length` honoured.
+    let prompts = d.join("prompts.txt");
+    std::fs::write(&prompts, "a person jumps.#24\na person waves.\n").unwrap();
+    let out5 = d.join("out5");
+    let o = diffkfc(&["sample", "--checkpoint", s(&run), "--prompts", s(&prompts), "--length", "16", "--steps", "2", "--out", s(&out5)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(npy::read_f32(out5.join("prompt000/sample0.npy")).unwrap().shape, vec![24, 263]);
+    assert_eq!(npy::read_f32(out5.join("prompt001/sample0.npy")).unwrap().shape, vec![16, 263]);
+    std::fs::write(&prompts, "a person jumps.#soon\n").unwrap();
+    assert_one_line_error(&diffkfc(&["sample", "--checkpoint", s(&run), "--prompts", s(&prompts)]), &["prompts.txt", "line 1", "soon"]);
+
     // Errors.
     let base = ["sample", "--checkpoint", s(&run), "--text", "walk", "--steps", "2", "--out", s(&out3)];
     let with = |extra: &[&str]| -> Vec<String> { base.iter().chain(extra).map(|x| x.to_string()).collect() };

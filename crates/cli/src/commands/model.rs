@@ -39,6 +39,10 @@ enum ModelCommand {
         repeats: usize,
         #[arg(long, default_value = "flex")]
         device: String,
+        /// Also time a whole DDIM sample of this many steps (one motion, 5% keyframes, keyframe
+        /// guidance 2.5 and transition guidance 100) and a single guided denoising step.
+        #[arg(long)]
+        sample_steps: Option<usize>,
     },
 }
 
@@ -65,7 +69,7 @@ pub fn run(a: ModelArgs) -> Result<()> {
             println!("  (the frozen text encoder, all-MiniLM-L6-v2, adds 22.7 M that are not trained)");
             Ok(())
         }
-        ModelCommand::Bench { config, batch, frames, repeats, device } => {
+        ModelCommand::Bench { config, batch, frames, repeats, device, sample_steps } => {
             let cfg = RunConfig::load(&config).map_err(anyhow::Error::msg)?;
             let dev = crate::device::parse(&device)?;
             let model = cfg.model.init(&dev);
@@ -101,6 +105,23 @@ pub fn run(a: ModelArgs) -> Result<()> {
                 serde_json::json!({"case": "forward", "config": config.display().to_string(), "device": device, "batch": batch, "frames": frames,
                     "params": model.num_params(), "encoder_ms": e, "decoder_ms": dd, "forward_ms": e + dd, "repeats": repeats})
             );
+            if let Some(steps) = sample_steps {
+                use diffkfc_model::sampler::{sample, Options, Request, Sampler};
+                let schedule = diffkfc_model::diffusion::Schedule::cosine(cfg.diffusion.steps);
+                let mut mask = vec![0f32; frames * d];
+                for f in diffkfc_data::keyframes::uniform(frames, diffkfc_data::keyframes::count(frames, 0.05)) {
+                    mask[f * d..(f + 1) * d].iter_mut().for_each(|m| *m = 1.0);
+                }
+                let req = Request { batch: 1, frames, dim: d, text: vec![0.05; cfg.model.text_dim], text_dim: cfg.model.text_dim, kf: mask.clone(), mask, lengths: vec![frames] };
+                for (case, sampler) in [("sample_ddim", Sampler::Ddim(steps)), ("sample_single_step", Sampler::Ddim(1))] {
+                    let t0 = Instant::now();
+                    let out = sample(&model, &schedule, &req, &Options { sampler, ..Options::default() }, |_, _| {});
+                    let ms = t0.elapsed().as_secs_f64() * 1e3;
+                    let n = match sampler { Sampler::Ddim(k) => k, Sampler::Ddpm => schedule.steps };
+                    println!("{}", serde_json::json!({"case": case, "config": config.display().to_string(), "frames": frames, "steps": n,
+                        "kf_guidance": 2.5, "transition_guidance": 100.0, "total_ms": ms, "finite": out.iter().all(|v| v.is_finite())}));
+                }
+            }
             Ok(())
         }
     }

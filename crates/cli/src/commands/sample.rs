@@ -15,20 +15,23 @@ use diffkfc_model::text::{self, minilm::MiniLm, TextEncoder};
 use diffkfc_model::trainer::load_for_inference;
 use serde_json::json;
 
-#[derive(Clone, Copy, ValueEnum)]
+#[derive(Clone, Copy, Debug, ValueEnum)]
 enum SamplerArg {
     Ddpm,
     Ddim,
 }
 
-#[derive(Args)]
+#[derive(Args, Clone, Debug)]
 pub struct SampleArgs {
     /// Run directory of `diffkfc train` (its newest checkpoint; EMA weights when present).
     #[arg(long)]
     checkpoint: PathBuf,
     /// The prompt.
-    #[arg(long)]
+    #[arg(long, required_unless_present = "prompts", default_value = "")]
     text: String,
+    /// Many prompts: one per line, optionally `text#length`; outputs go to <out>/promptNNN.
+    #[arg(long, conflicts_with = "text")]
+    prompts: Option<PathBuf>,
     /// Keyframes from a motion: features (T,263) or joints (T,22,3) .npy, or a BVH written by
     /// diffkfc.
     #[arg(long, conflicts_with = "keyframes")]
@@ -186,6 +189,28 @@ fn keys_from_json(path: &Path, length: Option<usize>, joints_flag: Option<&str>)
 }
 
 pub fn run(a: SampleArgs) -> Result<()> {
+    let Some(file) = a.prompts.clone() else { return run_one(a) };
+    let text = std::fs::read_to_string(&file).with_context(|| format!("reading {}", file.display()))?;
+    let lines: Vec<&str> = text.lines().map(str::trim).filter(|l| !l.is_empty() && !l.starts_with("//")).collect();
+    if lines.is_empty() {
+        bail!("{}: no prompts", file.display());
+    }
+    for (k, line) in lines.iter().enumerate() {
+        let (t, len) = match line.rsplit_once('#') {
+            Some((t, l)) => (t.trim(), Some(l.trim().parse::<usize>().map_err(|_| anyhow::anyhow!("{}: line {}: length '{l}' is not a number", file.display(), k + 1))?)),
+            None => (*line, None),
+        };
+        let mut one = a.clone();
+        one.prompts = None;
+        one.text = t.to_string();
+        one.length = len.or(a.length);
+        one.out = a.out.join(format!("prompt{k:03}"));
+        run_one(one).with_context(|| format!("{}: line {}", file.display(), k + 1))?;
+    }
+    Ok(())
+}
+
+fn run_one(a: SampleArgs) -> Result<()> {
     if a.text.trim().is_empty() {
         bail!("--text: empty prompt");
     }
