@@ -36,10 +36,10 @@ fn sample_outputs_errors_and_determinism() {
     let a: Vec<String> = args(&out);
     let o = diffkfc(&a.iter().map(String::as_str).collect::<Vec<_>>());
     assert!(o.status.success(), "{}", stderr(&o));
-    for f in ["sample.json", "sample0.npy", "sample0_joints.npy", "sample0.gif", "sample1.gif", "sample0.bvh"] {
+    for f in ["results.json", "index.html", "sample_00.npy", "sample_00_joints.npy", "sample_00.gif", "sample_01.gif", "sample_00.bvh"] {
         assert!(out.join(f).exists(), "{f}");
     }
-    let gen = npy::read_f32(out.join("sample0.npy")).unwrap();
+    let gen = npy::read_f32(out.join("sample_00.npy")).unwrap();
     assert_eq!(gen.shape, vec![40, 263]);
     let source = npy::read_f32(&src).unwrap();
     for f in [0usize, 20, 39] {
@@ -48,7 +48,7 @@ fn sample_outputs_errors_and_determinism() {
             assert!((g - s).abs() <= 1e-5 * (1.0 + s.abs()), "frame {f} dim {c}: {g} vs {s}");
         }
     }
-    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("sample.json")).unwrap()).unwrap();
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("results.json")).unwrap()).unwrap();
     assert_eq!(report["keyframes"], serde_json::json!([0, 20, 39]));
     assert!(report["samples"][0]["k_err_root_relative_m"].as_f64().unwrap() < 1e-4);
     assert!(report["samples"][0]["k_trans"].as_f64().unwrap().is_finite());
@@ -56,10 +56,10 @@ fn sample_outputs_errors_and_determinism() {
     let out2 = d.join("out2");
     let a2 = args(&out2);
     assert!(diffkfc(&a2.iter().map(String::as_str).collect::<Vec<_>>()).status.success());
-    assert_eq!(std::fs::read(out.join("sample0.npy")).unwrap(), std::fs::read(out2.join("sample0.npy")).unwrap());
+    assert_eq!(std::fs::read(out.join("sample_00.npy")).unwrap(), std::fs::read(out2.join("sample_00.npy")).unwrap());
 
     // The BVH reads back as keyframe source and as a picture.
-    let bvh = out.join("sample0.bvh");
+    let bvh = out.join("sample_00.bvh");
     let out4 = d.join("out4");
     let o = diffkfc(&["sample", "--checkpoint", s(&run), "--text", "walk", "--from", s(&bvh), "--frames", "0,10", "--steps", "2", "--out", s(&out4)]);
     assert!(o.status.success(), "{}", stderr(&o));
@@ -73,7 +73,7 @@ fn sample_outputs_errors_and_determinism() {
     let out3 = d.join("out3");
     let o = diffkfc(&["sample", "--checkpoint", s(&run), "--text", "a person squats.", "--keyframes", s(&kjson), "--steps", "3", "--out", s(&out3)]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(out3.join("sample.json")).unwrap()).unwrap();
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(out3.join("results.json")).unwrap()).unwrap();
     assert_eq!(r["length"], 30);
     assert_eq!(r["keyframe_joints"], serde_json::json!([0, 1, 2, 4, 5, 7, 8, 10, 11]));
 
@@ -83,10 +83,23 @@ fn sample_outputs_errors_and_determinism() {
     let out5 = d.join("out5");
     let o = diffkfc(&["sample", "--checkpoint", s(&run), "--prompts", s(&prompts), "--length", "16", "--steps", "2", "--out", s(&out5)]);
     assert!(o.status.success(), "{}", stderr(&o));
-    assert_eq!(npy::read_f32(out5.join("prompt000/sample0.npy")).unwrap().shape, vec![24, 263]);
-    assert_eq!(npy::read_f32(out5.join("prompt001/sample0.npy")).unwrap().shape, vec![16, 263]);
+    assert_eq!(npy::read_f32(out5.join("prompt000/sample_00.npy")).unwrap().shape, vec![24, 263]);
+    assert_eq!(npy::read_f32(out5.join("prompt001/sample_00.npy")).unwrap().shape, vec![16, 263]);
     std::fs::write(&prompts, "a person jumps.#soon\n").unwrap();
     assert_one_line_error(&diffkfc(&["sample", "--checkpoint", s(&run), "--prompts", s(&prompts)]), &["prompts.txt", "line 1", "soon"]);
+
+    // Exact transition guidance, the inpainting baseline and no snapping all run.
+    for extra in [vec!["--tg-mode", "exact"], vec!["--keyframe-mode", "inpaint"], vec!["--no-snap", "--tg-window", "3", "--tg-bases", "2"]] {
+        let o6 = d.join("out6");
+        let mut v = vec!["sample", "--checkpoint", s(&run), "--text", "walk", "--from", s(&src), "--frames", "0,20", "--length", "30", "--steps", "3", "--out", s(&o6)];
+        v.extend(extra.iter().copied());
+        let o = diffkfc(&v);
+        assert!(o.status.success(), "{extra:?}: {}", stderr(&o));
+        let r: serde_json::Value = serde_json::from_slice(&std::fs::read(o6.join("results.json")).unwrap()).unwrap();
+        assert!(r["samples"][0]["k_err_m"].as_f64().unwrap().is_finite(), "{extra:?}");
+    }
+    let html = std::fs::read_to_string(out.join("index.html")).unwrap();
+    assert!(html.contains("sample_00.gif") && html.contains("a person walks forward."));
 
     // Errors.
     let base = ["sample", "--checkpoint", s(&run), "--text", "walk", "--steps", "2", "--out", s(&out3)];

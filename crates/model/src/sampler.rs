@@ -17,6 +17,15 @@ pub enum Sampler {
     Ddim(usize),
 }
 
+/// How the transition-guidance gradient is taken.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum TgMode {
+    /// With respect to the predicted x0 (cheap: no backward pass).
+    X0,
+    /// With respect to x_t through the denoiser (the paper's Eq. 5; needs an autodiff device).
+    Exact,
+}
+
 #[derive(Clone, Debug)]
 pub struct Options {
     pub sampler: Sampler,
@@ -30,11 +39,14 @@ pub struct Options {
     /// Write observed keyframe features back after the last step.
     pub write_back: bool,
     pub seed: u64,
+    pub tg_mode: TgMode,
+    /// The MDM-inp baseline: no keyframe branch; observed features pasted into x0 every step.
+    pub inpaint: bool,
 }
 
 impl Default for Options {
     fn default() -> Self {
-        Options { sampler: Sampler::Ddim(50), kf_guidance: 2.5, transition: 100.0, window: 2, dct_bases: 3, write_back: true, seed: 0 }
+        Options { sampler: Sampler::Ddim(50), kf_guidance: 2.5, transition: 100.0, window: 2, dct_bases: 3, write_back: true, seed: 0, tg_mode: TgMode::X0, inpaint: false }
     }
 }
 
@@ -112,23 +124,36 @@ pub fn sample(model: &Denoiser, schedule: &Schedule, req: &Request, opts: &Optio
     let cond = req.condition(&device);
     let keys: Vec<Vec<usize>> = (0..b).map(|i| req.key_frames(i)).collect();
     let any_keys = keys.iter().any(|k| !k.is_empty());
-    let guided = any_keys && (opts.kf_guidance - 1.0).abs() > 1e-12;
-    // The encoder runs once; both guidance branches share each decoder call.
-    let enc = if guided { model.encode(&stack(&cond, &cond.without_keyframes())) } else { model.encode(&cond) };
+    let guided = any_keys && !opts.inpaint && (opts.kf_guidance - 1.0).abs() > 1e-12;
+    let exact = opts.tg_mode == TgMode::Exact && opts.transition > 0.0 && any_keys;
+    assert!(!exact || device.is_autodiff(), "exact transition guidance needs the model on an autodiff device");
+    // The encoder runs once; both guidance branches share each decoder call. Its output is
+    // detached so per-step backward passes (exact mode) never reach into it.
+    let cond = if opts.inpaint { cond.without_keyframes() } else { cond };
+    let mut enc = if guided { model.encode(&stack(&cond, &cond.without_keyframes())) } else { model.encode(&cond) };
+    enc.tokens = enc.tokens.detach();
+    enc.text_tok = enc.text_tok.detach();
+    let kf_t = Tensor::<1>::from_floats(req.kf.as_slice(), &device).reshape([b, n, d]);
+    let mask_t = Tensor::<1>::from_floats(req.mask.as_slice(), &device).reshape([b, n, d]);
     let mut rng = Rng::new(opts.seed);
     let mut x: Vec<f32> = (0..b * n * d).map(|_| rng.normal() as f32).collect();
     let ts = timesteps(schedule, opts.sampler);
     for (k, &t) in ts.iter().enumerate() {
-        let xt = Tensor::<1>::from_floats(x.as_slice(), &device).reshape([b, n, d]);
-        let x0 = if guided {
-            let out = model.decode(Tensor::cat(vec![xt.clone(), xt], 0), &vec![t; 2 * b], &enc);
+        let mut xt = Tensor::<1>::from_floats(x.as_slice(), &device).reshape([b, n, d]);
+        if exact {
+            xt = xt.require_grad();
+        }
+        let x0_t = if guided {
+            let out = model.decode(Tensor::cat(vec![xt.clone(), xt.clone()], 0), &vec![t; 2 * b], &enc);
             let c = out.clone().slice([0..b, 0..n, 0..d]);
             let u = out.slice([b..2 * b, 0..n, 0..d]);
             u.clone() + (c - u) * opts.kf_guidance
         } else {
-            model.decode(xt, &vec![t; b], &enc)
+            model.decode(xt.clone(), &vec![t; b], &enc)
         };
-        let x0 = host(x0);
+        // MDM-inp: the observed features replace the prediction at every step.
+        let x0_t = if opts.inpaint { x0_t.clone() * (mask_t.ones_like() - mask_t.clone()) + kf_t.clone() * mask_t.clone() } else { x0_t };
+        let x0 = host(x0_t.clone().detach());
         let prev = ts.get(k + 1).copied();
         let ab = schedule.alphas_cumprod[t];
         let ab_prev = prev.map(|p| schedule.alphas_cumprod[p]).unwrap_or(1.0);
@@ -136,12 +161,20 @@ pub fn sample(model: &Denoiser, schedule: &Schedule, req: &Request, opts: &Optio
         let var = if prev.is_some() { (1.0 - ab_prev) / (1.0 - ab) * (1.0 - ab / ab_prev) } else { 0.0 };
         let mut shift = vec![0f32; x.len()];
         if opts.transition > 0.0 && var > 0.0 {
+            let mut grad = vec![0f32; x.len()];
             for i in 0..b {
                 let r = i * n * d..(i + 1) * n * d;
                 let (_, g) = transition::loss_and_grad(&x0[r.clone()], &req.kf[r.clone()], &req.mask[r.clone()], &keys[i], req.lengths[i], d, opts.window, opts.dct_bases);
-                for (s, gv) in shift[r].iter_mut().zip(g) {
-                    *s = (opts.transition * var) as f32 * gv;
-                }
+                grad[r].copy_from_slice(&g);
+            }
+            if exact {
+                // Chain rule through the denoiser: d L / d x_t = J^T (d L / d x0).
+                let g = Tensor::<1>::from_floats(grad.as_slice(), &device).reshape([b, n, d]);
+                let grads = (x0_t * g).sum().backward();
+                grad = xt.grad(&grads).map(host).unwrap_or(grad);
+            }
+            for (s, gv) in shift.iter_mut().zip(grad) {
+                *s = (opts.transition * var) as f32 * gv;
             }
         }
         match (opts.sampler, prev) {

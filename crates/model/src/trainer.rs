@@ -254,7 +254,9 @@ fn truncate_metrics(path: &Path, step: usize) -> std::io::Result<()> {
 /// Load the weights of a run for inference: the EMA when present, else the raw model.
 pub fn load_for_inference(run_dir: &Path, device: &Device) -> Result<(RunConfig, Denoiser, usize), String> {
     let ck = Checkpoint::latest(run_dir).ok_or(format!("{}: no checkpoint found (train first)", run_dir.display()))??;
-    let cfg = RunConfig::parse(&ck.config).map_err(|e| format!("{}: stored config: {e}", run_dir.display()))?;
+    let mut cfg = RunConfig::parse(&ck.config).map_err(|e| format!("{}: stored config: {e}", run_dir.display()))?;
+    // Inference: no dropout (it has no parameters, so the weights load the same).
+    cfg.model.dropout = 0.0;
     let model = cfg.model.init(device);
     let weights = ck.ema.as_ref().unwrap_or(&ck.model);
     Ok((cfg, params::load(model, weights), ck.step))

@@ -34,7 +34,7 @@ fn max_diff(a: &[f32], b: &[f32]) -> f32 {
 fn guidance_identities_and_exact_keyframes() {
     let model = DiffKfcConfig::tiny().init(&Device::flex());
     let run = |o: &Options| run(&model, o);
-    let base = Options { sampler: Sampler::Ddim(8), kf_guidance: 1.0, transition: 0.0, window: 2, dct_bases: 3, write_back: true, seed: 4 };
+    let base = Options { sampler: Sampler::Ddim(8), kf_guidance: 1.0, transition: 0.0, window: 2, dct_bases: 3, write_back: true, seed: 4, ..Options::default() };
     let a = run(&base);
     // s = 1 (conditional branch alone) vs the batched guided path at s = 1 + 1e-6.
     let b = run(&Options { kf_guidance: 1.0 + 1e-6, ..base.clone() });

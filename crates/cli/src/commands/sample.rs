@@ -16,6 +16,22 @@ use diffkfc_model::trainer::load_for_inference;
 use serde_json::json;
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
+enum TgModeArg {
+    /// Gradient with respect to the predicted x0 (no backward pass).
+    X0,
+    /// Gradient through the denoiser with respect to x_t (paper Eq. 5).
+    Exact,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum KeyframeMode {
+    /// The trained keyframe branch with keyframe guidance.
+    Diffkfc,
+    /// MDM-inp baseline: keyframes pasted into x0 at every step, no keyframe branch.
+    Inpaint,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
 enum SamplerArg {
     Ddpm,
     Ddim,
@@ -68,9 +84,19 @@ pub struct SampleArgs {
     kf_guidance: f64,
     #[arg(long, default_value_t = 100.0)]
     transition_guidance: f64,
-    /// Do not overwrite observed keyframe features after the last step.
+    /// Half window l of transition guidance (frames on each side of a keyframe).
+    #[arg(long, default_value_t = 2)]
+    tg_window: usize,
+    /// Number of DCT bases m kept by transition guidance.
+    #[arg(long, default_value_t = 3)]
+    tg_bases: usize,
+    #[arg(long, value_enum, default_value = "x0")]
+    tg_mode: TgModeArg,
+    #[arg(long, value_enum, default_value = "diffkfc")]
+    keyframe_mode: KeyframeMode,
+    /// Do not write observed keyframe features back after the last step (see the raw model).
     #[arg(long)]
-    no_write_back: bool,
+    no_snap: bool,
     #[arg(long, default_value = "out/sample")]
     out: PathBuf,
     #[arg(long, default_value = "flex")]
@@ -217,7 +243,12 @@ fn run_one(a: SampleArgs) -> Result<()> {
     if a.num_samples == 0 {
         bail!("--num-samples: must be at least 1");
     }
+    if a.tg_bases == 0 {
+        bail!("--tg-bases: must be at least 1");
+    }
     let device = crate::device::parse(&a.device)?;
+    // Exact transition guidance differentiates through the denoiser.
+    let device = if matches!(a.tg_mode, TgModeArg::Exact) { device.autodiff() } else { device };
     let (cfg, model, step) = load_for_inference(&a.checkpoint, &device).map_err(anyhow::Error::msg)?;
     let (mean, std) = normalisation(&a.checkpoint, &cfg)?;
     let length = a.length.or(a.seconds.map(|s| (s * T2M.fps).round() as usize));
@@ -256,9 +287,15 @@ fn run_one(a: SampleArgs) -> Result<()> {
         },
         kf_guidance: a.kf_guidance,
         transition: a.transition_guidance,
-        write_back: !a.no_write_back,
+        write_back: !a.no_snap,
         seed: a.seed,
-        ..Options::default()
+        window: a.tg_window,
+        dct_bases: a.tg_bases,
+        tg_mode: match a.tg_mode {
+            TgModeArg::X0 => sampler::TgMode::X0,
+            TgModeArg::Exact => sampler::TgMode::Exact,
+        },
+        inpaint: matches!(a.keyframe_mode, KeyframeMode::Inpaint),
     };
     let t0 = std::time::Instant::now();
     let x = sampler::sample(&model, &schedule, &req, &opts, crate::progress::bar("denoising"));
@@ -271,16 +308,17 @@ fn run_one(a: SampleArgs) -> Result<()> {
             *v = *v * std[k % d] + mean[k % d];
         }
         let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
-        let stem = a.out.join(format!("sample{i}"));
+        let name = format!("sample_{i:02}");
+        let stem = a.out.join(&name);
         npy::write(stem.with_extension("npy"), &[n, d], &f)?;
-        npy::write(stem.with_file_name(format!("sample{i}_joints.npy")), &[n, 22, 3], &rep::joints_to_f32(&j))?;
+        npy::write(a.out.join(format!("{name}_joints.npy")), &[n, 22, 3], &rep::joints_to_f32(&j))?;
         render::gif(&T2M, &j, &keys.frames, &stem.with_extension("gif"))?;
         npy::write_atomic(&stem.with_extension("bvh"), diffkfc_data::bvh::write(&T2M, &j).as_bytes())?;
         samples.push(json!({
-            "features": format!("sample{i}.npy"),
-            "joints": format!("sample{i}_joints.npy"),
-            "gif": format!("sample{i}.gif"),
-            "bvh": format!("sample{i}.bvh"),
+            "features": format!("{name}.npy"),
+            "joints": format!("{name}_joints.npy"),
+            "gif": format!("{name}.gif"),
+            "bvh": format!("{name}.bvh"),
             "k_err_m": keys.source.as_ref().and_then(|s| k_err_global(&j, s, &keys.frames, &keys.joints)),
             "k_err_root_relative_m": k_err_local(&T2M, &f, &keys.values, &keys.frames, &keys.joints),
             "k_trans": k_trans(&j, &keys.frames, 2),
@@ -296,18 +334,48 @@ fn run_one(a: SampleArgs) -> Result<()> {
         "sampler": format!("{:?}", opts.sampler),
         "kf_guidance": opts.kf_guidance,
         "transition_guidance": opts.transition,
-        "write_back": opts.write_back,
+        "snap": opts.write_back,
+        "keyframe_mode": format!("{:?}", a.keyframe_mode).to_lowercase(),
+        "tg_mode": format!("{:?}", a.tg_mode).to_lowercase(),
+        "tg_window": opts.window,
+        "tg_bases": opts.dct_bases,
         "seed": a.seed,
         "seconds": secs,
         "real_k_trans": keys.source.as_ref().and_then(|s| k_trans(s, &keys.frames, 2)),
         "samples": samples,
     });
-    npy::write_atomic(&a.out.join("sample.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
-    println!("{}: {b} sample(s) of {n} frames in {secs:.1} s ({:?}); see sample.json", a.out.display(), opts.sampler);
+    npy::write_atomic(&a.out.join("results.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
+    npy::write_atomic(&a.out.join("index.html"), index_html(&report).as_bytes())?;
+    println!("{}: {b} sample(s) of {n} frames in {secs:.1} s ({:?}); see results.json and index.html", a.out.display(), opts.sampler);
     for (i, s) in report["samples"].as_array().unwrap().iter().enumerate() {
-        println!("  sample{i}: K-Err {} m, root-relative {} m, K-TranS {}", fmt(&s["k_err_m"]), fmt(&s["k_err_root_relative_m"]), fmt(&s["k_trans"]));
+        println!("  sample_{i:02}: K-Err {} m, root-relative {} m, K-TranS {}", fmt(&s["k_err_m"]), fmt(&s["k_err_root_relative_m"]), fmt(&s["k_trans"]));
     }
     Ok(())
+}
+
+fn html_escape(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+}
+
+/// A page with every GIF, its prompt and its keyframe metrics.
+fn index_html(r: &serde_json::Value) -> String {
+    let mut h = format!(
+        "<!doctype html><meta charset=utf-8><title>diffkfc samples</title><style>body{{font-family:sans-serif}} figure{{display:inline-block;margin:8px}}</style><h1>{}</h1><p>keyframes at frames {} &middot; {} &middot; keyframe guidance {} &middot; transition guidance {}</p>",
+        html_escape(r["text"].as_str().unwrap_or("")),
+        r["keyframes"],
+        html_escape(r["sampler"].as_str().unwrap_or("")),
+        r["kf_guidance"],
+        r["transition_guidance"]
+    );
+    for s in r["samples"].as_array().into_iter().flatten() {
+        h += &format!(
+            "<figure><img src=\"{}\" width=320><figcaption>K-Err {} m &middot; K-TranS {}</figcaption></figure>",
+            html_escape(s["gif"].as_str().unwrap_or("")),
+            fmt(&s["k_err_m"]),
+            fmt(&s["k_trans"])
+        );
+    }
+    h + "\n"
 }
 
 fn fmt(v: &serde_json::Value) -> String {
