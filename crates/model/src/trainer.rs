@@ -182,9 +182,26 @@ impl Trainer<'_> {
             Ok(p)
         };
         let mut stopped = false;
+        // Validation lines without a training loss: before the first step of a fresh run, and
+        // where a run is stopped early, so start and end are always measured.
+        let val_line = |step: usize, vals: &[Vec<f32>], ema: &Option<Vec<Vec<f32>>>, metrics: &mut std::fs::File| -> Result<Option<f64>, String> {
+            let vm = params::load(self.cfg.model.init(&self.device), ema.as_ref().map(|e| e.as_slice()).unwrap_or(vals));
+            let v = self.validate(&vm, &schedule);
+            if let Some(v) = v {
+                let line = serde_json::json!({"step": step, "val_loss": v, "wall_s": t0.elapsed().as_secs_f64()});
+                writeln!(metrics, "{line}").map_err(|e| format!("{}: {e}", metrics_path.display()))?;
+            }
+            Ok(v)
+        };
+        if start == 0 && tc.val_every > 0 && step < max_steps {
+            val_line(0, &vals, &ema, &mut metrics)?;
+        }
         while step < max_steps {
             if stop() {
                 stopped = true;
+                if tc.val_every > 0 && step > start {
+                    val_line(step, &vals, &ema, &mut metrics)?;
+                }
                 break;
             }
             device.seed(tc.seed.wrapping_mul(0x9E37_79B9).wrapping_add(step as u64));

@@ -116,14 +116,10 @@ pub fn run(a: TrainArgs) -> Result<()> {
     pb.set_style(ProgressStyle::with_template("{msg} [{bar:30}] step {pos}/{len} {per_sec} ETA {eta}").expect("template").progress_chars("=> "));
     let trainer = Trainer { cfg: &cfg, ds: &ds, train: &train, val: val.as_ref(), text: &text, device, run_dir: run_dir.clone() };
     let mut first: Option<(usize, f64)> = None;
-    let mut last_val = None;
     let outcome = trainer
         .run(a.resume, max_steps, &stop, &mut |e| match e {
             Event::Step(r) => {
                 first.get_or_insert((r.step, r.loss));
-                if r.val_loss.is_some() {
-                    last_val = r.val_loss;
-                }
                 pb.set_position(r.step as u64);
                 pb.set_message(format!("loss {:.4}", r.loss));
             }
@@ -132,6 +128,11 @@ pub fn run(a: TrainArgs) -> Result<()> {
         .map_err(anyhow::Error::msg)?;
     pb.finish_and_clear();
     let metrics = std::fs::read_to_string(run_dir.join("metrics.jsonl")).unwrap_or_default();
+    let vals: Vec<(u64, f64)> = metrics
+        .lines()
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .filter_map(|v| Some((v["step"].as_u64()?, v["val_loss"].as_f64()?)))
+        .collect();
     diffkfc_data::npy::write_atomic(&run_dir.join("loss.svg"), crate::plot::loss_svg(&metrics).as_bytes())?;
     let secs = started.elapsed().as_secs_f64();
     let steps = outcome.end_step - outcome.start_step;
@@ -140,8 +141,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
     if let (Some((s0, l0)), Some(last)) = (first, &outcome.last) {
         println!("  train loss: step {s0} {l0:.4} -> step {} {:.4}", last.step, last.loss);
     }
-    if let Some(v) = last_val {
-        println!("  validation loss (EMA): {v:.4}");
+    if let (Some(a), Some(b)) = (vals.first(), vals.last()) {
+        println!("  validation loss (EMA weights): step {} {:.4} -> step {} {:.4}", a.0, a.1, b.0, b.1);
     }
     println!("  checkpoints, metrics.jsonl, loss.svg in {}", run_dir.display());
     Ok(())
