@@ -95,6 +95,25 @@ mod tests {
     use super::*;
 
     #[test]
+    fn kinematic_losses_vanish_for_identical_motions() {
+        let dev = Device::flex();
+        let (b, n, d) = (2, 12, 263);
+        let x = Tensor::<3>::random([b, n, d], burn::tensor::Distribution::Normal(0.0, 1.0), &dev);
+        let mean = vec![0.0f32; d];
+        let std = vec![0.1f32; d];
+        let k = Kinematic { mean: &mean, std: &std, joints: 22, feet: [7, 10, 8, 11], lambda_pos: 1.0, lambda_vel: 1.0, lambda_foot: 1.0 };
+        let valid = Tensor::<2>::ones([b, n], &dev);
+        let l = losses(x.clone(), x.clone(), x.zeros_like(), valid.clone(), &k);
+        let pos: f32 = l.pos.unwrap().into_scalar();
+        let vel: f32 = l.vel.unwrap().into_scalar();
+        assert!(pos.abs() < 1e-10 && vel.abs() < 1e-10, "{pos} {vel}");
+        // A different prediction is penalised.
+        let l = losses(x.clone(), x.clone() + 0.5, x.zeros_like(), valid, &k);
+        let pos: f32 = l.pos.unwrap().into_scalar();
+        assert!(pos > 1e-4);
+    }
+
+    #[test]
     fn l_simple_ignores_keyframes_and_padding() {
         let dev = Device::flex();
         let x0 = Tensor::<1>::from_floats([1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0].as_slice(), &dev).reshape([1, 3, 2]);

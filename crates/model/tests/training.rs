@@ -15,10 +15,10 @@ use diffkfc_model::trainer::{Event, Trainer};
 /// Burn's device RNG (dropout, initialisation) is process-wide: tests that train take turns.
 static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
-fn dataset(name: &str) -> PathBuf {
+fn dataset(name: &str, clips: usize) -> PathBuf {
     let d = std::env::temp_dir().join(format!("diffkfc-train-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
-    diffkfc_data::synth::write_dataset(&d, 24, 2, 2, &|_, _| {}).unwrap();
+    diffkfc_data::synth::write_dataset(&d, clips, 2, 2, &|_, _| {}).unwrap();
     d
 }
 
@@ -36,8 +36,8 @@ fn embeddings(train: &PackedSplit, val: &PackedSplit) -> EmbeddingCache {
 }
 
 /// A synthetic dataset with its opened splits and caption embeddings.
-fn prepared(name: &str) -> (PathBuf, Dataset, PackedSplit, PackedSplit, EmbeddingCache) {
-    let root = dataset(name);
+fn prepared(name: &str, clips: usize) -> (PathBuf, Dataset, PackedSplit, PackedSplit, EmbeddingCache) {
+    let root = dataset(name, clips);
     let ds = Dataset::open(&root).unwrap();
     let cache = root.join(".diffkfc-cache");
     let train = PackedSplit::open(&ds, "train", &cache, |_, _| {}).unwrap();
@@ -66,7 +66,7 @@ fn losses(run: &Path) -> Vec<(u64, f64)> {
 #[test]
 fn resume_is_exact_and_checkpoints_rotate() {
     let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let (root, ds, train, val, text) = prepared("resume");
+    let (root, ds, train, val, text) = prepared("resume", 24);
     let cfg = config();
     let mk = |dir: &str| Trainer { cfg: &cfg, ds: &ds, train: &train, val: Some(&val), text: &text, device: Device::flex(), run_dir: root.join(dir) };
     let never = || false;
@@ -110,23 +110,28 @@ fn resume_is_exact_and_checkpoints_rotate() {
     std::fs::remove_dir_all(root).unwrap();
 }
 
+/// configs/tiny.json (smaller batches and a short budget) lowers the validation loss.
 #[test]
-fn loss_decreases_on_a_tiny_set() {
+fn tiny_config_lowers_validation_loss() {
     let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let (root, ds, train, _val, text) = prepared("learn");
-    let mut cfg = config();
-    cfg.training.lambda_pos = 0.0;
-    cfg.training.lambda_vel = 0.0;
-    cfg.training.lambda_foot = 0.0;
-    cfg.training.max_steps = 60;
-    cfg.training.checkpoint_every = 60;
-    cfg.training.val_every = 0;
-    let tr = Trainer { cfg: &cfg, ds: &ds, train: &train, val: None, text: &text, device: Device::flex(), run_dir: root.join("run") };
-    tr.run(false, 60, &|| false, &mut |_| {}).unwrap();
-    let l = losses(&root.join("run"));
-    let first: f64 = l[..10].iter().map(|x| x.1).sum::<f64>() / 10.0;
-    let last: f64 = l[50..].iter().map(|x| x.1).sum::<f64>() / 10.0;
-    eprintln!("tiny training: mean loss of steps 1-10 {first:.4}, of steps 51-60 {last:.4}");
-    assert!(last < first * 0.9, "{first} -> {last}");
+    let (root, ds, train, val, text) = prepared("learn", 300);
+    let mut cfg = RunConfig::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/tiny.json")).unwrap();
+    cfg.training.batch_size = 8;
+    cfg.training.warmup_steps = 10;
+    cfg.training.max_steps = 120;
+    cfg.training.checkpoint_every = 120;
+    cfg.training.val_every = 120;
+    cfg.training.val_batches = 2;
+    let tr = Trainer { cfg: &cfg, ds: &ds, train: &train, val: Some(&val), text: &text, device: Device::flex(), run_dir: root.join("run") };
+    tr.run(false, 120, &|| false, &mut |_| {}).unwrap();
+    let vals: Vec<(u64, f64)> = std::fs::read_to_string(root.join("run/metrics.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .filter_map(|v| Some((v["step"].as_u64()?, v["val_loss"].as_f64()?)))
+        .collect();
+    assert_eq!(vals.iter().map(|v| v.0).collect::<Vec<_>>(), vec![0, 120]);
+    eprintln!("configs/tiny.json, 120 steps of batch 8: validation loss {:.4} -> {:.4}", vals[0].1, vals[1].1);
+    assert!(vals[1].1 < vals[0].1 * 0.9, "{vals:?}");
     std::fs::remove_dir_all(root).unwrap();
 }
