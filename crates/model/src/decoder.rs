@@ -2,15 +2,16 @@
 //! cross-attention to the keyframe encoder's output (keys masked to valid tokens), and a
 //! feed-forward block; post-norm residuals as in MDM.
 
-use burn::nn::attention::{MhaInput, MultiHeadAttention, MultiHeadAttentionConfig};
 use burn::nn::{Dropout, DropoutConfig, LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::gelu;
 
+use crate::attention::Attention;
+
 #[derive(Module, Debug)]
 pub struct DecoderLayer {
-    self_attn: MultiHeadAttention,
-    cross_attn: MultiHeadAttention,
+    self_attn: Attention,
+    cross_attn: Attention,
     ff1: Linear,
     ff2: Linear,
     ln1: LayerNorm,
@@ -22,8 +23,8 @@ pub struct DecoderLayer {
 impl DecoderLayer {
     pub fn new(d: usize, heads: usize, ffn: usize, dropout: f64, device: &Device) -> Self {
         DecoderLayer {
-            self_attn: MultiHeadAttentionConfig::new(d, heads).with_dropout(dropout).init(device),
-            cross_attn: MultiHeadAttentionConfig::new(d, heads).with_dropout(dropout).init(device),
+            self_attn: Attention::new(d, heads, device),
+            cross_attn: Attention::new(d, heads, device),
             ff1: LinearConfig::new(d, ffn).init(device),
             ff2: LinearConfig::new(ffn, d).init(device),
             ln1: LayerNormConfig::new(d).init(device),
@@ -36,9 +37,10 @@ impl DecoderLayer {
     /// `h` [B, 2+N, d] with `self_pad` [B, 2+N] (true = padding); `enc` [B, 1+N, d] with
     /// `enc_pad` [B, 1+N] (true = not a valid key) -> [B, 2+N, d].
     pub fn forward(&self, h: Tensor<3>, self_pad: Tensor<2, Bool>, enc: Tensor<3>, enc_pad: Tensor<2, Bool>) -> Tensor<3> {
-        let a = self.self_attn.forward(MhaInput::self_attn(h.clone()).mask_pad(self_pad)).context;
+        let l = h.dims()[1];
+        let a = self.self_attn.forward(h.clone(), h.clone(), Some(Attention::key_mask(self_pad, l)));
         let h = self.ln1.forward(h + self.drop.forward(a));
-        let c = self.cross_attn.forward(MhaInput::new(h.clone(), enc.clone(), enc).mask_pad(enc_pad)).context;
+        let c = self.cross_attn.forward(h.clone(), enc, Some(Attention::key_mask(enc_pad, l)));
         let h = self.ln2.forward(h + self.drop.forward(c));
         let f = self.ff2.forward(self.drop.forward(gelu(self.ff1.forward(h.clone()))));
         self.ln3.forward(h + self.drop.forward(f))

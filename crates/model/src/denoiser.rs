@@ -69,7 +69,7 @@ impl DiffKfcConfig {
             x_in: LinearConfig::new(self.feat_dim, d).init(device),
             text_in: LinearConfig::new(self.text_dim, d).init(device),
             time: TimestepEmbed::new(d, device),
-            encoder: KeyframeEncoder::new(self.feat_dim, d, self.heads, self.ffn, self.dma_sizes.len(), self.dropout, device),
+            encoder: KeyframeEncoder::new(self.feat_dim, d, self.heads, self.ffn, self.dma_sizes.len(), device),
             layers: (0..self.dec_layers).map(|_| DecoderLayer::new(d, self.heads, self.ffn, self.dropout, device)).collect(),
             out: LinearConfig::new(d, self.feat_dim).init(device),
             d_model: d,

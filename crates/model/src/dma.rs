@@ -7,10 +7,11 @@
 //! Padding is never valid. Block: Z' = FC([DMA(Z) || Z]), Z = MLP(Z'); no LayerNorm; a global
 //! skip from the encoder input to its output.
 
-use burn::nn::attention::{MhaInput, MultiHeadAttention, MultiHeadAttentionConfig};
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::gelu;
+
+use crate::attention::Attention;
 
 /// Per-block validity and attention masks of a batch, computed on the host from the keyframe
 /// frames and the padding (they do not depend on any tensor value).
@@ -82,16 +83,16 @@ impl DmaPlan {
 
 #[derive(Module, Debug)]
 pub struct DmaBlock {
-    attn: MultiHeadAttention,
+    attn: Attention,
     fc: Linear,
     mlp1: Linear,
     mlp2: Linear,
 }
 
 impl DmaBlock {
-    pub fn new(d: usize, heads: usize, ffn: usize, dropout: f64, device: &Device) -> Self {
+    pub fn new(d: usize, heads: usize, ffn: usize, device: &Device) -> Self {
         DmaBlock {
-            attn: MultiHeadAttentionConfig::new(d, heads).with_dropout(dropout).init(device),
+            attn: Attention::new(d, heads, device),
             fc: LinearConfig::new(2 * d, d).init(device),
             mlp1: LinearConfig::new(d, ffn).init(device),
             mlp2: LinearConfig::new(ffn, d).init(device),
@@ -100,7 +101,7 @@ impl DmaBlock {
 
     /// `z`: [B, 1+N, d]; `blocked`: [B, 1+N, 1+N]; `active`: [B, 1+N, d] (broadcast rows).
     pub fn forward(&self, z: Tensor<3>, blocked: Tensor<3, Bool>, active: Tensor<3, Bool>) -> Tensor<3> {
-        let a = self.attn.forward(MhaInput::self_attn(z.clone()).mask_attn(blocked)).context;
+        let a = self.attn.forward(z.clone(), z.clone(), Some(blocked));
         let zp = self.fc.forward(Tensor::cat(vec![a, z.clone()], 2));
         let zk = self.mlp2.forward(gelu(self.mlp1.forward(zp)));
         z.mask_where(active, zk)
@@ -115,10 +116,10 @@ pub struct KeyframeEncoder {
 }
 
 impl KeyframeEncoder {
-    pub fn new(feat: usize, d: usize, heads: usize, ffn: usize, blocks: usize, dropout: f64, device: &Device) -> Self {
+    pub fn new(feat: usize, d: usize, heads: usize, ffn: usize, blocks: usize, device: &Device) -> Self {
         KeyframeEncoder {
             kf_in: LinearConfig::new(2 * feat, d).init(device),
-            blocks: (0..blocks).map(|_| DmaBlock::new(d, heads, ffn, dropout, device)).collect(),
+            blocks: (0..blocks).map(|_| DmaBlock::new(d, heads, ffn, device)).collect(),
         }
     }
 

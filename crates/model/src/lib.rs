@@ -1,6 +1,7 @@
 //! diffkfc-model: the DiffKFC network in Burn (text encoder, Dilated Mask Attention keyframe
 //! encoder, transformer decoder) and its diffusion, guidance and losses.
 
+pub mod attention;
 pub mod batch;
 pub mod checkpoint;
 pub mod config;

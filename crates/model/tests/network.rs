@@ -102,7 +102,7 @@ fn zero_keyframes_give_finite_outputs() {
 fn invalid_tokens_do_not_leak_within_a_block() {
     let dev = device();
     let d = 32;
-    let block = DmaBlock::new(d, 4, 64, 0.0, &dev);
+    let block = DmaBlock::new(d, 4, 64, &dev);
     let n = 20;
     let keys: Vec<bool> = (0..n).map(|i| i == 5).collect();
     let real = vec![true; n];
