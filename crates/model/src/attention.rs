@@ -33,13 +33,26 @@ impl Attention {
     /// `q_in` [B, Lq, d] attends to `kv_in` [B, Lk, d]; `blocked` [B, Lq, Lk] (true = masked)
     /// -> [B, Lq, d]. Every query must see at least one key.
     pub fn forward(&self, q_in: Tensor<3>, kv_in: Tensor<3>, blocked: Option<Tensor<3, Bool>>) -> Tensor<3> {
-        let [b, lq, d] = q_in.dims();
-        let lk = kv_in.dims()[1];
+        let kv = self.keys_values(kv_in);
+        self.forward_kv(q_in, &kv, blocked)
+    }
+
+    /// Keys and values [B, H, Lk, d/H] of `kv_in`: computed once where the same keys serve many
+    /// calls (the encoder output across denoising steps).
+    pub fn keys_values(&self, kv_in: Tensor<3>) -> (Tensor<4>, Tensor<4>) {
+        let [b, lk, d] = kv_in.dims();
         let h = self.heads;
-        let split = |t: Tensor<3>, l: usize| t.reshape([b, l, h, d / h]).swap_dims(1, 2);
-        let q = split(self.query.forward(q_in), lq);
-        let k = split(self.key.forward(kv_in.clone()), lk);
-        let v = split(self.value.forward(kv_in), lk);
+        let split = |t: Tensor<3>| t.reshape([b, lk, h, d / h]).swap_dims(1, 2);
+        (split(self.key.forward(kv_in.clone())), split(self.value.forward(kv_in)))
+    }
+
+    /// Attention of `q_in` [B, Lq, d] to precomputed keys and values.
+    pub fn forward_kv(&self, q_in: Tensor<3>, kv: &(Tensor<4>, Tensor<4>), blocked: Option<Tensor<3, Bool>>) -> Tensor<3> {
+        let [b, lq, d] = q_in.dims();
+        let h = self.heads;
+        let (k, v) = (kv.0.clone(), kv.1.clone());
+        let lk = k.dims()[2];
+        let q = self.query.forward(q_in).reshape([b, lq, h, d / h]).swap_dims(1, 2);
         let mask = blocked.map(|m| m.unsqueeze_dim::<4>(1).expand([b, h, lq, lk]));
         let ctx = attention(q, k, v, mask, None, AttentionModuleOptions::default());
         self.output.forward(ctx.swap_dims(1, 2).reshape([b, lq, d]))

@@ -42,6 +42,8 @@ impl Condition {
 pub struct Encoded {
     /// [B, 1+N, d]
     pub tokens: Tensor<3>,
+    /// Per decoder layer: cross-attention keys and values of `tokens` ([B, H, 1+N, d/H]).
+    pub cross_kv: Vec<(Tensor<4>, Tensor<4>)>,
     /// [B, 1+N] true where the decoder must not attend (never-valid tokens, padding).
     pub key_pad: Tensor<2, Bool>,
     /// [B, 1, d] text token y_c.
@@ -83,7 +85,8 @@ fn bool_tensor(v: Vec<bool>, shape: [usize; 2], device: &Device) -> Tensor<2, Bo
 }
 
 impl Denoiser {
-    /// Run the keyframe encoder (once per condition).
+    /// Run the keyframe encoder and the decoder's cross-attention projections of its output
+    /// (once per condition).
     pub fn encode(&self, c: &Condition) -> Encoded {
         let device = c.kf.device();
         let [b, n, _] = c.kf.dims();
@@ -95,7 +98,9 @@ impl Denoiser {
         let initial: Vec<bool> = (0..b * l).map(|k| k % l == 0 || (c.kf_frames[k / l * n + k % l - 1] && c.real[k / l * n + k % l - 1])).collect();
         let key_pad = plan.final_valid(&initial).iter().map(|v| !v).collect();
         let self_pad = (0..b * (n + 2)).map(|k| k % (n + 2) >= 2 && !c.real[k / (n + 2) * n + k % (n + 2) - 2]).collect();
+        let cross_kv = self.layers.iter().map(|l| l.cross_kv(tokens.clone())).collect();
         Encoded {
+            cross_kv,
             tokens,
             key_pad: bool_tensor(key_pad, [b, l], &device),
             text_tok,
@@ -110,8 +115,8 @@ impl Denoiser {
         let frames = self.x_in.forward(x_t) + positions(n, self.d_model, &device);
         let y_t = self.time.forward(t, &device);
         let mut h = Tensor::cat(vec![y_t, e.text_tok.clone(), frames], 1);
-        for layer in &self.layers {
-            h = layer.forward(h, e.self_pad.clone(), e.tokens.clone(), e.key_pad.clone());
+        for (layer, kv) in self.layers.iter().zip(&e.cross_kv) {
+            h = layer.forward(h, e.self_pad.clone(), kv, e.key_pad.clone());
         }
         let d = self.d_model;
         self.out.forward(h.slice([0..b, 2..n + 2, 0..d]))

@@ -133,6 +133,7 @@ pub fn sample(model: &Denoiser, schedule: &Schedule, req: &Request, opts: &Optio
     let mut enc = if guided { model.encode(&stack(&cond, &cond.without_keyframes())) } else { model.encode(&cond) };
     enc.tokens = enc.tokens.detach();
     enc.text_tok = enc.text_tok.detach();
+    enc.cross_kv = enc.cross_kv.into_iter().map(|(k, v)| (k.detach(), v.detach())).collect();
     let kf_t = Tensor::<1>::from_floats(req.kf.as_slice(), &device).reshape([b, n, d]);
     let mask_t = Tensor::<1>::from_floats(req.mask.as_slice(), &device).reshape([b, n, d]);
     let mut rng = Rng::new(opts.seed);
