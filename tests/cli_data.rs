@@ -145,7 +145,25 @@ fn version_and_help_with_examples() {
     let o = diffkfc(&["--version"]);
     assert!(o.status.success());
     assert!(stdout(&o).starts_with(&format!("diffkfc {}", env!("CARGO_PKG_VERSION"))));
-    for cmd in [vec!["--help"], vec!["data", "--help"], vec!["data", "features", "--help"], vec!["data", "joints", "--help"]] {
+    let cmds: Vec<Vec<&str>> = vec![
+        vec!["--help"],
+        vec!["data", "--help"],
+        vec!["data", "features", "--help"],
+        vec!["data", "joints", "--help"],
+        vec!["data", "check", "--help"],
+        vec!["data", "synth", "--help"],
+        vec!["data", "bench-loader", "--help"],
+        vec!["render", "--help"],
+        vec!["train", "--help"],
+        vec!["sample", "--help"],
+        vec!["model", "--help"],
+        vec!["model", "summary", "--help"],
+        vec!["model", "bench", "--help"],
+        vec!["text-embed", "--help"],
+        vec!["eval", "--help"],
+        vec!["eval", "train-evaluator", "--help"],
+    ];
+    for cmd in cmds {
         let o = diffkfc(&cmd);
         assert!(o.status.success(), "{cmd:?}");
         let out = stdout(&o);

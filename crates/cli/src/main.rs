@@ -33,6 +33,9 @@ enum Command {
     /// Generate motion from text and keyframes with keyframe and transition guidance.
     #[command(after_help = "Examples:\n  diffkfc sample --checkpoint runs/tiny --text \"a person walks forward and waves\" --from clip.npy --frames 0,40,80\n  diffkfc sample --checkpoint runs/tiny --text \"a person squats\" --keyframes keys.json --out out/squat")]
     Sample(commands::sample::SampleArgs),
+    /// Evaluation: the text-motion evaluator (metrics and reports are being built).
+    #[command(after_help = "Example:\n  diffkfc eval train-evaluator --data work/synth --out work/evaluator")]
+    Eval(commands::eval::EvalArgs),
     /// Inspect the network: parameter counts, forward timing.
     #[command(after_help = "Examples:\n  diffkfc model summary --config configs/paper-humanml3d.json\n  diffkfc model bench --config configs/paper-humanml3d.json")]
     Model(commands::model::ModelArgs),
@@ -59,6 +62,7 @@ fn main() {
         Command::Model(args) => commands::model::run(args),
         Command::Train(args) => commands::train::run(args),
         Command::Sample(args) => commands::sample::run(args),
+        Command::Eval(args) => commands::eval::run(args),
         Command::TextEmbed(args) => commands::model::text_embed(args),
     };
     if let Err(e) = result {

@@ -42,6 +42,15 @@ pub struct TrainArgs {
     seed: Option<u64>,
 }
 
+/// Caption embeddings of the given splits with the frozen text encoder, computed once and cached
+/// beside the dataset's packed features.
+pub fn embed_captions(ds: &Dataset, splits: &[&PackedSplit]) -> Result<EmbeddingCache> {
+    let encoder = MiniLm::load(&text::default_dir(), &Device::flex())?;
+    let captions: Vec<String> = splits.iter().flat_map(|s| s.items.iter().flat_map(|i| i.captions.clone())).collect();
+    let path = default_cache_dir(ds).join(format!("text-{}.safetensors", encoder.name()));
+    Ok(EmbeddingCache::build(&path, &encoder, &captions, crate::progress::bar("embedding"))?)
+}
+
 pub fn parse_duration(s: &str) -> Result<Duration, String> {
     let (num, unit) = s.trim().split_at(s.trim().find(|c: char| c.is_alphabetic()).unwrap_or(s.trim().len()));
     let v: f64 = num.parse().map_err(|_| format!("'{s}' is not a duration like 90s, 10m or 2h"))?;
@@ -86,14 +95,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
     for (id, why) in train.skipped.iter().take(3) {
         eprintln!("warning: skipped clip {id}: {why}");
     }
-    // Caption embeddings, computed once and cached beside the packed features.
-    let encoder = MiniLm::load(&text::default_dir(), &Device::flex())?;
-    let mut captions: Vec<String> = train.items.iter().flat_map(|i| i.captions.clone()).collect();
-    if let Some(v) = &val {
-        captions.extend(v.items.iter().flat_map(|i| i.captions.clone()));
-    }
-    let emb_path = cache_dir.join(format!("text-{}.safetensors", encoder.name()));
-    let text = EmbeddingCache::build(&emb_path, &encoder, &captions, crate::progress::bar("embedding"))?;
+    let mut splits = vec![&train];
+    splits.extend(val.as_ref());
+    let text = embed_captions(&ds, &splits)?;
     if text.dim != cfg.model.text_dim {
         bail!("model.text_dim is {} but the text encoder gives {}", cfg.model.text_dim, text.dim);
     }

@@ -1,0 +1,125 @@
+//! A text-motion evaluator trained contrastively on the training split (the official T2M
+//! evaluator weights cannot be downloaded here). Motion encoder: features without foot
+//! contacts, two strided temporal convolutions (x4 downsampling), a small transformer, masked
+//! mean pooling, Linear -> 512. Text encoder: the frozen MiniLM embedding through an MLP -> 512.
+//! Trained with a symmetric InfoNCE loss; embeddings are L2-normalised and scaled so that
+//! Euclidean distances stay in the range the metrics were designed for.
+
+use burn::nn::conv::{Conv1d, Conv1dConfig};
+use burn::nn::{LayerNorm, LayerNormConfig, Linear, LinearConfig, PaddingConfig1d};
+use burn::prelude::*;
+use burn::tensor::activation::{gelu, log_softmax};
+use diffkfc_model::attention::Attention;
+
+/// Width of the shared embedding space.
+pub const EMBED: usize = 512;
+/// Scale of the unit-norm embeddings (distances of true pairs land near MDM's ~3-5 range).
+pub const SCALE: f64 = 4.0;
+
+#[derive(Config, Debug)]
+pub struct EvaluatorConfig {
+    /// Motion feature width (the dataset's minus the 4 foot contacts).
+    #[config(default = 259)]
+    pub motion_dim: usize,
+    #[config(default = 384)]
+    pub text_dim: usize,
+    #[config(default = 256)]
+    pub hidden: usize,
+    #[config(default = 2)]
+    pub layers: usize,
+    #[config(default = 4)]
+    pub heads: usize,
+    #[config(default = 0.07)]
+    pub temperature: f64,
+}
+
+#[derive(Module, Debug)]
+struct Block {
+    attn: Attention,
+    ln1: LayerNorm,
+    ff1: Linear,
+    ff2: Linear,
+    ln2: LayerNorm,
+}
+
+#[derive(Module, Debug)]
+pub struct Evaluator {
+    conv1: Conv1d,
+    conv2: Conv1d,
+    blocks: Vec<Block>,
+    motion_out: Linear,
+    text1: Linear,
+    text2: Linear,
+}
+
+impl EvaluatorConfig {
+    pub fn init(&self, device: &Device) -> Evaluator {
+        let h = self.hidden;
+        let conv = |i: usize, o: usize| Conv1dConfig::new(i, o, 4).with_stride(2).with_padding(PaddingConfig1d::Explicit(1, 1)).init(device);
+        Evaluator {
+            conv1: conv(self.motion_dim, h),
+            conv2: conv(h, h),
+            blocks: (0..self.layers)
+                .map(|_| Block {
+                    attn: Attention::new(h, self.heads, device),
+                    ln1: LayerNormConfig::new(h).init(device),
+                    ff1: LinearConfig::new(h, 2 * h).init(device),
+                    ff2: LinearConfig::new(2 * h, h).init(device),
+                    ln2: LayerNormConfig::new(h).init(device),
+                })
+                .collect(),
+            motion_out: LinearConfig::new(h, EMBED).init(device),
+            text1: LinearConfig::new(self.text_dim, EMBED).init(device),
+            text2: LinearConfig::new(EMBED, EMBED).init(device),
+        }
+    }
+}
+
+fn normalise(x: Tensor<2>) -> Tensor<2> {
+    let n = x.clone().powf_scalar(2.0).sum_dim(1).sqrt().clamp_min(1e-8);
+    x / n * SCALE
+}
+
+impl Evaluator {
+    /// Motions [B, N, Dm] (normalised, no foot contacts) with lengths -> [B, 512].
+    pub fn encode_motion(&self, x: Tensor<3>, lengths: &[usize]) -> Tensor<2> {
+        let device = x.device();
+        let h = gelu(self.conv1.forward(x.swap_dims(1, 2)));
+        let h = gelu(self.conv2.forward(h)).swap_dims(1, 2); // [B, N/4, H]
+        let [b, n4, hid] = h.dims();
+        // Valid downsampled steps: ceil(len / 4), at least one.
+        let valid: Vec<bool> = lengths.iter().flat_map(|&l| (0..n4).map(move |i| i < l.div_ceil(4).max(1))).collect();
+        let pad = Tensor::<2, Bool>::from_data(TensorData::new(valid.iter().map(|v| !v).collect::<Vec<_>>(), [b, n4]), &device);
+        let mut h = h;
+        for blk in &self.blocks {
+            let a = blk.attn.forward(h.clone(), h.clone(), Some(Attention::key_mask(pad.clone(), n4)));
+            h = blk.ln1.forward(h + a);
+            let f = blk.ff2.forward(gelu(blk.ff1.forward(h.clone())));
+            h = blk.ln2.forward(h + f);
+        }
+        let w = Tensor::<1>::from_floats(valid.iter().map(|&v| v as i32 as f32).collect::<Vec<_>>().as_slice(), &device).reshape([b, n4, 1]);
+        let pooled = (h * w.clone()).sum_dim(1).reshape([b, hid]) / w.sum_dim(1).reshape([b, 1]);
+        normalise(self.motion_out.forward(pooled))
+    }
+
+    /// Frozen text embeddings [B, text_dim] -> [B, 512].
+    pub fn encode_text(&self, t: Tensor<2>) -> Tensor<2> {
+        normalise(self.text2.forward(gelu(self.text1.forward(t))))
+    }
+}
+
+/// Symmetric InfoNCE over a batch of paired embeddings (cosine similarity / temperature).
+/// Pairs with the same caption are not negatives of each other: `same[i*B+j]` marks them.
+pub fn info_nce(m: Tensor<2>, t: Tensor<2>, temperature: f64, same: &[bool]) -> Tensor<1> {
+    let [b, _] = m.dims();
+    let device = m.device();
+    let logits = m.matmul(t.transpose()) / (SCALE * SCALE * temperature);
+    // Other pairs with an identical caption are masked out of the denominators.
+    let off: Vec<f32> = (0..b * b).map(|k| if same[k] && k / b != k % b { -1e4 } else { 0.0 }).collect();
+    let logits = logits + Tensor::<1>::from_floats(off.as_slice(), &device).reshape([b, b]);
+    let eye: Vec<f32> = (0..b * b).map(|k| (k / b == k % b) as i32 as f32).collect();
+    let eye = Tensor::<1>::from_floats(eye.as_slice(), &device).reshape([b, b]);
+    let l1 = -(log_softmax(logits.clone(), 1) * eye.clone()).sum() / b as f64;
+    let l2 = -(log_softmax(logits.transpose(), 1) * eye).sum() / b as f64;
+    (l1 + l2) / 2.0
+}

@@ -1,0 +1,128 @@
+//! Contrastive training of the evaluator on a dataset's training split, and its R-precision on
+//! real motions of another split.
+
+use std::path::PathBuf;
+
+use burn::optim::GradientsParams;
+use burn::prelude::*;
+use diffkfc_data::batch::{Batch, KeyframeConfig, Loader};
+use diffkfc_data::cache::PackedSplit;
+use diffkfc_data::dataset::{Dataset, MAX_FRAMES, UNIT_LENGTH};
+use diffkfc_model::checkpoint::Checkpoint;
+use diffkfc_model::optim::{clip_grad_norm, Adam};
+use diffkfc_model::params;
+use diffkfc_model::text::cache::EmbeddingCache;
+
+use crate::evaluator::{info_nce, Evaluator, EvaluatorConfig};
+use crate::text_motion::r_precision;
+
+pub struct EvaluatorTraining<'a> {
+    pub cfg: EvaluatorConfig,
+    pub ds: &'a Dataset,
+    pub train: &'a PackedSplit,
+    pub test: &'a PackedSplit,
+    pub text: &'a EmbeddingCache,
+    pub device: Device,
+    pub out: PathBuf,
+    pub batch_size: usize,
+    pub steps: usize,
+    pub lr: f64,
+    pub seed: u64,
+}
+
+/// Motion input of the evaluator: normalised features without the 4 foot contacts.
+fn motion_tensor(x0: &[f32], b: usize, n: usize, d: usize, device: &Device) -> Tensor<3> {
+    Tensor::<1>::from_floats(x0, device).reshape([b, n, d]).slice([0..b, 0..n, 0..d - 4])
+}
+
+fn texts(cache: &EmbeddingCache, captions: &[String], device: &Device) -> Tensor<2> {
+    let v: Vec<f32> = captions.iter().flat_map(|c| cache.get(c).unwrap_or_else(|| panic!("caption not embedded: {c}")).to_vec()).collect();
+    Tensor::<1>::from_floats(v.as_slice(), device).reshape([captions.len(), cache.dim])
+}
+
+fn same_caption(b: &Batch) -> Vec<bool> {
+    let n = b.captions.len();
+    (0..n * n).map(|k| b.captions[k / n] == b.captions[k % n]).collect()
+}
+
+/// Embeddings of every item of a split with its first caption, whole clip (first 196 frames,
+/// length rounded down to a multiple of 4), in item order: (text rows, motion rows).
+pub fn embed_split(model: &Evaluator, ds: &Dataset, split: &PackedSplit, text: &EmbeddingCache, device: &Device) -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
+    let (n, d) = (MAX_FRAMES, ds.dim());
+    let (mut t_rows, mut m_rows) = (Vec::new(), Vec::new());
+    for chunk in (0..split.items.len()).collect::<Vec<_>>().chunks(32) {
+        let mut x = vec![0f32; chunk.len() * n * d];
+        let mut lengths = Vec::new();
+        let mut caps = Vec::new();
+        for (k, &i) in chunk.iter().enumerate() {
+            let len = (split.items[i].len.min(n) / UNIT_LENGTH * UNIT_LENGTH).max(UNIT_LENGTH);
+            let mut f = split.item_frames(i)[..len * d].to_vec();
+            ds.normalise(&mut f);
+            x[k * n * d..k * n * d + len * d].copy_from_slice(&f);
+            lengths.push(len);
+            caps.push(split.items[i].captions[0].clone());
+        }
+        let m = model.encode_motion(motion_tensor(&x, chunk.len(), n, d, device), &lengths);
+        let t = model.encode_text(texts(text, &caps, device));
+        let rows = |t: Tensor<2>| -> Vec<Vec<f64>> {
+            let v: Vec<f32> = t.into_data().convert::<f32>().try_to_vec().expect("f32");
+            v.chunks(crate::evaluator::EMBED).map(|r| r.iter().map(|&x| x as f64).collect()).collect()
+        };
+        t_rows.extend(rows(t));
+        m_rows.extend(rows(m));
+    }
+    (t_rows, m_rows)
+}
+
+pub struct EvaluatorReport {
+    pub steps: usize,
+    pub first_loss: f64,
+    pub last_loss: f64,
+    pub r_precision: [f64; 3],
+    pub mm_dist: f64,
+    pub items: usize,
+}
+
+impl EvaluatorTraining<'_> {
+    pub fn run(&self, mut on_step: impl FnMut(usize, f64)) -> Result<EvaluatorReport, String> {
+        std::fs::create_dir_all(&self.out).map_err(|e| format!("{}: {e}", self.out.display()))?;
+        let device = self.device.clone().autodiff();
+        device.seed(self.seed);
+        let mut model = self.cfg.init(&device);
+        let init = params::values(&model);
+        let shapes: Vec<Vec<usize>> = init.iter().map(|(s, _)| s.clone()).collect();
+        let mut vals: Vec<Vec<f32>> = init.into_iter().map(|(_, v)| v).collect();
+        let mut adam = Adam::new(&vals.iter().map(Vec::len).collect::<Vec<_>>());
+        let kf = KeyframeConfig { rate: 0.0, drop_prob: 0.0, ..Default::default() };
+        let loader = Loader::new(self.ds, self.train, self.batch_size, self.seed, kf);
+        let per_epoch = loader.batches_per_epoch().max(1);
+        let (mut first, mut last) = (f64::NAN, f64::NAN);
+        for step in 0..self.steps {
+            let b = loader.batch((step / per_epoch) as u64, step % per_epoch);
+            let m = model.encode_motion(motion_tensor(&b.x0, b.batch_size, b.frames, b.dim, &device), &b.lengths);
+            let t = model.encode_text(texts(self.text, &b.captions, &device));
+            let loss = info_nce(m, t, self.cfg.temperature, &same_caption(&b));
+            let l: f64 = loss.clone().into_data().convert::<f64>().try_to_vec::<f64>().expect("scalar")[0];
+            let grads = GradientsParams::from_grads(loss.backward(), &model);
+            let mut g = params::grads(&model, &grads);
+            clip_grad_norm(&mut g, 1.0);
+            adam.update(&mut vals, &g, self.lr);
+            model = params::load(model, &vals);
+            if step == 0 {
+                first = l;
+            }
+            last = l;
+            on_step(step + 1, l);
+        }
+        let ck = Checkpoint { step: self.steps, shapes, model: vals.clone(), ema: None, adam_step: adam.step, adam_m: adam.m, adam_v: adam.v, config: serde_json::to_string(&self.cfg).expect("config serialises"), seed: self.seed };
+        ck.save(&self.out)?;
+        Checkpoint::prune(&self.out, 1);
+        let dims = [self.ds.dim()];
+        diffkfc_data::npy::write(self.out.join("Mean.npy"), &dims, &self.ds.mean).map_err(|e| e.to_string())?;
+        diffkfc_data::npy::write(self.out.join("Std.npy"), &dims, &self.ds.std).map_err(|e| e.to_string())?;
+        let eval_model = params::load(self.cfg.init(&self.device), &vals);
+        let (t, m) = embed_split(&eval_model, self.ds, self.test, self.text, &self.device);
+        let (r, mm) = r_precision(&t, &m, 32);
+        Ok(EvaluatorReport { steps: self.steps, first_loss: first, last_loss: last, r_precision: r, mm_dist: mm, items: t.len() })
+    }
+}
