@@ -5,12 +5,7 @@ use common::*;
 
 #[test]
 fn evaluator_beats_chance() {
-    let o = diffkfc(&["text-embed", "--text", "a person walks."]);
-    if !o.status.success() {
-        if std::env::var("DIFFKFC_REQUIRE_FIXTURES").is_ok_and(|v| v == "1") {
-            panic!("text encoder required: {}", stderr(&o));
-        }
-        eprintln!("SKIPPED: no text encoder");
+    if !have_text_encoder() {
         return;
     }
     let d = scratch("eval");

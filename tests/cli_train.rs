@@ -10,18 +10,6 @@ const CFG: &str = r#"{"model": {"preset": "tiny", "dec_layers": 1, "dma_sizes": 
   "training": {"batch_size": 4, "max_steps": 6, "checkpoint_every": 2, "keep_checkpoints": 2,
                "val_every": 3, "val_batches": 1, "log_every": 1}}"#;
 
-fn have_text_encoder() -> bool {
-    let o = diffkfc(&["text-embed", "--text", "a person walks."]);
-    if o.status.success() {
-        return true;
-    }
-    if std::env::var("DIFFKFC_REQUIRE_FIXTURES").is_ok_and(|v| v == "1") {
-        panic!("text encoder required: {}", stderr(&o));
-    }
-    eprintln!("SKIPPED: no text encoder ({})", stderr(&o).trim());
-    false
-}
-
 fn setup(name: &str) -> (std::path::PathBuf, std::path::PathBuf) {
     let d = scratch(name);
     let data = d.join("synth");

@@ -38,3 +38,17 @@ pub fn assert_one_line_error(o: &Output, needles: &[&str]) {
         assert!(err.contains(n), "{n:?} not in: {err}");
     }
 }
+
+/// Whether the text encoder's weights are installed; absent, the caller skips (with a notice),
+/// unless DIFFKFC_REQUIRE_FIXTURES=1 makes that a failure.
+pub fn have_text_encoder() -> bool {
+    let o = diffkfc(&["text-embed", "--text", "a person walks."]);
+    if o.status.success() {
+        return true;
+    }
+    if std::env::var("DIFFKFC_REQUIRE_FIXTURES").is_ok_and(|v| v == "1") {
+        panic!("text encoder required: {}", stderr(&o));
+    }
+    eprintln!("SKIPPED: no text encoder ({})", stderr(&o).trim());
+    false
+}
