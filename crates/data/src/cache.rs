@@ -209,6 +209,6 @@ fn build(
     std::fs::rename(&tmp, data_path).map_err(io(data_path))?;
     let index = Index { format: FORMAT, dim: ds.dim(), total_frames: offset, sources: srcs, clips, items, skipped };
     let bytes = serde_json::to_vec(&index).expect("index serialises");
-    npy::write_atomic(index_path, &bytes)?;
+    crate::write_atomic(index_path, &bytes)?;
     Ok(index)
 }

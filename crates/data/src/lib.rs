@@ -1,5 +1,6 @@
 //! diffkfc-data: the HumanML3D / KIT-ML file formats, skeletons and motion representation.
 
+mod atomic;
 pub mod batch;
 pub mod bvh;
 pub mod cache;
@@ -20,6 +21,7 @@ pub mod synth;
 pub mod texts;
 
 pub use representation::{features_from_joints, recover_from_ric, Joints, Layout};
+pub use atomic::write_atomic;
 pub use skeleton::{Skeleton, KIT, T2M};
 
 use std::path::PathBuf;

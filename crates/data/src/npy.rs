@@ -4,7 +4,6 @@
 //! Every failure names the file and what is wrong with it, because users point diffkfc at
 //! datasets with tens of thousands of files and need to find the bad one.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use crate::DataError;
@@ -218,27 +217,7 @@ impl NpyElem for f64 {
 /// interrupted run never leaves a half-written file.
 pub fn write<T: NpyElem>(path: impl AsRef<Path>, shape: &[usize], data: &[T]) -> Result<(), DataError> {
     assert_eq!(shape.iter().product::<usize>(), data.len(), "shape does not match data");
-    write_atomic(path.as_ref(), &encode(shape, data))
-}
-
-/// Write bytes to `path` through a temporary file and a rename.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DataError> {
-    let io = |e| DataError::Io { path: path.to_path_buf(), source: e };
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(io)?;
-    }
-    let file_name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let tmp = path.with_file_name(format!(".{file_name}.tmp{}", std::process::id()));
-    let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result.map_err(io)
+    crate::write_atomic(path.as_ref(), &encode(shape, data))
 }
 
 #[cfg(test)]

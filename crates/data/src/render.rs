@@ -232,7 +232,7 @@ pub fn gif(skel: &Skeleton, j: &Joints, keyframes: &[usize], path: &Path) -> Res
             enc.write_frame(&frame).map_err(io)?;
         }
     }
-    crate::npy::write_atomic(path, &bytes)
+    crate::write_atomic(path, &bytes)
 }
 
 /// A contact sheet: one cell per clip, each a strobe of `poses` poses from light to dark,
@@ -276,5 +276,5 @@ pub fn sheet(skel: &Skeleton, clips: &[(Joints, Vec<usize>)], cols: usize, cell:
         let err = |e: png::EncodingError| DataError::Invalid(format!("{}: PNG encoding failed: {e}", path.display()));
         enc.write_header().map_err(err)?.write_image_data(&out).map_err(err)?;
     }
-    crate::npy::write_atomic(path, &bytes)
+    crate::write_atomic(path, &bytes)
 }

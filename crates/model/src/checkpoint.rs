@@ -54,7 +54,7 @@ impl Checkpoint {
         ]);
         let data = safetensors::serialize(views, Some(meta)).map_err(|e| e.to_string())?;
         let path = dir.join(Self::file_name(self.step));
-        diffkfc_data::npy::write_atomic(&path, &data).map_err(|e| e.to_string())?;
+        diffkfc_data::write_atomic(&path, &data).map_err(|e| e.to_string())?;
         Ok(path)
     }
 

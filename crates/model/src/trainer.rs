@@ -265,7 +265,7 @@ fn truncate_metrics(path: &Path, step: usize) -> std::io::Result<()> {
     if !out.is_empty() {
         out.push('\n');
     }
-    diffkfc_data::npy::write_atomic(path, out.as_bytes()).map_err(std::io::Error::other)
+    diffkfc_data::write_atomic(path, out.as_bytes()).map_err(std::io::Error::other)
 }
 
 /// Load the weights of a run for inference: the EMA when present, else the raw model.

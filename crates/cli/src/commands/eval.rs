@@ -68,7 +68,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
             let report = serde_json::json!({"steps": r.steps, "seconds": t0.elapsed().as_secs_f64(), "first_loss": r.first_loss, "last_loss": r.last_loss,
                 "split": split, "items": r.items, "r_precision_top1": r.r_precision[0], "r_precision_top2": r.r_precision[1], "r_precision_top3": r.r_precision[2],
                 "mm_dist": r.mm_dist, "chance": [1.0 / 32.0, 2.0 / 32.0, 3.0 / 32.0]});
-            diffkfc_data::npy::write_atomic(&out.join("report.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
+            diffkfc_data::write_atomic(&out.join("report.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
             println!("{}: {} steps in {:.1} s, InfoNCE {:.3} -> {:.3}", out.display(), r.steps, t0.elapsed().as_secs_f64(), r.first_loss, r.last_loss);
             println!("  R-precision on {} real '{split}' motions: top-1 {:.3}, top-2 {:.3}, top-3 {:.3} (chance 0.031, 0.062, 0.094); MM-dist {:.3}", r.items, r.r_precision[0], r.r_precision[1], r.r_precision[2], r.mm_dist);
             Ok(())

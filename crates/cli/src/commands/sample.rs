@@ -313,7 +313,7 @@ fn run_one(a: SampleArgs) -> Result<()> {
         npy::write(stem.with_extension("npy"), &[n, d], &f)?;
         npy::write(a.out.join(format!("{name}_joints.npy")), &[n, 22, 3], &rep::joints_to_f32(&j))?;
         render::gif(&T2M, &j, &keys.frames, &stem.with_extension("gif"))?;
-        npy::write_atomic(&stem.with_extension("bvh"), diffkfc_data::bvh::write(&T2M, &j).as_bytes())?;
+        diffkfc_data::write_atomic(&stem.with_extension("bvh"), diffkfc_data::bvh::write(&T2M, &j).as_bytes())?;
         samples.push(json!({
             "features": format!("{name}.npy"),
             "joints": format!("{name}_joints.npy"),
@@ -344,8 +344,8 @@ fn run_one(a: SampleArgs) -> Result<()> {
         "real_k_trans": keys.source.as_ref().and_then(|s| k_trans(s, &keys.frames, 2)),
         "samples": samples,
     });
-    npy::write_atomic(&a.out.join("results.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
-    npy::write_atomic(&a.out.join("index.html"), index_html(&report).as_bytes())?;
+    diffkfc_data::write_atomic(&a.out.join("results.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
+    diffkfc_data::write_atomic(&a.out.join("index.html"), index_html(&report).as_bytes())?;
     println!("{}: {b} sample(s) of {n} frames in {secs:.1} s ({:?}); see results.json and index.html", a.out.display(), opts.sampler);
     for (i, s) in report["samples"].as_array().unwrap().iter().enumerate() {
         println!("  sample_{i:02}: K-Err {} m, root-relative {} m, K-TranS {}", fmt(&s["k_err_m"]), fmt(&s["k_err_root_relative_m"]), fmt(&s["k_trans"]));

@@ -102,7 +102,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         bail!("model.text_dim is {} but the text encoder gives {}", cfg.model.text_dim, text.dim);
     }
     std::fs::create_dir_all(&run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
-    diffkfc_data::npy::write_atomic(&run_dir.join("config.json"), cfg.to_json().as_bytes())?;
+    diffkfc_data::write_atomic(&run_dir.join("config.json"), cfg.to_json().as_bytes())?;
     // Sampling needs the normalisation the model was trained with.
     let dims = [ds.dim()];
     diffkfc_data::npy::write(run_dir.join("Mean.npy"), &dims, &ds.mean)?;
@@ -137,7 +137,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
         .filter_map(|v| Some((v["step"].as_u64()?, v["val_loss"].as_f64()?)))
         .collect();
-    diffkfc_data::npy::write_atomic(&run_dir.join("loss.svg"), crate::plot::loss_svg(&metrics).as_bytes())?;
+    diffkfc_data::write_atomic(&run_dir.join("loss.svg"), crate::plot::loss_svg(&metrics).as_bytes())?;
     let secs = started.elapsed().as_secs_f64();
     let steps = outcome.end_step - outcome.start_step;
     let why = if interrupted.load(Ordering::SeqCst) { " (interrupted)" } else if outcome.stopped_early { " (time budget reached)" } else { "" };

@@ -399,17 +399,17 @@ pub fn write_dataset(out: &Path, n: usize, seed: u64, threads: usize, progress: 
             .iter()
             .map(|c| Caption { text: c.clone(), tokens: captions::tokens(c), start: 0.0, end: 0.0 }.to_line())
             .collect();
-        npy::write_atomic(&tmp.join(format!("texts/{}.txt", m.id)), (lines.join("\n") + "\n").as_bytes())?;
+        crate::write_atomic(&tmp.join(format!("texts/{}.txt", m.id)), (lines.join("\n") + "\n").as_bytes())?;
     }
     for split in ["train", "val", "test"] {
         let ids: Vec<&str> = metas.iter().filter(|m| m.split == split).map(|m| m.id.as_str()).collect();
-        npy::write_atomic(&tmp.join(format!("{split}.txt")), (ids.join("\n") + "\n").as_bytes())?;
+        crate::write_atomic(&tmp.join(format!("{split}.txt")), (ids.join("\n") + "\n").as_bytes())?;
     }
     let (mean, std) = mean_std(&sum, &sq, frames);
     npy::write(tmp.join("Mean.npy"), &[dim], &mean)?;
     npy::write(tmp.join("Std.npy"), &[dim], &std)?;
     let manifest = json!({"generator": "diffkfc data synth", "version": env!("CARGO_PKG_VERSION"), "seed": seed, "clips": metas});
-    npy::write_atomic(&tmp.join("manifest.json"), &serde_json::to_vec_pretty(&manifest).expect("json"))?;
+    crate::write_atomic(&tmp.join("manifest.json"), &serde_json::to_vec_pretty(&manifest).expect("json"))?;
     if out.exists() {
         std::fs::remove_dir(out).map_err(io(out))?;
     }

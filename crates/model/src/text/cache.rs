@@ -54,7 +54,7 @@ impl EmbeddingCache {
                 .collect();
             let meta = HashMap::from([("encoder".to_string(), encoder.name().to_string())]);
             let out = safetensors::serialize(views, Some(meta)).map_err(|e| bad(e.to_string()))?;
-            diffkfc_data::npy::write_atomic(path, &out).map_err(|e| bad(e.to_string()))?;
+            diffkfc_data::write_atomic(path, &out).map_err(|e| bad(e.to_string()))?;
         }
         Ok(EmbeddingCache { dim: encoder.dim(), map })
     }
