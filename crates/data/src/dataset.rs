@@ -131,11 +131,15 @@ impl Dataset {
 
     /// Undo `normalise`.
     pub fn denormalise(&self, x: &mut [f32]) {
-        let d = self.dim();
-        for row in x.chunks_mut(d) {
-            for ((v, m), s) in row.iter_mut().zip(&self.mean).zip(&self.std) {
-                *v = *v * s + m;
-            }
+        denormalise(x, &self.mean, &self.std);
+    }
+}
+
+/// Undo z-normalisation of row-major rows of width `mean.len()` in place.
+pub fn denormalise(x: &mut [f32], mean: &[f32], std: &[f32]) {
+    for row in x.chunks_mut(mean.len()) {
+        for ((v, m), s) in row.iter_mut().zip(mean).zip(std) {
+            *v = *v * s + m;
         }
     }
 }

@@ -65,7 +65,7 @@ pub fn embed_split(model: &Evaluator, ds: &Dataset, split: &PackedSplit, text: &
         let m = model.encode_motion(motion_tensor(&x, chunk.len(), n, d, device), &lengths);
         let t = model.encode_text(texts(text, &caps, device));
         let rows = |t: Tensor<2>| -> Vec<Vec<f64>> {
-            let v: Vec<f32> = t.into_data().convert::<f32>().try_to_vec().expect("f32");
+            let v = params::host(t);
             v.chunks(crate::evaluator::EMBED).map(|r| r.iter().map(|&x| x as f64).collect()).collect()
         };
         t_rows.extend(rows(t));

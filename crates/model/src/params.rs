@@ -6,7 +6,8 @@ use burn::module::{ModuleMapper, ModuleVisitor, Param, ParamId};
 use burn::optim::GradientsParams;
 use burn::prelude::*;
 
-fn host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+/// A tensor's values on the host, as f32.
+pub fn host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
     t.into_data().convert::<f32>().try_to_vec::<f32>().expect("float tensor")
 }
 

@@ -6,6 +6,7 @@ use burn::prelude::*;
 use diffkfc_data::rng::Rng;
 
 use crate::diffusion::Schedule;
+use crate::params::host;
 use crate::transition;
 use crate::{Condition, Denoiser};
 
@@ -95,10 +96,6 @@ fn stack(a: &Condition, b: &Condition) -> Condition {
         kf_frames: a.kf_frames.iter().chain(&b.kf_frames).copied().collect(),
         real: a.real.iter().chain(&b.real).copied().collect(),
     }
-}
-
-fn host(t: Tensor<3>) -> Vec<f32> {
-    t.into_data().convert::<f32>().try_to_vec::<f32>().expect("f32")
 }
 
 /// The timesteps visited, from noisy to clean.

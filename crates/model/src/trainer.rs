@@ -112,22 +112,23 @@ impl Trainer<'_> {
         losses(tb.x0, pred, tb.cond.kf_mask, tb.valid, &self.kinematic())
     }
 
-    /// Mean validation loss (L_simple + weighted kinematic terms) over fixed batches with the
-    /// EMA weights when present.
-    fn validate(&self, model: &Denoiser, schedule: &Schedule) -> Option<f64> {
+    /// Mean validation loss (L_simple + weighted kinematic terms) over fixed batches, for the
+    /// given flat weights (the EMA when there is one), on the non-autodiff device.
+    fn validate(&self, weights: &[Vec<f32>], schedule: &Schedule) -> Option<f64> {
         let val = self.val?;
         if val.items.is_empty() {
             return None;
         }
+        let model = params::load(self.cfg.model.init(&self.device), weights);
         let tc = &self.cfg.training;
         let loader = Loader::new(self.ds, val, tc.batch_size, tc.seed ^ 0x5A17, self.cfg.keyframes.clone());
-        let dev = model.devices().first().cloned().unwrap_or_else(|| self.device.clone());
+        let dev = self.device.clone();
         let n = tc.val_batches.min(loader.batches_per_epoch()).max(1);
         let mut total = 0.0;
         for k in 0..n {
             let b = loader.batch(0, k);
             let (t, noise) = self.draw(0xFA11, k as u64, b.batch_size, b.frames, b.dim, schedule.steps, &dev);
-            let l = self.batch_loss(model, schedule, &b, &t, noise, &dev);
+            let l = self.batch_loss(&model, schedule, &b, &t, noise, &dev);
             total += scalar(l.total(&self.kinematic()));
         }
         Some(total / n as f64)
@@ -185,8 +186,7 @@ impl Trainer<'_> {
         // Validation lines without a training loss: before the first step of a fresh run, and
         // where a run is stopped early, so start and end are always measured.
         let val_line = |step: usize, vals: &[Vec<f32>], ema: &Option<Vec<Vec<f32>>>, metrics: &mut std::fs::File| -> Result<Option<f64>, String> {
-            let vm = params::load(self.cfg.model.init(&self.device), ema.as_ref().map(|e| e.as_slice()).unwrap_or(vals));
-            let v = self.validate(&vm, &schedule);
+            let v = self.validate(ema.as_deref().unwrap_or(vals), &schedule);
             if let Some(v) = v {
                 let line = serde_json::json!({"step": step, "val_loss": v, "wall_s": t0.elapsed().as_secs_f64()});
                 writeln!(metrics, "{line}").map_err(|e| format!("{}: {e}", metrics_path.display()))?;
@@ -234,9 +234,7 @@ impl Trainer<'_> {
                 val_loss: None,
             };
             if tc.val_every > 0 && (step % tc.val_every == 0 || step == max_steps) {
-                let eval_vals = ema.as_ref().unwrap_or(&vals);
-                let vm = params::load(self.cfg.model.init(&self.device), eval_vals);
-                rec.val_loss = self.validate(&vm, &schedule);
+                rec.val_loss = self.validate(ema.as_deref().unwrap_or(&vals), &schedule);
             }
             writeln!(metrics, "{}", serde_json::to_string(&rec).expect("json")).map_err(|e| format!("{}: {e}", metrics_path.display()))?;
             on_event(Event::Step(&rec));

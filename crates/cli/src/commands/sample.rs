@@ -304,9 +304,7 @@ fn run_one(a: SampleArgs) -> Result<()> {
     let mut samples = Vec::new();
     for i in 0..b {
         let mut f: Vec<f32> = x[i * n * d..(i + 1) * n * d].to_vec();
-        for (k, v) in f.iter_mut().enumerate() {
-            *v = *v * std[k % d] + mean[k % d];
-        }
+        diffkfc_data::dataset::denormalise(&mut f, &mean, &std);
         let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
         let name = format!("sample_{i:02}");
         let stem = a.out.join(&name);
