@@ -1,4 +1,5 @@
-//! End-to-end: `diffkfc eval train-evaluator` learns text-motion retrieval far above chance.
+//! End-to-end: `diffkfc eval train-evaluator` learns text-motion retrieval far above chance;
+//! `diffkfc eval` on a tiny checkpoint writes both reports with every row and metric.
 
 mod common;
 use common::*;
@@ -23,8 +24,52 @@ fn evaluator_beats_chance() {
     for f in ["Mean.npy", "Std.npy", "ckpt-00000080.safetensors"] {
         assert!(out.join(f).exists(), "{f}");
     }
+    evaluate_tiny_checkpoint(&d, &data, &out);
     // Too few items to form a batch of 32.
     let small = d.join("small");
     assert!(diffkfc(&["data", "synth", "--out", s(&small), "--clips", "20"]).status.success());
     assert_one_line_error(&diffkfc(&["eval", "train-evaluator", "--data", s(&small), "--out", s(&d.join("e2"))]), &["at least 32 items"]);
+}
+
+const CFG: &str = r#"{"model": {"preset": "tiny", "dec_layers": 1, "dma_sizes": [2, 0]},
+  "training": {"batch_size": 4, "max_steps": 2, "checkpoint_every": 2, "val_every": 0}}"#;
+
+fn metric(row: &serde_json::Value, k: &str) -> f64 {
+    row["metrics"][k]["mean"].as_f64().unwrap_or_else(|| panic!("{k} missing in {row}"))
+}
+
+fn evaluate_tiny_checkpoint(d: &std::path::Path, data: &std::path::Path, evaluator: &std::path::Path) {
+    std::fs::write(d.join("cfg.json"), CFG).unwrap();
+    let run = d.join("run");
+    let o = diffkfc(&["train", "--config", s(&d.join("cfg.json")), "--data", s(data), "--out", s(&run)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let rep = d.join("report");
+    let common = ["eval", "--checkpoint", s(&run), "--evaluator", s(evaluator), "--data", s(data), "--replications", "2", "--steps", "3", "--samples-for-ade", "2"];
+    let mut args: Vec<&str> = common.to_vec();
+    args.extend(["--num-items", "32", "--compare", "--sweep-rates", "0,0.1", "--multimodality", "--mm-texts", "2", "--out", s(&rep)]);
+    let o = diffkfc(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("estimate"), "{}", stdout(&o));
+    let md = std::fs::read_to_string(rep.join("report.md")).unwrap();
+    for needle in ["Table 2 layout", "Table 4 layout", "| Real motion |", "| DiffKFC |", "| DiffKFC w/o TG |", "| MDM-inp |", "| 0% |", "| 10% |", "K-TranS"] {
+        assert!(md.contains(needle), "{needle} not in\n{md}");
+    }
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(rep.join("report.json")).unwrap()).unwrap();
+    let rows = r["rows"].as_array().unwrap();
+    let find = |name: &str, rate: f64| rows.iter().find(|x| x["name"] == name && x["keyframe_rate"].as_f64() == Some(rate)).unwrap_or_else(|| panic!("{name} {rate}"));
+    let (real, kfc, inp, zero) = (find("Real motion", 0.05), find("DiffKFC", 0.05), find("MDM-inp", 0.05), find("DiffKFC", 0.0));
+    assert_eq!(real["metrics"]["fid"]["replications"].as_array().unwrap().len(), 2);
+    // A 2-step model is far from the real motions the evaluator embeds; real test items are not.
+    assert!(metric(kfc, "fid") > metric(real, "fid"), "{kfc} {real}");
+    assert!(metric(real, "r_top3") > 3.0 / 32.0, "{real}");
+    // Snapping writes observed features back: keyframes are exact in the root-relative frame.
+    assert!(metric(kfc, "k_err_local") < 1e-5 && metric(inp, "k_err_local") < 1e-5, "{kfc}");
+    for k in ["ade", "k_err", "k_trans", "k_trans_real", "foot_skate", "diversity", "multimodality", "mm_dist"] {
+        assert!(metric(kfc, k).is_finite(), "{k}");
+    }
+    // Without keyframes there is nothing to measure at keyframes.
+    assert!(zero["metrics"].get("k_err").is_none() && zero["metrics"].get("ade").is_some(), "{zero}");
+    let mut few: Vec<&str> = common.to_vec();
+    few.extend(["--num-items", "8", "--out", s(&rep)]);
+    assert_one_line_error(&diffkfc(&few), &["--num-items", "at least 32"]);
 }

@@ -33,8 +33,9 @@ enum Command {
     /// Generate motion from text and keyframes with keyframe and transition guidance.
     #[command(after_help = "Examples:\n  diffkfc sample --checkpoint runs/tiny --text \"a person walks forward and waves\" --from clip.npy --frames 0,40,80\n  diffkfc sample --checkpoint runs/tiny --text \"a person squats\" --keyframes keys.json --out out/squat")]
     Sample(commands::sample::SampleArgs),
-    /// Evaluation: the text-motion evaluator (metrics and reports are being built).
-    #[command(after_help = "Example:\n  diffkfc eval train-evaluator --data work/synth --out work/evaluator")]
+    /// Evaluate a checkpoint: FID, R-precision, Diversity, ADE, K-Err, K-TranS (Tables 2 and 4);
+    /// `eval train-evaluator` trains the text-motion evaluator first.
+    #[command(after_help = commands::eval::AFTER_HELP)]
     Eval(commands::eval::EvalArgs),
     /// Inspect the network: parameter counts, forward timing.
     #[command(after_help = "Examples:\n  diffkfc model summary --config configs/paper-humanml3d.json\n  diffkfc model bench --config configs/paper-humanml3d.json")]
@@ -51,7 +52,13 @@ fn main() {
         Err(e) => {
             // Usage errors in one line, like every other error of the tool.
             let text = e.to_string();
-            let first = text.lines().next().unwrap_or("invalid arguments").trim_start_matches("error: ");
+            let mut lines = text.lines();
+            let mut first = lines.next().unwrap_or("invalid arguments").trim_start_matches("error: ").to_string();
+            // "required arguments were not provided:" lists them on the following indented lines.
+            if first.ends_with(':') {
+                let items: Vec<&str> = lines.take_while(|l| l.starts_with("  ")).map(str::trim).collect();
+                first = format!("{first} {}", items.join(", "));
+            }
             eprintln!("error: {first} (see --help)");
             std::process::exit(2);
         }

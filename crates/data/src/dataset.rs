@@ -121,17 +121,21 @@ impl Dataset {
 
     /// Normalise a row-major (T, D) slice in place.
     pub fn normalise(&self, x: &mut [f32]) {
-        let d = self.dim();
-        for row in x.chunks_mut(d) {
-            for ((v, m), s) in row.iter_mut().zip(&self.mean).zip(&self.std) {
-                *v = (*v - m) / s;
-            }
-        }
+        normalise(x, &self.mean, &self.std);
     }
 
     /// Undo `normalise`.
     pub fn denormalise(&self, x: &mut [f32]) {
         denormalise(x, &self.mean, &self.std);
+    }
+}
+
+/// Z-normalise row-major rows of width `mean.len()` in place.
+pub fn normalise(x: &mut [f32], mean: &[f32], std: &[f32]) {
+    for row in x.chunks_mut(mean.len()) {
+        for ((v, m), s) in row.iter_mut().zip(mean).zip(std) {
+            *v = (*v - m) / s;
+        }
     }
 }
 

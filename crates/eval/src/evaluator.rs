@@ -123,3 +123,83 @@ pub fn info_nce(m: Tensor<2>, t: Tensor<2>, temperature: f64, same: &[bool]) -> 
     let l2 = -(log_softmax(logits.transpose(), 1) * eye).sum() / b as f64;
     (l1 + l2) / 2.0
 }
+
+/// Frames of a clip the evaluator sees: the first 196, rounded down to a multiple of 4 (its
+/// convolutions downsample by 4), as T2M's evaluation loader does.
+pub fn eval_length(len: usize) -> usize {
+    let u = diffkfc_data::dataset::UNIT_LENGTH;
+    (len.min(diffkfc_data::dataset::MAX_FRAMES) / u * u).max(u)
+}
+
+/// What the text-motion metrics need from an evaluator: embeddings in one shared space.
+/// Implemented by our contrastive evaluator; a converted official T2M evaluator would be another.
+pub trait TextMotionEvaluator {
+    /// Raw (de-normalised) motions, each [len, D] with len a multiple of 4 -> one row each.
+    fn embed_motions(&self, motions: &[&[f32]]) -> Vec<Vec<f64>>;
+    /// Captions -> one row each.
+    fn embed_texts(&self, captions: &[&str]) -> Result<Vec<Vec<f64>>, String>;
+}
+
+/// The trained contrastive evaluator with the normalisation it was trained with.
+pub struct ContrastiveEvaluator<'a> {
+    pub model: Evaluator,
+    pub mean: Vec<f32>,
+    pub std: Vec<f32>,
+    pub text: &'a diffkfc_model::text::cache::EmbeddingCache,
+    pub device: Device,
+}
+
+/// Rows of a [B, 512] tensor as f64 vectors.
+fn rows(t: Tensor<2>) -> Vec<Vec<f64>> {
+    diffkfc_model::params::host(t).chunks(EMBED).map(|r| r.iter().map(|&x| x as f64).collect()).collect()
+}
+
+impl<'a> ContrastiveEvaluator<'a> {
+    /// Load the newest checkpoint of `diffkfc eval train-evaluator --out DIR`.
+    pub fn load(dir: &std::path::Path, text: &'a diffkfc_model::text::cache::EmbeddingCache, device: &Device) -> Result<Self, String> {
+        let ck = diffkfc_model::checkpoint::Checkpoint::latest(dir).ok_or(format!("{}: no evaluator checkpoint (run `diffkfc eval train-evaluator` first)", dir.display()))??;
+        let cfg: EvaluatorConfig = serde_json::from_str(&ck.config).map_err(|e| format!("{}: evaluator config: {e}", dir.display()))?;
+        if cfg.text_dim != text.dim {
+            return Err(format!("{}: evaluator expects {}-d text embeddings, the text encoder gives {}", dir.display(), cfg.text_dim, text.dim));
+        }
+        let read = |n: &str| diffkfc_data::npy::read_f32(dir.join(n)).map(|a| a.data).map_err(|e| e.to_string());
+        let (mean, std) = (read("Mean.npy")?, read("Std.npy")?);
+        if mean.len() != cfg.motion_dim + 4 || std.len() != mean.len() {
+            return Err(format!("{}: Mean/Std have {} values, the evaluator expects {}", dir.display(), mean.len(), cfg.motion_dim + 4));
+        }
+        Ok(ContrastiveEvaluator { model: diffkfc_model::params::load(cfg.init(device), &ck.model), mean, std, text, device: device.clone() })
+    }
+}
+
+impl TextMotionEvaluator for ContrastiveEvaluator<'_> {
+    fn embed_motions(&self, motions: &[&[f32]]) -> Vec<Vec<f64>> {
+        let d = self.mean.len();
+        let mut out = Vec::with_capacity(motions.len());
+        for chunk in motions.chunks(32) {
+            let n = chunk.iter().map(|m| m.len() / d).max().unwrap_or(1).max(4);
+            let mut x = vec![0f32; chunk.len() * n * d];
+            for (k, m) in chunk.iter().enumerate() {
+                let dst = &mut x[k * n * d..k * n * d + m.len()];
+                dst.copy_from_slice(m);
+                diffkfc_data::dataset::normalise(dst, &self.mean, &self.std);
+            }
+            let lengths: Vec<usize> = chunk.iter().map(|m| m.len() / d).collect();
+            let t = Tensor::<1>::from_floats(x.as_slice(), &self.device).reshape([chunk.len(), n, d]).slice([0..chunk.len(), 0..n, 0..d - 4]);
+            out.extend(rows(self.model.encode_motion(t, &lengths)));
+        }
+        out
+    }
+
+    fn embed_texts(&self, captions: &[&str]) -> Result<Vec<Vec<f64>>, String> {
+        let mut out = Vec::with_capacity(captions.len());
+        for chunk in captions.chunks(256) {
+            let mut v = Vec::with_capacity(chunk.len() * self.text.dim);
+            for c in chunk {
+                v.extend_from_slice(self.text.get(c).ok_or_else(|| format!("caption not embedded: {c}"))?);
+            }
+            let t = Tensor::<1>::from_floats(v.as_slice(), &self.device).reshape([chunk.len(), self.text.dim]);
+            out.extend(rows(self.model.encode_text(t)));
+        }
+        Ok(out)
+    }
+}

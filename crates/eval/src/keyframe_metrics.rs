@@ -39,6 +39,14 @@ pub fn k_err_local(skel: &Skeleton, gen: &[f32], kf: &[f32], frames: &[usize], j
     (n > 0).then(|| sum / n as f64)
 }
 
+/// Displacement error of one sample (ADE takes its minimum over samples): mean L2 joint error
+/// against the ground truth over all joints of every frame that is not a keyframe.
+pub fn displacement_error(gen: &Joints, reference: &Joints, keys: &[usize]) -> Option<f64> {
+    let frames: Vec<usize> = (0..gen.len().min(reference.len())).filter(|f| !keys.contains(f)).collect();
+    let joints: Vec<usize> = (0..gen.first().map_or(0, |p| p.len())).collect();
+    k_err_global(gen, reference, &frames, &joints)
+}
+
 /// K-TranS with window `l` (2 in the paper's setting).
 pub fn k_trans(j: &Joints, frames: &[usize], l: usize) -> Option<f64> {
     let t = j.len();
@@ -86,5 +94,10 @@ mod tests {
         assert!((k_err_global(&b, &a, &[4], &[1]).unwrap() - 5.0).abs() < 1e-12);
         assert!((k_err_global(&b, &a, &[4], &[0, 1]).unwrap() - 2.5).abs() < 1e-12);
         assert!(k_err_global(&a, &a, &[], &[0]).is_none());
+        // Displacement skips keyframes: a 1 m shift on frames 0..5 of 10, keyframes 0 and 1.
+        let mut c = a.clone();
+        c.iter_mut().take(5).for_each(|p| p.iter_mut().for_each(|j| j[0] += 1.0));
+        assert!((displacement_error(&c, &a, &[0, 1]).unwrap() - 3.0 / 8.0).abs() < 1e-12);
+        assert!(displacement_error(&c, &a, &(0..10).collect::<Vec<_>>()).is_none());
     }
 }

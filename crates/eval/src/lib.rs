@@ -9,5 +9,8 @@
 
 pub mod evaluator;
 pub mod keyframe_metrics;
+pub mod linalg;
+pub mod protocol;
+pub mod report;
 pub mod text_motion;
 pub mod train_evaluator;

@@ -4,6 +4,8 @@
 
 use diffkfc_data::rng::Rng;
 
+use crate::linalg::{matmul, sqrtm_psd};
+
 fn dist(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>().sqrt()
 }
@@ -37,92 +39,39 @@ pub fn mean_cov(x: &[Vec<f64>]) -> (Vec<f64>, Vec<f64>) {
     (mu, cov)
 }
 
-/// Eigen-decomposition of a symmetric matrix (cyclic Jacobi): (eigenvalues, eigenvectors as
-/// columns, row-major).
-pub fn sym_eigen(a: &[f64], n: usize) -> (Vec<f64>, Vec<f64>) {
-    let mut m = a.to_vec();
-    let mut v = vec![0.0; n * n];
-    for i in 0..n {
-        v[i * n + i] = 1.0;
-    }
-    for _sweep in 0..100 {
-        let off: f64 = (0..n).flat_map(|i| (0..n).filter(move |&j| j != i).map(move |j| (i, j))).map(|(i, j)| m[i * n + j].powi(2)).sum();
-        if off < 1e-22 {
-            break;
-        }
-        for p in 0..n {
-            for q in p + 1..n {
-                let apq = m[p * n + q];
-                if apq.abs() < 1e-300 {
-                    continue;
-                }
-                let theta = (m[q * n + q] - m[p * n + p]) / (2.0 * apq);
-                let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
-                let t = if theta == 0.0 { 1.0 } else { t };
-                let c = 1.0 / (t * t + 1.0).sqrt();
-                let s = t * c;
-                for k in 0..n {
-                    let (akp, akq) = (m[k * n + p], m[k * n + q]);
-                    m[k * n + p] = c * akp - s * akq;
-                    m[k * n + q] = s * akp + c * akq;
-                }
-                for k in 0..n {
-                    let (apk, aqk) = (m[p * n + k], m[q * n + k]);
-                    m[p * n + k] = c * apk - s * aqk;
-                    m[q * n + k] = s * apk + c * aqk;
-                }
-                for k in 0..n {
-                    let (vkp, vkq) = (v[k * n + p], v[k * n + q]);
-                    v[k * n + p] = c * vkp - s * vkq;
-                    v[k * n + q] = s * vkp + c * vkq;
-                }
-            }
-        }
-    }
-    ((0..n).map(|i| m[i * n + i]).collect(), v)
+/// A Gaussian fitted to an embedding set, with its covariance square root kept so that many
+/// sets can be compared against one reference cheaply.
+pub struct Gaussian {
+    pub mean: Vec<f64>,
+    pub cov: Vec<f64>,
+    sqrt_cov: Vec<f64>,
 }
 
-/// Symmetric positive semi-definite square root (negative eigenvalues from round-off clipped).
-pub fn sqrtm_psd(a: &[f64], n: usize) -> Vec<f64> {
-    let (w, v) = sym_eigen(a, n);
-    let mut out = vec![0.0; n * n];
-    for k in 0..n {
-        let s = w[k].max(0.0).sqrt();
-        for i in 0..n {
-            for j in 0..n {
-                out[i * n + j] += v[i * n + k] * s * v[j * n + k];
-            }
-        }
+impl Gaussian {
+    pub fn fit(x: &[Vec<f64>]) -> Gaussian {
+        let (mean, cov) = mean_cov(x);
+        let sqrt_cov = sqrtm_psd(&cov, mean.len());
+        Gaussian { mean, cov, sqrt_cov }
     }
-    out
+
+    /// Fréchet distance to the Gaussian fitted to `x`:
+    /// |mu1 - mu2|^2 + tr(S1 + S2 - 2 (S1^1/2 S2 S1^1/2)^1/2), the symmetric form of
+    /// tr((S1 S2)^1/2) (equal, but with a real symmetric square root).
+    pub fn fid_to(&self, x: &[Vec<f64>]) -> f64 {
+        let d = self.mean.len();
+        let (m2, s2) = mean_cov(x);
+        let (s1, r1) = (&self.cov, &self.sqrt_cov);
+        let inner = matmul(&matmul(r1, &s2, d), r1, d);
+        let sym: Vec<f64> = (0..d * d).map(|k| 0.5 * (inner[k] + inner[(k % d) * d + k / d])).collect();
+        let covmean = sqrtm_psd(&sym, d);
+        let tr = (0..d).map(|i| s1[i * d + i] + s2[i * d + i] - 2.0 * covmean[i * d + i]).sum::<f64>();
+        self.mean.iter().zip(&m2).map(|(x, y)| (x - y).powi(2)).sum::<f64>() + tr
+    }
 }
 
-fn matmul(a: &[f64], b: &[f64], n: usize) -> Vec<f64> {
-    let mut c = vec![0.0; n * n];
-    for i in 0..n {
-        for k in 0..n {
-            let aik = a[i * n + k];
-            for j in 0..n {
-                c[i * n + j] += aik * b[k * n + j];
-            }
-        }
-    }
-    c
-}
-
-/// Fréchet distance between Gaussians fitted to two embedding sets:
-/// |mu1 - mu2|^2 + tr(S1 + S2 - 2 (S1^1/2 S2 S1^1/2)^1/2), the symmetric form of
-/// tr((S1 S2)^1/2) (equal, but with a real symmetric square root).
+/// FID between two embedding sets (see `Gaussian::fid_to`).
 pub fn fid(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
-    let d = a[0].len();
-    let (m1, s1) = mean_cov(a);
-    let (m2, s2) = mean_cov(b);
-    let r1 = sqrtm_psd(&s1, d);
-    let inner = matmul(&matmul(&r1, &s2, d), &r1, d);
-    let sym: Vec<f64> = (0..d * d).map(|k| 0.5 * (inner[k] + inner[(k % d) * d + k / d])).collect();
-    let covmean = sqrtm_psd(&sym, d);
-    let tr = (0..d).map(|i| s1[i * d + i] + s2[i * d + i] - 2.0 * covmean[i * d + i]).sum::<f64>();
-    m1.iter().zip(&m2).map(|(x, y)| (x - y).powi(2)).sum::<f64>() + tr
+    Gaussian::fit(a).fid_to(b)
 }
 
 /// R-precision top-1..3 and MultiModal distance: texts and motions are paired by index; in
@@ -186,14 +135,6 @@ mod tests {
         (0..n).map(|_| (0..d).map(|_| shift + scale * r.normal()).collect()).collect()
     }
 
-    #[test]
-    fn sqrtm_squares_back() {
-        let a = [4.0, 1.0, 0.5, 1.0, 3.0, 0.2, 0.5, 0.2, 2.0];
-        let r = sqrtm_psd(&a, 3);
-        let back = matmul(&r, &r, 3);
-        assert!(a.iter().zip(&back).all(|(x, y)| (x - y).abs() < 1e-9), "{back:?}");
-    }
-
     /// FID of a set with itself is 0; of isotropic Gaussians it is |mu1-mu2|^2 + d (s1 - s2)^2.
     #[test]
     fn fid_closed_forms() {
@@ -222,6 +163,11 @@ mod tests {
         let x = vec![vec![0.0, 0.0], vec![3.0, 4.0]];
         assert!((diversity(&x, 300, 1) - 5.0).abs() < 1e-12);
         assert!((multimodality(&[x.clone(), vec![vec![0.0, 0.0], vec![0.0, 1.0]]], 10, 2) - 3.0).abs() < 1e-12);
+        // MM-dist: true pairs at distances 1 and 3 -> 2 (32 pairs: one full batch).
+        let texts: Vec<Vec<f64>> = (0..32).map(|i| vec![100.0 * i as f64, 0.0]).collect();
+        let motions: Vec<Vec<f64>> = texts.iter().enumerate().map(|(i, t)| vec![t[0], if i % 2 == 0 { 1.0 } else { 3.0 }]).collect();
+        let (r, mm) = r_precision(&texts, &motions, 32);
+        assert_eq!((r, mm), ([1.0; 3], 2.0));
         let (m, ci) = mean_ci(&[1.0, 1.0, 1.0]);
         assert_eq!((m, ci), (1.0, 0.0));
     }

@@ -7,13 +7,13 @@ use burn::optim::GradientsParams;
 use burn::prelude::*;
 use diffkfc_data::batch::{Batch, KeyframeConfig, Loader};
 use diffkfc_data::cache::PackedSplit;
-use diffkfc_data::dataset::{Dataset, MAX_FRAMES, UNIT_LENGTH};
+use diffkfc_data::dataset::Dataset;
 use diffkfc_model::checkpoint::Checkpoint;
 use diffkfc_model::optim::{clip_grad_norm, Adam};
 use diffkfc_model::params;
 use diffkfc_model::text::cache::EmbeddingCache;
 
-use crate::evaluator::{info_nce, Evaluator, EvaluatorConfig};
+use crate::evaluator::{eval_length, info_nce, ContrastiveEvaluator, EvaluatorConfig, TextMotionEvaluator};
 use crate::text_motion::r_precision;
 
 pub struct EvaluatorTraining<'a> {
@@ -47,31 +47,11 @@ fn same_caption(b: &Batch) -> Vec<bool> {
 
 /// Embeddings of every item of a split with its first caption, whole clip (first 196 frames,
 /// length rounded down to a multiple of 4), in item order: (text rows, motion rows).
-pub fn embed_split(model: &Evaluator, ds: &Dataset, split: &PackedSplit, text: &EmbeddingCache, device: &Device) -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
-    let (n, d) = (MAX_FRAMES, ds.dim());
-    let (mut t_rows, mut m_rows) = (Vec::new(), Vec::new());
-    for chunk in (0..split.items.len()).collect::<Vec<_>>().chunks(32) {
-        let mut x = vec![0f32; chunk.len() * n * d];
-        let mut lengths = Vec::new();
-        let mut caps = Vec::new();
-        for (k, &i) in chunk.iter().enumerate() {
-            let len = (split.items[i].len.min(n) / UNIT_LENGTH * UNIT_LENGTH).max(UNIT_LENGTH);
-            let mut f = split.item_frames(i)[..len * d].to_vec();
-            ds.normalise(&mut f);
-            x[k * n * d..k * n * d + len * d].copy_from_slice(&f);
-            lengths.push(len);
-            caps.push(split.items[i].captions[0].clone());
-        }
-        let m = model.encode_motion(motion_tensor(&x, chunk.len(), n, d, device), &lengths);
-        let t = model.encode_text(texts(text, &caps, device));
-        let rows = |t: Tensor<2>| -> Vec<Vec<f64>> {
-            let v = params::host(t);
-            v.chunks(crate::evaluator::EMBED).map(|r| r.iter().map(|&x| x as f64).collect()).collect()
-        };
-        t_rows.extend(rows(t));
-        m_rows.extend(rows(m));
-    }
-    (t_rows, m_rows)
+pub fn embed_split(ev: &dyn TextMotionEvaluator, ds: &Dataset, split: &PackedSplit) -> Result<(Vec<Vec<f64>>, Vec<Vec<f64>>), String> {
+    let d = ds.dim();
+    let motions: Vec<&[f32]> = (0..split.items.len()).map(|i| &split.item_frames(i)[..eval_length(split.items[i].len) * d]).collect();
+    let captions: Vec<&str> = split.items.iter().map(|it| it.captions[0].as_str()).collect();
+    Ok((ev.embed_texts(&captions)?, ev.embed_motions(&motions)))
 }
 
 pub struct EvaluatorReport {
@@ -120,8 +100,8 @@ impl EvaluatorTraining<'_> {
         let dims = [self.ds.dim()];
         diffkfc_data::npy::write(self.out.join("Mean.npy"), &dims, &self.ds.mean).map_err(|e| e.to_string())?;
         diffkfc_data::npy::write(self.out.join("Std.npy"), &dims, &self.ds.std).map_err(|e| e.to_string())?;
-        let eval_model = params::load(self.cfg.init(&self.device), &vals);
-        let (t, m) = embed_split(&eval_model, self.ds, self.test, self.text, &self.device);
+        let ev = ContrastiveEvaluator { model: params::load(self.cfg.init(&self.device), &vals), mean: self.ds.mean.clone(), std: self.ds.std.clone(), text: self.text, device: self.device.clone() };
+        let (t, m) = embed_split(&ev, self.ds, self.test)?;
         let (r, mm) = r_precision(&t, &m, 32);
         Ok(EvaluatorReport { steps: self.steps, first_loss: first, last_loss: last, r_precision: r, mm_dist: mm, items: t.len() })
     }

@@ -1,19 +1,121 @@
-//! `diffkfc eval ...`: the text-motion evaluator.
+//! `diffkfc eval`: evaluate a checkpoint (Tables 2 and 4); `eval train-evaluator`: the
+//! text-motion evaluator it needs.
 
 use std::path::PathBuf;
 
-use anyhow::Result;
+use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
 use diffkfc_data::cache::{default_cache_dir, PackedSplit};
 use diffkfc_data::dataset::Dataset;
-use diffkfc_eval::evaluator::EvaluatorConfig;
-use diffkfc_eval::train_evaluator::EvaluatorTraining;
+use diffkfc_data::keyframes::Strategy;
+use diffkfc_eval::evaluator::{ContrastiveEvaluator, EvaluatorConfig};
+use diffkfc_eval::protocol::{self, Protocol, Setting};
+use diffkfc_eval::report;
+use diffkfc_eval::text_motion::Gaussian;
+use diffkfc_eval::train_evaluator::{embed_split, EvaluatorTraining};
+use diffkfc_model::diffusion::Schedule;
+use diffkfc_model::sampler::Sampler;
+use diffkfc_model::trainer::load_for_inference;
 use indicatif::{ProgressBar, ProgressStyle};
 
+pub const AFTER_HELP: &str = "\
+Examples:
+  diffkfc eval train-evaluator --data work/synth --out work/evaluator
+  diffkfc eval --checkpoint work/runs/tiny --evaluator work/evaluator --data work/synth --compare --sweep-rates 0,0.02,0.05,0.1
+  diffkfc eval --checkpoint work/runs/tiny --evaluator work/evaluator --data work/synth --num-items 64 --replications 2 --steps 10   (a quick look)
+
+Metrics (our definitions of the keyframe metrics; the paper gives them in words):
+  FID, R-Precision top-1/2/3 (batches of 32), MM-Dist, Diversity (300 pairs), MultiModality
+    (--multimodality: 30 generations per text, 10 pairs) on the evaluator's embeddings.
+  ADE: min over --samples-for-ade samples of the mean L2 joint error (metres) on non-keyframe frames.
+  K-Err: mean L2 joint error at keyframes (global, and root-relative).
+  K-TranS: mean |x[j+1] - 2x[j] + x[j-1]| within 2 frames of a keyframe (real motion = reference).
+  Foot skate: share of toe-contact frames (below 5 cm) moving faster than 0.5 m/s.
+Generation uses the ground-truth lengths; keyframes are drawn as in training with a fixed seed
+per replication (the same for every method). Reports: <out>/report.json and <out>/report.md.";
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum KeyframeMode {
+    /// The trained keyframe branch with keyframe guidance.
+    Diffkfc,
+    /// MDM-inp baseline: keyframes pasted into x0 at every step, no keyframe branch.
+    Inpaint,
+}
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum SamplerArg {
+    Ddpm,
+    Ddim,
+}
+
 #[derive(Args)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 pub struct EvalArgs {
     #[command(subcommand)]
-    command: EvalCommand,
+    command: Option<EvalCommand>,
+    #[command(flatten)]
+    run: RunArgs,
+}
+
+#[derive(Args)]
+struct RunArgs {
+    /// Run directory of `diffkfc train` (newest checkpoint, EMA weights when present).
+    #[arg(long, required = true)]
+    checkpoint: Option<PathBuf>,
+    /// Output directory of `diffkfc eval train-evaluator`.
+    #[arg(long, required = true)]
+    evaluator: Option<PathBuf>,
+    /// Dataset root (HumanML3D layout).
+    #[arg(long, required = true)]
+    data: Option<PathBuf>,
+    #[arg(long, default_value = "test")]
+    split: String,
+    #[arg(long, default_value_t = 20)]
+    replications: usize,
+    /// Test items per replication (at least 32: R-precision ranks batches of 32).
+    #[arg(long, default_value_t = 1024)]
+    num_items: usize,
+    #[arg(long, default_value_t = 0.05)]
+    keyframe_rate: f64,
+    #[arg(long, default_value = "random")]
+    keyframe_strategy: String,
+    #[arg(long, value_enum, default_value = "diffkfc")]
+    keyframe_mode: KeyframeMode,
+    #[arg(long, default_value_t = 100.0)]
+    transition_guidance: f64,
+    #[arg(long, default_value_t = 2.5)]
+    kf_guidance: f64,
+    #[arg(long, value_enum, default_value = "ddim")]
+    sampler: SamplerArg,
+    /// DDIM steps (DDPM runs every step of the schedule).
+    #[arg(long, default_value_t = 50)]
+    steps: usize,
+    /// Generations per item for ADE (the minimum over them is kept).
+    #[arg(long, default_value_t = 10)]
+    samples_for_ade: usize,
+    /// Also measure MultiModality (30 generations for each of --mm-texts texts).
+    #[arg(long)]
+    multimodality: bool,
+    #[arg(long, default_value_t = 100)]
+    mm_texts: usize,
+    /// Table 2: also run DiffKFC without transition guidance and the MDM-inp baseline.
+    #[arg(long)]
+    compare: bool,
+    /// Table 4: run the main setting at each of these keyframe rates (e.g. 0,0.02,0.05,0.1).
+    #[arg(long)]
+    sweep_rates: Option<String>,
+    /// Do not write observed keyframe features back after the last step.
+    #[arg(long)]
+    no_snap: bool,
+    /// Motions generated per denoiser batch.
+    #[arg(long, default_value_t = 32)]
+    batch_size: usize,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    #[arg(long, default_value = "out/eval")]
+    out: PathBuf,
+    #[arg(long, default_value = "flex")]
+    device: String,
 }
 
 #[derive(Subcommand)]
@@ -43,7 +145,8 @@ enum EvalCommand {
 
 pub fn run(a: EvalArgs) -> Result<()> {
     match a.command {
-        EvalCommand::TrainEvaluator { data, out, max_steps, batch_size, lr, seed, split, device } => {
+        None => evaluate(a.run),
+        Some(EvalCommand::TrainEvaluator { data, out, max_steps, batch_size, lr, seed, split, device }) => {
             let device = crate::device::parse(&device)?;
             let ds = Dataset::open(&data)?;
             let cache = default_cache_dir(&ds);
@@ -74,4 +177,139 @@ pub fn run(a: EvalArgs) -> Result<()> {
             Ok(())
         }
     }
+}
+
+fn setting_name(inpaint: bool, transition: f64) -> String {
+    match (inpaint, transition > 0.0) {
+        (false, true) => "DiffKFC".into(),
+        (false, false) => "DiffKFC w/o TG".into(),
+        (true, false) => "MDM-inp".into(),
+        (true, true) => "MDM-inp + TG".into(),
+    }
+}
+
+fn parse_rate(v: f64, flag: &str) -> Result<f64> {
+    if !(0.0..=1.0).contains(&v) {
+        bail!("{flag}: {v} is not a keyframe rate in [0, 1]");
+    }
+    Ok(v)
+}
+
+/// The rows to run: the main setting, the Table 2 comparison, the Table 4 sweep (no duplicates).
+fn settings(a: &RunArgs) -> Result<Vec<Setting>> {
+    let rate = parse_rate(a.keyframe_rate, "--keyframe-rate")?;
+    if a.transition_guidance < 0.0 {
+        bail!("--transition-guidance: must be >= 0");
+    }
+    let inpaint = matches!(a.keyframe_mode, KeyframeMode::Inpaint);
+    let make = |inpaint: bool, transition: f64, rate: f64| Setting { name: setting_name(inpaint, transition), rate, inpaint, transition };
+    let mut v = vec![make(inpaint, a.transition_guidance, rate)];
+    if a.compare {
+        let r = if a.transition_guidance > 0.0 { a.transition_guidance } else { 100.0 };
+        v.extend([make(false, r, rate), make(false, 0.0, rate), make(true, 0.0, rate)]);
+    }
+    if let Some(spec) = &a.sweep_rates {
+        for p in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+            let r: f64 = p.parse().map_err(|_| anyhow::anyhow!("--sweep-rates: '{p}' is not a number"))?;
+            v.push(make(inpaint, a.transition_guidance, parse_rate(r, "--sweep-rates")?));
+        }
+    }
+    let mut out: Vec<Setting> = Vec::new();
+    for s in v {
+        if !out.iter().any(|o| o.name == s.name && o.rate == s.rate) {
+            out.push(s);
+        }
+    }
+    Ok(out)
+}
+
+fn evaluate(a: RunArgs) -> Result<()> {
+    let (Some(run_dir), Some(eval_dir), Some(data)) = (a.checkpoint.clone(), a.evaluator.clone(), a.data.clone()) else { bail!("eval: needs --checkpoint, --evaluator and --data") };
+    let settings = settings(&a)?;
+    for (v, flag) in [(a.replications, "--replications"), (a.samples_for_ade, "--samples-for-ade"), (a.steps, "--steps"), (a.batch_size, "--batch-size")] {
+        if v == 0 {
+            bail!("{flag}: must be at least 1");
+        }
+    }
+    let strategy: Strategy = a.keyframe_strategy.parse().map_err(|e: String| anyhow::anyhow!("--keyframe-strategy: {e}"))?;
+    let device = crate::device::parse(&a.device)?;
+    let (cfg, model, step) = load_for_inference(&run_dir, &device).map_err(anyhow::Error::msg)?;
+    let (mean, std) = super::sample::normalisation(&run_dir, &cfg)?;
+    let ds = Dataset::open(&data)?;
+    if ds.dim() != cfg.model.feat_dim {
+        bail!("--data: {} has {}-d features, the checkpoint {} expects {}", data.display(), ds.dim(), run_dir.display(), cfg.model.feat_dim);
+    }
+    let split = PackedSplit::open(&ds, &a.split, &default_cache_dir(&ds), crate::progress::bar("caching"))?;
+    let num_items = a.num_items.min(split.items.len());
+    if num_items < protocol::R_BATCH {
+        bail!("--num-items: {num_items} items (split '{}' of {} has {}); R-precision needs at least {}", a.split, data.display(), split.items.len(), protocol::R_BATCH);
+    }
+    let text = super::train::embed_captions(&ds, &[&split])?;
+    let ev = ContrastiveEvaluator::load(&eval_dir, &text, &device).map_err(anyhow::Error::msg)?;
+    if ev.mean.len() != ds.dim() {
+        bail!("--evaluator: {} was trained on {}-d features, {} has {}", eval_dir.display(), ev.mean.len(), data.display(), ds.dim());
+    }
+    let (_, real) = embed_split(&ev, &ds, &split).map_err(anyhow::Error::msg)?;
+    let reference = Gaussian::fit(&real);
+    let schedule = Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps).context("diffusion schedule of the checkpoint")?;
+    let sampler = match a.sampler {
+        SamplerArg::Ddpm => Sampler::Ddpm,
+        SamplerArg::Ddim => Sampler::Ddim(a.steps),
+    };
+    let opts = protocol::Options {
+        replications: a.replications,
+        num_items,
+        samples_for_ade: a.samples_for_ade,
+        multimodality: if a.multimodality { a.mm_texts } else { 0 },
+        sampler,
+        kf_guidance: a.kf_guidance,
+        snap: !a.no_snap,
+        strategy,
+        batch: a.batch_size,
+        seed: a.seed,
+    };
+    let p = Protocol { model: &model, schedule: &schedule, mean: &mean, std: &std, ds: &ds, split: &split, text: &text, evaluator: &ev, opts };
+    let total = p.planned_steps(&settings);
+    let per_step = p.seconds_per_step(&settings[0]);
+    println!(
+        "eval: {} setting(s) x {} replication(s) x {num_items} items x {} sample(s), {sampler:?}: {total} denoising steps; estimate {:.1} min ({:.0} ms per step of a batch of {})",
+        settings.len(),
+        a.replications,
+        a.samples_for_ade,
+        total as f64 * per_step / 60.0,
+        per_step * 1e3,
+        a.batch_size
+    );
+    let pb = ProgressBar::new(total as u64);
+    pb.set_style(ProgressStyle::with_template("generating [{bar:30}] {pos}/{len} steps {elapsed} ETA {eta}").expect("template").progress_chars("=> "));
+    let t0 = std::time::Instant::now();
+    let rows = p.run(&settings, &reference, &mut || pb.inc(1)).map_err(anyhow::Error::msg)?;
+    pb.finish_and_clear();
+    let secs = t0.elapsed().as_secs_f64();
+    let meta = serde_json::json!({
+        "checkpoint": run_dir.display().to_string(), "checkpoint_step": step, "evaluator": eval_dir.display().to_string(),
+        "data": data.display().to_string(), "split": a.split, "replications": a.replications, "num_items": num_items,
+        "samples_for_ade": a.samples_for_ade, "sampler": format!("{sampler:?}"), "kf_guidance": a.kf_guidance,
+        "keyframe_strategy": a.keyframe_strategy, "snap": !a.no_snap, "multimodality_texts": if a.multimodality { a.mm_texts } else { 0 },
+        "seed": a.seed, "seconds": secs, "reference_motions": real.len(),
+    });
+    let header = format!(
+        "Checkpoint `{}` (step {step}), evaluator `{}`, split `{}` of `{}`: {} replication(s) x {num_items} items, {sampler:?}, keyframe guidance {}, {} keyframes, ADE over {} sample(s), snap {}; {:.0} s.",
+        run_dir.display(),
+        eval_dir.display(),
+        a.split,
+        data.display(),
+        a.replications,
+        a.kf_guidance,
+        a.keyframe_strategy,
+        a.samples_for_ade,
+        if a.no_snap { "off" } else { "on" },
+        secs
+    );
+    let md = report::to_markdown(&rows, &header, settings[0].rate, &settings[0].name);
+    std::fs::create_dir_all(&a.out).with_context(|| format!("--out: creating {}", a.out.display()))?;
+    diffkfc_data::write_atomic(&a.out.join("report.json"), serde_json::to_string_pretty(&report::to_json(&rows, meta))?.as_bytes())?;
+    diffkfc_data::write_atomic(&a.out.join("report.md"), md.as_bytes())?;
+    println!("{md}\nwrote {} and {}", a.out.join("report.json").display(), a.out.join("report.md").display());
+    Ok(())
 }

@@ -1,0 +1,269 @@
+//! The evaluation protocol (DESIGN §4): for every replication, draw test items (shuffled with
+//! the replication's seed, ground-truth lengths, one random caption each) and keyframes as in
+//! training (same seed for every setting, so settings are compared on the same keyframes); for
+//! every setting (keyframe mode, transition guidance, keyframe rate) generate and measure.
+//! The "Real motion" rows measure the real test motions the same way.
+
+use std::collections::BTreeMap;
+
+use diffkfc_data::cache::PackedSplit;
+use diffkfc_data::dataset::{self, Dataset};
+use diffkfc_data::keyframes::{self, Strategy};
+use diffkfc_data::plausibility::foot_skating_ratio;
+use diffkfc_data::representation::{recover_from_ric, Joints};
+use diffkfc_data::rng::Rng;
+use diffkfc_model::diffusion::Schedule;
+use diffkfc_model::sampler::{self, Request, Sampler, TgMode};
+use diffkfc_model::text::cache::EmbeddingCache;
+use diffkfc_model::Denoiser;
+
+use crate::evaluator::{eval_length, TextMotionEvaluator};
+use crate::keyframe_metrics::{displacement_error, k_err_global, k_err_local, k_trans};
+use crate::text_motion::{diversity, multimodality, r_precision, Gaussian};
+
+/// Generations per text and pairs per text of MultiModality; pairs of Diversity; R-precision
+/// batch; K-TranS half window (DESIGN §4).
+pub const MM_GENERATIONS: usize = 30;
+pub const MM_PAIRS: usize = 10;
+pub const DIVERSITY_PAIRS: usize = 300;
+pub const R_BATCH: usize = 32;
+pub const K_TRANS_WINDOW: usize = 2;
+
+/// One generated row of the tables.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Setting {
+    pub name: String,
+    pub rate: f64,
+    /// MDM-inp: keyframes pasted into x0 every step, no keyframe branch.
+    pub inpaint: bool,
+    /// Transition guidance strength r (0 = off).
+    pub transition: f64,
+}
+
+#[derive(Clone, Debug)]
+pub struct Options {
+    pub replications: usize,
+    pub num_items: usize,
+    pub samples_for_ade: usize,
+    /// Texts for MultiModality (0 = off).
+    pub multimodality: usize,
+    pub sampler: Sampler,
+    pub kf_guidance: f64,
+    pub snap: bool,
+    pub strategy: Strategy,
+    /// Generated motions per denoiser batch (keyframe guidance doubles it).
+    pub batch: usize,
+    pub seed: u64,
+}
+
+/// Per metric, its value in each replication (metrics undefined for a row are absent).
+pub type Values = BTreeMap<&'static str, Vec<f64>>;
+
+/// A row of results: a setting, or the real motions at a keyframe rate (`setting: None`).
+#[derive(Clone, Debug)]
+pub struct RowResult {
+    pub setting: Option<Setting>,
+    pub rate: f64,
+    pub values: Values,
+}
+
+pub struct Protocol<'a> {
+    pub model: &'a Denoiser,
+    pub schedule: &'a Schedule,
+    /// Normalisation the denoiser was trained with.
+    pub mean: &'a [f32],
+    pub std: &'a [f32],
+    pub ds: &'a Dataset,
+    pub split: &'a PackedSplit,
+    pub text: &'a EmbeddingCache,
+    pub evaluator: &'a dyn TextMotionEvaluator,
+    pub opts: Options,
+}
+
+struct Item<'s> {
+    len: usize,
+    caption: String,
+    /// Raw features [len, D].
+    feats: &'s [f32],
+    joints: Joints,
+}
+
+fn joints_of(ds: &Dataset, f: &[f32]) -> Joints {
+    recover_from_ric(ds.skeleton, &f.iter().map(|&v| v as f64).collect::<Vec<_>>())
+}
+
+fn mean(xs: &[f64]) -> Option<f64> {
+    (!xs.is_empty()).then(|| xs.iter().sum::<f64>() / xs.len() as f64)
+}
+
+impl Protocol<'_> {
+    fn items(&self, rep: usize) -> Vec<Item<'_>> {
+        let mut order: Vec<usize> = (0..self.split.items.len()).collect();
+        Rng::derive(self.opts.seed, 1, rep as u64).shuffle(&mut order);
+        order.truncate(self.opts.num_items);
+        let d = self.ds.dim();
+        order
+            .iter()
+            .enumerate()
+            .map(|(pos, &i)| {
+                let spec = &self.split.items[i];
+                let len = eval_length(spec.len);
+                let feats = &self.split.item_frames(i)[..len * d];
+                let caption = Rng::derive(self.opts.seed, 2 + (rep as u64) * 16, pos as u64).pick(&spec.captions).clone();
+                Item { len, caption, feats, joints: joints_of(self.ds, feats) }
+            })
+            .collect()
+    }
+
+    /// Keyframes of every item at `rate`: the same for every setting of a replication.
+    fn keys(&self, rep: usize, items: &[Item], rate: f64) -> Vec<Vec<usize>> {
+        let d = self.ds.dim();
+        let stream = 3 + (rep as u64) * 16;
+        items.iter().enumerate().map(|(p, it)| keyframes::select(self.opts.strategy, it.len, rate, it.feats, d, &mut Rng::derive(self.opts.seed, stream, p as u64))).collect()
+    }
+
+    /// Denoising steps (sampler calls) one generation of `rows` motions costs.
+    fn steps_for(&self, rows: usize) -> usize {
+        rows.div_ceil(self.opts.batch.max(1)) * sampler::timesteps(self.schedule, self.opts.sampler).len()
+    }
+
+    /// Denoising steps the whole run takes (for the progress bar and the estimate).
+    pub fn planned_steps(&self, settings: &[Setting]) -> usize {
+        let n = self.opts.num_items.min(self.split.items.len());
+        let mm = if self.opts.multimodality > 0 { self.steps_for(self.opts.multimodality.min(n) * MM_GENERATIONS) } else { 0 };
+        self.opts.replications * settings.len() * (self.steps_for(n * self.opts.samples_for_ade.max(1)) + mm)
+    }
+
+    /// Measured seconds per denoising step of `s` (a 2-step generation of one batch of
+    /// replication 0's items, encoder included): the basis of the estimate shown before a run.
+    pub fn seconds_per_step(&self, s: &Setting) -> f64 {
+        let probe = Protocol { opts: Options { sampler: Sampler::Ddim(2), num_items: self.opts.batch, ..self.opts.clone() }, ..*self };
+        let items = probe.items(0);
+        let keys = probe.keys(0, &items, s.rate);
+        let t0 = std::time::Instant::now();
+        probe.generate(&items, &keys, s, 1, 0, &mut || {});
+        t0.elapsed().as_secs_f64() / 2.0
+    }
+
+    /// `k` samples per item (raw features [len, D]), in batches sorted by length.
+    fn generate(&self, items: &[Item], keys: &[Vec<usize>], s: &Setting, k: usize, seed: u64, tick: &mut dyn FnMut()) -> Vec<Vec<Vec<f32>>> {
+        let d = self.ds.dim();
+        let all_dims = keyframes::dim_mask(self.ds.skeleton, None);
+        let mut jobs: Vec<(usize, usize)> = (0..items.len()).flat_map(|p| (0..k).map(move |j| (p, j))).collect();
+        jobs.sort_by_key(|&(p, _)| items[p].len);
+        let mut out: Vec<Vec<Vec<f32>>> = items.iter().map(|_| vec![Vec::new(); k]).collect();
+        for (c, chunk) in jobs.chunks(self.opts.batch.max(1)).enumerate() {
+            let b = chunk.len();
+            let n = chunk.iter().map(|&(p, _)| items[p].len).max().unwrap_or(1);
+            let mut req = Request { batch: b, frames: n, dim: d, text: Vec::new(), text_dim: self.text.dim, kf: vec![0.0; b * n * d], mask: vec![0.0; b * n * d], lengths: Vec::new() };
+            for (r, &(p, _)) in chunk.iter().enumerate() {
+                let it = &items[p];
+                req.text.extend_from_slice(self.text.get(&it.caption).expect("captions of the split are embedded"));
+                req.lengths.push(it.len);
+                let mask = keyframes::frame_mask(it.len, &keys[p], &all_dims);
+                let mut kf: Vec<f32> = it.feats.to_vec();
+                dataset::normalise(&mut kf, self.mean, self.std);
+                let o = r * n * d;
+                for (e, (&m, &v)) in mask.iter().zip(&kf).enumerate() {
+                    req.mask[o + e] = m;
+                    req.kf[o + e] = v * m;
+                }
+            }
+            let opts = sampler::Options {
+                sampler: self.opts.sampler,
+                kf_guidance: self.opts.kf_guidance,
+                transition: s.transition,
+                write_back: self.opts.snap,
+                seed: Rng::derive(seed, 7, c as u64).next_u64(),
+                tg_mode: TgMode::X0,
+                inpaint: s.inpaint,
+                ..Default::default()
+            };
+            let x = sampler::sample(self.model, self.schedule, &req, &opts, |_, _| tick());
+            for (r, &(p, j)) in chunk.iter().enumerate() {
+                let mut f = x[r * n * d..(r * n + items[p].len) * d].to_vec();
+                dataset::denormalise(&mut f, self.mean, self.std);
+                out[p][j] = f;
+            }
+        }
+        out
+    }
+
+    /// Text-motion metrics of motions paired with the replication's caption embeddings.
+    fn text_motion(&self, reference: &Gaussian, texts: &[Vec<f64>], motions: &[Vec<f64>], seed: u64, v: &mut Values) {
+        let ([r1, r2, r3], mm) = r_precision(texts, motions, R_BATCH);
+        let pairs = [("fid", reference.fid_to(motions)), ("r_top1", r1), ("r_top2", r2), ("r_top3", r3), ("mm_dist", mm), ("diversity", diversity(motions, DIVERSITY_PAIRS, seed))];
+        for (k, x) in pairs {
+            v.entry(k).or_default().push(x);
+        }
+    }
+
+    /// Run every setting for every replication. `reference`: evaluator statistics of the real
+    /// test motions that FID compares against.
+    pub fn run(&self, settings: &[Setting], reference: &Gaussian, tick: &mut dyn FnMut()) -> Result<Vec<RowResult>, String> {
+        let mut rates: Vec<f64> = settings.iter().map(|s| s.rate).collect();
+        rates.sort_by(f64::total_cmp);
+        rates.dedup();
+        let mut real: Vec<RowResult> = rates.iter().map(|&rate| RowResult { setting: None, rate, values: Values::new() }).collect();
+        let mut rows: Vec<RowResult> = settings.iter().map(|s| RowResult { setting: Some(s.clone()), rate: s.rate, values: Values::new() }).collect();
+        let skel = self.ds.skeleton;
+        let all_joints: Vec<usize> = (0..skel.num_joints()).collect();
+        for rep in 0..self.opts.replications {
+            let items = self.items(rep);
+            let captions: Vec<&str> = items.iter().map(|it| it.caption.as_str()).collect();
+            let texts = self.evaluator.embed_texts(&captions)?;
+            let rep_seed = Rng::derive(self.opts.seed, 5, rep as u64).next_u64();
+            let real_m = self.evaluator.embed_motions(&items.iter().map(|it| it.feats).collect::<Vec<_>>());
+            for row in real.iter_mut() {
+                let keys = self.keys(rep, &items, row.rate);
+                self.text_motion(reference, &texts, &real_m, rep_seed, &mut row.values);
+                let kt: Vec<f64> = items.iter().zip(&keys).filter_map(|(it, k)| k_trans(&it.joints, k, K_TRANS_WINDOW)).collect();
+                let skate: Vec<f64> = items.iter().map(|it| foot_skating_ratio(skel, &it.joints)).collect();
+                for (k, x) in [("k_trans", mean(&kt)), ("foot_skate", mean(&skate))] {
+                    if let Some(x) = x {
+                        row.values.entry(k).or_default().push(x);
+                    }
+                }
+            }
+            for row in rows.iter_mut() {
+                let s = row.setting.clone().expect("generated row");
+                let keys = self.keys(rep, &items, s.rate);
+                let k = self.opts.samples_for_ade.max(1);
+                let gens = self.generate(&items, &keys, &s, k, rep_seed, tick);
+                let mut per: BTreeMap<&'static str, Vec<f64>> = BTreeMap::new();
+                for ((it, key), samples) in items.iter().zip(&keys).zip(&gens) {
+                    let joints: Vec<Joints> = samples.iter().map(|f| joints_of(self.ds, f)).collect();
+                    let ade = joints.iter().filter_map(|j| displacement_error(j, &it.joints, key)).fold(f64::INFINITY, f64::min);
+                    let avg = |f: &dyn Fn(usize) -> Option<f64>| mean(&(0..k).filter_map(f).collect::<Vec<_>>());
+                    let entries = [
+                        ("ade", ade.is_finite().then_some(ade)),
+                        ("k_err", avg(&|j| k_err_global(&joints[j], &it.joints, key, &all_joints))),
+                        ("k_err_local", avg(&|j| k_err_local(skel, &samples[j], it.feats, key, &all_joints))),
+                        ("k_trans", avg(&|j| k_trans(&joints[j], key, K_TRANS_WINDOW))),
+                        ("k_trans_real", k_trans(&it.joints, key, K_TRANS_WINDOW)),
+                        ("foot_skate", avg(&|j| Some(foot_skating_ratio(skel, &joints[j])))),
+                    ];
+                    for (name, x) in entries {
+                        if let Some(x) = x {
+                            per.entry(name).or_default().push(x);
+                        }
+                    }
+                }
+                for (name, xs) in per {
+                    row.values.entry(name).or_default().extend(mean(&xs));
+                }
+                let first: Vec<&[f32]> = gens.iter().map(|g| g[0].as_slice()).collect();
+                let motions = self.evaluator.embed_motions(&first);
+                self.text_motion(reference, &texts, &motions, rep_seed, &mut row.values);
+                if self.opts.multimodality > 0 {
+                    let m = self.opts.multimodality.min(items.len());
+                    let groups = self.generate(&items[..m], &keys[..m], &s, MM_GENERATIONS, rep_seed ^ 0x4d4d, tick);
+                    let emb: Vec<Vec<Vec<f64>>> = groups.iter().map(|g| self.evaluator.embed_motions(&g.iter().map(Vec::as_slice).collect::<Vec<_>>())).collect();
+                    row.values.entry("multimodality").or_default().push(multimodality(&emb, MM_PAIRS, rep_seed));
+                }
+            }
+        }
+        real.extend(rows);
+        Ok(real)
+    }
+}
