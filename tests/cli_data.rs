@@ -158,7 +158,7 @@ fn version_and_help_with_examples() {
         vec!["sample", "--help"],
         vec!["model", "--help"],
         vec!["model", "summary", "--help"],
-        vec!["model", "bench", "--help"],
+        vec!["bench", "--help"],
         vec!["text-embed", "--help"],
         vec!["eval", "--help"],
         vec!["eval", "train-evaluator", "--help"],

@@ -1,4 +1,5 @@
-//! End-to-end: `model summary`, `model bench`, `text-embed`, config errors.
+//! End-to-end: `model summary`, `bench` (the CI smoke run of the benchmark suite), `text-embed`,
+//! config errors.
 
 mod common;
 use common::*;
@@ -14,10 +15,25 @@ fn summary_counts_parameters() {
     let out = stdout(&o);
     let total: usize = out.lines().find(|l| l.trim_start().starts_with("total")).unwrap().split_whitespace().nth(1).unwrap().parse().unwrap();
     assert!((total as f64 - 47e6).abs() < 4.7e6, "{out}");
-    let o = diffkfc(&["model", "bench", "--config", &config("tiny"), "--frames", "40", "--repeats", "1"]);
+}
+
+/// Every case of the suite runs on the tiny config and reports time and GFLOP/s (not timed).
+#[test]
+fn bench_suite_smoke() {
+    let o = diffkfc(&["bench", "--config", "tiny", "--frames", "40", "--batch", "2", "--quick"]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    assert!(v["forward_ms"].as_f64().unwrap() > 0.0);
+    let lines: Vec<serde_json::Value> = stdout(&o).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let cases: Vec<&str> = lines.iter().map(|v| v["case"].as_str().unwrap()).collect();
+    assert_eq!(cases, ["train_step", "sampling_call", "sampling_call_cached", "ddim", "loader"]);
+    for v in &lines[..4] {
+        assert!(v["ms"].as_f64().unwrap() > 0.0 && v["gflops"].as_f64().unwrap() > 0.0, "{v}");
+    }
+    assert_eq!(lines[3]["finite"], true);
+    // The cached call skips the encoder: fewer FLOPs than the full call.
+    assert!(lines[2]["gflop"].as_f64() < lines[1]["gflop"].as_f64());
+    assert!(lines[4]["items_per_s"].as_f64().unwrap() > 0.0);
+    assert_one_line_error(&diffkfc(&["bench", "--config", "tiny", "--cases", "train,fly"]), &["--cases", "fly"]);
+    assert_one_line_error(&diffkfc(&["bench", "--config", "huge"]), &["--config", "huge"]);
 }
 
 #[test]
@@ -29,7 +45,7 @@ fn bad_configs_name_the_key() {
     std::fs::write(&p, "{not json").unwrap();
     assert_one_line_error(&diffkfc(&["model", "summary", "--config", s(&p)]), &["bad.json", "not valid JSON"]);
     assert_one_line_error(&diffkfc(&["model", "summary", "--config", s(&d.join("none.json"))]), &["none.json"]);
-    assert_one_line_error(&diffkfc(&["model", "bench", "--config", &config("tiny"), "--device", "quantum"]), &["--device", "quantum"]);
+    assert_one_line_error(&diffkfc(&["bench", "--config", &config("tiny"), "--device", "quantum"]), &["--device", "quantum"]);
 }
 
 #[test]

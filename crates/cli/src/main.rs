@@ -37,9 +37,13 @@ enum Command {
     /// `eval train-evaluator` trains the text-motion evaluator first.
     #[command(after_help = commands::eval::AFTER_HELP)]
     Eval(commands::eval::EvalArgs),
-    /// Inspect the network: parameter counts, forward timing.
-    #[command(after_help = "Examples:\n  diffkfc model summary --config configs/paper-humanml3d.json\n  diffkfc model bench --config configs/paper-humanml3d.json")]
+    /// Inspect the network: parameter counts.
+    #[command(after_help = "Example:\n  diffkfc model summary --config configs/paper-humanml3d.json")]
     Model(commands::model::ModelArgs),
+    /// Benchmarks: training step, sampling call, DDIM sample, data loading (JSON lines), and
+    /// side by side with the PyTorch reference.
+    #[command(after_help = commands::bench::AFTER_HELP)]
+    Bench(commands::bench::BenchArgs),
     /// Print a sentence's token ids and text embedding as JSON (checks the text encoder).
     #[command(after_help = "Example:\n  diffkfc text-embed --text \"a person walks forward and waves his left hand.\"")]
     TextEmbed(commands::model::TextEmbedArgs),
@@ -67,6 +71,7 @@ fn main() {
         Command::Data(args) => commands::data::run(args),
         Command::Render(args) => commands::render::run(args),
         Command::Model(args) => commands::model::run(args),
+        Command::Bench(args) => commands::bench::run(args),
         Command::Train(args) => commands::train::run(args),
         Command::Sample(args) => commands::sample::run(args),
         Command::Eval(args) => commands::eval::run(args),

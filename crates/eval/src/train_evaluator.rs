@@ -3,13 +3,12 @@
 
 use std::path::PathBuf;
 
-use burn::optim::GradientsParams;
 use burn::prelude::*;
 use diffkfc_data::batch::{Batch, KeyframeConfig, Loader};
 use diffkfc_data::cache::PackedSplit;
 use diffkfc_data::dataset::Dataset;
 use diffkfc_model::checkpoint::Checkpoint;
-use diffkfc_model::optim::{clip_grad_norm, Adam};
+use diffkfc_model::optim::{descend, Adam};
 use diffkfc_model::params;
 use diffkfc_model::text::cache::EmbeddingCache;
 
@@ -83,11 +82,7 @@ impl EvaluatorTraining<'_> {
             let t = model.encode_text(texts(self.text, &b.captions, &device));
             let loss = info_nce(m, t, self.cfg.temperature, &same_caption(&b));
             let l: f64 = loss.clone().into_data().convert::<f64>().try_to_vec::<f64>().expect("scalar")[0];
-            let grads = GradientsParams::from_grads(loss.backward(), &model);
-            let mut g = params::grads(&model, &grads);
-            clip_grad_norm(&mut g, 1.0);
-            adam.update(&mut vals, &g, self.lr);
-            model = params::load(model, &vals);
+            model = descend(model, loss, &mut vals, &mut adam, 1.0, self.lr).0;
             if step == 0 {
                 first = l;
             }

@@ -3,6 +3,7 @@
 
 pub mod attention;
 pub mod batch;
+pub mod bench;
 pub mod checkpoint;
 pub mod config;
 pub mod decoder;
@@ -10,6 +11,7 @@ pub mod denoiser;
 pub mod diffusion;
 pub mod dma;
 pub mod embed;
+pub mod flops;
 pub mod kinematics;
 pub mod losses;
 pub mod optim;

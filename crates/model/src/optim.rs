@@ -84,3 +84,14 @@ mod tests {
         assert!((learning_rate(1.0, 55, 10, true, 100) - 0.5).abs() < 1e-9);
     }
 }
+
+/// One optimiser step as the trainers take it: backward of `loss`, gradients to the host,
+/// global-norm clipping, Adam on the flat host values, the new values loaded into `model`.
+/// Returns the updated model and the gradient norm before clipping.
+pub fn descend<M: burn::module::Module>(model: M, loss: burn::tensor::Tensor<1>, vals: &mut [Vec<f32>], adam: &mut Adam, clip: f64, lr: f64) -> (M, f64) {
+    let grads = burn::optim::GradientsParams::from_grads(loss.backward(), &model);
+    let mut g = crate::params::grads(&model, &grads);
+    let norm = clip_grad_norm(&mut g, clip);
+    adam.update(vals, &g, lr);
+    (crate::params::load(model, vals), norm)
+}

@@ -73,7 +73,8 @@ impl Request {
         (0..self.lengths[b]).filter(|&f| self.mask[(b * n + f) * d..(b * n + f + 1) * d].iter().any(|&m| m > 0.0)).collect()
     }
 
-    fn condition(&self, device: &Device) -> Condition {
+    /// The network's condition of this request.
+    pub fn condition(&self, device: &Device) -> Condition {
         let (b, n, d) = (self.batch, self.frames, self.dim);
         let kf_frames = (0..b * n).map(|f| self.mask[f * d..(f + 1) * d].iter().any(|&m| m > 0.0)).collect();
         let real = (0..b * n).map(|f| f % n < self.lengths[f / n]).collect();
@@ -88,7 +89,7 @@ impl Request {
 }
 
 /// Two conditions stacked along the batch: [a; b].
-fn stack(a: &Condition, b: &Condition) -> Condition {
+pub fn stack(a: &Condition, b: &Condition) -> Condition {
     Condition {
         text: Tensor::cat(vec![a.text.clone(), b.text.clone()], 0),
         kf: Tensor::cat(vec![a.kf.clone(), b.kf.clone()], 0),

@@ -10,7 +10,6 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use burn::optim::GradientsParams;
 use burn::prelude::*;
 use diffkfc_data::batch::{Batch, Loader};
 use diffkfc_data::cache::PackedSplit;
@@ -21,7 +20,7 @@ use crate::batch::to_tensors;
 use crate::checkpoint::Checkpoint;
 use crate::diffusion::Schedule;
 use crate::losses::{losses, Kinematic};
-use crate::optim::{clip_grad_norm, ema_update, learning_rate, Adam};
+use crate::optim::{descend, ema_update, learning_rate, Adam};
 use crate::params;
 use crate::run_config::RunConfig;
 use crate::text::cache::EmbeddingCache;
@@ -209,17 +208,14 @@ impl Trainer<'_> {
             let (t, noise) = self.draw(0x7EA1, step as u64, b.batch_size, b.frames, b.dim, schedule.steps, &device);
             let l = self.batch_loss(&model, &schedule, &b, &t, noise, &device);
             let total = l.total(&kin);
-            let grads = GradientsParams::from_grads(total.backward(), &model);
-            let mut g = params::grads(&model, &grads);
-            let grad_norm = clip_grad_norm(&mut g, tc.grad_clip);
             let lr = learning_rate(tc.lr, step, tc.warmup_steps, tc.cosine_decay, tc.max_steps);
-            adam.update(&mut vals, &g, lr);
+            let (updated, grad_norm) = descend(model, total.clone(), &mut vals, &mut adam, tc.grad_clip, lr);
+            model = updated;
             if let Some(e) = ema.as_mut() {
                 // Early in training the EMA follows closely (as in common EMA warm-ups).
                 let decay = tc.ema_decay.min((1.0 + step as f64) / (10.0 + step as f64));
                 ema_update(e, &vals, decay);
             }
-            model = params::load(model, &vals);
             step += 1;
             let mut rec = StepRecord {
                 step,

@@ -96,16 +96,16 @@ struct SynthArgs {
 }
 
 #[derive(Args)]
-struct BenchLoaderArgs {
-    dir: PathBuf,
+pub struct BenchLoaderArgs {
+    pub dir: PathBuf,
     #[arg(long, default_value = "train")]
-    split: String,
+    pub split: String,
     #[arg(long, default_value_t = 200)]
-    batches: usize,
+    pub batches: usize,
     #[arg(long, default_value_t = 64)]
-    batch_size: usize,
+    pub batch_size: usize,
     #[arg(long, default_value_t = 1)]
-    threads: usize,
+    pub threads: usize,
 }
 
 #[derive(Args)]
@@ -192,6 +192,12 @@ pub fn rss_mib() -> (f64, f64) {
 }
 
 fn bench_loader(a: BenchLoaderArgs) -> Result<()> {
+    println!("{}", loader_case(&a)?);
+    Ok(())
+}
+
+/// Packed-cache loading throughput (also a case of `diffkfc bench`).
+pub fn loader_case(a: &BenchLoaderArgs) -> Result<serde_json::Value> {
     use diffkfc_data::batch::{KeyframeConfig, Loader};
     use diffkfc_data::cache::{default_cache_dir, PackedSplit};
     let ds = diffkfc_data::dataset::Dataset::open(&a.dir)?;
@@ -233,8 +239,7 @@ fn bench_loader(a: BenchLoaderArgs) -> Result<()> {
         "rss_anon_mib_peak": peak_anon,
         "checksum": checksum,
     });
-    println!("{line}");
-    Ok(())
+    Ok(line)
 }
 
 fn synth(a: SynthArgs) -> Result<()> {

@@ -1,0 +1,186 @@
+//! `diffkfc bench`: one JSON line per case (median milliseconds and achieved GFLOP/s of the
+//! matmuls), optionally side by side with the PyTorch reference and the ratios.
+
+use std::path::PathBuf;
+use std::process::Command;
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use diffkfc_model::bench::{Sampling, TrainStep};
+use diffkfc_model::run_config::RunConfig;
+use diffkfc_model::{flops, DiffKfcConfig};
+use serde_json::{json, Value};
+
+pub const AFTER_HELP: &str = "\
+Cases: train (forward + backward + Adam), call (one guided sampling call: both keyframe-guidance
+branches in a batch of 2, encoder included), call-cached (the same, decoder only with the
+encoder output cached, as in every denoising step after the first), ddim (a full DDIM sample,
+keyframe + transition guidance), loader (packed-cache batches/s; --data, else a generated set).
+Examples:
+  diffkfc bench --config paper
+  diffkfc bench --config paper --torch /path/to/venv/bin/python   (side by side, with ratios)
+  diffkfc bench --config tiny --quick                              (smoke test)";
+
+#[derive(Args)]
+pub struct BenchArgs {
+    /// Model: a preset (paper, small, tiny) or a run config file.
+    #[arg(long, default_value = "paper")]
+    config: String,
+    /// Comma-separated cases: train, call, call-cached, ddim, loader.
+    #[arg(long, default_value = "train,call,call-cached,ddim,loader")]
+    cases: String,
+    /// Training batch size (the sampling cases generate one motion: a guidance batch of 2).
+    #[arg(long, default_value_t = 8)]
+    batch: usize,
+    #[arg(long, default_value_t = 196)]
+    frames: usize,
+    /// Timed runs per case after one warm-up (the median is reported).
+    #[arg(long, default_value_t = 3)]
+    repeats: usize,
+    #[arg(long, default_value_t = 50)]
+    ddim_steps: usize,
+    /// Dataset for the loader case (default: a generated 300-clip set in a temporary folder).
+    #[arg(long)]
+    data: Option<PathBuf>,
+    /// Python with torch: also run the PyTorch reference in this process's run and print ratios.
+    #[arg(long)]
+    torch: Option<PathBuf>,
+    /// The PyTorch reference script.
+    #[arg(long, default_value = "../shared/bench/reference_diffkfc.py")]
+    reference: PathBuf,
+    /// Smoke test: one run per case, 2 DDIM steps, 20 loader batches.
+    #[arg(long)]
+    quick: bool,
+    #[arg(long, default_value = "flex")]
+    device: String,
+}
+
+fn model_config(spec: &str) -> Result<DiffKfcConfig> {
+    if let Some(c) = DiffKfcConfig::preset(spec) {
+        return Ok(c);
+    }
+    if std::path::Path::new(spec).exists() {
+        return Ok(RunConfig::load(std::path::Path::new(spec)).map_err(anyhow::Error::msg)?.model);
+    }
+    bail!("--config: '{spec}' is neither a preset (paper, small, tiny) nor a file")
+}
+
+/// Median wall time in ms of `runs` calls of `f` after one warm-up call.
+fn time_ms<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, Vec<f64>) {
+    std::hint::black_box(f());
+    let mut ms: Vec<f64> = (0..runs.max(1))
+        .map(|_| {
+            let t0 = Instant::now();
+            std::hint::black_box(f());
+            t0.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    let runs = ms.clone();
+    ms.sort_by(f64::total_cmp);
+    (ms[ms.len() / 2], runs)
+}
+
+fn line(case: &str, ms: f64, runs: &[f64], gflop: f64, extra: Value) -> Value {
+    let mut v = json!({"case": case, "impl": "diffkfc", "ms": ms, "runs_ms": runs, "gflop": gflop, "gflops": gflop / (ms / 1e3)});
+    if let (Some(o), Value::Object(e)) = (v.as_object_mut(), extra) {
+        o.extend(e);
+    }
+    v
+}
+
+fn torch_reference(python: &PathBuf, script: &PathBuf, preset: &str, batch: usize, frames: usize, repeats: usize) -> Result<Value> {
+    if !script.exists() {
+        bail!("--reference: {} not found", script.display());
+    }
+    let out = Command::new(python)
+        .arg(script)
+        .args(["--config", preset, "--batch", &batch.to_string(), "--frames", &frames.to_string(), "--steps", &repeats.max(1).to_string()])
+        .output()
+        .with_context(|| format!("--torch: running {}", python.display()))?;
+    let text = String::from_utf8_lossy(&out.stdout);
+    let last = text.lines().rev().find(|l| l.trim_start().starts_with('{'));
+    match (out.status.success(), last) {
+        (true, Some(l)) => Ok(serde_json::from_str(l).with_context(|| format!("--torch: unreadable output: {l}"))?),
+        _ => bail!("--torch: the reference failed: {}", String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or("no output")),
+    }
+}
+
+pub fn run(a: BenchArgs) -> Result<()> {
+    let cfg = model_config(&a.config)?;
+    let cases: Vec<&str> = a.cases.split(',').map(str::trim).filter(|c| !c.is_empty()).collect();
+    if let Some(bad) = cases.iter().find(|c| !["train", "call", "call-cached", "ddim", "loader"].contains(c)) {
+        bail!("--cases: unknown case '{bad}' (train, call, call-cached, ddim, loader)");
+    }
+    if a.batch == 0 || a.frames == 0 || a.frames > cfg.max_frames {
+        bail!("--batch/--frames: need a batch >= 1 and 1..={} frames", cfg.max_frames);
+    }
+    let device = crate::device::parse(&a.device)?;
+    let runs = if a.quick { 1 } else { a.repeats };
+    let (b, n) = (a.batch, a.frames);
+    let common = json!({"config": a.config, "frames": n, "device": a.device, "threads": rayon_threads()});
+    let mut ours: std::collections::BTreeMap<&str, f64> = Default::default();
+    let emit = |v: Value| println!("{v}");
+    if cases.contains(&"train") {
+        let mut w = TrainStep::new(&cfg, b, n, &device);
+        let (ms, r) = time_ms(runs, || w.step());
+        ours.insert("train_step", ms);
+        emit(line("train_step", ms, &r, flops::train_step(&cfg, b, n) / 1e9, json!({"batch": b, "common": common})));
+    }
+    let sampling = ["call", "call-cached", "ddim"].iter().any(|c| cases.contains(c));
+    if sampling {
+        let model = cfg.init(&device);
+        let s = Sampling::new(&model, &cfg, 1, n);
+        let f = flops::forward(&cfg, 2, n);
+        if cases.contains(&"call") {
+            let (ms, r) = time_ms(runs * 3, || s.call(true));
+            ours.insert("sampling_call", ms);
+            emit(line("sampling_call", ms, &r, f.total() / 1e9, json!({"batch": 2, "encoder": true, "common": common})));
+        }
+        if cases.contains(&"call-cached") {
+            let (ms, r) = time_ms(runs * 3, || s.call(false));
+            ours.insert("sampling_call_cached", ms);
+            emit(line("sampling_call_cached", ms, &r, f.decoder / 1e9, json!({"batch": 2, "encoder": false, "common": common})));
+        }
+        if cases.contains(&"ddim") {
+            let steps = if a.quick { 2 } else { a.ddim_steps };
+            let mut finite = true;
+            let (ms, r) = time_ms(runs.min(2), || finite &= s.sample(steps).iter().all(|v| v.is_finite()));
+            emit(line("ddim", ms, &r, (f.encoder + steps as f64 * f.decoder) / 1e9, json!({"steps": steps, "kf_guidance": 2.5, "transition_guidance": 100.0, "finite": finite, "common": common})));
+        }
+    }
+    if cases.contains(&"loader") {
+        let tmp = std::env::temp_dir().join(format!("diffkfc-bench-{}", std::process::id()));
+        let dir = match &a.data {
+            Some(d) => d.clone(),
+            None => {
+                diffkfc_data::synth::write_dataset(&tmp, 300, 0, 2, &|_, _| {})?;
+                tmp.clone()
+            }
+        };
+        let la = super::data::BenchLoaderArgs { dir, split: "train".into(), batches: if a.quick { 20 } else { 200 }, batch_size: 64, threads: 1 };
+        let v = super::data::loader_case(&la);
+        let _ = std::fs::remove_dir_all(&tmp);
+        emit(v?);
+    }
+    if let Some(py) = &a.torch {
+        let preset = match a.config.as_str() {
+            "paper" | "tiny" => a.config.as_str(),
+            other => bail!("--torch: the reference has the paper and its own tiny network, not '{other}'"),
+        };
+        let t = torch_reference(py, &a.reference, preset, b, n, runs)?;
+        emit(json!({"case": "pytorch", "reference": t}));
+        let ratio = |k: &str, tk: &str| Some(ours.get(k)? / t[tk].as_f64()?);
+        emit(json!({"case": "ratio", "note": "diffkfc ms / PyTorch ms, same machine, same run (<= 1.0: as fast or faster)",
+            "train_step": ratio("train_step", "train_step_ms"), "sampling_call": ratio("sampling_call", "cfg_call_ms"),
+            "sampling_call_cached": ratio("sampling_call_cached", "cfg_call_ms")}));
+        if preset == "tiny" {
+            eprintln!("note: the reference's tiny network (d 128) differs from diffkfc's tiny preset; only the paper ratios compare like with like");
+        }
+    }
+    Ok(())
+}
+
+fn rayon_threads() -> usize {
+    std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
+}

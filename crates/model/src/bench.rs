@@ -1,0 +1,117 @@
+//! Benchmark workloads shared by `diffkfc bench` and the criterion benches, so both time the
+//! same work: a training step (forward, backward, clipping, Adam, weights reloaded: what the
+//! trainer does per step), a sampling call with keyframe guidance (both branches in one batch;
+//! with or without the encoder), and a full DDIM sample with both guidances.
+
+use burn::prelude::*;
+use diffkfc_data::keyframes;
+use diffkfc_data::rng::Rng;
+
+use crate::diffusion::Schedule;
+use crate::optim::{descend, Adam};
+use crate::sampler::{self, Options, Request, Sampler};
+use crate::{params, DiffKfcConfig, Denoiser, Encoded};
+
+/// Random inputs of a fixed seed: `batch` motions of `frames` frames with 5% uniform keyframes.
+pub fn request(cfg: &DiffKfcConfig, batch: usize, frames: usize, seed: u64) -> Request {
+    let (n, d) = (frames, cfg.feat_dim);
+    let mut r = Rng::new(seed);
+    let keys = keyframes::uniform(n, keyframes::count(n, 0.05));
+    let mut mask = vec![0f32; batch * n * d];
+    let mut kf = vec![0f32; batch * n * d];
+    for b in 0..batch {
+        for &f in &keys {
+            for c in 0..d {
+                mask[(b * n + f) * d + c] = 1.0;
+                kf[(b * n + f) * d + c] = r.normal() as f32;
+            }
+        }
+    }
+    let text = (0..batch * cfg.text_dim).map(|_| 0.05 * r.normal() as f32).collect();
+    Request { batch, frames: n, dim: d, text, text_dim: cfg.text_dim, kf, mask, lengths: vec![n; batch] }
+}
+
+/// The training-step workload: model on an autodiff device, host parameters and Adam state.
+pub struct TrainStep {
+    model: Option<Denoiser>,
+    vals: Vec<Vec<f32>>,
+    adam: Adam,
+    req: Request,
+    x0: Tensor<3>,
+    noise: Tensor<3>,
+    t: Vec<usize>,
+    schedule: Schedule,
+    device: Device,
+}
+
+impl TrainStep {
+    pub fn new(cfg: &DiffKfcConfig, batch: usize, frames: usize, device: &Device) -> TrainStep {
+        let device = device.clone().autodiff();
+        device.seed(0);
+        let model = cfg.init(&device);
+        let vals: Vec<Vec<f32>> = params::values(&model).into_iter().map(|(_, v)| v).collect();
+        let adam = Adam::new(&vals.iter().map(Vec::len).collect::<Vec<_>>());
+        let req = request(cfg, batch, frames, 1);
+        let mut r = Rng::new(2);
+        let shape = [batch, frames, cfg.feat_dim];
+        let mut normal = |len: usize| Tensor::<1>::from_floats((0..len).map(|_| r.normal() as f32).collect::<Vec<_>>().as_slice(), &device).reshape(shape);
+        let len = batch * frames * cfg.feat_dim;
+        let (x0, noise) = (normal(len), normal(len));
+        let t = (0..batch).map(|i| (97 * i + 500) % 1000).collect();
+        TrainStep { model: Some(model), vals, adam, req, x0, noise, t, schedule: Schedule::cosine(1000), device }
+    }
+
+    /// One step; returns the loss (its value forces the work to finish).
+    pub fn step(&mut self) -> f64 {
+        let model = self.model.take().expect("model");
+        let cond = self.req.condition(&self.device);
+        let x_t = self.schedule.q_sample(self.x0.clone(), &self.t, self.noise.clone());
+        let loss = (model.forward(x_t, &self.t, &cond) - self.x0.clone()).powf_scalar(2.0).mean();
+        let value = params::host(loss.clone())[0] as f64;
+        let (model, _) = descend(model, loss, &mut self.vals, &mut self.adam, 1.0, 1e-4);
+        self.model = Some(model);
+        value
+    }
+}
+
+/// The sampling workloads: one request of `batch` motions, keyframe guidance doubling the batch.
+pub struct Sampling<'a> {
+    pub model: &'a Denoiser,
+    pub req: Request,
+    pub encoded: Encoded,
+    x: Tensor<3>,
+    t: Vec<usize>,
+}
+
+impl<'a> Sampling<'a> {
+    pub fn new(model: &'a Denoiser, cfg: &DiffKfcConfig, batch: usize, frames: usize) -> Sampling<'a> {
+        let device = model.devices().first().cloned().unwrap_or_else(Device::flex);
+        let req = request(cfg, batch, frames, 3);
+        let cond = req.condition(&device);
+        let both = sampler::stack(&cond, &cond.without_keyframes());
+        let encoded = model.encode(&both);
+        let mut r = Rng::new(4);
+        let x = Tensor::<1>::from_floats((0..2 * batch * frames * cfg.feat_dim).map(|_| r.normal() as f32).collect::<Vec<_>>().as_slice(), &device).reshape([2 * batch, frames, cfg.feat_dim]);
+        Sampling { model, req, encoded, x, t: vec![500; 2 * batch] }
+    }
+
+    /// One guided denoising call: decoder only (encoder output cached, as in every step after
+    /// the first) or encoder + decoder.
+    pub fn call(&self, with_encoder: bool) -> Vec<f32> {
+        let out = if with_encoder {
+            let device = self.x.device();
+            let cond = self.req.condition(&device);
+            let enc = self.model.encode(&sampler::stack(&cond, &cond.without_keyframes()));
+            self.model.decode(self.x.clone(), &self.t, &enc)
+        } else {
+            self.model.decode(self.x.clone(), &self.t, &self.encoded)
+        };
+        params::host(out)
+    }
+
+    /// A full sample: DDIM with keyframe guidance 2.5 and transition guidance 100 (x0 mode).
+    pub fn sample(&self, steps: usize) -> Vec<f32> {
+        let schedule = Schedule::cosine(1000);
+        sampler::sample(self.model, &schedule, &self.req, &Options { sampler: Sampler::Ddim(steps), ..Options::default() }, |_, _| {})
+    }
+}

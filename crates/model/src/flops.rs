@@ -1,0 +1,74 @@
+//! Matrix-multiply FLOPs of one forward pass (2 per multiply-add), counted from the shapes of
+//! our implementation, for the GFLOP/s the benchmarks report. Elementwise work, softmax and
+//! normalisation are not counted (they are a few percent of the total).
+
+use crate::DiffKfcConfig;
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Flops {
+    /// Keyframe encoder, text projection and the decoder's cross-attention K/V of its output
+    /// (computed once per condition when sampling).
+    pub encoder: f64,
+    /// Decoder, input/output projections and timestep embedding (every denoising step).
+    pub decoder: f64,
+}
+
+impl Flops {
+    pub fn total(&self) -> f64 {
+        self.encoder + self.decoder
+    }
+}
+
+/// Linear layer: rows x (k -> n).
+fn linear(rows: usize, k: usize, n: usize) -> f64 {
+    2.0 * rows as f64 * k as f64 * n as f64
+}
+
+/// Attention scores and weighted values of `b` sequences: QK^T and AV, summed over heads.
+fn attend(b: usize, lq: usize, lk: usize, d: usize) -> f64 {
+    2.0 * 2.0 * b as f64 * lq as f64 * lk as f64 * d as f64
+}
+
+/// One forward of `batch` motions of `frames` frames.
+pub fn forward(c: &DiffKfcConfig, batch: usize, frames: usize) -> Flops {
+    let (b, n, d, f) = (batch, frames, c.d_model, c.ffn);
+    let (le, ld) = (n + 1, n + 2);
+    let block = linear(b * le, d, 3 * d) + attend(b, le, le, d) + linear(b * le, d, d) + linear(b * le, 2 * d, d) + linear(b * le, d, f) + linear(b * le, f, d);
+    let encoder = linear(b, c.text_dim, d) + linear(b * n, 2 * c.feat_dim, d) + c.dma_sizes.len() as f64 * block + c.dec_layers as f64 * linear(b * le, d, 2 * d);
+    let layer = linear(b * ld, d, 3 * d) + attend(b, ld, ld, d) + linear(b * ld, d, d) + linear(b * ld, d, d) + attend(b, ld, le, d) + linear(b * ld, d, d) + linear(b * ld, d, f) + linear(b * ld, f, d);
+    let decoder = linear(b * n, c.feat_dim, d) + 2.0 * linear(b, d, d) + c.dec_layers as f64 * layer + linear(b * n, d, c.feat_dim);
+    Flops { encoder, decoder }
+}
+
+/// A training step: forward plus backward (about twice the forward: gradients with respect to
+/// both the inputs and the weights of every matmul).
+pub fn train_step(c: &DiffKfcConfig, batch: usize, frames: usize) -> f64 {
+    3.0 * forward(c, batch, frames).total()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Cross-check against the parameter count: a linear layer's FLOPs per row are twice its
+    /// weights, so without attention products, one frame token costs ~2 x (weights it passes).
+    #[test]
+    fn per_token_cost_matches_the_weights() {
+        let c = DiffKfcConfig::paper();
+        let one = forward(&c, 1, 1);
+        let big = forward(&c, 1, 101);
+        // Attention products grow quadratically; the rest linearly in frames.
+        let d = c.d_model as f64;
+        let per_frame_linear = (big.total() - one.total()) / 100.0;
+        let block_weights = 4.0 * d * d + 2.0 * d * d + 2.0 * d * c.ffn as f64;
+        let layer_weights = 4.0 * d * d + 2.0 * d * d + 2.0 * d * d + 2.0 * d * c.ffn as f64;
+        let io = (2 * c.feat_dim) as f64 * d + 2.0 * c.feat_dim as f64 * d;
+        let weights = c.dma_sizes.len() as f64 * block_weights + c.dec_layers as f64 * layer_weights + io;
+        // Attention products add ~4 L d per layer per frame: small next to the weights.
+        assert!(per_frame_linear > 2.0 * weights && per_frame_linear < 2.6 * weights, "{per_frame_linear} vs {weights}");
+        // Paper decoder at batch 2 x 196 frames, by hand: 396 tokens x 8 layers x 2 x 2.62 M
+        // weights = 16.6 GFLOP, attention products 8 x 0.32 = 2.6, input/output 0.2: 19.4.
+        let dec = forward(&c, 2, 196).decoder / 1e9;
+        assert!((dec - 19.4).abs() < 0.1, "{dec}");
+    }
+}
