@@ -49,7 +49,20 @@ enum Command {
     TextEmbed(commands::model::TextEmbedArgs),
 }
 
+/// Keep freed tensor buffers in the heap: glibc's defaults hand blocks of a few MB back to the
+/// kernel (mmap/munmap, trimming), and every later allocation pays page faults and zeroing.
+/// Measured on the paper sampling call: 274 -> 255 ms; training step 5.22 -> 5.14 s.
+fn tune_allocator() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only sets allocator parameters; called before any other thread exists.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, 1 << 30);
+    }
+}
+
 fn main() {
+    tune_allocator();
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) if !e.use_stderr() => e.exit(), // --help, --version

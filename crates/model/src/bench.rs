@@ -8,7 +8,7 @@ use diffkfc_data::keyframes;
 use diffkfc_data::rng::Rng;
 
 use crate::diffusion::Schedule;
-use crate::optim::{descend, Adam};
+use crate::optim::{descend_timed, Adam};
 use crate::sampler::{self, Options, Request, Sampler};
 use crate::{params, DiffKfcConfig, Denoiser, Encoded};
 
@@ -42,6 +42,8 @@ pub struct TrainStep {
     t: Vec<usize>,
     schedule: Schedule,
     device: Device,
+    /// Seconds of the last step in forward + loss, backward, and the host-side update.
+    pub phases: [f64; 3],
 }
 
 impl TrainStep {
@@ -58,17 +60,20 @@ impl TrainStep {
         let len = batch * frames * cfg.feat_dim;
         let (x0, noise) = (normal(len), normal(len));
         let t = (0..batch).map(|i| (97 * i + 500) % 1000).collect();
-        TrainStep { model: Some(model), vals, adam, req, x0, noise, t, schedule: Schedule::cosine(1000), device }
+        TrainStep { model: Some(model), vals, adam, req, x0, noise, t, schedule: Schedule::cosine(1000), device, phases: [0.0; 3] }
     }
 
     /// One step; returns the loss (its value forces the work to finish).
     pub fn step(&mut self) -> f64 {
         let model = self.model.take().expect("model");
+        let t0 = std::time::Instant::now();
         let cond = self.req.condition(&self.device);
         let x_t = self.schedule.q_sample(self.x0.clone(), &self.t, self.noise.clone());
         let loss = (model.forward(x_t, &self.t, &cond) - self.x0.clone()).powf_scalar(2.0).mean();
         let value = params::host(loss.clone())[0] as f64;
-        let (model, _) = descend(model, loss, &mut self.vals, &mut self.adam, 1.0, 1e-4);
+        let forward = t0.elapsed().as_secs_f64();
+        let (model, _, [backward, update]) = descend_timed(model, loss, &mut self.vals, &mut self.adam, 1.0, 1e-4);
+        self.phases = [forward, backward, update];
         self.model = Some(model);
         value
     }

@@ -18,28 +18,43 @@ impl Adam {
 
     /// One update of `params` with `grads` at learning rate `lr`.
     pub fn update(&mut self, params: &mut [Vec<f32>], grads: &[Vec<f32>], lr: f64) {
+        use rayon::prelude::*;
         self.step += 1;
         let (b1, b2) = (self.beta1 as f32, self.beta2 as f32);
         let c1 = 1.0 - self.beta1.powi(self.step as i32);
         let c2 = 1.0 - self.beta2.powi(self.step as i32);
         let step = (lr * c2.sqrt() / c1) as f32;
         let eps = (self.eps * c2.sqrt()) as f32;
-        for (((p, g), m), v) in params.iter_mut().zip(grads).zip(&mut self.m).zip(&mut self.v) {
+        // Every element is independent: chunks across threads give the same bits as one loop.
+        let chunks: Vec<(&mut [f32], &[f32], &mut [f32], &mut [f32])> = params
+            .iter_mut()
+            .zip(grads)
+            .zip(self.m.iter_mut())
+            .zip(self.v.iter_mut())
+            .flat_map(|(((p, g), m), v)| p.chunks_mut(CHUNK).zip(g.chunks(CHUNK)).zip(m.chunks_mut(CHUNK)).zip(v.chunks_mut(CHUNK)).map(|(((p, g), m), v)| (p, g, m, v)))
+            .collect();
+        chunks.into_par_iter().for_each(|(p, g, m, v)| {
             for i in 0..p.len() {
                 m[i] = b1 * m[i] + (1.0 - b1) * g[i];
                 v[i] = b2 * v[i] + (1.0 - b2) * g[i] * g[i];
                 p[i] -= step * m[i] / (v[i].sqrt() + eps);
             }
-        }
+        });
     }
 }
 
+/// Elements per parallel work item of the host-side optimiser.
+const CHUNK: usize = 1 << 16;
+
 /// Global L2 norm of the gradients; scales them down to `max` when above it (max <= 0: off).
 pub fn clip_grad_norm(grads: &mut [Vec<f32>], max: f64) -> f64 {
-    let norm = grads.iter().flatten().map(|&g| (g as f64) * (g as f64)).sum::<f64>().sqrt();
+    use rayon::prelude::*;
+    // Partial sums over fixed chunks, added in order: the same norm for any thread count.
+    let parts: Vec<f64> = grads.iter().flat_map(|g| g.chunks(CHUNK)).collect::<Vec<_>>().par_iter().map(|c| c.iter().map(|&g| (g as f64) * (g as f64)).sum::<f64>()).collect();
+    let norm = parts.iter().sum::<f64>().sqrt();
     if max > 0.0 && norm > max {
         let s = (max / norm) as f32;
-        grads.iter_mut().flatten().for_each(|g| *g *= s);
+        grads.par_iter_mut().flat_map(|g| g.par_chunks_mut(CHUNK)).for_each(|c| c.iter_mut().for_each(|g| *g *= s));
     }
     norm
 }
@@ -58,12 +73,10 @@ pub fn learning_rate(base: f64, step: usize, warmup: usize, cosine: bool, max_st
 
 /// ema = decay * ema + (1 - decay) * params.
 pub fn ema_update(ema: &mut [Vec<f32>], params: &[Vec<f32>], decay: f64) {
+    use rayon::prelude::*;
     let d = decay as f32;
-    for (e, p) in ema.iter_mut().zip(params) {
-        for (x, y) in e.iter_mut().zip(p) {
-            *x = d * *x + (1.0 - d) * y;
-        }
-    }
+    let chunks: Vec<(&mut [f32], &[f32])> = ema.iter_mut().zip(params).flat_map(|(e, p)| e.chunks_mut(CHUNK).zip(p.chunks(CHUNK))).collect();
+    chunks.into_par_iter().for_each(|(e, p)| e.iter_mut().zip(p).for_each(|(x, y)| *x = d * *x + (1.0 - d) * y));
 }
 
 #[cfg(test)]
@@ -89,9 +102,20 @@ mod tests {
 /// global-norm clipping, Adam on the flat host values, the new values loaded into `model`.
 /// Returns the updated model and the gradient norm before clipping.
 pub fn descend<M: burn::module::Module>(model: M, loss: burn::tensor::Tensor<1>, vals: &mut [Vec<f32>], adam: &mut Adam, clip: f64, lr: f64) -> (M, f64) {
+    let (m, norm, _) = descend_timed(model, loss, vals, adam, clip, lr);
+    (m, norm)
+}
+
+/// `descend`, also returning the seconds spent in the backward pass and in the host-side update
+/// (gradients out, clipping, Adam, weights in): the benchmark's breakdown of a step.
+pub fn descend_timed<M: burn::module::Module>(model: M, loss: burn::tensor::Tensor<1>, vals: &mut [Vec<f32>], adam: &mut Adam, clip: f64, lr: f64) -> (M, f64, [f64; 2]) {
+    let t0 = std::time::Instant::now();
     let grads = burn::optim::GradientsParams::from_grads(loss.backward(), &model);
+    let t1 = std::time::Instant::now();
     let mut g = crate::params::grads(&model, &grads);
+    drop(grads);
     let norm = clip_grad_norm(&mut g, clip);
     adam.update(vals, &g, lr);
-    (crate::params::load(model, vals), norm)
+    let model = crate::params::load(model, vals);
+    (model, norm, [(t1 - t0).as_secs_f64(), t1.elapsed().as_secs_f64()])
 }

@@ -8,7 +8,8 @@ use burn::prelude::*;
 
 /// A tensor's values on the host, as f32.
 pub fn host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
-    t.into_data().convert::<f32>().try_to_vec::<f32>().expect("float tensor")
+    // into_vec takes the buffer over where it can (no copy of the whole tensor).
+    t.into_data().convert::<f32>().try_into_vec::<f32>().expect("float tensor")
 }
 
 struct Values(Vec<(Vec<usize>, Vec<f32>)>);

@@ -125,7 +125,8 @@ pub fn run(a: BenchArgs) -> Result<()> {
         let mut w = TrainStep::new(&cfg, b, n, &device);
         let (ms, r) = time_ms(runs, || w.step());
         ours.insert("train_step", ms);
-        emit(line("train_step", ms, &r, flops::train_step(&cfg, b, n) / 1e9, json!({"batch": b, "common": common})));
+        let [f, bw, up] = w.phases.map(|s| s * 1e3);
+        emit(line("train_step", ms, &r, flops::train_step(&cfg, b, n) / 1e9, json!({"batch": b, "last_step_phases_ms": {"forward": f, "backward": bw, "host_update": up}, "common": common})));
     }
     let sampling = ["call", "call-cached", "ddim"].iter().any(|c| cases.contains(c));
     if sampling {
