@@ -134,25 +134,49 @@ impl Protocol<'_> {
         self.opts.replications * settings.len() * (self.steps_for(n * self.opts.samples_for_ade.max(1)) + mm)
     }
 
-    /// Measured seconds per denoising step of `s` (a 2-step generation of one batch of
-    /// replication 0's items, encoder included): the basis of the estimate shown before a run.
-    pub fn seconds_per_step(&self, s: &Setting) -> f64 {
+    /// Whether generating `s` runs both keyframe-guidance branches (a doubled batch).
+    fn guided(&self, s: &Setting) -> bool {
+        s.rate > 0.0 && !s.inpaint && (self.opts.kf_guidance - 1.0).abs() > 1e-12
+    }
+
+    /// Generation jobs (item, sample) in denoiser batches, sorted by length to limit padding.
+    fn batches(&self, items: &[Item], k: usize) -> Vec<Vec<(usize, usize)>> {
+        let mut jobs: Vec<(usize, usize)> = (0..items.len()).flat_map(|p| (0..k).map(move |j| (p, j))).collect();
+        jobs.sort_by_key(|&(p, _)| items[p].len);
+        jobs.chunks(self.opts.batch.max(1)).map(<[_]>::to_vec).collect()
+    }
+
+    /// Work of one generation in frame-rows per denoising step (padded batch x frames, doubled
+    /// when guided), summed over batches.
+    fn units(&self, items: &[Item], k: usize, s: &Setting) -> f64 {
+        let per_row = if self.guided(s) { 2.0 } else { 1.0 };
+        self.batches(items, k).iter().map(|c| per_row * (c.len() * c.iter().map(|&(p, _)| items[p].len).max().unwrap_or(0)) as f64).sum()
+    }
+
+    /// Estimated seconds of the whole run: its work (on replication 0's items) times the
+    /// measured cost of a frame-row, from a 2-step guided generation of one batch (encoder
+    /// included, so a slight overestimate).
+    pub fn estimate_seconds(&self, settings: &[Setting]) -> f64 {
         let probe = Protocol { opts: Options { sampler: Sampler::Ddim(2), num_items: self.opts.batch, ..self.opts.clone() }, ..*self };
         let items = probe.items(0);
+        let s = Setting { name: String::new(), rate: settings.iter().map(|s| s.rate).fold(0.05, f64::max), inpaint: false, transition: 0.0 };
         let keys = probe.keys(0, &items, s.rate);
         let t0 = std::time::Instant::now();
-        probe.generate(&items, &keys, s, 1, 0, &mut || {});
-        t0.elapsed().as_secs_f64() / 2.0
+        probe.generate(&items, &keys, &s, 1, 0, &mut || {});
+        let per_unit = t0.elapsed().as_secs_f64() / 2.0 / probe.units(&items, 1, &s).max(1.0);
+        let items = self.items(0);
+        let steps = sampler::timesteps(self.schedule, self.opts.sampler).len() as f64;
+        let mm = self.opts.multimodality.min(items.len());
+        let work: f64 = settings.iter().map(|s| self.units(&items, self.opts.samples_for_ade.max(1), s) + if mm > 0 { self.units(&items[..mm], MM_GENERATIONS, s) } else { 0.0 }).sum();
+        work * steps * per_unit * self.opts.replications as f64
     }
 
     /// `k` samples per item (raw features [len, D]), in batches sorted by length.
     fn generate(&self, items: &[Item], keys: &[Vec<usize>], s: &Setting, k: usize, seed: u64, tick: &mut dyn FnMut()) -> Vec<Vec<Vec<f32>>> {
         let d = self.ds.dim();
         let all_dims = keyframes::dim_mask(self.ds.skeleton, None);
-        let mut jobs: Vec<(usize, usize)> = (0..items.len()).flat_map(|p| (0..k).map(move |j| (p, j))).collect();
-        jobs.sort_by_key(|&(p, _)| items[p].len);
         let mut out: Vec<Vec<Vec<f32>>> = items.iter().map(|_| vec![Vec::new(); k]).collect();
-        for (c, chunk) in jobs.chunks(self.opts.batch.max(1)).enumerate() {
+        for (c, chunk) in self.batches(items, k).iter().enumerate() {
             let b = chunk.len();
             let n = chunk.iter().map(|&(p, _)| items[p].len).max().unwrap_or(1);
             let mut req = Request { batch: b, frames: n, dim: d, text: Vec::new(), text_dim: self.text.dim, kf: vec![0.0; b * n * d], mask: vec![0.0; b * n * d], lengths: Vec::new() };

@@ -270,15 +270,14 @@ fn evaluate(a: RunArgs) -> Result<()> {
     };
     let p = Protocol { model: &model, schedule: &schedule, mean: &mean, std: &std, ds: &ds, split: &split, text: &text, evaluator: &ev, opts };
     let total = p.planned_steps(&settings);
-    let per_step = p.seconds_per_step(&settings[0]);
+    let estimate = p.estimate_seconds(&settings);
     println!(
-        "eval: {} setting(s) x {} replication(s) x {num_items} items x {} sample(s), {sampler:?}: {total} denoising steps; estimate {:.1} min ({:.0} ms per step of a batch of {})",
+        "eval: {} setting(s) x {} replication(s) x {num_items} items x {} sample(s), {sampler:?}: {total} denoising steps (batches of up to {}); estimate {:.1} min",
         settings.len(),
         a.replications,
         a.samples_for_ade,
-        total as f64 * per_step / 60.0,
-        per_step * 1e3,
-        a.batch_size
+        a.batch_size,
+        estimate / 60.0
     );
     let pb = ProgressBar::new(total as u64);
     pb.set_style(ProgressStyle::with_template("generating [{bar:30}] {pos}/{len} steps {elapsed} ETA {eta}").expect("template").progress_chars("=> "));
