@@ -50,6 +50,7 @@ impl TrainStep {
     pub fn new(cfg: &DiffKfcConfig, batch: usize, frames: usize, device: &Device) -> TrainStep {
         let device = device.clone().autodiff();
         device.seed(0);
+        crate::dropout::seed(0);
         let model = cfg.init(&device);
         let vals: Vec<Vec<f32>> = params::values(&model).into_iter().map(|(_, v)| v).collect();
         let adam = Adam::new(&vals.iter().map(Vec::len).collect::<Vec<_>>());

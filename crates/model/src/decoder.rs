@@ -2,11 +2,12 @@
 //! cross-attention to the keyframe encoder's output (keys masked to valid tokens), and a
 //! feed-forward block; post-norm residuals as in MDM.
 
-use burn::nn::{Dropout, DropoutConfig, LayerNorm, LayerNormConfig, Linear, LinearConfig};
+use burn::nn::{LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::gelu;
 
 use crate::attention::Attention;
+use crate::dropout::Dropout;
 
 #[derive(Module, Debug)]
 pub struct DecoderLayer {
@@ -30,7 +31,7 @@ impl DecoderLayer {
             ln1: LayerNormConfig::new(d).init(device),
             ln2: LayerNormConfig::new(d).init(device),
             ln3: LayerNormConfig::new(d).init(device),
-            drop: DropoutConfig::new(dropout).init(),
+            drop: Dropout::new(dropout),
         }
     }
 

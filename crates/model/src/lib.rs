@@ -10,6 +10,7 @@ pub mod decoder;
 pub mod denoiser;
 pub mod diffusion;
 pub mod dma;
+pub mod dropout;
 pub mod embed;
 pub mod flops;
 pub mod kinematics;

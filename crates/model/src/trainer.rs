@@ -203,7 +203,9 @@ impl Trainer<'_> {
                 }
                 break;
             }
-            device.seed(tc.seed.wrapping_mul(0x9E37_79B9).wrapping_add(step as u64));
+            let step_seed = tc.seed.wrapping_mul(0x9E37_79B9).wrapping_add(step as u64);
+            device.seed(step_seed);
+            crate::dropout::seed(step_seed);
             let b = loader.batch((step / per_epoch) as u64, step % per_epoch);
             let (t, noise) = self.draw(0x7EA1, step as u64, b.batch_size, b.frames, b.dim, schedule.steps, &device);
             let l = self.batch_loss(&model, &schedule, &b, &t, noise, &device);
