@@ -10,6 +10,7 @@
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::gelu;
+use burn::tensor::IndexingUpdateOp;
 
 use crate::attention::Attention;
 
@@ -99,12 +100,26 @@ impl DmaBlock {
         }
     }
 
-    /// `z`: [B, 1+N, d]; `blocked`: [B, 1+N, 1+N]; `active`: [B, 1+N, d] (broadcast rows).
-    pub fn forward(&self, z: Tensor<3>, blocked: Tensor<3, Bool>, active: Tensor<3, Bool>) -> Tensor<3> {
+    /// `z`: [B, 1+N, d]; `blocked`: [B, 1+N, 1+N]; `active`: per token (B x (1+N), host) whether
+    /// it takes this block's update. Inactive tokens pass through unchanged, so the concat-FC
+    /// and MLP run on the active rows only (gathered, then added back): early blocks with
+    /// small windows, and the keyframe-free half of a guided batch, have few.
+    pub fn forward(&self, z: Tensor<3>, blocked: Tensor<3, Bool>, active: &[bool]) -> Tensor<3> {
+        let [b, l, d] = z.dims();
         let a = self.attn.forward(z.clone(), z.clone(), Some(blocked));
-        let zp = self.fc.forward(Tensor::cat(vec![a, z.clone()], 2));
-        let zk = self.mlp2.forward(gelu(self.mlp1.forward(zp)));
-        z.mask_where(active, zk)
+        let update = |a: Tensor<2>, z: Tensor<2>| self.mlp2.forward(gelu(self.mlp1.forward(self.fc.forward(Tensor::cat(vec![a, z], 1)))));
+        let rows: Vec<i64> = active.iter().enumerate().filter(|(_, &v)| v).map(|(i, _)| i as i64).collect();
+        if rows.len() == b * l {
+            return update(a.reshape([b * l, d]), z.reshape([b * l, d])).reshape([b, l, d]);
+        }
+        if rows.is_empty() {
+            return z;
+        }
+        let idx = Tensor::<1, Int>::from_data(TensorData::new(rows, [active.iter().filter(|&&v| v).count()]), &z.device());
+        let flat = z.reshape([b * l, d]);
+        let zs = flat.clone().select(0, idx.clone());
+        let zk = update(a.reshape([b * l, d]).select(0, idx.clone()), zs.clone());
+        flat.select_assign(0, idx, zk - zs, IndexingUpdateOp::Add).reshape([b, l, d])
     }
 }
 
@@ -131,14 +146,10 @@ impl KeyframeEncoder {
         let l = n + 1;
         let frames = self.kf_in.forward(Tensor::cat(vec![kf * kf_mask.clone(), kf_mask], 2)) + pos;
         let z0 = Tensor::cat(vec![text_tok, frames], 1);
-        let d = z0.dims()[2];
         let mut z = z0.clone();
         for (k, block) in self.blocks.iter().enumerate() {
             let blocked = Tensor::<3, Bool>::from_data(TensorData::new(plan.blocked[k].clone(), [b, l, l]), &device);
-            let active = Tensor::<2, Bool>::from_data(TensorData::new(plan.active[k].clone(), [b, l]), &device)
-                .unsqueeze_dim::<3>(2)
-                .expand([b, l, d]);
-            z = block.forward(z, blocked, active);
+            z = block.forward(z, blocked, &plan.active[k]);
         }
         z + z0
     }
