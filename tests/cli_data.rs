@@ -131,7 +131,9 @@ fn bad_inputs_give_one_line_errors() {
     npy::write(&p, &[3, 263], &f).unwrap();
     assert_one_line_error(&diffkfc(&["data", "joints", s(&p), "-o", s(&d.join("o.npy"))]), &["nan_feats.npy", "frame 1, feature 7"]);
     // A missing file and a bad flag value.
-    assert_one_line_error(&diffkfc(&["data", "joints", s(&d.join("missing.npy")), "-o", "x.npy"]), &["missing.npy", "No such file"]);
+    let o = diffkfc(&["data", "joints", s(&d.join("missing.npy")), "-o", "x.npy"]);
+    assert_one_line_error(&o, &["missing.npy", "No such file"]);
+    assert_eq!(stderr(&o).matches("No such file").count(), 1, "cause repeated: {}", stderr(&o));
     let p = d.join("ok.npy");
     npy::write(&p, &[5, 22, 3], &(0..330).map(|i| i as f32 * 0.01).collect::<Vec<_>>()).unwrap();
     assert_one_line_error(&diffkfc(&["data", "features", s(&p), "--fps=-3", "-o", "o.npy"]), &["--fps"]);

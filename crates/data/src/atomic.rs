@@ -8,7 +8,7 @@ use crate::DataError;
 
 /// Write bytes to `path` through a temporary file and a rename.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DataError> {
-    let io = |e| DataError::Io { path: path.to_path_buf(), source: e };
+    let io = |e| DataError::Io { path: path.to_path_buf(), err: e };
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(io)?;
     }

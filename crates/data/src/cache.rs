@@ -57,7 +57,7 @@ pub struct PackedSplit {
 }
 
 fn source(path: &Path) -> Result<Source, DataError> {
-    let md = std::fs::metadata(path).map_err(|e| DataError::Io { path: path.to_path_buf(), source: e })?;
+    let md = std::fs::metadata(path).map_err(|e| DataError::Io { path: path.to_path_buf(), err: e })?;
     let mtime_ns = md
         .modified()
         .ok()
@@ -100,10 +100,10 @@ impl PackedSplit {
             }
         };
         let map = if index.total_frames > 0 {
-            let f = std::fs::File::open(&data_path).map_err(|e| DataError::Io { path: data_path.clone(), source: e })?;
+            let f = std::fs::File::open(&data_path).map_err(|e| DataError::Io { path: data_path.clone(), err: e })?;
             // SAFETY: the file is ours, written once and renamed into place; it is not modified
             // while mapped (a rebuild writes a new file and renames over it).
-            Some(unsafe { Mmap::map(&f) }.map_err(|e| DataError::Io { path: data_path.clone(), source: e })?)
+            Some(unsafe { Mmap::map(&f) }.map_err(|e| DataError::Io { path: data_path.clone(), err: e })?)
         } else {
             None
         };
@@ -163,7 +163,7 @@ fn build(
 ) -> Result<Index, DataError> {
     let io = |p: &Path| {
         let p = p.to_path_buf();
-        move |e| DataError::Io { path: p, source: e }
+        move |e| DataError::Io { path: p, err: e }
     };
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     let tmp = data_path.with_extension(format!("f32.tmp{}", std::process::id()));

@@ -154,7 +154,7 @@ pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport
 /// An io error without the path (the report line already names the file).
 fn short(e: &crate::DataError) -> String {
     match e {
-        crate::DataError::Io { source, .. } => source.to_string(),
+        crate::DataError::Io { err, .. } => err.to_string(),
         crate::DataError::Npy { msg, .. } => msg.clone(),
         other => other.to_string(),
     }

@@ -95,7 +95,7 @@ impl Dataset {
     /// Ids listed in `<split>.txt`.
     pub fn split_ids(&self, split: &str) -> Result<Vec<String>, DataError> {
         let p = self.root.join(format!("{split}.txt"));
-        let text = std::fs::read_to_string(&p).map_err(|e| DataError::Io { path: p.clone(), source: e })?;
+        let text = std::fs::read_to_string(&p).map_err(|e| DataError::Io { path: p.clone(), err: e })?;
         Ok(text.lines().map(str::trim).filter(|l| !l.is_empty()).map(String::from).collect())
     }
 
@@ -150,7 +150,7 @@ pub fn denormalise(x: &mut [f32], mean: &[f32], std: &[f32]) {
 
 /// Read a clip's captions, failing on unreadable files or unparsable lines.
 pub fn read_captions(path: &Path) -> Result<Vec<Caption>, DataError> {
-    let (caps, errs) = texts::parse_file(path).map_err(|e| DataError::Io { path: path.to_path_buf(), source: e })?;
+    let (caps, errs) = texts::parse_file(path).map_err(|e| DataError::Io { path: path.to_path_buf(), err: e })?;
     if let Some(e) = errs.first() {
         return Err(DataError::Npy { path: path.to_path_buf(), msg: e.clone() });
     }

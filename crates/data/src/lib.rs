@@ -29,8 +29,9 @@ use std::path::PathBuf;
 /// Errors of the data layer; each names the file or value at fault.
 #[derive(Debug, thiserror::Error)]
 pub enum DataError {
-    #[error("{path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    // Not `source`: the message already carries it, and anyhow's chain would print it twice.
+    #[error("{path}: {err}")]
+    Io { path: PathBuf, err: std::io::Error },
     #[error("{path}: {msg}")]
     Npy { path: PathBuf, msg: String },
     #[error("{0}")]

@@ -144,7 +144,7 @@ pub fn decode_f64(path: &Path, bytes: &[u8]) -> Result<(Array<f64>, DType), Data
 }
 
 fn read_bytes(path: &Path) -> Result<Vec<u8>, DataError> {
-    std::fs::read(path).map_err(|e| DataError::Io { path: path.to_path_buf(), source: e })
+    std::fs::read(path).map_err(|e| DataError::Io { path: path.to_path_buf(), err: e })
 }
 
 /// Read any f32/f64 `.npy` file as f64.

@@ -327,7 +327,7 @@ pub struct SynthSummary {
 pub fn write_dataset(out: &Path, n: usize, seed: u64, threads: usize, progress: &(dyn Fn(usize, usize) + Sync)) -> Result<SynthSummary, DataError> {
     let io = |p: &Path| {
         let p = p.to_path_buf();
-        move |e| DataError::Io { path: p, source: e }
+        move |e| DataError::Io { path: p, err: e }
     };
     if out.exists() && std::fs::read_dir(out).map(|mut d| d.next().is_some()).unwrap_or(true) {
         return Err(DataError::Invalid(format!("{}: already exists and is not empty", out.display())));
