@@ -149,6 +149,21 @@ pub struct ContrastiveEvaluator<'a> {
     pub device: Device,
 }
 
+/// Motion input of the evaluator: normalised features [B, N, D] (row-major) without the 4 foot
+/// contacts -> [B, N, D - 4].
+pub fn motion_tensor(x: &[f32], b: usize, n: usize, d: usize, device: &Device) -> Tensor<3> {
+    Tensor::<1>::from_floats(x, device).reshape([b, n, d]).slice([0..b, 0..n, 0..d - 4])
+}
+
+/// Text input of the evaluator: the cached frozen embeddings of `captions` -> [B, text_dim].
+pub fn text_tensor(cache: &diffkfc_model::text::cache::EmbeddingCache, captions: &[&str], device: &Device) -> Result<Tensor<2>, String> {
+    let mut v = Vec::with_capacity(captions.len() * cache.dim);
+    for c in captions {
+        v.extend_from_slice(cache.get(c).ok_or_else(|| format!("caption not embedded: {c}"))?);
+    }
+    Ok(Tensor::<1>::from_floats(v.as_slice(), device).reshape([captions.len(), cache.dim]))
+}
+
 /// Rows of a [B, 512] tensor as f64 vectors.
 fn rows(t: Tensor<2>) -> Vec<Vec<f64>> {
     diffkfc_model::params::host(t).chunks(EMBED).map(|r| r.iter().map(|&x| x as f64).collect()).collect()
@@ -184,8 +199,7 @@ impl TextMotionEvaluator for ContrastiveEvaluator<'_> {
                 diffkfc_data::dataset::normalise(dst, &self.mean, &self.std);
             }
             let lengths: Vec<usize> = chunk.iter().map(|m| m.len() / d).collect();
-            let t = Tensor::<1>::from_floats(x.as_slice(), &self.device).reshape([chunk.len(), n, d]).slice([0..chunk.len(), 0..n, 0..d - 4]);
-            out.extend(rows(self.model.encode_motion(t, &lengths)));
+            out.extend(rows(self.model.encode_motion(motion_tensor(&x, chunk.len(), n, d, &self.device), &lengths)));
         }
         out
     }
@@ -193,12 +207,7 @@ impl TextMotionEvaluator for ContrastiveEvaluator<'_> {
     fn embed_texts(&self, captions: &[&str]) -> Result<Vec<Vec<f64>>, String> {
         let mut out = Vec::with_capacity(captions.len());
         for chunk in captions.chunks(256) {
-            let mut v = Vec::with_capacity(chunk.len() * self.text.dim);
-            for c in chunk {
-                v.extend_from_slice(self.text.get(c).ok_or_else(|| format!("caption not embedded: {c}"))?);
-            }
-            let t = Tensor::<1>::from_floats(v.as_slice(), &self.device).reshape([chunk.len(), self.text.dim]);
-            out.extend(rows(self.model.encode_text(t)));
+            out.extend(rows(self.model.encode_text(text_tensor(self.text, chunk, &self.device)?)));
         }
         Ok(out)
     }

@@ -237,17 +237,20 @@ impl Protocol<'_> {
             let captions: Vec<&str> = items.iter().map(|it| it.caption.as_str()).collect();
             let texts = self.evaluator.embed_texts(&captions)?;
             let rep_seed = Rng::derive(self.opts.seed, 5, rep as u64).next_u64();
+            // The real motions' metrics are the same at every rate but K-TranS (keyframes differ).
             let real_m = self.evaluator.embed_motions(&items.iter().map(|it| it.feats).collect::<Vec<_>>());
+            let mut shared = Values::new();
+            self.text_motion(reference, &texts, &real_m, rep_seed, &mut shared);
+            if let Some(x) = mean(&items.iter().map(|it| foot_skating_ratio(skel, &it.joints)).collect::<Vec<_>>()) {
+                shared.insert("foot_skate", vec![x]);
+            }
             for row in real.iter_mut() {
-                let keys = self.keys(rep, &items, row.rate);
-                self.text_motion(reference, &texts, &real_m, rep_seed, &mut row.values);
-                let kt: Vec<f64> = items.iter().zip(&keys).filter_map(|(it, k)| k_trans(&it.joints, k, K_TRANS_WINDOW)).collect();
-                let skate: Vec<f64> = items.iter().map(|it| foot_skating_ratio(skel, &it.joints)).collect();
-                for (k, x) in [("k_trans", mean(&kt)), ("foot_skate", mean(&skate))] {
-                    if let Some(x) = x {
-                        row.values.entry(k).or_default().push(x);
-                    }
+                for (k, x) in &shared {
+                    row.values.entry(k).or_default().extend(x);
                 }
+                let keys = self.keys(rep, &items, row.rate);
+                let kt: Vec<f64> = items.iter().zip(&keys).filter_map(|(it, k)| k_trans(&it.joints, k, K_TRANS_WINDOW)).collect();
+                row.values.entry("k_trans").or_default().extend(mean(&kt));
             }
             for row in rows.iter_mut() {
                 let s = row.setting.clone().expect("generated row");

@@ -12,7 +12,7 @@ use diffkfc_model::optim::{descend, Adam};
 use diffkfc_model::params;
 use diffkfc_model::text::cache::EmbeddingCache;
 
-use crate::evaluator::{eval_length, info_nce, ContrastiveEvaluator, EvaluatorConfig, TextMotionEvaluator};
+use crate::evaluator::{eval_length, info_nce, motion_tensor, text_tensor, ContrastiveEvaluator, EvaluatorConfig, TextMotionEvaluator};
 use crate::text_motion::r_precision;
 
 pub struct EvaluatorTraining<'a> {
@@ -27,16 +27,6 @@ pub struct EvaluatorTraining<'a> {
     pub steps: usize,
     pub lr: f64,
     pub seed: u64,
-}
-
-/// Motion input of the evaluator: normalised features without the 4 foot contacts.
-fn motion_tensor(x0: &[f32], b: usize, n: usize, d: usize, device: &Device) -> Tensor<3> {
-    Tensor::<1>::from_floats(x0, device).reshape([b, n, d]).slice([0..b, 0..n, 0..d - 4])
-}
-
-fn texts(cache: &EmbeddingCache, captions: &[String], device: &Device) -> Tensor<2> {
-    let v: Vec<f32> = captions.iter().flat_map(|c| cache.get(c).unwrap_or_else(|| panic!("caption not embedded: {c}")).to_vec()).collect();
-    Tensor::<1>::from_floats(v.as_slice(), device).reshape([captions.len(), cache.dim])
 }
 
 fn same_caption(b: &Batch) -> Vec<bool> {
@@ -79,7 +69,8 @@ impl EvaluatorTraining<'_> {
         for step in 0..self.steps {
             let b = loader.batch((step / per_epoch) as u64, step % per_epoch);
             let m = model.encode_motion(motion_tensor(&b.x0, b.batch_size, b.frames, b.dim, &device), &b.lengths);
-            let t = model.encode_text(texts(self.text, &b.captions, &device));
+            let captions: Vec<&str> = b.captions.iter().map(String::as_str).collect();
+            let t = model.encode_text(text_tensor(self.text, &captions, &device)?);
             let loss = info_nce(m, t, self.cfg.temperature, &same_caption(&b));
             let l: f64 = loss.clone().into_data().convert::<f64>().try_to_vec::<f64>().expect("scalar")[0];
             model = descend(model, loss, &mut vals, &mut adam, 1.0, self.lr).0;

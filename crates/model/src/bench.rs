@@ -31,6 +31,12 @@ pub fn request(cfg: &DiffKfcConfig, batch: usize, frames: usize, seed: u64) -> R
     Request { batch, frames: n, dim: d, text, text_dim: cfg.text_dim, kf, mask, lengths: vec![n; batch] }
 }
 
+/// A [B, N, D] tensor of standard normals from `r`.
+fn normal_tensor(r: &mut Rng, shape: [usize; 3], device: &Device) -> Tensor<3> {
+    let v: Vec<f32> = (0..shape.iter().product::<usize>()).map(|_| r.normal() as f32).collect();
+    Tensor::<1>::from_floats(v.as_slice(), device).reshape(shape)
+}
+
 /// The training-step workload: model on an autodiff device, host parameters and Adam state.
 pub struct TrainStep {
     model: Option<Denoiser>,
@@ -57,9 +63,7 @@ impl TrainStep {
         let req = request(cfg, batch, frames, 1);
         let mut r = Rng::new(2);
         let shape = [batch, frames, cfg.feat_dim];
-        let mut normal = |len: usize| Tensor::<1>::from_floats((0..len).map(|_| r.normal() as f32).collect::<Vec<_>>().as_slice(), &device).reshape(shape);
-        let len = batch * frames * cfg.feat_dim;
-        let (x0, noise) = (normal(len), normal(len));
+        let (x0, noise) = (normal_tensor(&mut r, shape, &device), normal_tensor(&mut r, shape, &device));
         let t = (0..batch).map(|i| (97 * i + 500) % 1000).collect();
         TrainStep { model: Some(model), vals, adam, req, x0, noise, t, schedule: Schedule::cosine(1000), device, phases: [0.0; 3] }
     }
@@ -93,11 +97,9 @@ impl<'a> Sampling<'a> {
     pub fn new(model: &'a Denoiser, cfg: &DiffKfcConfig, batch: usize, frames: usize) -> Sampling<'a> {
         let device = model.devices().first().cloned().unwrap_or_else(Device::flex);
         let req = request(cfg, batch, frames, 3);
-        let cond = req.condition(&device);
-        let both = sampler::stack(&cond, &cond.without_keyframes());
-        let encoded = model.encode(&both);
+        let encoded = model.encode(&sampler::guidance_pair(&req.condition(&device)));
         let mut r = Rng::new(4);
-        let x = Tensor::<1>::from_floats((0..2 * batch * frames * cfg.feat_dim).map(|_| r.normal() as f32).collect::<Vec<_>>().as_slice(), &device).reshape([2 * batch, frames, cfg.feat_dim]);
+        let x = normal_tensor(&mut r, [2 * batch, frames, cfg.feat_dim], &device);
         Sampling { model, req, encoded, x, t: vec![500; 2 * batch] }
     }
 
@@ -105,9 +107,7 @@ impl<'a> Sampling<'a> {
     /// the first) or encoder + decoder.
     pub fn call(&self, with_encoder: bool) -> Vec<f32> {
         let out = if with_encoder {
-            let device = self.x.device();
-            let cond = self.req.condition(&device);
-            let enc = self.model.encode(&sampler::stack(&cond, &cond.without_keyframes()));
+            let enc = self.model.encode(&sampler::guidance_pair(&self.req.condition(&self.x.device())));
             self.model.decode(self.x.clone(), &self.t, &enc)
         } else {
             self.model.decode(self.x.clone(), &self.t, &self.encoded)

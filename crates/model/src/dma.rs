@@ -115,7 +115,8 @@ impl DmaBlock {
         if rows.is_empty() {
             return z;
         }
-        let idx = Tensor::<1, Int>::from_data(TensorData::new(rows, [active.iter().filter(|&&v| v).count()]), &z.device());
+        let k = rows.len();
+        let idx = Tensor::<1, Int>::from_data(TensorData::new(rows, [k]), &z.device());
         let flat = z.reshape([b * l, d]);
         let zs = flat.clone().select(0, idx.clone());
         let zk = update(a.reshape([b * l, d]).select(0, idx.clone()), zs.clone());

@@ -88,8 +88,13 @@ impl Request {
     }
 }
 
+/// The keyframe-guidance batch of a condition: [with keyframes; without], one forward for both.
+pub fn guidance_pair(c: &Condition) -> Condition {
+    stack(c, &c.without_keyframes())
+}
+
 /// Two conditions stacked along the batch: [a; b].
-pub fn stack(a: &Condition, b: &Condition) -> Condition {
+fn stack(a: &Condition, b: &Condition) -> Condition {
     Condition {
         text: Tensor::cat(vec![a.text.clone(), b.text.clone()], 0),
         kf: Tensor::cat(vec![a.kf.clone(), b.kf.clone()], 0),
@@ -128,7 +133,7 @@ pub fn sample(model: &Denoiser, schedule: &Schedule, req: &Request, opts: &Optio
     // The encoder runs once; both guidance branches share each decoder call. Its output is
     // detached so per-step backward passes (exact mode) never reach into it.
     let cond = if opts.inpaint { cond.without_keyframes() } else { cond };
-    let mut enc = if guided { model.encode(&stack(&cond, &cond.without_keyframes())) } else { model.encode(&cond) };
+    let mut enc = if guided { model.encode(&guidance_pair(&cond)) } else { model.encode(&cond) };
     enc.tokens = enc.tokens.detach();
     enc.text_tok = enc.text_tok.detach();
     enc.cross_kv = enc.cross_kv.into_iter().map(|(k, v)| (k.detach(), v.detach())).collect();

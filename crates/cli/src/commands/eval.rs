@@ -14,9 +14,10 @@ use diffkfc_eval::report;
 use diffkfc_eval::text_motion::Gaussian;
 use diffkfc_eval::train_evaluator::{embed_split, EvaluatorTraining};
 use diffkfc_model::diffusion::Schedule;
-use diffkfc_model::sampler::Sampler;
 use diffkfc_model::trainer::load_for_inference;
 use indicatif::{ProgressBar, ProgressStyle};
+
+use super::sample::{KeyframeMode, SamplerArg};
 
 pub const AFTER_HELP: &str = "\
 Examples:
@@ -33,20 +34,6 @@ Metrics (our definitions of the keyframe metrics; the paper gives them in words)
   Foot skate: share of toe-contact frames (below 5 cm) moving faster than 0.5 m/s.
 Generation uses the ground-truth lengths; keyframes are drawn as in training with a fixed seed
 per replication (the same for every method). Reports: <out>/report.json and <out>/report.md.";
-
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
-enum KeyframeMode {
-    /// The trained keyframe branch with keyframe guidance.
-    Diffkfc,
-    /// MDM-inp baseline: keyframes pasted into x0 at every step, no keyframe branch.
-    Inpaint,
-}
-
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
-enum SamplerArg {
-    Ddpm,
-    Ddim,
-}
 
 #[derive(Args)]
 #[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
@@ -252,10 +239,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
     let (_, real) = embed_split(&ev, &ds, &split).map_err(anyhow::Error::msg)?;
     let reference = Gaussian::fit(&real);
     let schedule = Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps).context("diffusion schedule of the checkpoint")?;
-    let sampler = match a.sampler {
-        SamplerArg::Ddpm => Sampler::Ddpm,
-        SamplerArg::Ddim => Sampler::Ddim(a.steps),
-    };
+    let sampler = a.sampler.sampler(a.steps);
     let opts = protocol::Options {
         replications: a.replications,
         num_items,

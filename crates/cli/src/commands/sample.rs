@@ -24,7 +24,7 @@ enum TgModeArg {
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
-enum KeyframeMode {
+pub(crate) enum KeyframeMode {
     /// The trained keyframe branch with keyframe guidance.
     Diffkfc,
     /// MDM-inp baseline: keyframes pasted into x0 at every step, no keyframe branch.
@@ -32,9 +32,19 @@ enum KeyframeMode {
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
-enum SamplerArg {
+pub(crate) enum SamplerArg {
     Ddpm,
     Ddim,
+}
+
+impl SamplerArg {
+    /// The sampler; `steps` counts DDIM steps (DDPM runs every step of the schedule).
+    pub(crate) fn sampler(self, steps: usize) -> Sampler {
+        match self {
+            SamplerArg::Ddpm => Sampler::Ddpm,
+            SamplerArg::Ddim => Sampler::Ddim(steps),
+        }
+    }
 }
 
 #[derive(Args, Clone, Debug)]
@@ -281,10 +291,7 @@ fn run_one(a: SampleArgs) -> Result<()> {
     };
     let schedule = Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps).context("diffusion schedule of the checkpoint")?;
     let opts = Options {
-        sampler: match a.sampler {
-            SamplerArg::Ddpm => Sampler::Ddpm,
-            SamplerArg::Ddim => Sampler::Ddim(a.steps),
-        },
+        sampler: a.sampler.sampler(a.steps),
         kf_guidance: a.kf_guidance,
         transition: a.transition_guidance,
         write_back: !a.no_snap,
