@@ -31,15 +31,12 @@ fn evaluator_beats_chance() {
     assert_one_line_error(&diffkfc(&["eval", "train-evaluator", "--data", s(&small), "--out", s(&d.join("e2"))]), &["at least 32 items"]);
 }
 
-const CFG: &str = r#"{"model": {"preset": "tiny", "dec_layers": 1, "dma_sizes": [2, 0]},
-  "training": {"batch_size": 4, "max_steps": 2, "checkpoint_every": 2, "val_every": 0}}"#;
-
 fn metric(row: &serde_json::Value, k: &str) -> f64 {
     row["metrics"][k]["mean"].as_f64().unwrap_or_else(|| panic!("{k} missing in {row}"))
 }
 
 fn evaluate_tiny_checkpoint(d: &std::path::Path, data: &std::path::Path, evaluator: &std::path::Path) {
-    std::fs::write(d.join("cfg.json"), CFG).unwrap();
+    std::fs::write(d.join("cfg.json"), TWO_STEP_RUN).unwrap();
     let run = d.join("run");
     let o = diffkfc(&["train", "--config", s(&d.join("cfg.json")), "--data", s(data), "--out", s(&run)]);
     assert!(o.status.success(), "{}", stderr(&o));
@@ -72,4 +69,22 @@ fn evaluate_tiny_checkpoint(d: &std::path::Path, data: &std::path::Path, evaluat
     let mut few: Vec<&str> = common.to_vec();
     few.extend(["--num-items", "8", "--out", s(&rep)]);
     assert_one_line_error(&diffkfc(&few), &["--num-items", "at least 32"]);
+    // Without snapping the raw model misses its keyframes; the report says which mode ran.
+    let raw = d.join("raw");
+    let o = diffkfc(&["eval", "--checkpoint", s(&run), "--evaluator", s(evaluator), "--data", s(data), "--replications", "1", "--steps", "2", "--samples-for-ade", "1", "--num-items", "32", "--no-snap", "--transition-guidance", "0", "--kf-guidance", "1", "--keyframe-strategy", "uniform", "--out", s(&raw)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(raw.join("report.json")).unwrap()).unwrap();
+    assert_eq!((r["meta"]["snap"].as_bool(), r["meta"]["keyframe_strategy"].as_str(), r["meta"]["kf_guidance"].as_f64()), (Some(false), Some("uniform"), Some(1.0)));
+    let row = r["rows"].as_array().unwrap().iter().find(|x| x["name"] == "DiffKFC w/o TG").expect("row");
+    assert!(metric(row, "k_err_local") > 1e-3, "{row}");
+    let none = d.join("none");
+    let bad = |evaluator: &std::path::Path, extra: &[&str], needles: &[&str]| {
+        let mut a = vec!["eval", "--checkpoint", s(&run), "--evaluator", s(evaluator), "--data", s(data), "--out", s(&raw)];
+        a.extend(extra);
+        assert_one_line_error(&diffkfc(&a), needles);
+    };
+    bad(evaluator, &["--sweep-rates", "0,2"], &["--sweep-rates", "2"]);
+    bad(evaluator, &["--replications", "0"], &["--replications", "at least 1"]);
+    bad(evaluator, &["--keyframe-strategy", "odd"], &["--keyframe-strategy", "odd"]);
+    bad(&none, &[], &["none", "train-evaluator"]);
 }

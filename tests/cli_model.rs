@@ -33,6 +33,28 @@ fn bench_suite_smoke() {
     assert!(lines[2]["gflop"].as_f64() < lines[1]["gflop"].as_f64());
     assert!(lines[4]["items_per_s"].as_f64().unwrap() > 0.0);
     assert_one_line_error(&diffkfc(&["bench", "--config", "tiny", "--cases", "train,fly"]), &["--cases", "fly"]);
+    // --torch/--reference: a stand-in for the PyTorch script (prints the reference's JSON line
+    // with known times) checks the side-by-side plumbing and the ratios without torch.
+    let d = scratch("bench");
+    let script = d.join("reference.py");
+    std::fs::write(&script, "import json\nprint('warming up')\nprint(json.dumps({'train_step_ms': 1e9, 'cfg_call_ms': 1e9}))\n").unwrap();
+    let o = diffkfc(&["bench", "--config", "tiny", "--frames", "40", "--batch", "2", "--quick", "--cases", "train,call", "--torch", "python3", "--reference", s(&script)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let lines: Vec<serde_json::Value> = stdout(&o).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(lines[2]["case"], "pytorch");
+    let ratio = &lines[3];
+    let want = lines[0]["ms"].as_f64().unwrap() / 1e9;
+    assert!((ratio["train_step"].as_f64().unwrap() - want).abs() < 1e-12 && ratio["sampling_call"].as_f64().unwrap() > 0.0, "{ratio}");
+    assert_one_line_error(&diffkfc(&["bench", "--config", "tiny", "--cases", "call", "--torch", "python3", "--reference", s(&d.join("none.py"))]), &["--reference", "none.py"]);
+    std::fs::write(&script, "import sys\nsys.exit('no torch here')\n").unwrap();
+    assert_one_line_error(&diffkfc(&["bench", "--config", "tiny", "--quick", "--cases", "call", "--torch", "python3", "--reference", s(&script)]), &["--torch", "no torch here"]);
+    // --data: the loader case on a given dataset.
+    let data = d.join("synth");
+    assert!(diffkfc(&["data", "synth", "--out", s(&data), "--clips", "30"]).status.success());
+    let o = diffkfc(&["bench", "--config", "tiny", "--quick", "--cases", "loader", "--data", s(&data)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_str(stdout(&o).trim()).unwrap();
+    assert_eq!((v["case"].as_str(), v["batches"].as_u64()), (Some("loader"), Some(20)));
     assert_one_line_error(&diffkfc(&["bench", "--config", "huge"]), &["--config", "huge"]);
 }
 

@@ -5,9 +5,6 @@ mod common;
 use common::*;
 use diffkfc_data::npy;
 
-const CFG: &str = r#"{"model": {"preset": "tiny", "dec_layers": 1, "dma_sizes": [2, 0]},
-  "training": {"batch_size": 4, "max_steps": 2, "checkpoint_every": 2, "val_every": 0}}"#;
-
 #[test]
 fn sample_outputs_errors_and_determinism() {
     if !have_text_encoder() {
@@ -16,7 +13,7 @@ fn sample_outputs_errors_and_determinism() {
     let d = scratch("sample");
     let data = d.join("synth");
     assert!(diffkfc(&["data", "synth", "--out", s(&data), "--clips", "12", "--seed", "3"]).status.success());
-    std::fs::write(d.join("cfg.json"), CFG).unwrap();
+    std::fs::write(d.join("cfg.json"), TWO_STEP_RUN).unwrap();
     let run = d.join("run");
     let o = diffkfc(&["train", "--config", s(&d.join("cfg.json")), "--data", s(&data), "--out", s(&run)]);
     assert!(o.status.success(), "{}", stderr(&o));

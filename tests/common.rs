@@ -52,3 +52,8 @@ pub fn have_text_encoder() -> bool {
     eprintln!("SKIPPED: no text encoder ({})", stderr(&o).trim());
     false
 }
+
+/// A run config that trains a one-layer tiny model for 2 steps: enough for a checkpoint that
+/// sampling and evaluation can load.
+pub const TWO_STEP_RUN: &str = r#"{"model": {"preset": "tiny", "dec_layers": 1, "dma_sizes": [2, 0]},
+  "training": {"batch_size": 4, "max_steps": 2, "checkpoint_every": 2, "val_every": 0}}"#;
