@@ -10,6 +10,7 @@ use burn::nn::{LayerNorm, LayerNormConfig, Linear, LinearConfig, PaddingConfig1d
 use burn::prelude::*;
 use burn::tensor::activation::{gelu, log_softmax};
 use diffkfc_model::attention::Attention;
+use diffkfc_model::kernels::{key_mask, layer_norm};
 
 /// Width of the shared embedding space.
 pub const EMBED: usize = 512;
@@ -89,13 +90,13 @@ impl Evaluator {
         let [b, n4, hid] = h.dims();
         // Valid downsampled steps: ceil(len / 4), at least one.
         let valid: Vec<bool> = lengths.iter().flat_map(|&l| (0..n4).map(move |i| i < l.div_ceil(4).max(1))).collect();
-        let pad = Tensor::<2, Bool>::from_data(TensorData::new(valid.iter().map(|v| !v).collect::<Vec<_>>(), [b, n4]), &device);
+        let pad = key_mask(valid.iter().map(|v| !v).collect());
         let mut h = h;
         for blk in &self.blocks {
-            let a = blk.attn.forward(h.clone(), h.clone(), Some(Attention::key_mask(pad.clone(), n4)));
-            h = blk.ln1.forward(h + a);
+            let a = blk.attn.forward(h.clone(), h.clone(), pad.clone());
+            h = layer_norm(&blk.ln1, h + a);
             let f = blk.ff2.forward(gelu(blk.ff1.forward(h.clone())));
-            h = blk.ln2.forward(h + f);
+            h = layer_norm(&blk.ln2, h + f);
         }
         let w = Tensor::<1>::from_floats(valid.iter().map(|&v| v as i32 as f32).collect::<Vec<_>>().as_slice(), &device).reshape([b, n4, 1]);
         let pooled = (h * w.clone()).sum_dim(1).reshape([b, hid]) / w.sum_dim(1).reshape([b, 1]);

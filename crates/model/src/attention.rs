@@ -1,13 +1,12 @@
-//! Multi-head attention over Burn's fused `attention` op (on the flex CPU backend a fused
-//! kernel; under autodiff Burn's decomposed fallback, so gradients are exact). Keys are masked
-//! with a boolean mask (true = this query must not see this key). Unlike torch's
-//! nn.MultiheadAttention there is no dropout on the attention weights (the fused op has none);
-//! dropout stays on the residual branches.
+//! Multi-head attention: query/key/value/output projections around the attention core of
+//! `kernels` (a fused kernel on flex, Burn's ops elsewhere). Keys are masked with a host-side
+//! [`Mask`] (true = this query must not see this key). Unlike torch's nn.MultiheadAttention
+//! there is no dropout on the attention weights; dropout stays on the residual branches.
 
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
-use burn::tensor::module::attention;
-use burn::tensor::ops::AttentionModuleOptions;
+
+use crate::kernels::{self, Mask};
 
 #[derive(Module, Debug)]
 pub struct Attention {
@@ -30,38 +29,23 @@ impl Attention {
         }
     }
 
-    /// `q_in` [B, Lq, d] attends to `kv_in` [B, Lk, d]; `blocked` [B, Lq, Lk] (true = masked)
-    /// -> [B, Lq, d]. Every query must see at least one key.
-    pub fn forward(&self, q_in: Tensor<3>, kv_in: Tensor<3>, blocked: Option<Tensor<3, Bool>>) -> Tensor<3> {
+    /// `q_in` [B, Lq, d] attends to `kv_in` [B, Lk, d] under `mask` -> [B, Lq, d]. Every query
+    /// must see at least one key.
+    pub fn forward(&self, q_in: Tensor<3>, kv_in: Tensor<3>, mask: Mask) -> Tensor<3> {
         let kv = self.keys_values(kv_in);
-        self.forward_kv(q_in, &kv, blocked)
+        self.forward_kv(q_in, &kv, mask)
     }
 
-    /// Keys and values [B, H, Lk, d/H] of `kv_in`: computed once where the same keys serve many
+    /// Keys and values [B, Lk, d] of `kv_in`: computed once where the same keys serve many
     /// calls (the encoder output across denoising steps).
-    pub fn keys_values(&self, kv_in: Tensor<3>) -> (Tensor<4>, Tensor<4>) {
-        let [b, lk, d] = kv_in.dims();
-        let h = self.heads;
-        let split = |t: Tensor<3>| t.reshape([b, lk, h, d / h]).swap_dims(1, 2);
-        (split(self.key.forward(kv_in.clone())), split(self.value.forward(kv_in)))
+    pub fn keys_values(&self, kv_in: Tensor<3>) -> (Tensor<3>, Tensor<3>) {
+        (self.key.forward(kv_in.clone()), self.value.forward(kv_in))
     }
 
     /// Attention of `q_in` [B, Lq, d] to precomputed keys and values.
-    pub fn forward_kv(&self, q_in: Tensor<3>, kv: &(Tensor<4>, Tensor<4>), blocked: Option<Tensor<3, Bool>>) -> Tensor<3> {
-        let [b, lq, d] = q_in.dims();
-        let h = self.heads;
-        let (k, v) = (kv.0.clone(), kv.1.clone());
-        let lk = k.dims()[2];
-        let q = self.query.forward(q_in).reshape([b, lq, h, d / h]).swap_dims(1, 2);
-        let mask = blocked.map(|m| m.unsqueeze_dim::<4>(1).expand([b, h, lq, lk]));
-        let ctx = attention(q, k, v, mask, None, AttentionModuleOptions::default());
-        self.output.forward(ctx.swap_dims(1, 2).reshape([b, lq, d]))
-    }
-
-    /// Key-padding mask [B, Lk] (true = not a key) as a [B, Lq, Lk] mask.
-    pub fn key_mask(pad: Tensor<2, Bool>, lq: usize) -> Tensor<3, Bool> {
-        let [b, lk] = pad.dims();
-        pad.unsqueeze_dim::<3>(1).expand([b, lq, lk])
+    pub fn forward_kv(&self, q_in: Tensor<3>, kv: &(Tensor<3>, Tensor<3>), mask: Mask) -> Tensor<3> {
+        let q = self.query.forward(q_in);
+        self.output.forward(kernels::attention(q, kv.0.clone(), kv.1.clone(), self.heads, mask))
     }
 }
 
@@ -80,8 +64,8 @@ mod tests {
         let x = Tensor::<3>::random([b, lq, d], Distribution::Normal(0.0, 1.0), &dev);
         let y = Tensor::<3>::random([b, lk, d], Distribution::Normal(0.0, 1.0), &dev);
         let blocked: Vec<bool> = (0..b * lq * lk).map(|i| i % lk != 0 && (i * 7919) % 3 == 0).collect();
-        let m = Tensor::<3, Bool>::from_data(TensorData::new(blocked.clone(), [b, lq, lk]), &dev);
-        let got = att.forward(x.clone(), y.clone(), Some(m)).into_data().try_to_vec::<f32>().unwrap();
+        let m = Mask::Full(std::sync::Arc::new(blocked.clone()));
+        let got = att.forward(x.clone(), y.clone(), m).into_data().try_to_vec::<f32>().unwrap();
         let split = |t: Tensor<3>, l: usize| t.reshape([b, l, h, d / h]).swap_dims(1, 2);
         let q = split(att.query.forward(x), lq);
         let k = split(att.key.forward(y.clone()), lk);

@@ -8,6 +8,7 @@ use burn::tensor::activation::gelu;
 
 use crate::attention::Attention;
 use crate::dropout::Dropout;
+use crate::kernels::{layer_norm, Mask};
 
 #[derive(Module, Debug)]
 pub struct DecoderLayer {
@@ -36,19 +37,18 @@ impl DecoderLayer {
     }
 
     /// The cross-attention keys and values of the encoder output (fixed across denoising steps).
-    pub fn cross_kv(&self, enc: Tensor<3>) -> (Tensor<4>, Tensor<4>) {
+    pub fn cross_kv(&self, enc: Tensor<3>) -> (Tensor<3>, Tensor<3>) {
         self.cross_attn.keys_values(enc)
     }
 
-    /// `h` [B, 2+N, d] with `self_pad` [B, 2+N] (true = padding); `enc_kv` from [`cross_kv`]
-    /// with `enc_pad` [B, 1+N] (true = not a valid key) -> [B, 2+N, d].
-    pub fn forward(&self, h: Tensor<3>, self_pad: Tensor<2, Bool>, enc_kv: &(Tensor<4>, Tensor<4>), enc_pad: Tensor<2, Bool>) -> Tensor<3> {
-        let l = h.dims()[1];
-        let a = self.self_attn.forward(h.clone(), h.clone(), Some(Attention::key_mask(self_pad, l)));
-        let h = self.ln1.forward(h + self.drop.forward(a));
-        let c = self.cross_attn.forward_kv(h.clone(), enc_kv, Some(Attention::key_mask(enc_pad, l)));
-        let h = self.ln2.forward(h + self.drop.forward(c));
+    /// `h` [B, 2+N, d] with `self_pad` (key padding of the decoder sequence); `enc_kv` from
+    /// [`cross_kv`] with `enc_pad` (encoder tokens that are not valid keys) -> [B, 2+N, d].
+    pub fn forward(&self, h: Tensor<3>, self_pad: Mask, enc_kv: &(Tensor<3>, Tensor<3>), enc_pad: Mask) -> Tensor<3> {
+        let a = self.self_attn.forward(h.clone(), h.clone(), self_pad);
+        let h = layer_norm(&self.ln1, h + self.drop.forward(a));
+        let c = self.cross_attn.forward_kv(h.clone(), enc_kv, enc_pad);
+        let h = layer_norm(&self.ln2, h + self.drop.forward(c));
         let f = self.ff2.forward(self.drop.forward(gelu(self.ff1.forward(h.clone()))));
-        self.ln3.forward(h + self.drop.forward(f))
+        layer_norm(&self.ln3, h + self.drop.forward(f))
     }
 }

@@ -8,6 +8,7 @@ use crate::config::DiffKfcConfig;
 use crate::decoder::DecoderLayer;
 use crate::dma::{DmaPlan, KeyframeEncoder};
 use crate::embed::{positions, TimestepEmbed};
+use crate::kernels::{key_mask, Mask};
 
 /// What the model is conditioned on, for a batch of B samples of N frames.
 #[derive(Clone, Debug)]
@@ -42,14 +43,14 @@ impl Condition {
 pub struct Encoded {
     /// [B, 1+N, d]
     pub tokens: Tensor<3>,
-    /// Per decoder layer: cross-attention keys and values of `tokens` ([B, H, 1+N, d/H]).
-    pub cross_kv: Vec<(Tensor<4>, Tensor<4>)>,
-    /// [B, 1+N] true where the decoder must not attend (never-valid tokens, padding).
-    pub key_pad: Tensor<2, Bool>,
+    /// Per decoder layer: cross-attention keys and values of `tokens` ([B, 1+N, d] each).
+    pub cross_kv: Vec<(Tensor<3>, Tensor<3>)>,
+    /// [B, 1+N] keys the decoder must not attend (never-valid tokens, padding).
+    pub key_pad: Mask,
     /// [B, 1, d] text token y_c.
     pub text_tok: Tensor<3>,
-    /// [B, 2+N] true on padding frames of the decoder sequence.
-    pub self_pad: Tensor<2, Bool>,
+    /// [B, 2+N] padding frames of the decoder sequence.
+    pub self_pad: Mask,
 }
 
 #[derive(Module, Debug)]
@@ -80,10 +81,6 @@ impl DiffKfcConfig {
     }
 }
 
-fn bool_tensor(v: Vec<bool>, shape: [usize; 2], device: &Device) -> Tensor<2, Bool> {
-    Tensor::from_data(TensorData::new(v, shape), device)
-}
-
 impl Denoiser {
     /// Run the keyframe encoder and the decoder's cross-attention projections of its output
     /// (once per condition).
@@ -102,9 +99,9 @@ impl Denoiser {
         Encoded {
             cross_kv,
             tokens,
-            key_pad: bool_tensor(key_pad, [b, l], &device),
+            key_pad: key_mask(key_pad),
             text_tok,
-            self_pad: bool_tensor(self_pad, [b, n + 2], &device),
+            self_pad: key_mask(self_pad),
         }
     }
 

@@ -7,12 +7,15 @@
 //! Padding is never valid. Block: Z' = FC([DMA(Z) || Z]), Z = MLP(Z'); no LayerNorm; a global
 //! skip from the encoder input to its output.
 
+use std::sync::Arc;
+
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::gelu;
 use burn::tensor::IndexingUpdateOp;
 
 use crate::attention::Attention;
+use crate::kernels::Mask;
 
 /// Per-block validity and attention masks of a batch, computed on the host from the keyframe
 /// frames and the padding (they do not depend on any tensor value).
@@ -25,7 +28,7 @@ pub struct DmaPlan {
     /// Per block: [B * (1+N)] validity after the block.
     pub valid_after: Vec<Vec<bool>>,
     /// Per block: [B * (1+N) * (1+N)] true where query i must not see key j.
-    pub blocked: Vec<Vec<bool>>,
+    pub blocked: Vec<Arc<Vec<bool>>>,
 }
 
 impl DmaPlan {
@@ -71,7 +74,7 @@ impl DmaPlan {
             }
             active_all.push(active);
             valid_all.push(valid.clone());
-            blocked_all.push(blocked);
+            blocked_all.push(Arc::new(blocked));
         }
         DmaPlan { batch, frames, active: active_all, valid_after: valid_all, blocked: blocked_all }
     }
@@ -100,13 +103,13 @@ impl DmaBlock {
         }
     }
 
-    /// `z`: [B, 1+N, d]; `blocked`: [B, 1+N, 1+N]; `active`: per token (B x (1+N), host) whether
+    /// `z`: [B, 1+N, d]; `blocked`: the block's [B, 1+N, 1+N] mask; `active`: per token (B x (1+N), host) whether
     /// it takes this block's update. Inactive tokens pass through unchanged, so the concat-FC
     /// and MLP run on the active rows only (gathered, then added back): early blocks with
     /// small windows, and the keyframe-free half of a guided batch, have few.
-    pub fn forward(&self, z: Tensor<3>, blocked: Tensor<3, Bool>, active: &[bool]) -> Tensor<3> {
+    pub fn forward(&self, z: Tensor<3>, blocked: Mask, active: &[bool]) -> Tensor<3> {
         let [b, l, d] = z.dims();
-        let a = self.attn.forward(z.clone(), z.clone(), Some(blocked));
+        let a = self.attn.forward(z.clone(), z.clone(), blocked);
         let update = |a: Tensor<2>, z: Tensor<2>| self.mlp2.forward(gelu(self.mlp1.forward(self.fc.forward(Tensor::cat(vec![a, z], 1)))));
         let rows: Vec<i64> = active.iter().enumerate().filter(|(_, &v)| v).map(|(i, _)| i as i64).collect();
         if rows.len() == b * l {
@@ -142,15 +145,11 @@ impl KeyframeEncoder {
     /// `text_tok` [B,1,d], `kf` [B,N,D] (zeros where unobserved), `kf_mask` [B,N,D], `pos`
     /// [1,N,d] -> [B, 1+N, d].
     pub fn forward(&self, text_tok: Tensor<3>, kf: Tensor<3>, kf_mask: Tensor<3>, pos: Tensor<3>, plan: &DmaPlan) -> Tensor<3> {
-        let device = kf.device();
-        let [b, n, _] = kf.dims();
-        let l = n + 1;
         let frames = self.kf_in.forward(Tensor::cat(vec![kf * kf_mask.clone(), kf_mask], 2)) + pos;
         let z0 = Tensor::cat(vec![text_tok, frames], 1);
         let mut z = z0.clone();
         for (k, block) in self.blocks.iter().enumerate() {
-            let blocked = Tensor::<3, Bool>::from_data(TensorData::new(plan.blocked[k].clone(), [b, l, l]), &device);
-            z = block.forward(z, blocked, &plan.active[k]);
+            z = block.forward(z, Mask::Full(plan.blocked[k].clone()), &plan.active[k]);
         }
         z + z0
     }

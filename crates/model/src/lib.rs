@@ -13,6 +13,7 @@ pub mod dma;
 pub mod dropout;
 pub mod embed;
 pub mod flops;
+pub mod kernels;
 pub mod kinematics;
 pub mod losses;
 pub mod optim;

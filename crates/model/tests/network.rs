@@ -108,7 +108,7 @@ fn invalid_tokens_do_not_leak_within_a_block() {
     let real = vec![true; n];
     let plan = DmaPlan::new(&keys, &real, 1, n, &[2]);
     let l = n + 1;
-    let blocked = Tensor::<3, Bool>::from_data(TensorData::new(plan.blocked[0].clone(), [1, l, l]), &dev);
+    let blocked = diffkfc_model::kernels::Mask::Full(plan.blocked[0].clone());
     let active = plan.active[0].as_slice();
     let z = Tensor::<3>::random([1, l, d], Distribution::Normal(0.0, 1.0), &dev);
     let base = to_vec(block.forward(z.clone(), blocked.clone(), active));

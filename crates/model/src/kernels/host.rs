@@ -1,0 +1,231 @@
+//! The fused kernels on host slices: multi-head attention and LayerNorm, forward and backward,
+//! parallel over heads / rows with rayon. Burn's flex backend runs elementwise ops on one
+//! thread and materialises every intermediate ([B, H, L, L] scores, masked scores, exp, sums,
+//! ...); these do each in one pass per row, with the small per-head products on `gemm`.
+
+use std::sync::Arc;
+
+use rayon::prelude::*;
+
+/// A strided read-only matrix: element (r, c) at `ptr + r * rs + c * cs`.
+#[derive(Clone, Copy)]
+struct View {
+    ptr: *const f32,
+    rs: isize,
+    cs: isize,
+}
+
+/// A destination pointer shared by tasks that write disjoint elements.
+#[derive(Clone, Copy)]
+struct Out(*mut f32);
+// SAFETY: every task writes a disjoint set of elements (one head's columns, one row chunk).
+unsafe impl Send for Out {}
+unsafe impl Sync for Out {}
+unsafe impl Send for View {}
+unsafe impl Sync for View {}
+
+/// dst[m, n] (row stride `dst_rs`, unit column stride) = lhs[m, k] . rhs[k, n], single-threaded
+/// (the callers are already parallel).
+///
+/// # Safety
+/// The views must cover the [m, k] and [k, n] elements they describe and `dst` the [m, n] ones.
+unsafe fn matmul(m: usize, n: usize, k: usize, dst: *mut f32, dst_rs: usize, lhs: View, rhs: View) {
+    gemm::gemm(m, n, k, dst, 1, dst_rs as isize, false, lhs.ptr, lhs.cs, lhs.rs, rhs.ptr, rhs.cs, rhs.rs, 0.0, 1.0, false, false, false, gemm::Parallelism::None);
+}
+
+/// Which keys each query may not see (true = blocked).
+#[derive(Clone, Debug)]
+pub enum Mask {
+    None,
+    /// [B * Lk]: key padding, the same for every query.
+    Keys(Arc<Vec<bool>>),
+    /// [B * Lq * Lk]: per query and key.
+    Full(Arc<Vec<bool>>),
+}
+
+/// Shapes of one attention call: queries [B, Lq, d], keys and values [B, Lk, d], d = heads x dh;
+/// head h owns channels h*dh .. (h+1)*dh of every row.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AttnShape {
+    pub batch: usize,
+    pub lq: usize,
+    pub lk: usize,
+    pub heads: usize,
+    pub d: usize,
+}
+
+impl AttnShape {
+    fn dh(&self) -> usize {
+        self.d / self.heads
+    }
+
+    fn scale(&self) -> f32 {
+        1.0 / (self.dh() as f32).sqrt()
+    }
+
+    /// Head h of sample b of a [B, L, d] tensor as an [L, dh] view.
+    fn head(&self, x: &[f32], l: usize, b: usize, h: usize) -> View {
+        View { ptr: x[(b * l) * self.d + h * self.dh()..].as_ptr(), rs: self.d as isize, cs: 1 }
+    }
+}
+
+/// softmax(Q K^T * scale, masked) of head (b, h) into `p` [Lq, Lk]; fully blocked rows are 0.
+fn probabilities(q: &[f32], k: &[f32], s: &AttnShape, mask: &Mask, b: usize, h: usize, p: &mut [f32]) {
+    let (lq, lk, dh) = (s.lq, s.lk, s.dh());
+    let kt = s.head(k, lk, b, h);
+    // SAFETY: q and k hold [B, L, d]; p holds lq * lk.
+    unsafe { matmul(lq, lk, dh, p.as_mut_ptr(), lk, s.head(q, lq, b, h), View { ptr: kt.ptr, rs: kt.cs, cs: kt.rs }) };
+    let scale = s.scale();
+    for (i, row) in p.chunks_mut(lk).enumerate() {
+        let blocked: &[bool] = match mask {
+            Mask::None => &[],
+            Mask::Keys(m) => &m[b * lk..(b + 1) * lk],
+            Mask::Full(m) => &m[(b * lq + i) * lk..(b * lq + i + 1) * lk],
+        };
+        let open = |j: usize| blocked.is_empty() || !blocked[j];
+        let mut max = f32::NEG_INFINITY;
+        for (j, x) in row.iter_mut().enumerate() {
+            *x *= scale;
+            if open(j) && *x > max {
+                max = *x;
+            }
+        }
+        if max == f32::NEG_INFINITY {
+            row.fill(0.0);
+            continue;
+        }
+        let mut sum = 0.0f32;
+        for (j, x) in row.iter_mut().enumerate() {
+            *x = if open(j) { (*x - max).exp() } else { 0.0 };
+            sum += *x;
+        }
+        let inv = 1.0 / sum;
+        row.iter_mut().for_each(|x| *x *= inv);
+    }
+}
+
+/// softmax(Q K^T / sqrt(dh) + mask) V per head -> [B, Lq, d].
+pub fn attention_forward(q: &[f32], k: &[f32], v: &[f32], s: &AttnShape, mask: &Mask) -> Vec<f32> {
+    let (lq, lk, dh) = (s.lq, s.lk, s.dh());
+    let mut out = vec![0f32; s.batch * lq * s.d];
+    let dst = Out(out.as_mut_ptr());
+    (0..s.batch * s.heads).into_par_iter().for_each_init(
+        || vec![0f32; lq * lk],
+        |p, bh| {
+            let (b, h) = (bh / s.heads, bh % s.heads);
+            probabilities(q, k, s, mask, b, h, p);
+            let pv = View { ptr: p.as_ptr(), rs: lk as isize, cs: 1 };
+            let d = dst;
+            // SAFETY: head (b, h) writes only its own dh columns of sample b's rows.
+            unsafe { matmul(lq, dh, lk, d.0.add(b * lq * s.d + h * dh), s.d, pv, s.head(v, lk, b, h)) };
+        },
+    );
+    out
+}
+
+/// Gradients (dQ, dK, dV) of [`attention_forward`] for the output gradient `dout` [B, Lq, d];
+/// the probabilities are recomputed (cheaper than keeping [B, H, Lq, Lk] per layer).
+pub fn attention_backward(q: &[f32], k: &[f32], v: &[f32], dout: &[f32], s: &AttnShape, mask: &Mask) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+    let (lq, lk, dh) = (s.lq, s.lk, s.dh());
+    let mut dq = vec![0f32; s.batch * lq * s.d];
+    let mut dk = vec![0f32; s.batch * lk * s.d];
+    let mut dv = vec![0f32; s.batch * lk * s.d];
+    let (dqp, dkp, dvp) = (Out(dq.as_mut_ptr()), Out(dk.as_mut_ptr()), Out(dv.as_mut_ptr()));
+    let scale = s.scale();
+    (0..s.batch * s.heads).into_par_iter().for_each_init(
+        || (vec![0f32; lq * lk], vec![0f32; lq * lk]),
+        |(p, dp), bh| {
+            let (b, h) = (bh / s.heads, bh % s.heads);
+            let (dqp, dkp, dvp) = (dqp, dkp, dvp);
+            probabilities(q, k, s, mask, b, h, p);
+            let pt = View { ptr: p.as_ptr(), rs: 1, cs: lk as isize };
+            let go = s.head(dout, lq, b, h);
+            let vh = s.head(v, lk, b, h);
+            let (qh, kh) = (s.head(q, lq, b, h), s.head(k, lk, b, h));
+            let col = h * dh;
+            // SAFETY: all buffers hold [B, L, d] or [Lq, Lk]; head (b, h) writes only its own
+            // columns of sample b's rows in dq, dk, dv.
+            unsafe {
+                // dV = P^T dO; dP = dO V^T.
+                matmul(lk, dh, lq, dvp.0.add(b * lk * s.d + col), s.d, pt, go);
+                matmul(lq, lk, dh, dp.as_mut_ptr(), lk, go, View { ptr: vh.ptr, rs: vh.cs, cs: vh.rs });
+            }
+            // dS = P o (dP - rowsum(P o dP)), times the score scale.
+            for (pr, gr) in p.chunks(lk).zip(dp.chunks_mut(lk)) {
+                let dot: f32 = pr.iter().zip(gr.iter()).map(|(a, b)| a * b).sum();
+                gr.iter_mut().zip(pr).for_each(|(g, &pv)| *g = pv * (*g - dot) * scale);
+            }
+            let ds = View { ptr: dp.as_ptr(), rs: lk as isize, cs: 1 };
+            let dst_t = View { ptr: dp.as_ptr(), rs: 1, cs: lk as isize };
+            unsafe {
+                matmul(lq, dh, lk, dqp.0.add(b * lq * s.d + col), s.d, ds, kh);
+                matmul(lk, dh, lq, dkp.0.add(b * lk * s.d + col), s.d, dst_t, qh);
+            }
+        },
+    );
+    (dq, dk, dv)
+}
+
+/// Rows per parallel work item of the LayerNorm kernels (fixed, so the parameter-gradient sums
+/// are added in the same order for any thread count).
+const LN_ROWS: usize = 64;
+
+fn moments(x: &[f32], eps: f32) -> (f32, f32) {
+    let n = x.len() as f32;
+    let mean = x.iter().sum::<f32>() / n;
+    let var = x.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / n;
+    (mean, 1.0 / (var + eps).sqrt())
+}
+
+/// (x - mean) / sqrt(var + eps) * gamma + beta over rows of `gamma.len()` (biased variance).
+pub fn layer_norm_forward(x: &[f32], gamma: &[f32], beta: &[f32], eps: f32) -> Vec<f32> {
+    let d = gamma.len();
+    let mut y = vec![0f32; x.len()];
+    y.par_chunks_mut(d * LN_ROWS).zip(x.par_chunks(d * LN_ROWS)).for_each(|(yc, xc)| {
+        for (yr, xr) in yc.chunks_mut(d).zip(xc.chunks(d)) {
+            let (mean, rstd) = moments(xr, eps);
+            for j in 0..d {
+                yr[j] = (xr[j] - mean) * rstd * gamma[j] + beta[j];
+            }
+        }
+    });
+    y
+}
+
+/// Gradients (dx, dgamma, dbeta) of [`layer_norm_forward`] for `dy`.
+pub fn layer_norm_backward(x: &[f32], gamma: &[f32], dy: &[f32], eps: f32) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+    let d = gamma.len();
+    let mut dx = vec![0f32; x.len()];
+    let partial: Vec<(Vec<f32>, Vec<f32>)> = dx
+        .par_chunks_mut(d * LN_ROWS)
+        .zip(x.par_chunks(d * LN_ROWS).zip(dy.par_chunks(d * LN_ROWS)))
+        .map(|(dxc, (xc, gc))| {
+            let (mut dg, mut db) = (vec![0f32; d], vec![0f32; d]);
+            let mut g = vec![0f32; d];
+            for ((dxr, xr), gr) in dxc.chunks_mut(d).zip(xc.chunks(d)).zip(gc.chunks(d)) {
+                let (mean, rstd) = moments(xr, eps);
+                let (mut sum_g, mut sum_gx) = (0f32, 0f32);
+                for j in 0..d {
+                    let xhat = (xr[j] - mean) * rstd;
+                    dg[j] += gr[j] * xhat;
+                    db[j] += gr[j];
+                    g[j] = gr[j] * gamma[j];
+                    sum_g += g[j];
+                    sum_gx += g[j] * xhat;
+                }
+                let (mg, mgx) = (sum_g / d as f32, sum_gx / d as f32);
+                for j in 0..d {
+                    let xhat = (xr[j] - mean) * rstd;
+                    dxr[j] = rstd * (g[j] - mg - xhat * mgx);
+                }
+            }
+            (dg, db)
+        })
+        .collect();
+    let (mut dgamma, mut dbeta) = (vec![0f32; d], vec![0f32; d]);
+    for (dg, db) in &partial {
+        dgamma.iter_mut().zip(dg).for_each(|(a, b)| *a += b);
+        dbeta.iter_mut().zip(db).for_each(|(a, b)| *a += b);
+    }
+    (dx, dgamma, dbeta)
+}

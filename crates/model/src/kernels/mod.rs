@@ -1,0 +1,132 @@
+//! Fused CPU kernels for the two ops that dominate a step outside the matrix products:
+//! multi-head attention (scores, mask, softmax, weighted values) and LayerNorm.
+//!
+//! On the flex backend (with or without autodiff) they run as one Burn backend extension op
+//! each, forward and hand-written backward (`grad.rs`) on host slices (`host.rs`); on any other
+//! backend, or with `DIFFKFC_KERNELS=burn`, the same math is composed from Burn tensor ops, which
+//! is also the reference the tests compare against.
+
+mod grad;
+pub mod host;
+
+use std::sync::{Arc, OnceLock};
+
+use burn::backend::flex::FlexTensor;
+use burn::backend::tensor::FloatTensor;
+use burn::backend::{backend_extension, Backend, Dispatch, Flex};
+use burn::nn::LayerNorm;
+use burn::prelude::*;
+use burn::tensor::activation::softmax;
+use burn::backend::DispatchDevice;
+use burn::tensor::TensorData;
+
+pub use host::{AttnShape, Mask};
+
+/// LayerNorm's epsilon (Burn's `LayerNormConfig` default, which every LayerNorm here uses).
+pub const LN_EPS: f32 = 1e-5;
+
+/// Arguments of an attention call that are not tensors.
+#[derive(Clone, Debug)]
+pub struct AttnArgs {
+    pub heads: usize,
+    pub mask: Mask,
+}
+
+#[backend_extension(Flex, Autodiff)]
+pub trait FusedOps: Backend {
+    /// LayerNorm over the last dim: x [.., d], gamma and beta [d].
+    fn fused_layer_norm(x: FloatTensor<Self>, gamma: FloatTensor<Self>, beta: FloatTensor<Self>) -> FloatTensor<Self>;
+    /// q [B, Lq, d], k and v [B, Lk, d] -> [B, Lq, d] (heads split along d).
+    fn fused_attention(q: FloatTensor<Self>, k: FloatTensor<Self>, v: FloatTensor<Self>, args: AttnArgs) -> FloatTensor<Self>;
+}
+
+/// Contiguous f32 data of a flex tensor (a copy only when it is a strided view).
+fn slice(t: &FlexTensor) -> std::borrow::Cow<'_, [f32]> {
+    match t.as_slice::<f32>() {
+        Some(s) if s.len() == t.layout().num_elements() => std::borrow::Cow::Borrowed(s),
+        _ => std::borrow::Cow::Owned(t.clone().into_data().convert::<f32>().try_into_vec::<f32>().expect("the fused kernels run on f32 tensors")),
+    }
+}
+
+fn tensor(v: Vec<f32>, shape: burn::tensor::Shape) -> FlexTensor {
+    FlexTensor::from_data(TensorData::new(v, shape))
+}
+
+fn attn_shape(q: &FlexTensor, k: &FlexTensor, heads: usize) -> AttnShape {
+    let (qs, ks) = (q.layout().shape(), k.layout().shape());
+    AttnShape { batch: qs[0], lq: qs[1], lk: ks[1], heads, d: qs[2] }
+}
+
+impl FusedOps for Flex {
+    fn fused_layer_norm(x: FlexTensor, gamma: FlexTensor, beta: FlexTensor) -> FlexTensor {
+        let y = host::layer_norm_forward(&slice(&x), &slice(&gamma), &slice(&beta), LN_EPS);
+        tensor(y, x.layout().shape().clone())
+    }
+
+    fn fused_attention(q: FlexTensor, k: FlexTensor, v: FlexTensor, args: AttnArgs) -> FlexTensor {
+        let s = attn_shape(&q, &k, args.heads);
+        let out = host::attention_forward(&slice(&q), &slice(&k), &slice(&v), &s, &args.mask);
+        tensor(out, q.layout().shape().clone())
+    }
+}
+
+/// Whether the fused kernels serve this device: flex, with or without autodiff, unless
+/// `DIFFKFC_KERNELS=burn` asks for the composed ops (for A/B measurements).
+pub fn fused(device: &Device) -> bool {
+    static COMPOSED: OnceLock<bool> = OnceLock::new();
+    if *COMPOSED.get_or_init(|| std::env::var("DIFFKFC_KERNELS").is_ok_and(|v| v == "burn")) {
+        return false;
+    }
+    match device.as_dispatch().clone().inner() {
+        DispatchDevice::Flex(_) => true,
+        #[allow(unreachable_patterns)]
+        _ => false,
+    }
+}
+
+/// LayerNorm `ln` of x [B, L, d].
+pub fn layer_norm(ln: &LayerNorm, x: Tensor<3>) -> Tensor<3> {
+    if !fused(&x.device()) {
+        return ln.forward(x);
+    }
+    let beta = ln.beta.as_ref().map(|b| b.val()).unwrap_or_else(|| ln.gamma.val().zeros_like());
+    Tensor::from_dispatch(<Dispatch as FusedOps>::fused_layer_norm(x.into_dispatch(), ln.gamma.val().into_dispatch(), beta.into_dispatch()))
+}
+
+/// Attention of q [B, Lq, d] to k, v [B, Lk, d] with `heads` heads -> [B, Lq, d].
+pub fn attention(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usize, mask: Mask) -> Tensor<3> {
+    if fused(&q.device()) {
+        let args = AttnArgs { heads, mask };
+        return Tensor::from_dispatch(<Dispatch as FusedOps>::fused_attention(q.into_dispatch(), k.into_dispatch(), v.into_dispatch(), args));
+    }
+    attention_composed(q, k, v, heads, &mask)
+}
+
+/// The same attention from Burn tensor ops (any backend; the kernels' reference).
+pub fn attention_composed(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usize, mask: &Mask) -> Tensor<3> {
+    let [b, lq, d] = q.dims();
+    let lk = k.dims()[1];
+    let dh = d / heads;
+    let split = |t: Tensor<3>, l: usize| t.reshape([b, l, heads, dh]).swap_dims(1, 2);
+    let (q, k, v) = (split(q, lq), split(k, lk), split(v, lk));
+    let scores = q.matmul(k.swap_dims(2, 3)).mul_scalar(1.0 / (dh as f32).sqrt());
+    let device = scores.device();
+    let blocked: Option<Vec<bool>> = match mask {
+        Mask::None => None,
+        Mask::Keys(m) => Some((0..b * lq * lk).map(|i| m[i / (lq * lk) * lk + i % lk]).collect()),
+        Mask::Full(m) => Some(m.to_vec()),
+    };
+    let scores = match blocked {
+        Some(m) => {
+            let m = Tensor::<3, Bool>::from_data(TensorData::new(m, [b, lq, lk]), &device).unsqueeze_dim::<4>(1).expand([b, heads, lq, lk]);
+            scores.mask_fill(m, f32::NEG_INFINITY)
+        }
+        None => scores,
+    };
+    softmax(scores, 3).matmul(v).swap_dims(1, 2).reshape([b, lq, d])
+}
+
+/// A key-padding mask [B * Lk] (true = not a key).
+pub fn key_mask(pad: Vec<bool>) -> Mask {
+    Mask::Keys(Arc::new(pad))
+}
