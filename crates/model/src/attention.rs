@@ -6,7 +6,7 @@
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 
-use crate::kernels::{self, Mask};
+use crate::kernels::{self, linear, Mask};
 
 #[derive(Module, Debug)]
 pub struct Attention {
@@ -39,13 +39,13 @@ impl Attention {
     /// Keys and values [B, Lk, d] of `kv_in`: computed once where the same keys serve many
     /// calls (the encoder output across denoising steps).
     pub fn keys_values(&self, kv_in: Tensor<3>) -> (Tensor<3>, Tensor<3>) {
-        (self.key.forward(kv_in.clone()), self.value.forward(kv_in))
+        (linear(&self.key, kv_in.clone()), linear(&self.value, kv_in))
     }
 
     /// Attention of `q_in` [B, Lq, d] to precomputed keys and values.
     pub fn forward_kv(&self, q_in: Tensor<3>, kv: &(Tensor<3>, Tensor<3>), mask: Mask) -> Tensor<3> {
-        let q = self.query.forward(q_in);
-        self.output.forward(kernels::attention(q, kv.0.clone(), kv.1.clone(), self.heads, mask))
+        let q = linear(&self.query, q_in);
+        linear(&self.output, kernels::attention(q, kv.0.clone(), kv.1.clone(), self.heads, mask))
     }
 }
 

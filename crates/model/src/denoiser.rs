@@ -8,7 +8,7 @@ use crate::config::DiffKfcConfig;
 use crate::decoder::DecoderLayer;
 use crate::dma::{DmaPlan, KeyframeEncoder};
 use crate::embed::{positions, TimestepEmbed};
-use crate::kernels::{key_mask, Mask};
+use crate::kernels::{linear, key_mask, Mask};
 
 /// What the model is conditioned on, for a batch of B samples of N frames.
 #[derive(Clone, Debug)]
@@ -87,7 +87,7 @@ impl Denoiser {
     pub fn encode(&self, c: &Condition) -> Encoded {
         let device = c.kf.device();
         let [b, n, _] = c.kf.dims();
-        let text_tok = self.text_in.forward(c.text.clone()).unsqueeze_dim::<3>(1);
+        let text_tok = linear(&self.text_in, c.text.clone()).unsqueeze_dim::<3>(1);
         let plan = DmaPlan::new(&c.kf_frames, &c.real, b, n, &self.dma_sizes);
         let pos = positions(n, self.d_model, &device);
         let tokens = self.encoder.forward(text_tok.clone(), c.kf.clone(), c.kf_mask.clone(), pos, &plan);
@@ -109,14 +109,14 @@ impl Denoiser {
     pub fn decode(&self, x_t: Tensor<3>, t: &[usize], e: &Encoded) -> Tensor<3> {
         let device = x_t.device();
         let [b, n, _] = x_t.dims();
-        let frames = self.x_in.forward(x_t) + positions(n, self.d_model, &device);
+        let frames = linear(&self.x_in, x_t) + positions(n, self.d_model, &device);
         let y_t = self.time.forward(t, &device);
         let mut h = Tensor::cat(vec![y_t, e.text_tok.clone(), frames], 1);
         for (layer, kv) in self.layers.iter().zip(&e.cross_kv) {
             h = layer.forward(h, e.self_pad.clone(), kv, e.key_pad.clone());
         }
         let d = self.d_model;
-        self.out.forward(h.slice([0..b, 2..n + 2, 0..d]))
+        linear(&self.out, h.slice([0..b, 2..n + 2, 0..d]))
     }
 
     pub fn forward(&self, x_t: Tensor<3>, t: &[usize], c: &Condition) -> Tensor<3> {

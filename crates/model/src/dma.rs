@@ -15,7 +15,7 @@ use burn::tensor::activation::gelu;
 use burn::tensor::IndexingUpdateOp;
 
 use crate::attention::Attention;
-use crate::kernels::Mask;
+use crate::kernels::{linear, Mask};
 
 /// Per-block validity and attention masks of a batch, computed on the host from the keyframe
 /// frames and the padding (they do not depend on any tensor value).
@@ -110,7 +110,7 @@ impl DmaBlock {
     pub fn forward(&self, z: Tensor<3>, blocked: Mask, active: &[bool]) -> Tensor<3> {
         let [b, l, d] = z.dims();
         let a = self.attn.forward(z.clone(), z.clone(), blocked);
-        let update = |a: Tensor<2>, z: Tensor<2>| self.mlp2.forward(gelu(self.mlp1.forward(self.fc.forward(Tensor::cat(vec![a, z], 1)))));
+        let update = |a: Tensor<2>, z: Tensor<2>| linear(&self.mlp2, gelu(linear(&self.mlp1, linear(&self.fc, Tensor::cat(vec![a, z], 1)))));
         let rows: Vec<i64> = active.iter().enumerate().filter(|(_, &v)| v).map(|(i, _)| i as i64).collect();
         if rows.len() == b * l {
             return update(a.reshape([b * l, d]), z.reshape([b * l, d])).reshape([b, l, d]);
@@ -145,7 +145,7 @@ impl KeyframeEncoder {
     /// `text_tok` [B,1,d], `kf` [B,N,D] (zeros where unobserved), `kf_mask` [B,N,D], `pos`
     /// [1,N,d] -> [B, 1+N, d].
     pub fn forward(&self, text_tok: Tensor<3>, kf: Tensor<3>, kf_mask: Tensor<3>, pos: Tensor<3>, plan: &DmaPlan) -> Tensor<3> {
-        let frames = self.kf_in.forward(Tensor::cat(vec![kf * kf_mask.clone(), kf_mask], 2)) + pos;
+        let frames = linear(&self.kf_in, Tensor::cat(vec![kf * kf_mask.clone(), kf_mask], 2)) + pos;
         let z0 = Tensor::cat(vec![text_tok, frames], 1);
         let mut z = z0.clone();
         for (k, block) in self.blocks.iter().enumerate() {

@@ -2,6 +2,8 @@
 
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
+
+use crate::kernels::linear;
 use burn::tensor::activation::silu;
 
 /// Sinusoidal table [n, d]: sin on even, cos on odd channels (Vaswani et al.).
@@ -40,6 +42,6 @@ impl TimestepEmbed {
     pub fn forward(&self, t: &[usize], device: &Device) -> Tensor<3> {
         let pos: Vec<f32> = t.iter().map(|&x| x as f32).collect();
         let table = Tensor::<1>::from_floats(sinusoid_table(&pos, self.d).as_slice(), device).reshape([t.len(), self.d]);
-        self.fc2.forward(silu(self.fc1.forward(table))).unsqueeze_dim(1)
+        linear(&self.fc2, silu(linear(&self.fc1, table))).unsqueeze_dim(1)
     }
 }

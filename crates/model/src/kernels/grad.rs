@@ -37,6 +37,27 @@ impl Backward<Flex, 3> for LayerNormBackward {
 }
 
 #[derive(Debug)]
+struct LinearBackward;
+
+impl Backward<Flex, 3> for LinearBackward {
+    /// (x, w)
+    type State = (FlexTensor, FlexTensor);
+
+    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [x_node, w_node, b_node] = ops.parents;
+        let dy = grads.consume::<Flex>(&ops.node);
+        let (x, w) = ops.state;
+        let n_out = w.layout().shape()[1];
+        let (dx, dw, db) = host::linear_backward(&slice(&x), &slice(&w), &slice(&dy), n_out);
+        for (node, g, shape) in [(x_node, dx, x.layout().shape().clone()), (w_node, dw, w.layout().shape().clone()), (b_node, db, [n_out].into())] {
+            if let Some(n) = node {
+                grads.register::<Flex>(n.id, tensor(g, shape));
+            }
+        }
+    }
+}
+
+#[derive(Debug)]
 struct AttentionBackward;
 
 impl Backward<Flex, 3> for AttentionBackward {
@@ -66,6 +87,17 @@ impl<C: CheckpointStrategy> FusedOps for Autodiff<Flex, C> {
                 prep.finish((x, gamma), y)
             }
             OpsKind::UnTracked(prep) => prep.finish(Flex::fused_layer_norm(x.into_primitive(), gamma.into_primitive(), beta.into_primitive())),
+        }
+    }
+
+    fn fused_linear(x: FloatTensor<Self>, w: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self> {
+        match LinearBackward.prepare::<C>([x.node(), w.node(), b.node()]).compute_bound().stateful() {
+            OpsKind::Tracked(prep) => {
+                let (x, w, b) = (x.into_primitive(), w.into_primitive(), b.into_primitive());
+                let y = Flex::fused_linear(x.clone(), w.clone(), b);
+                prep.finish((x, w), y)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(Flex::fused_linear(x.into_primitive(), w.into_primitive(), b.into_primitive())),
         }
     }
 

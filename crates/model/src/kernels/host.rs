@@ -33,6 +33,64 @@ unsafe fn matmul(m: usize, n: usize, k: usize, dst: *mut f32, dst_rs: usize, lhs
     gemm::gemm(m, n, k, dst, 1, dst_rs as isize, false, lhs.ptr, lhs.cs, lhs.rs, rhs.ptr, rhs.cs, rhs.rs, 0.0, 1.0, false, false, false, gemm::Parallelism::None);
 }
 
+/// Products of at least this many multiply-adds run on all threads (as burn-flex decides).
+const PARALLEL_WORK: usize = 192 * 192 * 192;
+
+/// dst[m, n] = lhs[m, k] . rhs[k, n] (+ dst when `acc`), contiguous `dst`, on all threads when big.
+///
+/// # Safety
+/// As [`matmul`].
+unsafe fn matmul_par(m: usize, n: usize, k: usize, dst: &mut [f32], acc: bool, lhs: View, rhs: View) {
+    let par = if m * n * k >= PARALLEL_WORK { gemm::Parallelism::Rayon(0) } else { gemm::Parallelism::None };
+    gemm::gemm(m, n, k, dst.as_mut_ptr(), 1, n as isize, acc, lhs.ptr, lhs.cs, lhs.rs, rhs.ptr, rhs.cs, rhs.rs, 1.0, 1.0, false, false, false, par);
+}
+
+fn rows(x: &[f32], cols: usize) -> View {
+    View { ptr: x.as_ptr(), rs: cols as isize, cs: 1 }
+}
+
+fn transposed(x: &[f32], cols: usize) -> View {
+    View { ptr: x.as_ptr(), rs: 1, cs: cols as isize }
+}
+
+/// y [rows, out] = x [rows, in] . w [in, out] + b [out]: the bias is the product's starting
+/// value, so there is no separate broadcast pass.
+pub fn linear_forward(x: &[f32], w: &[f32], b: &[f32]) -> Vec<f32> {
+    let (n_out, n_in) = (b.len(), w.len() / b.len());
+    let m = x.len() / n_in;
+    let mut y: Vec<f32> = Vec::with_capacity(m * n_out);
+    for _ in 0..m {
+        y.extend_from_slice(b);
+    }
+    // SAFETY: x is [m, n_in], w [n_in, n_out], y [m, n_out].
+    unsafe { matmul_par(m, n_out, n_in, &mut y, true, rows(x, n_in), rows(w, n_out)) };
+    y
+}
+
+/// Gradients (dx, dw, db) of [`linear_forward`] for `dy` [rows, out].
+pub fn linear_backward(x: &[f32], w: &[f32], dy: &[f32], n_out: usize) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+    let n_in = w.len() / n_out;
+    let m = x.len() / n_in;
+    let (mut dx, mut dw) = (vec![0f32; m * n_in], vec![0f32; n_in * n_out]);
+    // SAFETY: shapes as in linear_forward; dx = dy w^T, dw = x^T dy.
+    unsafe {
+        matmul_par(m, n_in, n_out, &mut dx, false, rows(dy, n_out), transposed(w, n_out));
+        matmul_par(n_in, n_out, m, &mut dw, false, transposed(x, n_in), rows(dy, n_out));
+    }
+    // Column sums over fixed row blocks, added in order: the same for any thread count.
+    let parts: Vec<Vec<f32>> = dy
+        .par_chunks(n_out * 64)
+        .map(|c| {
+            let mut s = vec![0f32; n_out];
+            c.chunks(n_out).for_each(|r| s.iter_mut().zip(r).for_each(|(a, b)| *a += b));
+            s
+        })
+        .collect();
+    let mut db = vec![0f32; n_out];
+    parts.iter().for_each(|p| db.iter_mut().zip(p).for_each(|(a, b)| *a += b));
+    (dx, dw, db)
+}
+
 /// Which keys each query may not see (true = blocked).
 #[derive(Clone, Debug)]
 pub enum Mask {

@@ -14,7 +14,7 @@ use std::sync::{Arc, OnceLock};
 use burn::backend::flex::FlexTensor;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{backend_extension, Backend, Dispatch, Flex};
-use burn::nn::LayerNorm;
+use burn::nn::{LayerNorm, Linear};
 use burn::prelude::*;
 use burn::tensor::activation::softmax;
 use burn::backend::DispatchDevice;
@@ -36,6 +36,8 @@ pub struct AttnArgs {
 pub trait FusedOps: Backend {
     /// LayerNorm over the last dim: x [.., d], gamma and beta [d].
     fn fused_layer_norm(x: FloatTensor<Self>, gamma: FloatTensor<Self>, beta: FloatTensor<Self>) -> FloatTensor<Self>;
+    /// x [rows, in] . w [in, out] + b [out] -> [rows, out].
+    fn fused_linear(x: FloatTensor<Self>, w: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self>;
     /// q [B, Lq, d], k and v [B, Lk, d] -> [B, Lq, d] (heads split along d).
     fn fused_attention(q: FloatTensor<Self>, k: FloatTensor<Self>, v: FloatTensor<Self>, args: AttnArgs) -> FloatTensor<Self>;
 }
@@ -61,6 +63,12 @@ impl FusedOps for Flex {
     fn fused_layer_norm(x: FlexTensor, gamma: FlexTensor, beta: FlexTensor) -> FlexTensor {
         let y = host::layer_norm_forward(&slice(&x), &slice(&gamma), &slice(&beta), LN_EPS);
         tensor(y, x.layout().shape().clone())
+    }
+
+    fn fused_linear(x: FlexTensor, w: FlexTensor, b: FlexTensor) -> FlexTensor {
+        let y = host::linear_forward(&slice(&x), &slice(&w), &slice(&b));
+        let (rows, out) = (x.layout().shape()[0], b.layout().shape()[0]);
+        tensor(y, [rows, out].into())
     }
 
     fn fused_attention(q: FlexTensor, k: FlexTensor, v: FlexTensor, args: AttnArgs) -> FlexTensor {
@@ -91,6 +99,19 @@ pub fn layer_norm(ln: &LayerNorm, x: Tensor<3>) -> Tensor<3> {
     }
     let beta = ln.beta.as_ref().map(|b| b.val()).unwrap_or_else(|| ln.gamma.val().zeros_like());
     Tensor::from_dispatch(<Dispatch as FusedOps>::fused_layer_norm(x.into_dispatch(), ln.gamma.val().into_dispatch(), beta.into_dispatch()))
+}
+
+/// `lin` applied to x [.., in] -> [.., out].
+pub fn linear<const D: usize>(lin: &Linear, x: Tensor<D>) -> Tensor<D> {
+    let Some(bias) = lin.bias.as_ref().filter(|_| fused(&x.device())) else {
+        return lin.forward(x);
+    };
+    let mut shape = x.dims();
+    let [n_in, n_out] = lin.weight.dims();
+    let rows = x.shape().num_elements() / n_in;
+    let y = <Dispatch as FusedOps>::fused_linear(x.reshape([rows, n_in]).into_dispatch(), lin.weight.val().into_dispatch(), bias.val().into_dispatch());
+    shape[D - 1] = n_out;
+    Tensor::<2>::from_dispatch(y).reshape(shape)
 }
 
 /// Attention of q [B, Lq, d] to k, v [B, Lk, d] with `heads` heads -> [B, Lq, d].
