@@ -4,11 +4,10 @@
 
 use burn::nn::{LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::prelude::*;
-use burn::tensor::activation::gelu;
 
 use crate::attention::Attention;
 use crate::dropout::Dropout;
-use crate::kernels::{linear, layer_norm, Mask};
+use crate::kernels::{layer_norm, linear, linear_gelu, Mask};
 
 #[derive(Module, Debug)]
 pub struct DecoderLayer {
@@ -48,7 +47,7 @@ impl DecoderLayer {
         let h = layer_norm(&self.ln1, h + self.drop.forward(a));
         let c = self.cross_attn.forward_kv(h.clone(), enc_kv, enc_pad);
         let h = layer_norm(&self.ln2, h + self.drop.forward(c));
-        let f = linear(&self.ff2, self.drop.forward(gelu(linear(&self.ff1, h.clone()))));
+        let f = linear(&self.ff2, self.drop.forward(linear_gelu(&self.ff1, h.clone())));
         layer_norm(&self.ln3, h + self.drop.forward(f))
     }
 }

@@ -11,11 +11,10 @@ use std::sync::Arc;
 
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
-use burn::tensor::activation::gelu;
 use burn::tensor::IndexingUpdateOp;
 
 use crate::attention::Attention;
-use crate::kernels::{linear, Mask};
+use crate::kernels::{linear, linear_gelu, Mask};
 
 /// Per-block validity and attention masks of a batch, computed on the host from the keyframe
 /// frames and the padding (they do not depend on any tensor value).
@@ -110,7 +109,7 @@ impl DmaBlock {
     pub fn forward(&self, z: Tensor<3>, blocked: Mask, active: &[bool]) -> Tensor<3> {
         let [b, l, d] = z.dims();
         let a = self.attn.forward(z.clone(), z.clone(), blocked);
-        let update = |a: Tensor<2>, z: Tensor<2>| linear(&self.mlp2, gelu(linear(&self.mlp1, linear(&self.fc, Tensor::cat(vec![a, z], 1)))));
+        let update = |a: Tensor<2>, z: Tensor<2>| linear(&self.mlp2, linear_gelu(&self.mlp1, linear(&self.fc, Tensor::cat(vec![a, z], 1))));
         let rows: Vec<i64> = active.iter().enumerate().filter(|(_, &v)| v).map(|(i, _)| i as i64).collect();
         if rows.len() == b * l {
             return update(a.reshape([b * l, d]), z.reshape([b * l, d])).reshape([b, l, d]);

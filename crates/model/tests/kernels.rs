@@ -74,24 +74,31 @@ fn fused_layer_norm_matches_burn_with_gradients() {
 }
 
 #[test]
-fn fused_linear_matches_burn_with_gradients() {
+fn fused_linear_and_linear_gelu_match_burn_with_gradients() {
     let ad = Device::flex().autodiff();
     // Large enough for the multi-threaded product path, plus a small one.
     for (rows, n_in, n_out) in [(3 * 70, 48, 40), (400, 256, 200)] {
         let lin = burn::nn::LinearConfig::new(n_in, n_out).init(&ad);
         let x = Tensor::<3>::random([1, rows, n_in], Distribution::Normal(0.0, 1.0), &ad);
         let w = Tensor::<3>::random([1, rows, n_out], Distribution::Normal(0.0, 1.0), &ad);
-        let run = |fused: bool| {
+        let run = |fused: bool, act: bool| {
             let x = x.clone().detach().require_grad();
-            let y = if fused { kernels::linear(&lin, x.clone()) } else { lin.forward(x.clone()) };
+            let y = match (fused, act) {
+                (true, false) => kernels::linear(&lin, x.clone()),
+                (true, true) => kernels::linear_gelu(&lin, x.clone()),
+                (false, false) => lin.forward(x.clone()),
+                (false, true) => burn::tensor::activation::gelu(lin.forward(x.clone())),
+            };
             let grads = (y.clone() * w.clone()).sum().backward();
             let b = lin.bias.as_ref().unwrap().val();
             vec![host(y), host(x.grad(&grads).unwrap()), host(lin.weight.val().grad(&grads).unwrap()), host(b.grad(&grads).unwrap())]
         };
-        let (f, c) = (run(true), run(false));
-        for (what, (a, b)) in ["output", "dx", "dw", "db"].iter().zip(f.iter().zip(&c)) {
-            let e = max_err(a, b);
-            assert!(e < 1e-4, "{rows}x{n_in}x{n_out} {what}: max error {e}");
+        for act in [false, true] {
+            let (f, c) = (run(true, act), run(false, act));
+            for (what, (a, b)) in ["output", "dx", "dw", "db"].iter().zip(f.iter().zip(&c)) {
+                let e = max_err(a, b);
+                assert!(e < 1e-4, "{rows}x{n_in}x{n_out} gelu {act} {what}: max error {e}");
+            }
         }
     }
 }

@@ -58,6 +58,28 @@ impl Backward<Flex, 3> for LinearBackward {
 }
 
 #[derive(Debug)]
+struct LinearGeluBackward;
+
+impl Backward<Flex, 3> for LinearGeluBackward {
+    /// (x, w, pre-activation)
+    type State = (FlexTensor, FlexTensor, FlexTensor);
+
+    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [x_node, w_node, b_node] = ops.parents;
+        let dy = grads.consume::<Flex>(&ops.node);
+        let (x, w, h) = ops.state;
+        let n_out = w.layout().shape()[1];
+        let dh = host::gelu_backward(&slice(&h), &slice(&dy));
+        let (dx, dw, db) = host::linear_backward(&slice(&x), &slice(&w), &dh, n_out);
+        for (node, g, shape) in [(x_node, dx, x.layout().shape().clone()), (w_node, dw, w.layout().shape().clone()), (b_node, db, [n_out].into())] {
+            if let Some(n) = node {
+                grads.register::<Flex>(n.id, tensor(g, shape));
+            }
+        }
+    }
+}
+
+#[derive(Debug)]
 struct AttentionBackward;
 
 impl Backward<Flex, 3> for AttentionBackward {
@@ -98,6 +120,20 @@ impl<C: CheckpointStrategy> FusedOps for Autodiff<Flex, C> {
                 prep.finish((x, w), y)
             }
             OpsKind::UnTracked(prep) => prep.finish(Flex::fused_linear(x.into_primitive(), w.into_primitive(), b.into_primitive())),
+        }
+    }
+
+    fn fused_linear_gelu(x: FloatTensor<Self>, w: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self> {
+        match LinearGeluBackward.prepare::<C>([x.node(), w.node(), b.node()]).compute_bound().stateful() {
+            OpsKind::Tracked(prep) => {
+                let (x, w, b) = (x.into_primitive(), w.into_primitive(), b.into_primitive());
+                let h = host::linear_forward(&slice(&x), &slice(&w), &slice(&b));
+                let mut y = h.clone();
+                host::gelu_inplace(&mut y);
+                let shape: burn::tensor::Shape = [x.layout().shape()[0], w.layout().shape()[1]].into();
+                prep.finish((x, w, tensor(h, shape.clone())), tensor(y, shape))
+            }
+            OpsKind::UnTracked(prep) => prep.finish(Flex::fused_linear_gelu(x.into_primitive(), w.into_primitive(), b.into_primitive())),
         }
     }
 

@@ -38,6 +38,8 @@ pub trait FusedOps: Backend {
     fn fused_layer_norm(x: FloatTensor<Self>, gamma: FloatTensor<Self>, beta: FloatTensor<Self>) -> FloatTensor<Self>;
     /// x [rows, in] . w [in, out] + b [out] -> [rows, out].
     fn fused_linear(x: FloatTensor<Self>, w: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self>;
+    /// gelu(x [rows, in] . w [in, out] + b [out]) -> [rows, out].
+    fn fused_linear_gelu(x: FloatTensor<Self>, w: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self>;
     /// q [B, Lq, d], k and v [B, Lk, d] -> [B, Lq, d] (heads split along d).
     fn fused_attention(q: FloatTensor<Self>, k: FloatTensor<Self>, v: FloatTensor<Self>, args: AttnArgs) -> FloatTensor<Self>;
 }
@@ -69,6 +71,13 @@ impl FusedOps for Flex {
         let y = host::linear_forward(&slice(&x), &slice(&w), &slice(&b));
         let (rows, out) = (x.layout().shape()[0], b.layout().shape()[0]);
         tensor(y, [rows, out].into())
+    }
+
+    fn fused_linear_gelu(x: FlexTensor, w: FlexTensor, b: FlexTensor) -> FlexTensor {
+        let mut h = host::linear_forward(&slice(&x), &slice(&w), &slice(&b));
+        host::gelu_inplace(&mut h);
+        let (rows, out) = (x.layout().shape()[0], b.layout().shape()[0]);
+        tensor(h, [rows, out].into())
     }
 
     fn fused_attention(q: FlexTensor, k: FlexTensor, v: FlexTensor, args: AttnArgs) -> FlexTensor {
@@ -103,13 +112,24 @@ pub fn layer_norm(ln: &LayerNorm, x: Tensor<3>) -> Tensor<3> {
 
 /// `lin` applied to x [.., in] -> [.., out].
 pub fn linear<const D: usize>(lin: &Linear, x: Tensor<D>) -> Tensor<D> {
+    linear_with(lin, x, false)
+}
+
+/// gelu(`lin`(x)) for x [.., in] -> [.., out] (one pass on flex).
+pub fn linear_gelu<const D: usize>(lin: &Linear, x: Tensor<D>) -> Tensor<D> {
+    linear_with(lin, x, true)
+}
+
+fn linear_with<const D: usize>(lin: &Linear, x: Tensor<D>, gelu: bool) -> Tensor<D> {
     let Some(bias) = lin.bias.as_ref().filter(|_| fused(&x.device())) else {
-        return lin.forward(x);
+        let y = lin.forward(x);
+        return if gelu { burn::tensor::activation::gelu(y) } else { y };
     };
     let mut shape = x.dims();
     let [n_in, n_out] = lin.weight.dims();
     let rows = x.shape().num_elements() / n_in;
-    let y = <Dispatch as FusedOps>::fused_linear(x.reshape([rows, n_in]).into_dispatch(), lin.weight.val().into_dispatch(), bias.val().into_dispatch());
+    let (x, w, b) = (x.reshape([rows, n_in]).into_dispatch(), lin.weight.val().into_dispatch(), bias.val().into_dispatch());
+    let y = if gelu { <Dispatch as FusedOps>::fused_linear_gelu(x, w, b) } else { <Dispatch as FusedOps>::fused_linear(x, w, b) };
     shape[D - 1] = n_out;
     Tensor::<2>::from_dispatch(y).reshape(shape)
 }
