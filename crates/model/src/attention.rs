@@ -6,6 +6,7 @@
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 
+use crate::dma::Rows;
 use crate::kernels::{self, linear, Mask};
 
 #[derive(Module, Debug)]
@@ -40,6 +41,16 @@ impl Attention {
     /// calls (the encoder output across denoising steps).
     pub fn keys_values(&self, kv_in: Tensor<3>) -> (Tensor<3>, Tensor<3>) {
         (linear(&self.key, kv_in.clone()), linear(&self.value, kv_in))
+    }
+
+    /// Self-attention of the token rows `x` [B*L, d] where only `queries` are wanted and only
+    /// `keys` may be seen (the mask blocks the rest): projections run on those rows only, the
+    /// attention core on the whole [B, L, d] layout (zeros elsewhere) -> [queries, d].
+    pub fn forward_rows(&self, x: Tensor<2>, b: usize, queries: &Rows, keys: &Rows, mask: Mask) -> Tensor<2> {
+        let [bl, d] = x.dims();
+        let full = |rows: &Rows, lin: &Linear| rows.scatter(linear(lin, rows.gather(x.clone()))).reshape([b, bl / b, d]);
+        let ctx = kernels::attention(full(queries, &self.query), full(keys, &self.key), full(keys, &self.value), self.heads, mask);
+        linear(&self.output, queries.gather(ctx.reshape([bl, d])))
     }
 
     /// Attention of `q_in` [B, Lq, d] to precomputed keys and values.

@@ -24,6 +24,8 @@ pub struct DmaPlan {
     pub frames: usize,
     /// Per block: [B * (1+N)] whether a token is updated (text token always).
     pub active: Vec<Vec<bool>>,
+    /// Per block: [B * (1+N)] validity before the block (the tokens it may attend to).
+    pub valid_before: Vec<Vec<bool>>,
     /// Per block: [B * (1+N)] validity after the block.
     pub valid_after: Vec<Vec<bool>>,
     /// Per block: [B * (1+N) * (1+N)] true where query i must not see key j.
@@ -41,7 +43,9 @@ impl DmaPlan {
             })
             .collect();
         let (mut active_all, mut valid_all, mut blocked_all) = (Vec::new(), Vec::new(), Vec::new());
+        let mut before_all = Vec::new();
         for &size in sizes {
+            before_all.push(valid.clone());
             let s = if size == 0 { n } else { size };
             let mut active = vec![false; batch * l];
             let mut blocked = vec![true; batch * l * l];
@@ -75,7 +79,7 @@ impl DmaPlan {
             valid_all.push(valid.clone());
             blocked_all.push(Arc::new(blocked));
         }
-        DmaPlan { batch, frames, active: active_all, valid_after: valid_all, blocked: blocked_all }
+        DmaPlan { batch, frames, active: active_all, valid_before: before_all, valid_after: valid_all, blocked: blocked_all }
     }
 
     /// Valid tokens at the encoder output (text token included): what the decoder may attend.
@@ -102,27 +106,61 @@ impl DmaBlock {
         }
     }
 
-    /// `z`: [B, 1+N, d]; `blocked`: the block's [B, 1+N, 1+N] mask; `active`: per token (B x (1+N), host) whether
-    /// it takes this block's update. Inactive tokens pass through unchanged, so the concat-FC
-    /// and MLP run on the active rows only (gathered, then added back): early blocks with
-    /// small windows, and the keyframe-free half of a guided batch, have few.
-    pub fn forward(&self, z: Tensor<3>, blocked: Mask, active: &[bool]) -> Tensor<3> {
+    /// `z`: [B, 1+N, d]; `blocked`: the block's [B, 1+N, 1+N] mask; `active`: per token (B x
+    /// (1+N), host) whether it takes this block's update; `valid`: whether it may be attended.
+    /// Inactive tokens pass through unchanged and invalid ones are never seen, so queries (and
+    /// the concat-FC and MLP) run on the active rows only and keys and values on the valid rows
+    /// only: early blocks with small windows, and the keyframe-free half of a guided batch, have
+    /// few of either.
+    pub fn forward(&self, z: Tensor<3>, blocked: Mask, active: &[bool], valid: &[bool]) -> Tensor<3> {
         let [b, l, d] = z.dims();
-        let a = self.attn.forward(z.clone(), z.clone(), blocked);
-        let update = |a: Tensor<2>, z: Tensor<2>| linear(&self.mlp2, linear_gelu(&self.mlp1, linear(&self.fc, Tensor::cat(vec![a, z], 1))));
-        let rows: Vec<i64> = active.iter().enumerate().filter(|(_, &v)| v).map(|(i, _)| i as i64).collect();
-        if rows.len() == b * l {
-            return update(a.reshape([b * l, d]), z.reshape([b * l, d])).reshape([b, l, d]);
-        }
-        if rows.is_empty() {
+        let rows = Rows::new(active, &z.device());
+        if rows.count == 0 {
             return z;
         }
-        let k = rows.len();
-        let idx = Tensor::<1, Int>::from_data(TensorData::new(rows, [k]), &z.device());
         let flat = z.reshape([b * l, d]);
-        let zs = flat.clone().select(0, idx.clone());
-        let zk = update(a.reshape([b * l, d]).select(0, idx.clone()), zs.clone());
-        flat.select_assign(0, idx, zk - zs, IndexingUpdateOp::Add).reshape([b, l, d])
+        let keys = Rows::new(valid, &flat.device());
+        let zs = rows.gather(flat.clone());
+        let a = self.attn.forward_rows(flat.clone(), b, &rows, &keys, blocked);
+        let zk = linear(&self.mlp2, linear_gelu(&self.mlp1, linear(&self.fc, Tensor::cat(vec![a, zs.clone()], 1))));
+        match &rows.index {
+            None => zk.reshape([b, l, d]),
+            Some(idx) => flat.select_assign(0, idx.clone(), zk - zs, IndexingUpdateOp::Add).reshape([b, l, d]),
+        }
+    }
+}
+
+/// A subset of the B x (1+N) token rows, as the index to gather them (None: all rows, or so
+/// many that gathering would cost more than it saves).
+pub struct Rows {
+    pub count: usize,
+    pub total: usize,
+    pub index: Option<Tensor<1, Int>>,
+}
+
+impl Rows {
+    pub fn new(mask: &[bool], device: &Device) -> Rows {
+        let rows: Vec<i64> = mask.iter().enumerate().filter(|(_, &v)| v).map(|(i, _)| i as i64).collect();
+        let (count, total) = (rows.len(), mask.len());
+        // Above ~3/4 of the rows the saved products no longer pay for the gather and scatter.
+        let index = (count * 4 < total * 3).then(|| Tensor::<1, Int>::from_data(TensorData::new(rows, [count]), device));
+        Rows { count, total, index }
+    }
+
+    /// The subset's rows of x [total, d] -> [count or total, d].
+    pub fn gather(&self, x: Tensor<2>) -> Tensor<2> {
+        match &self.index {
+            Some(idx) => x.select(0, idx.clone()),
+            None => x,
+        }
+    }
+
+    /// Rows [count, d] back in place among zeros -> [total, d].
+    pub fn scatter(&self, x: Tensor<2>) -> Tensor<2> {
+        match &self.index {
+            Some(idx) => Tensor::zeros([self.total, x.dims()[1]], &x.device()).select_assign(0, idx.clone(), x, IndexingUpdateOp::Add),
+            None => x,
+        }
     }
 }
 
@@ -148,7 +186,7 @@ impl KeyframeEncoder {
         let z0 = Tensor::cat(vec![text_tok, frames], 1);
         let mut z = z0.clone();
         for (k, block) in self.blocks.iter().enumerate() {
-            z = block.forward(z, Mask::Full(plan.blocked[k].clone()), &plan.active[k]);
+            z = block.forward(z, Mask::Full(plan.blocked[k].clone()), &plan.active[k], &plan.valid_before[k]);
         }
         z + z0
     }
