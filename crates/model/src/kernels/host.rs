@@ -7,6 +7,8 @@ use std::sync::Arc;
 
 use rayon::prelude::*;
 
+use super::softmax::{self, Open};
+
 /// A strided read-only matrix: element (r, c) at `ptr + r * rs + c * cs`.
 #[derive(Clone, Copy)]
 struct View {
@@ -30,7 +32,16 @@ unsafe impl Sync for View {}
 /// # Safety
 /// The views must cover the [m, k] and [k, n] elements they describe and `dst` the [m, n] ones.
 unsafe fn matmul(m: usize, n: usize, k: usize, dst: *mut f32, dst_rs: usize, lhs: View, rhs: View) {
-    gemm::gemm(m, n, k, dst, 1, dst_rs as isize, false, lhs.ptr, lhs.cs, lhs.rs, rhs.ptr, rhs.cs, rhs.rs, 0.0, 1.0, false, false, false, gemm::Parallelism::None);
+    matmul_scaled(m, n, k, dst, dst_rs, lhs, rhs, 1.0)
+}
+
+/// As [`matmul`], times `scale`.
+///
+/// # Safety
+/// As [`matmul`].
+#[allow(clippy::too_many_arguments)]
+unsafe fn matmul_scaled(m: usize, n: usize, k: usize, dst: *mut f32, dst_rs: usize, lhs: View, rhs: View, scale: f32) {
+    gemm::gemm(m, n, k, dst, 1, dst_rs as isize, false, lhs.ptr, lhs.cs, lhs.rs, rhs.ptr, rhs.cs, rhs.rs, 0.0, scale, false, false, false, gemm::Parallelism::None);
 }
 
 /// Products of at least this many multiply-adds run on all threads (as burn-flex decides).
@@ -141,7 +152,7 @@ pub struct AttnShape {
 }
 
 impl AttnShape {
-    fn dh(&self) -> usize {
+    pub(crate) fn dh(&self) -> usize {
         self.d / self.heads
     }
 
@@ -156,38 +167,12 @@ impl AttnShape {
 }
 
 /// softmax(Q K^T * scale, masked) of head (b, h) into `p` [Lq, Lk]; fully blocked rows are 0.
-fn probabilities(q: &[f32], k: &[f32], s: &AttnShape, mask: &Mask, b: usize, h: usize, p: &mut [f32]) {
+fn probabilities(q: &[f32], k: &[f32], s: &AttnShape, open: &Open, b: usize, h: usize, p: &mut [f32]) {
     let (lq, lk, dh) = (s.lq, s.lk, s.dh());
     let kt = s.head(k, lk, b, h);
     // SAFETY: q and k hold [B, L, d]; p holds lq * lk.
-    unsafe { matmul(lq, lk, dh, p.as_mut_ptr(), lk, s.head(q, lq, b, h), View { ptr: kt.ptr, rs: kt.cs, cs: kt.rs }) };
-    let scale = s.scale();
-    for (i, row) in p.chunks_mut(lk).enumerate() {
-        let blocked: &[bool] = match mask {
-            Mask::None => &[],
-            Mask::Keys(m) => &m[b * lk..(b + 1) * lk],
-            Mask::Full(m) => &m[(b * lq + i) * lk..(b * lq + i + 1) * lk],
-        };
-        let open = |j: usize| blocked.is_empty() || !blocked[j];
-        let mut max = f32::NEG_INFINITY;
-        for (j, x) in row.iter_mut().enumerate() {
-            *x *= scale;
-            if open(j) && *x > max {
-                max = *x;
-            }
-        }
-        if max == f32::NEG_INFINITY {
-            row.fill(0.0);
-            continue;
-        }
-        let mut sum = 0.0f32;
-        for (j, x) in row.iter_mut().enumerate() {
-            *x = if open(j) { (*x - max).exp() } else { 0.0 };
-            sum += *x;
-        }
-        let inv = 1.0 / sum;
-        row.iter_mut().for_each(|x| *x *= inv);
-    }
+    unsafe { matmul_scaled(lq, lk, dh, p.as_mut_ptr(), lk, s.head(q, lq, b, h), View { ptr: kt.ptr, rs: kt.cs, cs: kt.rs }, s.scale()) };
+    softmax::rows(p, s, open, b);
 }
 
 /// softmax(Q K^T / sqrt(dh) + mask) V per head -> [B, Lq, d].
@@ -195,11 +180,12 @@ pub fn attention_forward(q: &[f32], k: &[f32], v: &[f32], s: &AttnShape, mask: &
     let (lq, lk, dh) = (s.lq, s.lk, s.dh());
     let mut out = vec![0f32; s.batch * lq * s.d];
     let dst = Out(out.as_mut_ptr());
+    let open = Open::new(mask);
     (0..s.batch * s.heads).into_par_iter().for_each_init(
         || vec![0f32; lq * lk],
         |p, bh| {
             let (b, h) = (bh / s.heads, bh % s.heads);
-            probabilities(q, k, s, mask, b, h, p);
+            probabilities(q, k, s, &open, b, h, p);
             let pv = View { ptr: p.as_ptr(), rs: lk as isize, cs: 1 };
             let d = dst;
             // SAFETY: head (b, h) writes only its own dh columns of sample b's rows.
@@ -217,13 +203,14 @@ pub fn attention_backward(q: &[f32], k: &[f32], v: &[f32], dout: &[f32], s: &Att
     let mut dk = vec![0f32; s.batch * lk * s.d];
     let mut dv = vec![0f32; s.batch * lk * s.d];
     let (dqp, dkp, dvp) = (Out(dq.as_mut_ptr()), Out(dk.as_mut_ptr()), Out(dv.as_mut_ptr()));
+    let open = Open::new(mask);
     let scale = s.scale();
     (0..s.batch * s.heads).into_par_iter().for_each_init(
         || (vec![0f32; lq * lk], vec![0f32; lq * lk]),
         |(p, dp), bh| {
             let (b, h) = (bh / s.heads, bh % s.heads);
             let (dqp, dkp, dvp) = (dqp, dkp, dvp);
-            probabilities(q, k, s, mask, b, h, p);
+            probabilities(q, k, s, &open, b, h, p);
             let pt = View { ptr: p.as_ptr(), rs: 1, cs: lk as isize };
             let go = s.head(dout, lq, b, h);
             let vh = s.head(v, lk, b, h);

@@ -8,6 +8,7 @@
 
 mod grad;
 pub mod host;
+mod softmax;
 
 use std::sync::{Arc, OnceLock};
 
