@@ -59,7 +59,7 @@ impl Dropout {
         let key = splitmix(SEED.load(Ordering::SeqCst) ^ splitmix(call.wrapping_add(1)));
         let shape = x.shape();
         let m = mask(shape.num_elements(), self.prob, key);
-        x.clone() * Tensor::<1>::from_floats(m.as_slice(), &x.device()).reshape(shape)
+        x.clone() * Tensor::<D>::from_data(TensorData::new(m, shape), &x.device())
     }
 }
 

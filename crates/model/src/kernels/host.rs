@@ -44,6 +44,18 @@ unsafe fn matmul_scaled(m: usize, n: usize, k: usize, dst: *mut f32, dst_rs: usi
     gemm::gemm(m, n, k, dst, 1, dst_rs as isize, false, lhs.ptr, lhs.cs, lhs.rs, rhs.ptr, rhs.cs, rhs.rs, 0.0, scale, false, false, false, gemm::Parallelism::None);
 }
 
+/// A vector of `n` floats that `fill` writes completely through the pointer: no zeroing pass
+/// (on one thread, before the parallel work) for buffers a product overwrites anyway.
+///
+/// # Safety
+/// `fill` must write all `n` elements.
+unsafe fn overwritten(n: usize, fill: impl FnOnce(*mut f32)) -> Vec<f32> {
+    let mut v: Vec<f32> = Vec::with_capacity(n);
+    fill(v.as_mut_ptr());
+    v.set_len(n);
+    v
+}
+
 /// Products of at least this many multiply-adds run on all threads (as burn-flex decides).
 const PARALLEL_WORK: usize = 192 * 192 * 192;
 
@@ -51,9 +63,9 @@ const PARALLEL_WORK: usize = 192 * 192 * 192;
 ///
 /// # Safety
 /// As [`matmul`].
-unsafe fn matmul_par(m: usize, n: usize, k: usize, dst: &mut [f32], acc: bool, lhs: View, rhs: View) {
+unsafe fn matmul_par(m: usize, n: usize, k: usize, dst: *mut f32, acc: bool, lhs: View, rhs: View) {
     let par = if m * n * k >= PARALLEL_WORK { gemm::Parallelism::Rayon(0) } else { gemm::Parallelism::None };
-    gemm::gemm(m, n, k, dst.as_mut_ptr(), 1, n as isize, acc, lhs.ptr, lhs.cs, lhs.rs, rhs.ptr, rhs.cs, rhs.rs, 1.0, 1.0, false, false, false, par);
+    gemm::gemm(m, n, k, dst, 1, n as isize, acc, lhs.ptr, lhs.cs, lhs.rs, rhs.ptr, rhs.cs, rhs.rs, 1.0, 1.0, false, false, false, par);
 }
 
 fn rows(x: &[f32], cols: usize) -> View {
@@ -74,7 +86,7 @@ pub fn linear_forward(x: &[f32], w: &[f32], b: &[f32]) -> Vec<f32> {
         y.extend_from_slice(b);
     }
     // SAFETY: x is [m, n_in], w [n_in, n_out], y [m, n_out].
-    unsafe { matmul_par(m, n_out, n_in, &mut y, true, rows(x, n_in), rows(w, n_out)) };
+    unsafe { matmul_par(m, n_out, n_in, y.as_mut_ptr(), true, rows(x, n_in), rows(w, n_out)) };
     y
 }
 
@@ -82,12 +94,9 @@ pub fn linear_forward(x: &[f32], w: &[f32], b: &[f32]) -> Vec<f32> {
 pub fn linear_backward(x: &[f32], w: &[f32], dy: &[f32], n_out: usize) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     let n_in = w.len() / n_out;
     let m = x.len() / n_in;
-    let (mut dx, mut dw) = (vec![0f32; m * n_in], vec![0f32; n_in * n_out]);
-    // SAFETY: shapes as in linear_forward; dx = dy w^T, dw = x^T dy.
-    unsafe {
-        matmul_par(m, n_in, n_out, &mut dx, false, rows(dy, n_out), transposed(w, n_out));
-        matmul_par(n_in, n_out, m, &mut dw, false, transposed(x, n_in), rows(dy, n_out));
-    }
+    // SAFETY: shapes as in linear_forward; dx = dy w^T, dw = x^T dy, every element written.
+    let dx = unsafe { overwritten(m * n_in, |p| matmul_par(m, n_in, n_out, p, false, rows(dy, n_out), transposed(w, n_out))) };
+    let dw = unsafe { overwritten(n_in * n_out, |p| matmul_par(n_in, n_out, m, p, false, transposed(x, n_in), rows(dy, n_out))) };
     // Column sums over fixed row blocks, added in order: the same for any thread count.
     let parts: Vec<Vec<f32>> = dy
         .par_chunks(n_out * 64)
@@ -178,9 +187,10 @@ fn probabilities(q: &[f32], k: &[f32], s: &AttnShape, open: &Open, b: usize, h: 
 /// softmax(Q K^T / sqrt(dh) + mask) V per head -> [B, Lq, d].
 pub fn attention_forward(q: &[f32], k: &[f32], v: &[f32], s: &AttnShape, mask: &Mask) -> Vec<f32> {
     let (lq, lk, dh) = (s.lq, s.lk, s.dh());
-    let mut out = vec![0f32; s.batch * lq * s.d];
-    let dst = Out(out.as_mut_ptr());
     let open = Open::new(mask);
+    // Not zeroed: the heads together write every element (set_len below).
+    let mut out: Vec<f32> = Vec::with_capacity(s.batch * lq * s.d);
+    let dst = Out(out.as_mut_ptr());
     (0..s.batch * s.heads).into_par_iter().for_each_init(
         || vec![0f32; lq * lk],
         |p, bh| {
@@ -192,6 +202,8 @@ pub fn attention_forward(q: &[f32], k: &[f32], v: &[f32], s: &AttnShape, mask: &
             unsafe { matmul(lq, dh, lk, d.0.add(b * lq * s.d + h * dh), s.d, pv, s.head(v, lk, b, h)) };
         },
     );
+    // SAFETY: every (b, h) wrote its [lq, dh] block; the blocks tile [B, Lq, d].
+    unsafe { out.set_len(s.batch * lq * s.d) };
     out
 }
 
@@ -199,9 +211,8 @@ pub fn attention_forward(q: &[f32], k: &[f32], v: &[f32], s: &AttnShape, mask: &
 /// the probabilities are recomputed (cheaper than keeping [B, H, Lq, Lk] per layer).
 pub fn attention_backward(q: &[f32], k: &[f32], v: &[f32], dout: &[f32], s: &AttnShape, mask: &Mask) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     let (lq, lk, dh) = (s.lq, s.lk, s.dh());
-    let mut dq = vec![0f32; s.batch * lq * s.d];
-    let mut dk = vec![0f32; s.batch * lk * s.d];
-    let mut dv = vec![0f32; s.batch * lk * s.d];
+    // Not zeroed: every (b, h) writes its blocks of all three (set_len below).
+    let (mut dq, mut dk, mut dv): (Vec<f32>, Vec<f32>, Vec<f32>) = (Vec::with_capacity(s.batch * lq * s.d), Vec::with_capacity(s.batch * lk * s.d), Vec::with_capacity(s.batch * lk * s.d));
     let (dqp, dkp, dvp) = (Out(dq.as_mut_ptr()), Out(dk.as_mut_ptr()), Out(dv.as_mut_ptr()));
     let open = Open::new(mask);
     let scale = s.scale();
@@ -236,6 +247,12 @@ pub fn attention_backward(q: &[f32], k: &[f32], v: &[f32], dout: &[f32], s: &Att
             }
         },
     );
+    // SAFETY: the [Lq or Lk, dh] blocks of all (b, h) tile the three outputs.
+    unsafe {
+        dq.set_len(s.batch * lq * s.d);
+        dk.set_len(s.batch * lk * s.d);
+        dv.set_len(s.batch * lk * s.d);
+    }
     (dq, dk, dv)
 }
 
