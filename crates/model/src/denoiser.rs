@@ -51,6 +51,8 @@ pub struct Encoded {
     pub text_tok: Tensor<3>,
     /// [B, 2+N] padding frames of the decoder sequence.
     pub self_pad: Mask,
+    /// [1, N, d] frame position encodings (sin/cos of every frame: computed once, not per step).
+    pub pos: Tensor<3>,
 }
 
 #[derive(Module, Debug)]
@@ -90,7 +92,7 @@ impl Denoiser {
         let text_tok = linear(&self.text_in, c.text.clone()).unsqueeze_dim::<3>(1);
         let plan = DmaPlan::new(&c.kf_frames, &c.real, b, n, &self.dma_sizes);
         let pos = positions(n, self.d_model, &device);
-        let tokens = self.encoder.forward(text_tok.clone(), c.kf.clone(), c.kf_mask.clone(), pos, &plan);
+        let tokens = self.encoder.forward(text_tok.clone(), c.kf.clone(), c.kf_mask.clone(), pos.clone(), &plan);
         let l = n + 1;
         let initial: Vec<bool> = (0..b * l).map(|k| k % l == 0 || (c.kf_frames[k / l * n + k % l - 1] && c.real[k / l * n + k % l - 1])).collect();
         let key_pad = plan.final_valid(&initial).iter().map(|v| !v).collect();
@@ -102,6 +104,7 @@ impl Denoiser {
             key_pad: key_mask(key_pad),
             text_tok,
             self_pad: key_mask(self_pad),
+            pos,
         }
     }
 
@@ -109,7 +112,7 @@ impl Denoiser {
     pub fn decode(&self, x_t: Tensor<3>, t: &[usize], e: &Encoded) -> Tensor<3> {
         let device = x_t.device();
         let [b, n, _] = x_t.dims();
-        let frames = linear(&self.x_in, x_t) + positions(n, self.d_model, &device);
+        let frames = linear(&self.x_in, x_t) + e.pos.clone();
         let y_t = self.time.forward(t, &device);
         let mut h = Tensor::cat(vec![y_t, e.text_tok.clone(), frames], 1);
         for (layer, kv) in self.layers.iter().zip(&e.cross_kv) {
