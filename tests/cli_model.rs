@@ -45,6 +45,17 @@ fn bench_suite_smoke() {
     let ratio = &lines[3];
     let want = lines[0]["ms"].as_f64().unwrap() / 1e9;
     assert!((ratio["train_step"].as_f64().unwrap() - want).abs() < 1e-12 && ratio["sampling_call"].as_f64().unwrap() > 0.0, "{ratio}");
+    // --rounds alternates both sides: a ratio line per round, then their median, min and max.
+    let o = diffkfc(&["bench", "--config", "tiny", "--frames", "40", "--batch", "2", "--quick", "--cases", "train,call", "--torch", "python3", "--reference", s(&script), "--rounds", "2"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let lines: Vec<serde_json::Value> = stdout(&o).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let cases: Vec<&str> = lines.iter().map(|l| l["case"].as_str().unwrap()).collect();
+    assert_eq!(cases, ["train_step", "sampling_call", "pytorch", "ratio", "train_step", "sampling_call", "pytorch", "ratio", "ratio_summary"]);
+    let (r1, r2) = (lines[3]["train_step"].as_f64().unwrap(), lines[7]["train_step"].as_f64().unwrap());
+    let sum = &lines[8]["train_step"];
+    assert_eq!(lines[7]["round"], 2);
+    assert!((sum["median"].as_f64().unwrap() - (r1 + r2) / 2.0).abs() < 1e-15 && sum["min"].as_f64().unwrap() == r1.min(r2), "{sum}");
+    assert_one_line_error(&diffkfc(&["bench", "--config", "tiny", "--cases", "call", "--rounds", "0"]), &["--rounds"]);
     assert_one_line_error(&diffkfc(&["bench", "--config", "tiny", "--cases", "call", "--torch", "python3", "--reference", s(&d.join("none.py"))]), &["--reference", "none.py"]);
     std::fs::write(&script, "import sys\nsys.exit('no torch here')\n").unwrap();
     assert_one_line_error(&diffkfc(&["bench", "--config", "tiny", "--quick", "--cases", "call", "--torch", "python3", "--reference", s(&script)]), &["--torch", "no torch here"]);

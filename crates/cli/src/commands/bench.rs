@@ -1,11 +1,13 @@
 //! `diffkfc bench`: one JSON line per case (median milliseconds and achieved GFLOP/s of the
 //! matmuls), optionally side by side with the PyTorch reference and the ratios.
 
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::process::Command;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
+use burn::prelude::Device;
 use clap::Args;
 use diffkfc_model::bench::{Sampling, TrainStep};
 use diffkfc_model::run_config::RunConfig;
@@ -20,6 +22,8 @@ keyframe + transition guidance), loader (packed-cache batches/s; --data, else a 
 Examples:
   diffkfc bench --config paper
   diffkfc bench --config paper --torch /path/to/venv/bin/python   (side by side, with ratios)
+  diffkfc bench --config paper --cases train,call,call-cached --torch PY --rounds 3
+                                                         (alternating, median ratio of 3 rounds)
   diffkfc bench --config tiny --quick                              (smoke test)";
 
 #[derive(Args)]
@@ -46,6 +50,10 @@ pub struct BenchArgs {
     /// Python with torch: also run the PyTorch reference in this process's run and print ratios.
     #[arg(long)]
     torch: Option<PathBuf>,
+    /// With --torch: alternate diffkfc's timed cases and the reference this many times and print
+    /// every round's ratios and their median (this machine's timings drift between minutes).
+    #[arg(long, default_value_t = 1)]
+    rounds: usize,
     /// The PyTorch reference script.
     #[arg(long, default_value = "../shared/bench/reference_diffkfc.py")]
     reference: PathBuf,
@@ -115,70 +123,107 @@ pub fn run(a: BenchArgs) -> Result<()> {
     if a.batch == 0 || a.frames == 0 || a.frames > cfg.max_frames {
         bail!("--batch/--frames: need a batch >= 1 and 1..={} frames", cfg.max_frames);
     }
+    if a.rounds == 0 {
+        bail!("--rounds: need at least 1");
+    }
     let device = crate::device::parse(&a.device)?;
     let runs = if a.quick { 1 } else { a.repeats };
+    let preset = match (&a.torch, a.config.as_str()) {
+        (None, _) | (_, "paper" | "tiny") => a.config.as_str(),
+        (Some(_), other) => bail!("--torch: the reference has the paper and its own tiny network, not '{other}'"),
+    };
+    let rounds = if a.torch.is_some() { a.rounds } else { 1 };
+    let mut ratios: Vec<BTreeMap<&str, f64>> = Vec::new();
+    for round in 1..=rounds {
+        // DDIM and the loader have no PyTorch counterpart: first round only.
+        let ours = model_cases(&a, &cfg, &cases, runs, &device, round == 1)?;
+        if round == 1 && cases.contains(&"loader") {
+            loader_case(&a)?;
+        }
+        let Some(py) = &a.torch else { continue };
+        let t = torch_reference(py, &a.reference, preset, a.batch, a.frames, runs)?;
+        emit(json!({"case": "pytorch", "round": round, "reference": t}));
+        let keys = [("train_step", "train_step_ms"), ("sampling_call", "cfg_call_ms"), ("sampling_call_cached", "cfg_call_ms")];
+        let r: BTreeMap<&str, f64> = keys.iter().filter_map(|&(k, tk)| Some((k, ours.get(k)? / t[tk].as_f64()?))).collect();
+        let mut line = json!({"case": "ratio", "round": round, "note": "diffkfc ms / PyTorch ms, same machine, same run (<= 1.0: as fast or faster)"});
+        r.iter().for_each(|(k, v)| line[*k] = json!(v));
+        emit(line);
+        ratios.push(r);
+    }
+    if rounds > 1 {
+        let mut line = json!({"case": "ratio_summary", "rounds": rounds, "note": "median, min and max of the rounds' ratios"});
+        for k in ["train_step", "sampling_call", "sampling_call_cached"] {
+            let mut v: Vec<f64> = ratios.iter().filter_map(|r| r.get(k).copied()).collect();
+            if v.is_empty() {
+                continue;
+            }
+            v.sort_by(f64::total_cmp);
+            let median = if v.len() % 2 == 1 { v[v.len() / 2] } else { (v[v.len() / 2 - 1] + v[v.len() / 2]) / 2.0 };
+            line[k] = json!({"median": median, "min": v[0], "max": v[v.len() - 1]});
+        }
+        emit(line);
+    }
+    if preset == "tiny" && a.torch.is_some() {
+        eprintln!("note: the reference's tiny network (d 128) differs from diffkfc's tiny preset; only the paper ratios compare like with like");
+    }
+    Ok(())
+}
+
+fn emit(v: Value) {
+    println!("{v}");
+}
+
+/// Times the model cases asked for, printing a line each; returns the medians by case name.
+fn model_cases(a: &BenchArgs, cfg: &DiffKfcConfig, cases: &[&str], runs: usize, device: &Device, with_ddim: bool) -> Result<BTreeMap<&'static str, f64>> {
     let (b, n) = (a.batch, a.frames);
     let common = json!({"config": a.config, "frames": n, "device": a.device, "threads": rayon_threads()});
-    let mut ours: std::collections::BTreeMap<&str, f64> = Default::default();
-    let emit = |v: Value| println!("{v}");
+    let mut ours = BTreeMap::new();
     if cases.contains(&"train") {
-        let mut w = TrainStep::new(&cfg, b, n, &device);
+        let mut w = TrainStep::new(cfg, b, n, device);
         let (ms, r) = time_ms(runs, || w.step());
         ours.insert("train_step", ms);
         let [f, bw, up] = w.phases.map(|s| s * 1e3);
-        emit(line("train_step", ms, &r, flops::train_step(&cfg, b, n) / 1e9, json!({"batch": b, "last_step_phases_ms": {"forward": f, "backward": bw, "host_update": up}, "common": common})));
+        emit(line("train_step", ms, &r, flops::train_step(cfg, b, n) / 1e9, json!({"batch": b, "last_step_phases_ms": {"forward": f, "backward": bw, "host_update": up}, "common": common})));
     }
-    let sampling = ["call", "call-cached", "ddim"].iter().any(|c| cases.contains(c));
-    if sampling {
-        let model = cfg.init(&device);
-        let s = Sampling::new(&model, &cfg, 1, n);
-        let f = flops::forward(&cfg, 2, n);
-        if cases.contains(&"call") {
-            let (ms, r) = time_ms(runs * 3, || s.call(true));
-            ours.insert("sampling_call", ms);
-            emit(line("sampling_call", ms, &r, f.total() / 1e9, json!({"batch": 2, "encoder": true, "common": common})));
-        }
-        if cases.contains(&"call-cached") {
-            let (ms, r) = time_ms(runs * 3, || s.call(false));
-            ours.insert("sampling_call_cached", ms);
-            emit(line("sampling_call_cached", ms, &r, f.decoder / 1e9, json!({"batch": 2, "encoder": false, "common": common})));
-        }
-        if cases.contains(&"ddim") {
-            let steps = if a.quick { 2 } else { a.ddim_steps };
-            let mut finite = true;
-            let (ms, r) = time_ms(runs.min(2), || finite &= s.sample(steps).iter().all(|v| v.is_finite()));
-            emit(line("ddim", ms, &r, (f.encoder + steps as f64 * f.decoder) / 1e9, json!({"steps": steps, "kf_guidance": 2.5, "transition_guidance": 100.0, "finite": finite, "common": common})));
-        }
+    let ddim = with_ddim && cases.contains(&"ddim");
+    if !(cases.contains(&"call") || cases.contains(&"call-cached") || ddim) {
+        return Ok(ours);
     }
-    if cases.contains(&"loader") {
-        let tmp = std::env::temp_dir().join(format!("diffkfc-bench-{}", std::process::id()));
-        let dir = match &a.data {
-            Some(d) => d.clone(),
-            None => {
-                diffkfc_data::synth::write_dataset(&tmp, 300, 0, 2, &|_, _| {})?;
-                tmp.clone()
-            }
-        };
-        let la = super::data::BenchLoaderArgs { dir, split: "train".into(), batches: if a.quick { 20 } else { 200 }, batch_size: 64, threads: 1 };
-        let v = super::data::loader_case(&la);
-        let _ = std::fs::remove_dir_all(&tmp);
-        emit(v?);
+    let model = cfg.init(device);
+    let s = Sampling::new(&model, cfg, 1, n);
+    let f = flops::forward(cfg, 2, n);
+    if cases.contains(&"call") {
+        let (ms, r) = time_ms(runs * 3, || s.call(true));
+        ours.insert("sampling_call", ms);
+        emit(line("sampling_call", ms, &r, f.total() / 1e9, json!({"batch": 2, "encoder": true, "common": common})));
     }
-    if let Some(py) = &a.torch {
-        let preset = match a.config.as_str() {
-            "paper" | "tiny" => a.config.as_str(),
-            other => bail!("--torch: the reference has the paper and its own tiny network, not '{other}'"),
-        };
-        let t = torch_reference(py, &a.reference, preset, b, n, runs)?;
-        emit(json!({"case": "pytorch", "reference": t}));
-        let ratio = |k: &str, tk: &str| Some(ours.get(k)? / t[tk].as_f64()?);
-        emit(json!({"case": "ratio", "note": "diffkfc ms / PyTorch ms, same machine, same run (<= 1.0: as fast or faster)",
-            "train_step": ratio("train_step", "train_step_ms"), "sampling_call": ratio("sampling_call", "cfg_call_ms"),
-            "sampling_call_cached": ratio("sampling_call_cached", "cfg_call_ms")}));
-        if preset == "tiny" {
-            eprintln!("note: the reference's tiny network (d 128) differs from diffkfc's tiny preset; only the paper ratios compare like with like");
+    if cases.contains(&"call-cached") {
+        let (ms, r) = time_ms(runs * 3, || s.call(false));
+        ours.insert("sampling_call_cached", ms);
+        emit(line("sampling_call_cached", ms, &r, f.decoder / 1e9, json!({"batch": 2, "encoder": false, "common": common})));
+    }
+    if ddim {
+        let steps = if a.quick { 2 } else { a.ddim_steps };
+        let mut finite = true;
+        let (ms, r) = time_ms(runs.min(2), || finite &= s.sample(steps).iter().all(|v| v.is_finite()));
+        emit(line("ddim", ms, &r, (f.encoder + steps as f64 * f.decoder) / 1e9, json!({"steps": steps, "kf_guidance": 2.5, "transition_guidance": 100.0, "finite": finite, "common": common})));
+    }
+    Ok(ours)
+}
+
+fn loader_case(a: &BenchArgs) -> Result<()> {
+    let tmp = std::env::temp_dir().join(format!("diffkfc-bench-{}", std::process::id()));
+    let dir = match &a.data {
+        Some(d) => d.clone(),
+        None => {
+            diffkfc_data::synth::write_dataset(&tmp, 300, 0, 2, &|_, _| {})?;
+            tmp.clone()
         }
-    }
+    };
+    let la = super::data::BenchLoaderArgs { dir, split: "train".into(), batches: if a.quick { 20 } else { 200 }, batch_size: 64, threads: 1 };
+    let v = super::data::loader_case(&la);
+    let _ = std::fs::remove_dir_all(&tmp);
+    emit(v?);
     Ok(())
 }
 
