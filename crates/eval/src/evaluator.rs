@@ -10,7 +10,7 @@ use burn::nn::{LayerNorm, LayerNormConfig, Linear, LinearConfig, PaddingConfig1d
 use burn::prelude::*;
 use burn::tensor::activation::{gelu, log_softmax};
 use diffkfc_model::attention::Attention;
-use diffkfc_model::kernels::{key_mask, layer_norm};
+use diffkfc_model::kernels::{key_mask, layer_norm, linear, linear_gelu};
 
 /// Width of the shared embedding space.
 pub const EMBED: usize = 512;
@@ -95,17 +95,17 @@ impl Evaluator {
         for blk in &self.blocks {
             let a = blk.attn.forward(h.clone(), h.clone(), pad.clone());
             h = layer_norm(&blk.ln1, h + a);
-            let f = blk.ff2.forward(gelu(blk.ff1.forward(h.clone())));
+            let f = linear(&blk.ff2, linear_gelu(&blk.ff1, h.clone()));
             h = layer_norm(&blk.ln2, h + f);
         }
         let w = Tensor::<1>::from_floats(valid.iter().map(|&v| v as i32 as f32).collect::<Vec<_>>().as_slice(), &device).reshape([b, n4, 1]);
         let pooled = (h * w.clone()).sum_dim(1).reshape([b, hid]) / w.sum_dim(1).reshape([b, 1]);
-        normalise(self.motion_out.forward(pooled))
+        normalise(linear(&self.motion_out, pooled))
     }
 
     /// Frozen text embeddings [B, text_dim] -> [B, 512].
     pub fn encode_text(&self, t: Tensor<2>) -> Tensor<2> {
-        normalise(self.text2.forward(gelu(self.text1.forward(t))))
+        normalise(linear(&self.text2, linear_gelu(&self.text1, t)))
     }
 }
 
