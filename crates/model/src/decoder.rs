@@ -7,7 +7,7 @@ use burn::prelude::*;
 
 use crate::attention::Attention;
 use crate::dropout::Dropout;
-use crate::kernels::{layer_norm, linear, linear_gelu, Mask};
+use crate::kernels::{linear, linear_gelu, residual_layer_norm, Mask};
 
 #[derive(Module, Debug)]
 pub struct DecoderLayer {
@@ -44,10 +44,10 @@ impl DecoderLayer {
     /// [`cross_kv`] with `enc_pad` (encoder tokens that are not valid keys) -> [B, 2+N, d].
     pub fn forward(&self, h: Tensor<3>, self_pad: Mask, enc_kv: &(Tensor<3>, Tensor<3>), enc_pad: Mask) -> Tensor<3> {
         let a = self.self_attn.forward(h.clone(), h.clone(), self_pad);
-        let h = layer_norm(&self.ln1, h + self.drop.forward(a));
+        let h = residual_layer_norm(&self.ln1, h, a, &self.drop);
         let c = self.cross_attn.forward_kv(h.clone(), enc_kv, enc_pad);
-        let h = layer_norm(&self.ln2, h + self.drop.forward(c));
+        let h = residual_layer_norm(&self.ln2, h, c, &self.drop);
         let f = linear(&self.ff2, self.drop.forward(linear_gelu(&self.ff1, h.clone())));
-        layer_norm(&self.ln3, h + self.drop.forward(f))
+        residual_layer_norm(&self.ln3, h, f, &self.drop)
     }
 }

@@ -52,14 +52,21 @@ impl Dropout {
     }
 
     pub fn forward<const D: usize>(&self, x: Tensor<D>) -> Tensor<D> {
+        match self.host_mask(&x) {
+            Some(m) => x.clone() * Tensor::<D>::from_data(TensorData::new(m, x.shape()), &x.device()),
+            None => x,
+        }
+    }
+
+    /// The mask `forward` would apply to `x` (None: dropout is off), for kernels that apply it
+    /// themselves; it takes the next mask of the stream, as `forward` does.
+    pub fn host_mask<const D: usize>(&self, x: &Tensor<D>) -> Option<Vec<f32>> {
         if self.prob <= 0.0 || !x.device().is_autodiff() {
-            return x;
+            return None;
         }
         let call = CALLS.fetch_add(1, Ordering::SeqCst);
         let key = splitmix(SEED.load(Ordering::SeqCst) ^ splitmix(call.wrapping_add(1)));
-        let shape = x.shape();
-        let m = mask(shape.num_elements(), self.prob, key);
-        x.clone() * Tensor::<D>::from_data(TensorData::new(m, shape), &x.device())
+        Some(mask(x.shape().num_elements(), self.prob, key))
     }
 }
 

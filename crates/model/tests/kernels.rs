@@ -102,3 +102,35 @@ fn fused_linear_and_linear_gelu_match_burn_with_gradients() {
         }
     }
 }
+
+/// LayerNorm(h + dropout(a)) in one op against Burn's LayerNorm of the composed sum, with the
+/// same dropout mask (the stream restarted from one seed for both), gradients of h, a, gamma, beta.
+#[test]
+fn fused_residual_layer_norm_matches_burn_with_dropout_and_gradients() {
+    let ad = Device::flex().autodiff();
+    let mut ln = LayerNormConfig::new(24).init(&ad);
+    ln.gamma = ln.gamma.map(|g| g.random_like(Distribution::Normal(1.0, 0.5)).require_grad());
+    let h0 = random([4, 33, 24], &ad);
+    let a0 = random([4, 33, 24], &ad);
+    let w = random([4, 33, 24], &ad);
+    for prob in [0.0, 0.3] {
+        let drop = diffkfc_model::dropout::Dropout::new(prob);
+        let run = |fused: bool| {
+            diffkfc_model::dropout::seed(11);
+            let (h, a) = (h0.clone().detach().require_grad(), a0.clone().detach().require_grad());
+            let y = if fused { kernels::residual_layer_norm(&ln, h.clone(), a.clone(), &drop) } else { ln.forward(h.clone() + drop.forward(a.clone())) };
+            let grads = (y.clone() * w.clone()).sum().backward();
+            let beta = ln.beta.as_ref().unwrap().val();
+            vec![host(y), host(h.grad(&grads).unwrap()), host(a.grad(&grads).unwrap()), host(ln.gamma.val().grad(&grads).unwrap()), host(beta.grad(&grads).unwrap())]
+        };
+        let (f, c) = (run(true), run(false));
+        for (what, (x, y)) in ["output", "dh", "da", "dgamma", "dbeta"].iter().zip(f.iter().zip(&c)) {
+            let e = max_err(x, y);
+            assert!(e < 2e-5, "p {prob} {what}: max error {e}");
+        }
+        if prob > 0.0 {
+            // Some of a's gradient is dropped, h's never is.
+            assert!(f[2].iter().filter(|&&g| g == 0.0).count() > f[2].len() / 10);
+        }
+    }
+}

@@ -11,15 +11,15 @@ use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Flex};
 use burn::tensor::Shape;
 
-use super::{attn_shape, host, slice, tensor, AttnArgs, FusedOps, LN_EPS};
+use super::{attn_shape, host, slice, tensor, AttnArgs, DropMask, FusedOps, LN_EPS};
 
-/// Record a three-input op: `tracked` computes the output and the state its backward needs,
+/// Record an op of N inputs: `tracked` computes the output and the state its backward needs,
 /// `untracked` just the output (no input needs a gradient).
-fn record<B: Backward<Flex, 3>, C: CheckpointStrategy>(
+fn record<B: Backward<Flex, N>, C: CheckpointStrategy, const N: usize>(
     backward: B,
-    inputs: [FloatTensor<Autodiff<Flex, C>>; 3],
-    tracked: impl FnOnce([FlexTensor; 3]) -> (FlexTensor, B::State),
-    untracked: impl FnOnce([FlexTensor; 3]) -> FlexTensor,
+    inputs: [FloatTensor<Autodiff<Flex, C>>; N],
+    tracked: impl FnOnce([FlexTensor; N]) -> (FlexTensor, B::State),
+    untracked: impl FnOnce([FlexTensor; N]) -> FlexTensor,
 ) -> FloatTensor<Autodiff<Flex, C>> {
     let nodes = inputs.each_ref().map(|t| t.node());
     let prims = inputs.map(|t| t.into_primitive());
@@ -33,7 +33,7 @@ fn record<B: Backward<Flex, 3>, C: CheckpointStrategy>(
 }
 
 /// Hand each input that needs one its gradient.
-fn register(grads: &mut Gradients, parents: [Option<NodeId>; 3], values: [(Vec<f32>, Shape); 3]) {
+fn register<const N: usize>(grads: &mut Gradients, parents: [Option<NodeId>; N], values: [(Vec<f32>, Shape); N]) {
     for (id, (g, shape)) in parents.into_iter().zip(values) {
         if let Some(id) = id {
             grads.register::<Flex>(id, tensor(g, shape));
@@ -64,6 +64,29 @@ impl Backward<Flex, 3> for LayerNormBackward {
         let (x, gamma) = ops.state;
         let (dx, dgamma, dbeta) = host::layer_norm_backward(&slice(&x), &slice(&gamma), &slice(&dy), LN_EPS);
         register(grads, ops.parents.map(|p| p.map(|n| n.id)), [(dx, shape(&x)), (dgamma, shape(&gamma)), (dbeta, shape(&gamma))]);
+    }
+}
+
+#[derive(Debug)]
+struct ResidualLayerNormBackward;
+
+impl Backward<Flex, 4> for ResidualLayerNormBackward {
+    /// (h, a, gamma, dropout mask)
+    type State = (FlexTensor, FlexTensor, FlexTensor, DropMask);
+
+    fn backward(self, ops: Ops<Self::State, 4>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let dy = grads.consume::<Flex>(&ops.node);
+        let (h, a, gamma, drop) = ops.state;
+        let m = drop.0.as_deref().map(Vec::as_slice);
+        let x = host::residual(&slice(&h), &slice(&a), m);
+        let (dx, dgamma, dbeta) = host::layer_norm_backward(&x, &slice(&gamma), &slice(&dy), LN_EPS);
+        // d(h + a o m): dx to h, dx o m to a.
+        let da = match m {
+            Some(m) => dx.iter().zip(m).map(|(g, m)| g * m).collect(),
+            None => dx.clone(),
+        };
+        let values = [(dx, shape(&h)), (da, shape(&a)), (dgamma, shape(&gamma)), (dbeta, shape(&gamma))];
+        register(grads, ops.parents.map(|p| p.map(|n| n.id)), values);
     }
 }
 
@@ -114,7 +137,7 @@ impl Backward<Flex, 3> for AttentionBackward {
 
 impl<C: CheckpointStrategy> FusedOps for Autodiff<Flex, C> {
     fn fused_layer_norm(x: FloatTensor<Self>, gamma: FloatTensor<Self>, beta: FloatTensor<Self>) -> FloatTensor<Self> {
-        record::<_, C>(
+        record::<_, C, 3>(
             LayerNormBackward,
             [x, gamma, beta],
             |[x, g, b]| (Flex::fused_layer_norm(x.clone(), g.clone(), b), (x, g)),
@@ -122,8 +145,18 @@ impl<C: CheckpointStrategy> FusedOps for Autodiff<Flex, C> {
         )
     }
 
+    fn fused_residual_layer_norm(h: FloatTensor<Self>, a: FloatTensor<Self>, gamma: FloatTensor<Self>, beta: FloatTensor<Self>, drop: DropMask) -> FloatTensor<Self> {
+        let plain = drop.clone(); // an Arc'd mask: cheap
+        record::<_, C, 4>(
+            ResidualLayerNormBackward,
+            [h, a, gamma, beta],
+            |[h, a, g, b]| (Flex::fused_residual_layer_norm(h.clone(), a.clone(), g.clone(), b, drop.clone()), (h, a, g, drop)),
+            |[h, a, g, b]| Flex::fused_residual_layer_norm(h, a, g, b, plain),
+        )
+    }
+
     fn fused_linear(x: FloatTensor<Self>, w: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self> {
-        record::<_, C>(LinearBackward, [x, w, b], |[x, w, b]| (Flex::fused_linear(x.clone(), w.clone(), b), (x, w)), |[x, w, b]| Flex::fused_linear(x, w, b))
+        record::<_, C, 3>(LinearBackward, [x, w, b], |[x, w, b]| (Flex::fused_linear(x.clone(), w.clone(), b), (x, w)), |[x, w, b]| Flex::fused_linear(x, w, b))
     }
 
     fn fused_linear_gelu(x: FloatTensor<Self>, w: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self> {
@@ -135,12 +168,12 @@ impl<C: CheckpointStrategy> FusedOps for Autodiff<Flex, C> {
             let out: Shape = [x.layout().shape()[0], w.layout().shape()[1]].into();
             (tensor(y, out.clone()), (x, w, tensor(h, out)))
         };
-        record::<_, C>(LinearGeluBackward, [x, w, b], tracked, |[x, w, b]| Flex::fused_linear_gelu(x, w, b))
+        record::<_, C, 3>(LinearGeluBackward, [x, w, b], tracked, |[x, w, b]| Flex::fused_linear_gelu(x, w, b))
     }
 
     fn fused_attention(q: FloatTensor<Self>, k: FloatTensor<Self>, v: FloatTensor<Self>, args: AttnArgs) -> FloatTensor<Self> {
         let plain = args.clone(); // an Arc'd mask: cheap
-        record::<_, C>(
+        record::<_, C, 3>(
             AttentionBackward,
             [q, k, v],
             |[q, k, v]| (Flex::fused_attention(q.clone(), k.clone(), v.clone(), args.clone()), (q, k, v, args)),

@@ -282,6 +282,18 @@ pub fn layer_norm_forward(x: &[f32], gamma: &[f32], beta: &[f32], eps: f32) -> V
     y
 }
 
+/// h + a (o m): a residual branch with its dropout mask, if any.
+pub fn residual(h: &[f32], a: &[f32], m: Option<&[f32]>) -> Vec<f32> {
+    let mut x = h.to_vec();
+    match m {
+        Some(m) => x.par_chunks_mut(1 << 14).zip(a.par_chunks(1 << 14).zip(m.par_chunks(1 << 14))).for_each(|(x, (a, m))| {
+            x.iter_mut().zip(a.iter().zip(m)).for_each(|(x, (a, m))| *x += a * m);
+        }),
+        None => x.par_chunks_mut(1 << 14).zip(a.par_chunks(1 << 14)).for_each(|(x, a)| x.iter_mut().zip(a).for_each(|(x, a)| *x += a)),
+    }
+    x
+}
+
 /// Gradients (dx, dgamma, dbeta) of [`layer_norm_forward`] for `dy`.
 pub fn layer_norm_backward(x: &[f32], gamma: &[f32], dy: &[f32], eps: f32) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     let d = gamma.len();

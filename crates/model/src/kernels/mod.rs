@@ -21,10 +21,16 @@ use burn::tensor::activation::softmax;
 use burn::backend::DispatchDevice;
 use burn::tensor::TensorData;
 
+use crate::dropout::Dropout;
+
 pub use host::{AttnShape, Mask};
 
 /// LayerNorm's epsilon (Burn's `LayerNormConfig` default, which every LayerNorm here uses).
 pub const LN_EPS: f32 = 1e-5;
+
+/// A dropout mask (scale folded in) for [`FusedOps::fused_residual_layer_norm`]; None: no dropout.
+#[derive(Clone, Debug)]
+pub struct DropMask(pub Option<Arc<Vec<f32>>>);
 
 /// Arguments of an attention call that are not tensors.
 #[derive(Clone, Debug)]
@@ -37,6 +43,8 @@ pub struct AttnArgs {
 pub trait FusedOps: Backend {
     /// LayerNorm over the last dim: x [.., d], gamma and beta [d].
     fn fused_layer_norm(x: FloatTensor<Self>, gamma: FloatTensor<Self>, beta: FloatTensor<Self>) -> FloatTensor<Self>;
+    /// LayerNorm of h + a (o mask) over the last dim: the post-norm residual of a decoder layer.
+    fn fused_residual_layer_norm(h: FloatTensor<Self>, a: FloatTensor<Self>, gamma: FloatTensor<Self>, beta: FloatTensor<Self>, drop: DropMask) -> FloatTensor<Self>;
     /// x [rows, in] . w [in, out] + b [out] -> [rows, out].
     fn fused_linear(x: FloatTensor<Self>, w: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self>;
     /// gelu(x [rows, in] . w [in, out] + b [out]) -> [rows, out].
@@ -66,6 +74,12 @@ impl FusedOps for Flex {
     fn fused_layer_norm(x: FlexTensor, gamma: FlexTensor, beta: FlexTensor) -> FlexTensor {
         let y = host::layer_norm_forward(&slice(&x), &slice(&gamma), &slice(&beta), LN_EPS);
         tensor(y, x.layout().shape().clone())
+    }
+
+    fn fused_residual_layer_norm(h: FlexTensor, a: FlexTensor, gamma: FlexTensor, beta: FlexTensor, drop: DropMask) -> FlexTensor {
+        let x = host::residual(&slice(&h), &slice(&a), drop.0.as_deref().map(Vec::as_slice));
+        let y = host::layer_norm_forward(&x, &slice(&gamma), &slice(&beta), LN_EPS);
+        tensor(y, h.layout().shape().clone())
     }
 
     fn fused_linear(x: FlexTensor, w: FlexTensor, b: FlexTensor) -> FlexTensor {
@@ -109,6 +123,17 @@ pub fn layer_norm(ln: &LayerNorm, x: Tensor<3>) -> Tensor<3> {
     }
     let beta = ln.beta.as_ref().map(|b| b.val()).unwrap_or_else(|| ln.gamma.val().zeros_like());
     Tensor::from_dispatch(<Dispatch as FusedOps>::fused_layer_norm(x.into_dispatch(), ln.gamma.val().into_dispatch(), beta.into_dispatch()))
+}
+
+/// LayerNorm `ln` of h + drop(a), h and a [B, L, d] (one pass on flex, dropout mask included).
+pub fn residual_layer_norm(ln: &LayerNorm, h: Tensor<3>, a: Tensor<3>, drop: &Dropout) -> Tensor<3> {
+    if !fused(&h.device()) {
+        return layer_norm(ln, h + drop.forward(a));
+    }
+    let mask = DropMask(drop.host_mask(&a).map(Arc::new));
+    let beta = ln.beta.as_ref().map(|b| b.val()).unwrap_or_else(|| ln.gamma.val().zeros_like());
+    let y = <Dispatch as FusedOps>::fused_residual_layer_norm(h.into_dispatch(), a.into_dispatch(), ln.gamma.val().into_dispatch(), beta.into_dispatch(), mask);
+    Tensor::from_dispatch(y)
 }
 
 /// `lin` applied to x [.., in] -> [.., out].
