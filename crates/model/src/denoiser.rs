@@ -93,9 +93,7 @@ impl Denoiser {
         let plan = DmaPlan::new(&c.kf_frames, &c.real, b, n, &self.dma_sizes);
         let pos = positions(n, self.d_model, &device);
         let tokens = self.encoder.forward(text_tok.clone(), c.kf.clone(), c.kf_mask.clone(), pos.clone(), &plan);
-        let l = n + 1;
-        let initial: Vec<bool> = (0..b * l).map(|k| k % l == 0 || (c.kf_frames[k / l * n + k % l - 1] && c.real[k / l * n + k % l - 1])).collect();
-        let key_pad = plan.final_valid(&initial).iter().map(|v| !v).collect();
+        let key_pad = plan.final_valid().iter().map(|v| !v).collect();
         let self_pad = (0..b * (n + 2)).map(|k| k % (n + 2) >= 2 && !c.real[k / (n + 2) * n + k % (n + 2) - 2]).collect();
         let cross_kv = self.layers.iter().map(|l| l.cross_kv(tokens.clone())).collect();
         Encoded {

@@ -24,10 +24,9 @@ pub struct DmaPlan {
     pub frames: usize,
     /// Per block: [B * (1+N)] whether a token is updated (text token always).
     pub active: Vec<Vec<bool>>,
-    /// Per block: [B * (1+N)] validity before the block (the tokens it may attend to).
-    pub valid_before: Vec<Vec<bool>>,
-    /// Per block: [B * (1+N)] validity after the block.
-    pub valid_after: Vec<Vec<bool>>,
+    /// [B * (1+N)] validity before the first block (text token and real keyframes), then after
+    /// each block: blocks + 1 entries.
+    pub valid: Vec<Vec<bool>>,
     /// Per block: [B * (1+N) * (1+N)] true where query i must not see key j.
     pub blocked: Vec<Arc<Vec<bool>>>,
 }
@@ -42,10 +41,9 @@ impl DmaPlan {
                 i == 0 || (keyframe[b * n + i - 1] && real[b * n + i - 1])
             })
             .collect();
-        let (mut active_all, mut valid_all, mut blocked_all) = (Vec::new(), Vec::new(), Vec::new());
-        let mut before_all = Vec::new();
+        let (mut active_all, mut blocked_all) = (Vec::new(), Vec::new());
+        let mut valid_all = vec![valid.clone()];
         for &size in sizes {
-            before_all.push(valid.clone());
             let s = if size == 0 { n } else { size };
             let mut active = vec![false; batch * l];
             let mut blocked = vec![true; batch * l * l];
@@ -79,12 +77,22 @@ impl DmaPlan {
             valid_all.push(valid.clone());
             blocked_all.push(Arc::new(blocked));
         }
-        DmaPlan { batch, frames, active: active_all, valid_before: before_all, valid_after: valid_all, blocked: blocked_all }
+        DmaPlan { batch, frames, active: active_all, valid: valid_all, blocked: blocked_all }
+    }
+
+    /// Tokens block k may attend to (valid before it).
+    pub fn valid_before(&self, k: usize) -> &[bool] {
+        &self.valid[k]
+    }
+
+    /// Validity after block k.
+    pub fn valid_after(&self, k: usize) -> &[bool] {
+        &self.valid[k + 1]
     }
 
     /// Valid tokens at the encoder output (text token included): what the decoder may attend.
-    pub fn final_valid(&self, initial: &[bool]) -> Vec<bool> {
-        self.valid_after.last().cloned().unwrap_or_else(|| initial.to_vec())
+    pub fn final_valid(&self) -> &[bool] {
+        self.valid.last().expect("the initial validity is always there")
     }
 }
 
@@ -186,7 +194,7 @@ impl KeyframeEncoder {
         let z0 = Tensor::cat(vec![text_tok, frames], 1);
         let mut z = z0.clone();
         for (k, block) in self.blocks.iter().enumerate() {
-            z = block.forward(z, Mask::Full(plan.blocked[k].clone()), &plan.active[k], &plan.valid_before[k]);
+            z = block.forward(z, Mask::Full(plan.blocked[k].clone()), &plan.active[k], plan.valid_before(k));
         }
         z + z0
     }
@@ -213,10 +221,10 @@ mod tests {
             total += if s == 0 { n } else { s };
             let want = dilate(&keys, real, total);
             for i in 0..n {
-                let got = plan.valid_after[k][1 + i];
+                let got = plan.valid_after(k)[1 + i];
                 assert_eq!(got, i < real && want[i], "block {k} frame {i}");
             }
-            assert!(plan.valid_after[k][0], "text token always valid");
+            assert!(plan.valid_after(k)[0], "text token always valid");
         }
     }
 

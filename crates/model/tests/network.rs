@@ -111,12 +111,12 @@ fn invalid_tokens_do_not_leak_within_a_block() {
     let blocked = diffkfc_model::kernels::Mask::Full(plan.blocked[0].clone());
     let active = plan.active[0].as_slice();
     let z = Tensor::<3>::random([1, l, d], Distribution::Normal(0.0, 1.0), &dev);
-    let base = to_vec(block.forward(z.clone(), blocked.clone(), active, &plan.valid_before[0]));
+    let base = to_vec(block.forward(z.clone(), blocked.clone(), active, plan.valid_before(0)));
     // Token of frame 6 (adjacent to the keyframe: active but not valid yet) and frame 15 (inactive).
     for tok in [7usize, 16] {
         let bump: Vec<f32> = (0..l * d).map(|k| if k / d == tok { 3.0 } else { 0.0 }).collect();
         let z2 = z.clone() + Tensor::<1>::from_floats(bump.as_slice(), &dev).reshape([1, l, d]);
-        let out = to_vec(block.forward(z2, blocked.clone(), active, &plan.valid_before[0]));
+        let out = to_vec(block.forward(z2, blocked.clone(), active, plan.valid_before(0)));
         for i in (0..l).filter(|&i| i != tok) {
             assert!(max_diff(&base[i * d..(i + 1) * d], &out[i * d..(i + 1) * d]) < 1e-5, "token {i} changed when {tok} did");
         }

@@ -10,6 +10,7 @@ use burn::backend::flex::FlexTensor;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Flex};
 use burn::tensor::Shape;
+use rayon::prelude::*;
 
 use super::{attn_shape, host, slice, tensor, AttnArgs, DropMask, FusedOps, LN_EPS};
 
@@ -82,7 +83,7 @@ impl Backward<Flex, 4> for ResidualLayerNormBackward {
         let (dx, dgamma, dbeta) = host::layer_norm_backward(&x, &slice(&gamma), &slice(&dy), LN_EPS);
         // d(h + a o m): dx to h, dx o m to a.
         let da = match m {
-            Some(m) => dx.iter().zip(m).map(|(g, m)| g * m).collect(),
+            Some(m) => dx.par_iter().zip(m.par_iter()).map(|(g, m)| g * m).collect(),
             None => dx.clone(),
         };
         let values = [(dx, shape(&h)), (da, shape(&a)), (dgamma, shape(&gamma)), (dbeta, shape(&gamma))];

@@ -161,7 +161,7 @@ pub struct AttnShape {
 }
 
 impl AttnShape {
-    pub(crate) fn dh(&self) -> usize {
+    fn dh(&self) -> usize {
         self.d / self.heads
     }
 

@@ -14,11 +14,10 @@ use std::sync::{Arc, OnceLock};
 
 use burn::backend::flex::FlexTensor;
 use burn::backend::tensor::FloatTensor;
-use burn::backend::{backend_extension, Backend, Dispatch, Flex};
+use burn::backend::{backend_extension, Backend, Dispatch, DispatchDevice, Flex};
 use burn::nn::{LayerNorm, Linear};
 use burn::prelude::*;
 use burn::tensor::activation::softmax;
-use burn::backend::DispatchDevice;
 use burn::tensor::TensorData;
 
 use crate::dropout::Dropout;
@@ -116,13 +115,19 @@ pub fn fused(device: &Device) -> bool {
     }
 }
 
+/// A LayerNorm's scale and shift for the fused ops (zeros for a LayerNorm without shift).
+fn ln_params(ln: &LayerNorm) -> (FloatTensor<Dispatch>, FloatTensor<Dispatch>) {
+    let beta = ln.beta.as_ref().map(|b| b.val()).unwrap_or_else(|| ln.gamma.val().zeros_like());
+    (ln.gamma.val().into_dispatch(), beta.into_dispatch())
+}
+
 /// LayerNorm `ln` of x [B, L, d].
 pub fn layer_norm(ln: &LayerNorm, x: Tensor<3>) -> Tensor<3> {
     if !fused(&x.device()) {
         return ln.forward(x);
     }
-    let beta = ln.beta.as_ref().map(|b| b.val()).unwrap_or_else(|| ln.gamma.val().zeros_like());
-    Tensor::from_dispatch(<Dispatch as FusedOps>::fused_layer_norm(x.into_dispatch(), ln.gamma.val().into_dispatch(), beta.into_dispatch()))
+    let (gamma, beta) = ln_params(ln);
+    Tensor::from_dispatch(<Dispatch as FusedOps>::fused_layer_norm(x.into_dispatch(), gamma, beta))
 }
 
 /// LayerNorm `ln` of h + drop(a), h and a [B, L, d] (one pass on flex, dropout mask included).
@@ -131,8 +136,8 @@ pub fn residual_layer_norm(ln: &LayerNorm, h: Tensor<3>, a: Tensor<3>, drop: &Dr
         return layer_norm(ln, h + drop.forward(a));
     }
     let mask = DropMask(drop.host_mask(&a).map(Arc::new));
-    let beta = ln.beta.as_ref().map(|b| b.val()).unwrap_or_else(|| ln.gamma.val().zeros_like());
-    let y = <Dispatch as FusedOps>::fused_residual_layer_norm(h.into_dispatch(), a.into_dispatch(), ln.gamma.val().into_dispatch(), beta.into_dispatch(), mask);
+    let (gamma, beta) = ln_params(ln);
+    let y = <Dispatch as FusedOps>::fused_residual_layer_norm(h.into_dispatch(), a.into_dispatch(), gamma, beta, mask);
     Tensor::from_dispatch(y)
 }
 
