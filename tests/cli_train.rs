@@ -101,3 +101,62 @@ fn bad_train_arguments() {
     assert_one_line_error(&diffkfc(&["train", "--config", s(&cfg), "--data", s(&d.join("nothing"))]), &["nothing", "not found"]);
     assert_one_line_error(&diffkfc(&["train", "--config", s(&cfg), "--time-budget", "soon"]), &["soon"]);
 }
+
+/// SIGTERM (what schedulers and `timeout` send) stops like Ctrl-C: a checkpoint at the step
+/// reached and exit status 130; a resume with another model is refused before any run file is
+/// rewritten; a run that goes non-finite stops with an error and keeps its finite checkpoints.
+#[test]
+fn sigterm_mismatched_resume_and_nan_guard() {
+    if !have_text_encoder() {
+        return;
+    }
+    let (d, data) = setup("term");
+    let run = d.join("run");
+    let cfg = d.join("cfg.json");
+    std::fs::write(&cfg, CFG.replace("\"checkpoint_every\": 2", "\"checkpoint_every\": 1000")).unwrap();
+    let child = Command::new(env!("CARGO_BIN_EXE_diffkfc"))
+        .args(["train", "--config", s(&cfg), "--data", s(&data), "--out", s(&run), "--max-steps", "100000"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t0 = std::time::Instant::now();
+    while steps_or_none(&run).is_none_or(|s| s.len() < 3) && t0.elapsed().as_secs() < 120 {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    assert!(Command::new("kill").args(["-TERM", &child.id().to_string()]).status().unwrap().success());
+    let out = child.wait_with_output().unwrap();
+    assert_eq!(out.status.code(), Some(130), "{}", String::from_utf8_lossy(&out.stderr));
+    let last = *steps(&run).last().unwrap();
+    assert!(run.join(format!("ckpt-{last:08}.safetensors")).exists(), "no checkpoint at step {last}");
+
+    // Another model: refused, and config.json / Mean.npy stay the run's own.
+    let before = (std::fs::read(run.join("config.json")).unwrap(), std::fs::read(run.join("Mean.npy")).unwrap());
+    let other = d.join("other.json");
+    std::fs::write(&other, CFG.replace("\"dec_layers\": 1", "\"dec_layers\": 2")).unwrap();
+    assert_one_line_error(&diffkfc(&["train", "--config", s(&other), "--data", s(&data), "--out", s(&run), "--resume"]), &["--resume", "another model"]);
+    assert_eq!(before, (std::fs::read(run.join("config.json")).unwrap(), std::fs::read(run.join("Mean.npy")).unwrap()));
+
+    // An absurd learning rate: an error naming the step, exit non-zero, finite checkpoints kept.
+    let nan = d.join("nan.json");
+    std::fs::write(&nan, CFG.replace("\"batch_size\": 4", "\"batch_size\": 4, \"lr\": 1e30, \"grad_clip\": 0").replace("\"checkpoint_every\": 2", "\"checkpoint_every\": 1")).unwrap();
+    let run3 = d.join("nan");
+    let o = diffkfc(&["train", "--config", s(&nan), "--data", s(&data), "--out", s(&run3), "--max-steps", "50"]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("not finite"), "{}", stderr(&o));
+    for e in std::fs::read_dir(&run3).unwrap() {
+        let p = e.unwrap().path();
+        if p.extension().is_some_and(|x| x == "safetensors") {
+            let bytes = std::fs::read(&p).unwrap();
+            let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+            for (name, t) in st.tensors() {
+                assert!(t.data().chunks_exact(4).all(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]).is_finite()), "{}: {name}", p.display());
+            }
+        }
+    }
+}
+
+fn steps_or_none(run: &Path) -> Option<Vec<u64>> {
+    let text = std::fs::read_to_string(run.join("metrics.jsonl")).ok()?;
+    Some(text.lines().filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok()).filter(|v| v.get("loss").is_some()).filter_map(|v| v["step"].as_u64()).collect())
+}

@@ -8,6 +8,7 @@ use crate::cache::PackedSplit;
 use crate::dataset::{crop, Dataset, MAX_FRAMES};
 use crate::keyframes::{self, Strategy};
 use crate::rng::Rng;
+use crate::warp::{self, ROOT_CHANNELS};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -17,11 +18,14 @@ pub struct KeyframeConfig {
     pub rate: f64,
     /// Probability of dropping all keyframes of a sample (classifier-free guidance).
     pub drop_prob: f64,
+    /// Probability that a training keyframe does not observe its root place, and, drawn
+    /// independently, its heading (so pose-only keyframes stay learned).
+    pub root_drop_prob: f64,
 }
 
 impl Default for KeyframeConfig {
     fn default() -> Self {
-        KeyframeConfig { strategy: Strategy::Random, rate: 0.05, drop_prob: 0.1 }
+        KeyframeConfig { strategy: Strategy::Random, rate: 0.05, drop_prob: 0.1, root_drop_prob: 0.5 }
     }
 }
 
@@ -37,6 +41,11 @@ pub struct Batch {
     pub valid: Vec<f32>,
     /// [B, N, D]: 1 where a keyframe observes the feature.
     pub kf_mask: Vec<f32>,
+    /// [B, N, ROOT_CHANNELS] root place and heading of every real frame in the crop's frame
+    /// (its first frame at the origin facing +Z; `warp::RootKey::channels`).
+    pub root: Vec<f32>,
+    /// [B, N, ROOT_CHANNELS]: 1 where a keyframe observes the channel.
+    pub root_mask: Vec<f32>,
     pub lengths: Vec<usize>,
     pub captions: Vec<String>,
     /// Item indices in the split.
@@ -48,6 +57,9 @@ struct Sample {
     x0: Vec<f32>,
     len: usize,
     kf: Vec<usize>,
+    /// [len, ROOT_CHANNELS] channels and mask.
+    root: Vec<f32>,
+    root_mask: Vec<f32>,
     caption: String,
 }
 
@@ -105,6 +117,7 @@ impl<'a> Loader<'a> {
         let (start, len) = crop(spec.len, &mut rng);
         let dim = self.ds.dim();
         let mut x0 = self.split.clip_frames(&spec.clip, spec.start + start, len).to_vec();
+        let root = warp::root_channels(&x0, dim);
         self.ds.normalise(&mut x0);
         let kc = &self.keyframes;
         let kf = if rng.chance(kc.drop_prob) {
@@ -112,7 +125,15 @@ impl<'a> Loader<'a> {
         } else {
             keyframes::select(kc.strategy, len, kc.rate, &x0, dim, &mut rng)
         };
-        Sample { x0, len, kf, caption }
+        let mut root_mask = vec![0f32; len * ROOT_CHANNELS];
+        for &f in &kf {
+            for pair in [0..2, 2..4] {
+                if !rng.chance(kc.root_drop_prob) {
+                    root_mask[f * ROOT_CHANNELS..][pair].iter_mut().for_each(|m| *m = 1.0);
+                }
+            }
+        }
+        Sample { x0, len, kf, root, root_mask, caption }
     }
 
     fn assemble(&self, samples: Vec<Sample>, items: Vec<usize>) -> Batch {
@@ -121,6 +142,8 @@ impl<'a> Loader<'a> {
         let mut x0 = vec![0f32; bsz * n * d];
         let mut valid = vec![0f32; bsz * n];
         let mut kf_mask = vec![0f32; bsz * n * d];
+        let r = ROOT_CHANNELS;
+        let (mut root, mut root_mask) = (vec![0f32; bsz * n * r], vec![0f32; bsz * n * r]);
         let all_dims = vec![true; d];
         let mut lengths = Vec::with_capacity(bsz);
         let mut captions = Vec::with_capacity(bsz);
@@ -128,9 +151,11 @@ impl<'a> Loader<'a> {
             x0[i * n * d..i * n * d + s.len * d].copy_from_slice(&s.x0);
             valid[i * n..i * n + s.len].iter_mut().for_each(|v| *v = 1.0);
             kf_mask[i * n * d..(i + 1) * n * d].copy_from_slice(&keyframes::frame_mask(n, &s.kf, &all_dims));
+            root[i * n * r..i * n * r + s.len * r].copy_from_slice(&s.root);
+            root_mask[i * n * r..i * n * r + s.len * r].copy_from_slice(&s.root_mask);
             lengths.push(s.len);
             captions.push(s.caption);
         }
-        Batch { batch_size: bsz, frames: n, dim: d, x0, valid, kf_mask, lengths, captions, items }
+        Batch { batch_size: bsz, frames: n, dim: d, x0, valid, kf_mask, root, root_mask, lengths, captions, items }
     }
 }

@@ -166,6 +166,9 @@ fn build(
         move |e| DataError::Io { path: p, err: e }
     };
     std::fs::create_dir_all(dir).map_err(io(dir))?;
+    if let Some(name) = data_path.file_name() {
+        crate::atomic::remove_stale_temps(dir, &name.to_string_lossy());
+    }
     let tmp = data_path.with_extension(format!("f32.tmp{}", std::process::id()));
     let mut out = std::io::BufWriter::new(std::fs::File::create(&tmp).map_err(io(&tmp))?);
     let (mut clips, mut items, mut skipped) = (Vec::new(), Vec::new(), Vec::new());

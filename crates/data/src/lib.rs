@@ -19,6 +19,7 @@ pub mod rng;
 pub mod skeleton;
 pub mod synth;
 pub mod texts;
+pub mod warp;
 
 pub use representation::{features_from_joints, recover_from_ric, Joints, Layout};
 pub use atomic::write_atomic;

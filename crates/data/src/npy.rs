@@ -118,18 +118,17 @@ fn dict_value<'a>(text: &'a str, key: &str) -> Option<&'a str> {
 /// Decode a `.npy` byte buffer into f64 elements (exact for both f32 and f64 files).
 pub fn decode_f64(path: &Path, bytes: &[u8]) -> Result<(Array<f64>, DType), DataError> {
     let h = parse_header(path, bytes)?;
-    let n: usize = h.shape.iter().product();
     let width = match h.dtype {
         DType::F32 => 4,
         DType::F64 => 8,
     };
+    // The header is untrusted: a shape whose size overflows is an error, not a wrapped number.
+    let n = h.shape.iter().try_fold(1usize, |a, &s| a.checked_mul(s)).filter(|n| n.checked_mul(width).is_some());
     let body = &bytes[h.data_offset..];
-    if body.len() < n * width {
-        return Err(err(
-            path,
-            format!("truncated data: shape {:?} needs {} bytes, file has {}", h.shape, n * width, body.len()),
-        ));
-    }
+    let Some(n) = n.filter(|&n| body.len() >= n * width) else {
+        let needs = n.map_or("more than 2^64".to_string(), |n| (n as u128 * width as u128).to_string());
+        return Err(err(path, format!("truncated data: shape {:?} needs {needs} bytes, file has {}", h.shape, body.len())));
+    };
     let data: Vec<f64> = match h.dtype {
         DType::F32 => body[..n * 4]
             .chunks_exact(4)
@@ -307,5 +306,26 @@ mod tests {
         let names: Vec<_> = std::fs::read_dir(dir.join("sub")).unwrap().map(|e| e.unwrap().file_name()).collect();
         assert_eq!(names.len(), 1, "{names:?}");
         std::fs::remove_dir_all(dir).unwrap();
+    }
+}
+
+#[cfg(test)]
+mod overflow_tests {
+    #[test]
+    fn shapes_whose_size_overflows_are_errors() {
+        for shape in ["(2305843009213693952, 22, 3)", "(4611686018427387904, 263)", "(18446744073709551615, 2)"] {
+            let dict = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {shape}, }}");
+            let mut header = dict.into_bytes();
+            while (10 + header.len() + 1) % 64 != 0 {
+                header.push(b' ');
+            }
+            header.push(b'\n');
+            let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+            bytes.extend((header.len() as u16).to_le_bytes());
+            bytes.extend(header);
+            bytes.extend([0u8; 64]);
+            let e = super::decode_f64(std::path::Path::new("big.npy"), &bytes).unwrap_err().to_string();
+            assert!(e.contains("big.npy") && e.contains("truncated data") && e.contains("file has 64"), "{shape}: {e}");
+        }
     }
 }

@@ -77,7 +77,7 @@ fn batches_are_normalised_padded_and_deterministic() {
     let Some((root, _)) = small_dataset("batch") else { return };
     let ds = Dataset::open(&root).unwrap();
     let split = PackedSplit::open(&ds, "train", &root.join(".cache"), |_, _| {}).unwrap();
-    let kf = KeyframeConfig { strategy: Strategy::Random, rate: 0.05, drop_prob: 0.0 };
+    let kf = KeyframeConfig { strategy: Strategy::Random, rate: 0.05, drop_prob: 0.0, ..Default::default() };
     let mut loader = Loader::new(&ds, &split, 3, 42, kf.clone());
     let b = loader.batch(0, 0);
     let (n, d) = (b.frames, b.dim);

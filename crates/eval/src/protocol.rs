@@ -13,6 +13,9 @@ use diffkfc_data::plausibility::foot_skating_ratio;
 use diffkfc_data::representation::{recover_from_ric, Joints};
 use diffkfc_data::rng::Rng;
 use diffkfc_model::diffusion::Schedule;
+use diffkfc_data::representation::Layout;
+use diffkfc_data::warp::{self, ROOT_CHANNELS};
+use diffkfc_model::fit::{finish, KeyframeFit};
 use diffkfc_model::sampler::{self, Request, Sampler, TgMode};
 use diffkfc_model::text::cache::EmbeddingCache;
 use diffkfc_model::Denoiser;
@@ -49,7 +52,10 @@ pub struct Options {
     pub multimodality: usize,
     pub sampler: Sampler,
     pub kf_guidance: f64,
-    pub snap: bool,
+    /// How generated motions are made to meet their keyframes after the last step.
+    pub fit: KeyframeFit,
+    /// Keyframes observe their root place and heading as well as their pose.
+    pub root_keys: bool,
     pub strategy: Strategy,
     /// Generated motions per denoiser batch (keyframe guidance doubles it).
     pub batch: usize,
@@ -179,11 +185,11 @@ impl Protocol<'_> {
         for (c, chunk) in self.batches(items, k).iter().enumerate() {
             let b = chunk.len();
             let n = chunk.iter().map(|&(p, _)| items[p].len).max().unwrap_or(1);
-            let mut req = Request { batch: b, frames: n, dim: d, text: Vec::new(), text_dim: self.text.dim, kf: vec![0.0; b * n * d], mask: vec![0.0; b * n * d], lengths: Vec::new() };
+            let mut req = Request::text_only(n, d, Vec::new(), self.text.dim, vec![0; b]);
             for (r, &(p, _)) in chunk.iter().enumerate() {
                 let it = &items[p];
                 req.text.extend_from_slice(self.text.get(&it.caption).expect("captions of the split are embedded"));
-                req.lengths.push(it.len);
+                req.lengths[r] = it.len;
                 let mask = keyframes::frame_mask(it.len, &keys[p], &all_dims);
                 let mut kf: Vec<f32> = it.feats.to_vec();
                 dataset::normalise(&mut kf, self.mean, self.std);
@@ -192,22 +198,29 @@ impl Protocol<'_> {
                     req.mask[o + e] = m;
                     req.kf[o + e] = v * m;
                 }
+                if self.opts.root_keys {
+                    let traj = warp::root_trajectory(it.feats, d);
+                    for &f in &keys[p] {
+                        let (v, m) = traj[f].channels();
+                        let at = (r * n + f) * ROOT_CHANNELS;
+                        req.root[at..at + ROOT_CHANNELS].copy_from_slice(&v);
+                        req.root_mask[at..at + ROOT_CHANNELS].copy_from_slice(&m);
+                    }
+                }
             }
             let opts = sampler::Options {
                 sampler: self.opts.sampler,
                 kf_guidance: self.opts.kf_guidance,
                 transition: s.transition,
-                write_back: self.opts.snap,
                 seed: Rng::derive(seed, 7, c as u64).next_u64(),
                 tg_mode: TgMode::X0,
                 inpaint: s.inpaint,
                 ..Default::default()
             };
             let x = sampler::sample(self.model, self.schedule, &req, &opts, |_, _| tick());
+            let layout = Layout::of(self.ds.skeleton);
             for (r, &(p, j)) in chunk.iter().enumerate() {
-                let mut f = x[r * n * d..(r * n + items[p].len) * d].to_vec();
-                dataset::denormalise(&mut f, self.mean, self.std);
-                out[p][j] = f;
+                out[p][j] = finish(&x, &req, r, self.mean, self.std, &layout, self.opts.fit).0;
             }
         }
         out

@@ -21,11 +21,8 @@ pub fn to_tensors(b: &Batch, text: &[f32], text_dim: usize, device: &Device) -> 
     let x0 = Tensor::<1>::from_floats(b.x0.as_slice(), device).reshape([bs, n, d]);
     let kf_mask = Tensor::<1>::from_floats(b.kf_mask.as_slice(), device).reshape([bs, n, d]);
     let kf = x0.clone() * kf_mask.clone();
-    let kf_frames = (0..bs * n).map(|f| b.kf_mask[f * d..(f + 1) * d].iter().any(|&m| m > 0.0)).collect();
     let real = b.valid.iter().map(|&v| v > 0.0).collect();
-    TensorBatch {
-        x0,
-        valid: Tensor::<1>::from_floats(b.valid.as_slice(), device).reshape([bs, n]),
-        cond: Condition { text: Tensor::<1>::from_floats(text, device).reshape([bs, text_dim]), kf, kf_mask, kf_frames, real },
-    }
+    let text = Tensor::<1>::from_floats(text, device).reshape([bs, text_dim]);
+    let cond = Condition::new(text, kf, kf_mask, &b.kf_mask, &b.root, &b.root_mask, real, device);
+    TensorBatch { x0, valid: Tensor::<1>::from_floats(b.valid.as_slice(), device).reshape([bs, n]), cond }
 }

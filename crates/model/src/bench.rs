@@ -28,7 +28,7 @@ pub fn request(cfg: &DiffKfcConfig, batch: usize, frames: usize, seed: u64) -> R
         }
     }
     let text = (0..batch * cfg.text_dim).map(|_| 0.05 * r.normal() as f32).collect();
-    Request { batch, frames: n, dim: d, text, text_dim: cfg.text_dim, kf, mask, lengths: vec![n; batch] }
+    Request { kf, mask, ..Request::text_only(n, d, text, cfg.text_dim, vec![n; batch]) }
 }
 
 /// A [B, N, D] tensor of standard normals from `r`.
@@ -42,7 +42,7 @@ pub struct TrainStep {
     model: Option<Denoiser>,
     vals: Vec<Vec<f32>>,
     adam: Adam,
-    req: Request,
+    pub req: Request,
     x0: Tensor<3>,
     noise: Tensor<3>,
     t: Vec<usize>,

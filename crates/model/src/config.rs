@@ -26,6 +26,11 @@ pub struct DiffKfcConfig {
     pub max_frames: usize,
     #[config(default = 0.1)]
     pub dropout: f64,
+    /// Root channels a keyframe may observe beside its features (place x, z and heading as
+    /// sin, cos: our extension, see `diffkfc_data::warp`); 0 = pose-only keyframes (the paper,
+    /// and checkpoints made before root channels existed).
+    #[config(default = 4)]
+    pub root_channels: usize,
 }
 
 impl DiffKfcConfig {

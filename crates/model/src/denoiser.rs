@@ -4,6 +4,8 @@
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 
+use diffkfc_data::warp::ROOT_CHANNELS;
+
 use crate::config::DiffKfcConfig;
 use crate::decoder::DecoderLayer;
 use crate::dma::{DmaPlan, KeyframeEncoder};
@@ -19,6 +21,10 @@ pub struct Condition {
     pub kf: Tensor<3>,
     /// [B, N, D] 1 where a keyframe observes a feature.
     pub kf_mask: Tensor<3>,
+    /// [B, N, ROOT_CHANNELS] keyed root place and heading (`diffkfc_data::warp::RootKey`),
+    /// zero where unobserved, and its mask.
+    pub root: Tensor<3>,
+    pub root_mask: Tensor<3>,
     /// [B*N] frames with any observed feature.
     pub kf_frames: Vec<bool>,
     /// [B*N] real (non-padding) frames.
@@ -26,12 +32,26 @@ pub struct Condition {
 }
 
 impl Condition {
+    /// A condition from device tensors `text` [B, T], `kf`/`kf_mask` [B, N, D] and the host
+    /// copies of the masks ([B*N*D] features, [B*N*R] root channels with their values).
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(text: Tensor<2>, kf: Tensor<3>, kf_mask: Tensor<3>, mask: &[f32], root: &[f32], root_mask: &[f32], real: Vec<bool>, device: &Device) -> Condition {
+        let [b, n, d] = kf.dims();
+        let r = ROOT_CHANNELS;
+        assert_eq!((root.len(), root_mask.len()), (b * n * r, b * n * r), "root channels [B, N, {r}]");
+        let kf_frames = (0..b * n).map(|f| mask[f * d..(f + 1) * d].iter().chain(&root_mask[f * r..(f + 1) * r]).any(|&m| m > 0.0)).collect();
+        let root_t = |v: &[f32]| Tensor::<1>::from_floats(v, device).reshape([b, n, r]);
+        Condition { text, kf, kf_mask, root: root_t(root), root_mask: root_t(root_mask), kf_frames, real }
+    }
+
     /// The same condition with all keyframes dropped (keyframe classifier-free guidance).
     pub fn without_keyframes(&self) -> Condition {
         Condition {
             text: self.text.clone(),
             kf: self.kf.zeros_like(),
             kf_mask: self.kf_mask.zeros_like(),
+            root: self.root.zeros_like(),
+            root_mask: self.root_mask.zeros_like(),
             kf_frames: vec![false; self.kf_frames.len()],
             real: self.real.clone(),
         }
@@ -74,7 +94,7 @@ impl DiffKfcConfig {
             x_in: LinearConfig::new(self.feat_dim, d).init(device),
             text_in: LinearConfig::new(self.text_dim, d).init(device),
             time: TimestepEmbed::new(d, device),
-            encoder: KeyframeEncoder::new(self.feat_dim, d, self.heads, self.ffn, self.dma_sizes.len(), device),
+            encoder: KeyframeEncoder::new(self.feat_dim, self.root_channels, d, self.heads, self.ffn, self.dma_sizes.len(), device),
             layers: (0..self.dec_layers).map(|_| DecoderLayer::new(d, self.heads, self.ffn, self.dropout, device)).collect(),
             out: LinearConfig::new(d, self.feat_dim).init(device),
             d_model: d,
@@ -92,7 +112,7 @@ impl Denoiser {
         let text_tok = linear(&self.text_in, c.text.clone()).unsqueeze_dim::<3>(1);
         let plan = DmaPlan::new(&c.kf_frames, &c.real, b, n, &self.dma_sizes);
         let pos = positions(n, self.d_model, &device);
-        let tokens = self.encoder.forward(text_tok.clone(), c.kf.clone(), c.kf_mask.clone(), pos.clone(), &plan);
+        let tokens = self.encoder.forward(text_tok.clone(), c, pos.clone(), &plan);
         let key_pad = plan.final_valid().iter().map(|v| !v).collect();
         let self_pad = (0..b * (n + 2)).map(|k| k % (n + 2) >= 2 && !c.real[k / (n + 2) * n + k % (n + 2) - 2]).collect();
         let cross_kv = self.layers.iter().map(|l| l.cross_kv(tokens.clone())).collect();

@@ -14,6 +14,7 @@ use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 
 use crate::attention::Attention;
+use crate::denoiser::Condition;
 use crate::kernels::{linear, linear_gelu, Mask};
 
 /// Per-block validity and attention masks of a batch, computed on the host from the keyframe
@@ -174,23 +175,33 @@ impl Rows {
 
 #[derive(Module, Debug)]
 pub struct KeyframeEncoder {
-    /// Keyframe values and their per-feature mask -> d (the mask tells partial keyframes apart).
+    /// Keyframe values and their per-feature mask (and the root channels with theirs, when the
+    /// model has them) -> d (the mask tells partial keyframes apart).
     kf_in: Linear,
     blocks: Vec<DmaBlock>,
+    root_channels: usize,
 }
 
 impl KeyframeEncoder {
-    pub fn new(feat: usize, d: usize, heads: usize, ffn: usize, blocks: usize, device: &Device) -> Self {
+    pub fn new(feat: usize, root_channels: usize, d: usize, heads: usize, ffn: usize, blocks: usize, device: &Device) -> Self {
         KeyframeEncoder {
-            kf_in: LinearConfig::new(2 * feat, d).init(device),
+            kf_in: LinearConfig::new(2 * (feat + root_channels), d).init(device),
             blocks: (0..blocks).map(|_| DmaBlock::new(d, heads, ffn, device)).collect(),
+            root_channels,
         }
     }
 
-    /// `text_tok` [B,1,d], `kf` [B,N,D] (zeros where unobserved), `kf_mask` [B,N,D], `pos`
-    /// [1,N,d] -> [B, 1+N, d].
-    pub fn forward(&self, text_tok: Tensor<3>, kf: Tensor<3>, kf_mask: Tensor<3>, pos: Tensor<3>, plan: &DmaPlan) -> Tensor<3> {
-        let frames = linear(&self.kf_in, Tensor::cat(vec![kf * kf_mask.clone(), kf_mask], 2)) + pos;
+    /// `text_tok` [B,1,d]; the condition's keyframes `kf`/`kf_mask` [B,N,D] and root channels
+    /// [B,N,R]; `pos` [1,N,d] -> [B, 1+N, d].
+    pub fn forward(&self, text_tok: Tensor<3>, c: &Condition, pos: Tensor<3>, plan: &DmaPlan) -> Tensor<3> {
+        let mut parts = vec![c.kf.clone() * c.kf_mask.clone(), c.kf_mask.clone()];
+        if self.root_channels > 0 {
+            let [b, n, _] = c.root.dims();
+            let r = self.root_channels;
+            parts.push((c.root.clone() * c.root_mask.clone()).slice([0..b, 0..n, 0..r]));
+            parts.push(c.root_mask.clone().slice([0..b, 0..n, 0..r]));
+        }
+        let frames = linear(&self.kf_in, Tensor::cat(parts, 2)) + pos;
         let z0 = Tensor::cat(vec![text_tok, frames], 1);
         let mut z = z0.clone();
         for (k, block) in self.blocks.iter().enumerate() {

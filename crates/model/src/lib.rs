@@ -12,6 +12,7 @@ pub mod diffusion;
 pub mod dma;
 pub mod dropout;
 pub mod embed;
+pub mod fit;
 pub mod flops;
 pub mod kernels;
 pub mod kinematics;

@@ -8,6 +8,8 @@ use crate::kinematics::recover_from_ric;
 /// Loss terms of one batch (scalars on the device).
 pub struct Losses {
     pub simple: Tensor<1>,
+    /// Squared error on the observed keyframe elements (only when its weight is positive).
+    pub key: Option<Tensor<1>>,
     pub pos: Option<Tensor<1>>,
     pub vel: Option<Tensor<1>>,
     pub foot: Option<Tensor<1>>,
@@ -17,6 +19,13 @@ pub struct Losses {
 /// keyframe and not padding. `valid` [B, N]; `kf_mask` [B, N, D].
 pub fn l_simple(x0: Tensor<3>, pred: Tensor<3>, kf_mask: Tensor<3>, valid: Tensor<2>) -> Tensor<1> {
     let w = (kf_mask.ones_like() - kf_mask) * valid.unsqueeze_dim::<3>(2);
+    let num = ((x0 - pred).powf_scalar(2.0) * w.clone()).sum();
+    num / w.sum().clamp_min(1.0)
+}
+
+/// Mean squared error over the elements a keyframe observes (real frames only).
+pub fn l_key(x0: Tensor<3>, pred: Tensor<3>, kf_mask: Tensor<3>, valid: Tensor<2>) -> Tensor<1> {
+    let w = kf_mask * valid.unsqueeze_dim::<3>(2);
     let num = ((x0 - pred).powf_scalar(2.0) * w.clone()).sum();
     num / w.sum().clamp_min(1.0)
 }
@@ -31,6 +40,8 @@ pub struct Kinematic<'a> {
     pub lambda_pos: f64,
     pub lambda_vel: f64,
     pub lambda_foot: f64,
+    /// Weight of `Losses::key`.
+    pub keyframe_loss: f64,
 }
 
 impl Kinematic<'_> {
@@ -41,9 +52,10 @@ impl Kinematic<'_> {
 
 /// All loss terms; the kinematic ones only when their weight is positive.
 pub fn losses(x0: Tensor<3>, pred: Tensor<3>, kf_mask: Tensor<3>, valid: Tensor<2>, k: &Kinematic) -> Losses {
-    let simple = l_simple(x0.clone(), pred.clone(), kf_mask, valid.clone());
+    let simple = l_simple(x0.clone(), pred.clone(), kf_mask.clone(), valid.clone());
+    let key = (k.keyframe_loss > 0.0).then(|| l_key(x0.clone(), pred.clone(), kf_mask, valid.clone()));
     if !k.any() {
-        return Losses { simple, pos: None, vel: None, foot: None };
+        return Losses { simple, key, pos: None, vel: None, foot: None };
     }
     let device = x0.device();
     let [b, n, d] = x0.dims();
@@ -74,14 +86,14 @@ pub fn losses(x0: Tensor<3>, pred: Tensor<3>, kf_mask: Tensor<3>, valid: Tensor<
         }
         total / (pairs * 12.0)
     });
-    Losses { simple, pos, vel, foot }
+    Losses { simple, key, pos, vel, foot }
 }
 
 impl Losses {
     /// The weighted sum that is optimised.
     pub fn total(&self, k: &Kinematic) -> Tensor<1> {
         let mut t = self.simple.clone();
-        for (term, w) in [(&self.pos, k.lambda_pos), (&self.vel, k.lambda_vel), (&self.foot, k.lambda_foot)] {
+        for (term, w) in [(&self.key, k.keyframe_loss), (&self.pos, k.lambda_pos), (&self.vel, k.lambda_vel), (&self.foot, k.lambda_foot)] {
             if let Some(x) = term {
                 t = t + x.clone() * w;
             }
@@ -101,7 +113,7 @@ mod tests {
         let x = Tensor::<3>::random([b, n, d], burn::tensor::Distribution::Normal(0.0, 1.0), &dev);
         let mean = vec![0.0f32; d];
         let std = vec![0.1f32; d];
-        let k = Kinematic { mean: &mean, std: &std, joints: 22, feet: [7, 10, 8, 11], lambda_pos: 1.0, lambda_vel: 1.0, lambda_foot: 1.0 };
+        let k = Kinematic { mean: &mean, std: &std, joints: 22, feet: [7, 10, 8, 11], lambda_pos: 1.0, lambda_vel: 1.0, lambda_foot: 1.0, keyframe_loss: 0.0 };
         let valid = Tensor::<2>::ones([b, n], &dev);
         let l = losses(x.clone(), x.clone(), x.zeros_like(), valid.clone(), &k);
         let pos: f32 = l.pos.unwrap().into_scalar();

@@ -60,6 +60,9 @@ pub struct TrainingConfig {
     pub lambda_pos: f64,
     pub lambda_vel: f64,
     pub lambda_foot: f64,
+    /// Weight of the reconstruction error on the elements the keyframes observe (the paper's
+    /// L_simple leaves them out; 0 = the paper).
+    pub keyframe_loss: f64,
 }
 
 impl Default for TrainingConfig {
@@ -81,6 +84,7 @@ impl Default for TrainingConfig {
             lambda_pos: 0.0,
             lambda_vel: 0.0,
             lambda_foot: 0.0,
+            keyframe_loss: 0.0,
         }
     }
 }

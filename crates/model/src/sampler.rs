@@ -1,9 +1,10 @@
 //! Reverse diffusion with keyframe classifier-free guidance (one batched forward of the
 //! conditional and keyframe-free branches), transition guidance (x0 mode), DDPM over all steps
-//! or DDIM over a few, and exact write-back of observed keyframe features at the end.
+//! or DDIM over a few. Meeting the keyframes exactly afterwards is `fit`'s job.
 
 use burn::prelude::*;
 use diffkfc_data::rng::Rng;
+use diffkfc_data::warp::ROOT_CHANNELS;
 
 use crate::diffusion::Schedule;
 use crate::params::host;
@@ -37,8 +38,6 @@ pub struct Options {
     /// Half window l and number of DCT bases m of transition guidance.
     pub window: usize,
     pub dct_bases: usize,
-    /// Write observed keyframe features back after the last step.
-    pub write_back: bool,
     pub seed: u64,
     pub tg_mode: TgMode,
     /// The MDM-inp baseline: no keyframe branch; observed features pasted into x0 every step.
@@ -47,7 +46,7 @@ pub struct Options {
 
 impl Default for Options {
     fn default() -> Self {
-        Options { sampler: Sampler::Ddim(50), kf_guidance: 2.5, transition: 100.0, window: 2, dct_bases: 3, write_back: true, seed: 0, tg_mode: TgMode::X0, inpaint: false }
+        Options { sampler: Sampler::Ddim(50), kf_guidance: 2.5, transition: 100.0, window: 2, dct_bases: 3, seed: 0, tg_mode: TgMode::X0, inpaint: false }
     }
 }
 
@@ -64,10 +63,22 @@ pub struct Request {
     pub kf: Vec<f32>,
     /// [B, N, D] 1 where observed.
     pub mask: Vec<f32>,
+    /// [B, N, ROOT_CHANNELS] keyed root place and heading (`warp::RootKey::channels`), zero
+    /// where unobserved, and its mask.
+    pub root: Vec<f32>,
+    pub root_mask: Vec<f32>,
     pub lengths: Vec<usize>,
 }
 
 impl Request {
+    /// A request with no keyframes: B motions of the given lengths, texts [B, text_dim].
+    pub fn text_only(frames: usize, dim: usize, text: Vec<f32>, text_dim: usize, lengths: Vec<usize>) -> Request {
+        let b = lengths.len();
+        let r = ROOT_CHANNELS;
+        Request { batch: b, frames, dim, text, text_dim, kf: vec![0.0; b * frames * dim], mask: vec![0.0; b * frames * dim], root: vec![0.0; b * frames * r], root_mask: vec![0.0; b * frames * r], lengths }
+    }
+
+    /// Frames of sample `b` whose pose (any feature) is observed.
     fn key_frames(&self, b: usize) -> Vec<usize> {
         let (n, d) = (self.frames, self.dim);
         (0..self.lengths[b]).filter(|&f| self.mask[(b * n + f) * d..(b * n + f + 1) * d].iter().any(|&m| m > 0.0)).collect()
@@ -76,15 +87,11 @@ impl Request {
     /// The network's condition of this request.
     pub fn condition(&self, device: &Device) -> Condition {
         let (b, n, d) = (self.batch, self.frames, self.dim);
-        let kf_frames = (0..b * n).map(|f| self.mask[f * d..(f + 1) * d].iter().any(|&m| m > 0.0)).collect();
         let real = (0..b * n).map(|f| f % n < self.lengths[f / n]).collect();
-        Condition {
-            text: Tensor::<1>::from_floats(self.text.as_slice(), device).reshape([b, self.text_dim]),
-            kf: Tensor::<1>::from_floats(self.kf.as_slice(), device).reshape([b, n, d]),
-            kf_mask: Tensor::<1>::from_floats(self.mask.as_slice(), device).reshape([b, n, d]),
-            kf_frames,
-            real,
-        }
+        let text = Tensor::<1>::from_floats(self.text.as_slice(), device).reshape([b, self.text_dim]);
+        let kf = Tensor::<1>::from_floats(self.kf.as_slice(), device).reshape([b, n, d]);
+        let kf_mask = Tensor::<1>::from_floats(self.mask.as_slice(), device).reshape([b, n, d]);
+        Condition::new(text, kf, kf_mask, &self.mask, &self.root, &self.root_mask, real, device)
     }
 }
 
@@ -99,6 +106,8 @@ fn stack(a: &Condition, b: &Condition) -> Condition {
         text: Tensor::cat(vec![a.text.clone(), b.text.clone()], 0),
         kf: Tensor::cat(vec![a.kf.clone(), b.kf.clone()], 0),
         kf_mask: Tensor::cat(vec![a.kf_mask.clone(), b.kf_mask.clone()], 0),
+        root: Tensor::cat(vec![a.root.clone(), b.root.clone()], 0),
+        root_mask: Tensor::cat(vec![a.root_mask.clone(), b.root_mask.clone()], 0),
         kf_frames: a.kf_frames.iter().chain(&b.kf_frames).copied().collect(),
         real: a.real.iter().chain(&b.real).copied().collect(),
     }
@@ -205,13 +214,6 @@ pub fn sample(model: &Denoiser, schedule: &Schedule, req: &Request, opts: &Optio
     for i in 0..b {
         for f in req.lengths[i]..n {
             x[(i * n + f) * d..(i * n + f + 1) * d].iter_mut().for_each(|v| *v = 0.0);
-        }
-    }
-    if opts.write_back {
-        for ((xi, &m), &kv) in x.iter_mut().zip(&req.mask).zip(&req.kf) {
-            if m > 0.0 {
-                *xi = kv;
-            }
         }
     }
     x

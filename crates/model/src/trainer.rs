@@ -33,6 +33,8 @@ pub struct StepRecord {
     pub loss: f64,
     pub l_simple: f64,
     #[serde(skip_serializing_if = "Option::is_none")]
+    pub l_key: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub l_pos: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub l_vel: Option<f64>,
@@ -92,6 +94,7 @@ impl Trainer<'_> {
             lambda_pos: t.lambda_pos,
             lambda_vel: t.lambda_vel,
             lambda_foot: t.lambda_foot,
+            keyframe_loss: t.keyframe_loss,
         }
     }
 
@@ -153,7 +156,7 @@ impl Trainer<'_> {
             if let Some(ck) = Checkpoint::latest(&self.run_dir) {
                 let ck = ck?;
                 if ck.shapes != shapes {
-                    return Err(format!("{}: checkpoint does not match the model in the config (different shapes)", self.run_dir.display()));
+                    return Err(format!("{}: checkpoint does not match the model in the config (different shapes; runs made before keyframes had root channels cannot be resumed: start a new --out)", self.run_dir.display()));
                 }
                 start = ck.step;
                 vals = ck.model;
@@ -176,6 +179,10 @@ impl Trainer<'_> {
         let mut last = None;
         let mut step = start;
         let save = |step: usize, vals: &[Vec<f32>], ema: &Option<Vec<Vec<f32>>>, adam: &Adam| -> Result<PathBuf, String> {
+            // Never write (and so never rotate older checkpoints away for) non-finite weights.
+            if let Some(x) = vals.iter().chain(ema.iter().flatten()).flat_map(|v| v.iter()).find(|x| !x.is_finite()) {
+                return Err(non_finite(step, "a weight", *x as f64, &self.run_dir));
+            }
             let ck = Checkpoint { step, shapes: shapes.clone(), model: vals.to_vec(), ema: ema.clone(), adam_step: adam.step, adam_m: adam.m.clone(), adam_v: adam.v.clone(), config: self.cfg.to_json(), seed: tc.seed };
             let p = ck.save(&self.run_dir)?;
             Checkpoint::prune(&self.run_dir, tc.keep_checkpoints);
@@ -211,7 +218,15 @@ impl Trainer<'_> {
             let l = self.batch_loss(&model, &schedule, &b, &t, noise, &device);
             let total = l.total(&kin);
             let lr = learning_rate(tc.lr, step, tc.warmup_steps, tc.cosine_decay, tc.max_steps);
-            let (updated, grad_norm) = descend(model, total.clone(), &mut vals, &mut adam, tc.grad_clip, lr);
+            let loss = scalar(total.clone());
+            if !loss.is_finite() {
+                // Stop before the step is taken: the weights and every checkpoint stay finite.
+                return Err(non_finite(step + 1, "loss", loss, &self.run_dir));
+            }
+            let (updated, grad_norm) = descend(model, total, &mut vals, &mut adam, tc.grad_clip, lr);
+            if !grad_norm.is_finite() {
+                return Err(non_finite(step + 1, "gradient norm", grad_norm, &self.run_dir));
+            }
             model = updated;
             if let Some(e) = ema.as_mut() {
                 // Early in training the EMA follows closely (as in common EMA warm-ups).
@@ -221,8 +236,9 @@ impl Trainer<'_> {
             step += 1;
             let mut rec = StepRecord {
                 step,
-                loss: scalar(total),
+                loss,
                 l_simple: scalar(l.simple),
+                l_key: l.key.map(scalar),
                 l_pos: l.pos.map(scalar),
                 l_vel: l.vel.map(scalar),
                 l_foot: l.foot.map(scalar),
@@ -250,6 +266,12 @@ impl Trainer<'_> {
     }
 }
 
+/// The error of a training run that went non-finite (no checkpoint is written for that step).
+fn non_finite(step: usize, what: &str, value: f64, run_dir: &Path) -> String {
+    let kept = Checkpoint::list(run_dir).last().map(|(s, _)| format!("the newest checkpoint (step {s}) is kept")).unwrap_or_else(|| "no checkpoint was written".into());
+    format!("{}: step {step}: {what} is {value} (not finite): training stopped; {kept}. Lower training.lr, check the data with `diffkfc data check`, or resume from the checkpoint", run_dir.display())
+}
+
 /// Keep only the metrics lines of steps <= `step` (a resumed run rewrites what follows).
 fn truncate_metrics(path: &Path, step: usize) -> std::io::Result<()> {
     let Ok(text) = std::fs::read_to_string(path) else { return Ok(()) };
@@ -270,6 +292,15 @@ pub fn load_for_inference(run_dir: &Path, device: &Device) -> Result<(RunConfig,
     let mut cfg = RunConfig::parse(&ck.config).map_err(|e| format!("{}: stored config: {e}", run_dir.display()))?;
     // Inference: no dropout (it has no parameters, so the weights load the same).
     cfg.model.dropout = 0.0;
+    let shapes = |c: &crate::DiffKfcConfig| params::values(&c.init(&Device::flex())).into_iter().map(|(s, _)| s).collect::<Vec<_>>();
+    if shapes(&cfg.model) != ck.shapes {
+        // Checkpoints from before root channels: their configs do not name them.
+        let old = cfg.model.clone().with_root_channels(0);
+        if shapes(&old) != ck.shapes {
+            return Err(format!("{}: checkpoint tensors do not match its stored config", run_dir.display()));
+        }
+        cfg.model = old;
+    }
     let model = cfg.model.init(device);
     let weights = ck.ema.as_ref().unwrap_or(&ck.model);
     Ok((cfg, params::load(model, weights), ck.step))

@@ -5,6 +5,7 @@ use burn::optim::GradientsParams;
 use burn::prelude::*;
 use burn::tensor::Distribution;
 use diffkfc_model::dma::{DmaBlock, DmaPlan};
+use diffkfc_data::warp::ROOT_CHANNELS;
 use diffkfc_model::{Condition, DiffKfcConfig};
 
 const N: usize = 24;
@@ -39,7 +40,9 @@ fn condition(lens: &[usize], keys: &[Vec<usize>], dev: &Device, seed: u64) -> (T
     let valid = Tensor::<1>::from_floats(real.iter().map(|&r| r as i32 as f32).collect::<Vec<_>>().as_slice(), dev).reshape([b, N, 1]);
     let x = x * valid;
     let text = Tensor::<2>::random([b, 384], Distribution::Normal(0.0, 0.05), dev);
-    let cond = Condition { text, kf: x.clone() * kf_mask.clone(), kf_mask, kf_frames, real };
+    let root = vec![0f32; b * N * ROOT_CHANNELS];
+    let mut cond = Condition::new(text, x.clone() * kf_mask.clone(), kf_mask, &mask, &root, &root, real, dev);
+    cond.kf_frames = kf_frames;
     (x, cond)
 }
 
@@ -58,6 +61,8 @@ fn sample_alone_equals_sample_in_batch() {
         text: c.text.clone().slice([1..2, 0..384]),
         kf: c.kf.clone().slice([1..2, 0..N, 0..D]),
         kf_mask: c.kf_mask.clone().slice([1..2, 0..N, 0..D]),
+        root: c.root.clone().slice([1..2, 0..N, 0..ROOT_CHANNELS]),
+        root_mask: c.root_mask.clone().slice([1..2, 0..N, 0..ROOT_CHANNELS]),
         kf_frames: c.kf_frames[N..2 * N].to_vec(),
         real: c.real[N..2 * N].to_vec(),
     };

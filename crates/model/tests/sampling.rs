@@ -3,6 +3,8 @@
 use burn::prelude::*;
 use diffkfc_model::diffusion::Schedule;
 use diffkfc_model::sampler::{sample, timesteps, Options, Request, Sampler};
+use diffkfc_data::representation::Layout;
+use diffkfc_model::fit::{finish, KeyframeFit};
 use diffkfc_model::DiffKfcConfig;
 
 fn request() -> Request {
@@ -19,7 +21,8 @@ fn request() -> Request {
             }
         }
     }
-    Request { batch: b, frames: n, dim: d, text: (0..b * 384).map(|_| r.normal() as f32 * 0.05).collect(), text_dim: 384, kf, mask, lengths: vec![20, 24] }
+    let text = (0..b * 384).map(|_| r.normal() as f32 * 0.05).collect();
+    Request { kf, mask, ..Request::text_only(n, d, text, 384, vec![20, 24]) }
 }
 
 fn run(model: &diffkfc_model::Denoiser, opts: &Options) -> Vec<f32> {
@@ -34,7 +37,7 @@ fn max_diff(a: &[f32], b: &[f32]) -> f32 {
 fn guidance_identities_and_exact_keyframes() {
     let model = DiffKfcConfig::tiny().init(&Device::flex());
     let run = |o: &Options| run(&model, o);
-    let base = Options { sampler: Sampler::Ddim(8), kf_guidance: 1.0, transition: 0.0, window: 2, dct_bases: 3, write_back: true, seed: 4, ..Options::default() };
+    let base = Options { sampler: Sampler::Ddim(8), kf_guidance: 1.0, transition: 0.0, window: 2, dct_bases: 3, seed: 4, ..Options::default() };
     let a = run(&base);
     // s = 1 (conditional branch alone) vs the batched guided path at s = 1 + 1e-6.
     let b = run(&Options { kf_guidance: 1.0 + 1e-6, ..base.clone() });
@@ -45,14 +48,27 @@ fn guidance_identities_and_exact_keyframes() {
     // Same seed, same motion; another seed, another.
     assert_eq!(a, run(&base));
     assert_ne!(a, run(&Options { seed: 5, ..base.clone() }));
-    // Keyframes are hit exactly; padding is zero.
+    // Padding is zero; with a paste or a warp the keyframes are hit exactly.
     let req = request();
-    for (k, (&m, &v)) in req.mask.iter().zip(&req.kf).enumerate() {
-        if m > 0.0 {
-            assert_eq!(a[k], v);
+    assert!(a[20 * 263..24 * 263].iter().all(|&v| v == 0.0));
+    let (mean, std) = (vec![0.1f32; 263], vec![0.5f32; 263]);
+    let layout = Layout::of(&diffkfc_data::T2M);
+    for fit in [KeyframeFit::Paste, KeyframeFit::Warp] {
+        for i in 0..2 {
+            let (f, corr) = finish(&a, &req, i, &mean, &std, &layout, fit);
+            assert_eq!(f.len(), req.lengths[i] * 263);
+            assert_eq!(corr.len(), if i == 0 { 3 } else { 1 }, "{fit:?}");
+            for (k, &v) in f.iter().enumerate() {
+                let src = i * 24 * 263 + k;
+                // Root velocities (0..3) are rewritten by the warp; contacts are not blended.
+                let c = k % 263;
+                if req.mask[src] > 0.0 && (fit == KeyframeFit::Paste || (3..259).contains(&c)) {
+                    let want = req.kf[src] * 0.5 + 0.1;
+                    assert!((v - want).abs() < 1e-5, "{fit:?} sample {i} element {k}: {v} vs {want}");
+                }
+            }
         }
     }
-    assert!(a[20 * 263..24 * 263].iter().all(|&v| v == 0.0));
     // Guidance changes the result, and everything stays finite under both samplers.
     let g = run(&Options { kf_guidance: 2.5, transition: 100.0, ..base.clone() });
     assert!(g.iter().all(|v| v.is_finite()) && max_diff(&a, &g) > 0.0);

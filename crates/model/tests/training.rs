@@ -135,3 +135,41 @@ fn tiny_config_lowers_validation_loss() {
     assert!(vals[1].1 < vals[0].1 * 0.9, "{vals:?}");
     std::fs::remove_dir_all(root).unwrap();
 }
+
+/// A checkpoint written before keyframes had root channels (its stored config does not name
+/// them, its keyframe input is 2 x 263 wide) still loads and samples, with pose-only keyframes.
+#[test]
+fn checkpoint_without_root_channels_loads() {
+    use diffkfc_model::sampler::{sample, Options, Request, Sampler};
+    use diffkfc_model::trainer::load_for_inference;
+    let device = Device::flex();
+    let cfg = RunConfig::parse(r#"{"model": "tiny"}"#).unwrap();
+    let old_model = cfg.model.clone().with_root_channels(0);
+    let vals: Vec<(Vec<usize>, Vec<f32>)> = diffkfc_model::params::values(&old_model.init(&device));
+    // The config as the old code wrote it: every model key but root_channels.
+    let mut json: serde_json::Value = serde_json::from_str(&cfg.to_json()).unwrap();
+    json["model"].as_object_mut().unwrap().remove("root_channels");
+    let shapes: Vec<Vec<usize>> = vals.iter().map(|v| v.0.clone()).collect();
+    let model: Vec<Vec<f32>> = vals.into_iter().map(|v| v.1).collect();
+    let zeros: Vec<Vec<f32>> = model.iter().map(|v| vec![0.0; v.len()]).collect();
+    let dir = std::env::temp_dir().join(format!("diffkfc-oldckpt-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let ck = Checkpoint { step: 7, shapes, model, ema: None, adam_step: 7, adam_m: zeros.clone(), adam_v: zeros, config: json.to_string(), seed: 0 };
+    ck.save(&dir).unwrap();
+    let (loaded, denoiser, step) = load_for_inference(&dir, &device).unwrap();
+    assert_eq!((step, loaded.model.root_channels), (7, 0));
+    let req = Request::text_only(16, 263, vec![0.01; 384], 384, vec![16]);
+    let out = sample(&denoiser, &diffkfc_model::diffusion::Schedule::cosine(1000), &req, &Options { sampler: Sampler::Ddim(2), ..Options::default() }, |_, _| {});
+    assert!(out.iter().all(|v| v.is_finite()));
+    // A checkpoint whose tensors match neither layout is refused with a message.
+    let mut bad = ck.clone();
+    bad.shapes[0] = vec![3, 3];
+    bad.model[0] = vec![0.0; 9];
+    bad.adam_m[0] = vec![0.0; 9];
+    bad.adam_v[0] = vec![0.0; 9];
+    bad.step = 8;
+    bad.save(&dir).unwrap();
+    let e = load_for_inference(&dir, &device).err().unwrap();
+    assert!(e.contains("do not match"), "{e}");
+    std::fs::remove_dir_all(dir).unwrap();
+}

@@ -14,6 +14,7 @@ use diffkfc_eval::report;
 use diffkfc_eval::text_motion::Gaussian;
 use diffkfc_eval::train_evaluator::{embed_split, EvaluatorTraining};
 use diffkfc_model::diffusion::Schedule;
+use diffkfc_model::fit::KeyframeFit;
 use diffkfc_model::trainer::load_for_inference;
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -91,9 +92,16 @@ struct RunArgs {
     /// Table 4: run the main setting at each of these keyframe rates (e.g. 0,0.02,0.05,0.1).
     #[arg(long)]
     sweep_rates: Option<String>,
-    /// Do not write observed keyframe features back after the last step.
-    #[arg(long)]
+    /// How generated motions meet their keyframes after the last step: warp, paste or none
+    /// (see `diffkfc sample --help`).
+    #[arg(long, default_value = "warp", value_name = "warp|paste|none")]
+    keyframe_fit: KeyframeFit,
+    /// Same as --keyframe-fit none (kept for older scripts).
+    #[arg(long, hide = true)]
     no_snap: bool,
+    /// Keyframes observe their pose only, not their place on the ground and their heading.
+    #[arg(long)]
+    no_root_keys: bool,
     /// Motions generated per denoiser batch.
     #[arg(long, default_value_t = 32)]
     batch_size: usize,
@@ -247,7 +255,8 @@ fn evaluate(a: RunArgs) -> Result<()> {
         multimodality: if a.multimodality { a.mm_texts } else { 0 },
         sampler,
         kf_guidance: a.kf_guidance,
-        snap: !a.no_snap,
+        fit: if a.no_snap { KeyframeFit::None } else { a.keyframe_fit },
+        root_keys: !a.no_root_keys,
         strategy,
         batch: a.batch_size,
         seed: a.seed,
@@ -273,11 +282,11 @@ fn evaluate(a: RunArgs) -> Result<()> {
         "checkpoint": run_dir.display().to_string(), "checkpoint_step": step, "evaluator": eval_dir.display().to_string(),
         "data": data.display().to_string(), "split": a.split, "replications": a.replications, "num_items": num_items,
         "samples_for_ade": a.samples_for_ade, "sampler": format!("{sampler:?}"), "kf_guidance": a.kf_guidance,
-        "keyframe_strategy": a.keyframe_strategy, "snap": !a.no_snap, "multimodality_texts": if a.multimodality { a.mm_texts } else { 0 },
+        "keyframe_strategy": a.keyframe_strategy, "keyframe_fit": if a.no_snap { KeyframeFit::None } else { a.keyframe_fit }, "root_keys": !a.no_root_keys, "multimodality_texts": if a.multimodality { a.mm_texts } else { 0 },
         "seed": a.seed, "seconds": secs, "reference_motions": real.len(),
     });
     let header = format!(
-        "Checkpoint `{}` (step {step}), evaluator `{}`, split `{}` of `{}`: {} replication(s) x {num_items} items, {sampler:?}, keyframe guidance {}, {} keyframes, ADE over {} sample(s), snap {}; {:.0} s.",
+        "Checkpoint `{}` (step {step}), evaluator `{}`, split `{}` of `{}`: {} replication(s) x {num_items} items, {sampler:?}, keyframe guidance {}, {} keyframes, ADE over {} sample(s), keyframe fit {:?}, root keyframes {}; {:.0} s.",
         run_dir.display(),
         eval_dir.display(),
         a.split,
@@ -286,7 +295,8 @@ fn evaluate(a: RunArgs) -> Result<()> {
         a.kf_guidance,
         a.keyframe_strategy,
         a.samples_for_ade,
-        if a.no_snap { "off" } else { "on" },
+        if a.no_snap { KeyframeFit::None } else { a.keyframe_fit },
+        if a.no_root_keys { "off" } else { "on" },
         secs
     );
     let md = report::to_markdown(&rows, &header, settings[0].rate, &settings[0].name);

@@ -7,9 +7,11 @@ use burn::prelude::*;
 use clap::{Args, ValueEnum};
 use diffkfc_data::keyframes::{self, Strategy};
 use diffkfc_data::rng::Rng;
+use diffkfc_data::warp::{self, RootKey, ROOT_CHANNELS};
 use diffkfc_data::{npy, pose, render, representation as rep, T2M};
 use diffkfc_eval::keyframe_metrics::{k_err_global, k_err_local, k_trans};
 use diffkfc_model::diffusion::Schedule;
+use diffkfc_model::fit::{finish, KeyframeFit};
 use diffkfc_model::sampler::{self, Options, Request, Sampler};
 use diffkfc_model::text::{self, minilm::MiniLm, TextEncoder};
 use diffkfc_model::trainer::load_for_inference;
@@ -104,9 +106,19 @@ pub struct SampleArgs {
     tg_mode: TgModeArg,
     #[arg(long, value_enum, default_value = "diffkfc")]
     keyframe_mode: KeyframeMode,
-    /// Do not write observed keyframe features back after the last step (see the raw model).
+    /// How the motion meets its keyframes after the last step: warp (the residual at each key
+    /// spread smoothly over its neighbours and the root re-integrated to the keyed places and
+    /// headings: exact, no seam), paste (observed features written into the key frames alone:
+    /// the pose jumps there), none (the network's output as it is).
+    #[arg(long, default_value = "warp", value_name = "warp|paste|none")]
+    pub(crate) keyframe_fit: KeyframeFit,
+    /// Same as --keyframe-fit none (kept for older scripts).
+    #[arg(long, hide = true)]
+    pub(crate) no_snap: bool,
+    /// Keyframes from --from observe their pose only, not their place on the ground and their
+    /// heading.
     #[arg(long)]
-    no_snap: bool,
+    pub(crate) no_root_keys: bool,
     #[arg(long, default_value = "out/sample")]
     out: PathBuf,
     #[arg(long, default_value = "flex")]
@@ -124,6 +136,8 @@ struct Keys {
     source: Option<rep::Joints>,
     /// Joints the keyframes observe.
     joints: Vec<usize>,
+    /// [length] keyed place and heading (unobserved: default).
+    root: Vec<RootKey>,
 }
 
 fn parse_frames(spec: &str, len: usize) -> Result<Vec<usize>> {
@@ -171,21 +185,40 @@ fn keys_from_motion(a: &SampleArgs, path: &Path, length: Option<usize>, joints: 
     let mask = keyframes::frame_mask(length, &frames, &dims);
     let values = feats[..length * d].iter().zip(&mask).map(|(v, m)| v * m).collect();
     let source = rep::recover_from_ric(&T2M, &feats[..length * d].iter().map(|&v| v as f64).collect::<Vec<_>>());
-    Ok(Keys { length, frames, values, mask, source: Some(source), joints })
+    let mut root = vec![RootKey::default(); length];
+    if !a.no_root_keys {
+        let traj = warp::root_trajectory(&feats[..length * d], d);
+        for &f in &frames {
+            root[f] = traj[f];
+        }
+    }
+    Ok(Keys { length, frames, values, mask, source: Some(source), joints, root })
 }
 
 fn keys_from_json(path: &Path, length: Option<usize>, joints_flag: Option<&str>) -> Result<Keys> {
     let err = |m: String| anyhow::anyhow!("{}: {m}", path.display());
     let v: serde_json::Value = serde_json::from_slice(&std::fs::read(path).with_context(|| format!("reading {}", path.display()))?).map_err(|e| err(format!("not valid JSON: {e}")))?;
-    let length = length.or(v["length"].as_u64().map(|l| l as usize)).ok_or_else(|| err("no \"length\" (or pass --length)".into()))?;
+    let max = diffkfc_data::dataset::MAX_FRAMES;
+    let length = match (length, v.get("length")) {
+        (Some(l), _) => l,
+        (None, None) => return Err(err("no \"length\" (or pass --length)".into())),
+        (None, Some(l)) => match l.as_u64().filter(|&l| l >= 1 && l <= max as u64) {
+            Some(l) => l as usize,
+            None => return Err(err(format!("\"length\" is {l}; must be a whole number of frames from 1 to {max}"))),
+        },
+    };
     let spec = joints_flag.map(str::to_string).or(v["joints"].as_str().map(str::to_string));
     let joints = joint_set(spec.as_deref(), "joints")?;
     let d = T2M.feature_dim();
     let dims = keyframes::dim_mask(&T2M, Some(&joints));
     let (mut values, mut mask) = (vec![0f32; length * d], vec![0f32; length * d]);
+    let mut root = vec![RootKey::default(); length];
     let mut frames = Vec::new();
     for (i, k) in v["keyframes"].as_array().ok_or_else(|| err("no \"keyframes\" array".into()))?.iter().enumerate() {
-        let f = k["frame"].as_u64().ok_or_else(|| err(format!("keyframe {i}: no \"frame\"")))? as usize;
+        let f = match k.get("frame") {
+            None => return Err(err(format!("keyframe {i}: no \"frame\""))),
+            Some(x) => x.as_u64().ok_or_else(|| err(format!("keyframe {i}: \"frame\" is {x}; must be a whole frame number from 0")))? as usize,
+        };
         if f >= length {
             return Err(err(format!("keyframe {i}: frame {f} is beyond the length {length}")));
         }
@@ -208,8 +241,10 @@ fn keys_from_json(path: &Path, length: Option<usize>, joints_flag: Option<&str>)
                 return Err(err(format!("keyframe {i}: NaN or non-numeric feature")));
             }
             (vals, vec![true; d])
+        } else if k.get("root").is_some() || k.get("heading").is_some() {
+            (vec![0.0; d], vec![false; d])
         } else {
-            return Err(err(format!("keyframe {i}: needs \"joints\" (22 x [x,y,z]) or \"features\" ({d} numbers)")));
+            return Err(err(format!("keyframe {i}: needs \"joints\" (22 x [x,y,z]), \"features\" ({d} numbers), \"root\" or \"heading\"")));
         };
         for c in 0..d {
             if obs[c] && dims[c] {
@@ -217,31 +252,72 @@ fn keys_from_json(path: &Path, length: Option<usize>, joints_flag: Option<&str>)
                 mask[f * d + c] = 1.0;
             }
         }
+        let number = |x: &serde_json::Value, what: &str| -> Result<f64> {
+            x.as_f64().filter(|v| v.is_finite() && v.abs() < 1e4).ok_or_else(|| err(format!("keyframe {i}: \"{what}\" must hold finite numbers (metres or degrees), got {x}")))
+        };
+        if let Some(r) = k.get("root") {
+            let a = r.as_array().filter(|a| a.len() == 3).ok_or_else(|| err(format!("keyframe {i}: \"root\" must be [x, y, z] in metres, got {r}")))?;
+            let p: Vec<f64> = a.iter().map(|x| number(x, "root")).collect::<Result<_>>()?;
+            root[f].place = Some([p[0], p[2]]);
+            // The root's height is the pelvis height feature.
+            if dims[3] {
+                values[f * d + 3] = p[1] as f32;
+                mask[f * d + 3] = 1.0;
+            }
+        }
+        if let Some(h) = k.get("heading") {
+            root[f].heading = Some(number(h, "heading")?.to_radians());
+        }
         frames.push(f);
     }
     frames.sort_unstable();
     frames.dedup();
-    Ok(Keys { length, frames, values, mask, source: None, joints })
+    relative_to_first_frame(&mut root);
+    Ok(Keys { length, frames, values, mask, source: None, joints, root })
+}
+
+/// Keyed places and headings are in the output motion's frame, where frame 0 stands at the
+/// origin facing +Z. A keyframe at frame 0 with its own place or heading moves that frame:
+/// every key is re-expressed relative to it.
+fn relative_to_first_frame(root: &mut [RootKey]) {
+    let Some(first) = root.first().copied() else { return };
+    let [ox, oz] = first.place.unwrap_or([0.0, 0.0]);
+    let h0 = first.heading.unwrap_or(0.0);
+    let (s, c) = (-h0).sin_cos();
+    for k in root.iter_mut() {
+        // Rotate by -h0 about +Y (heading h turns +Z towards +X): x' = x cos + z sin.
+        k.place = k.place.map(|[x, z]| {
+            let (x, z) = (x - ox, z - oz);
+            [x * c + z * s, -x * s + z * c]
+        });
+        k.heading = k.heading.map(|h| h - h0);
+    }
 }
 
 pub fn run(a: SampleArgs) -> Result<()> {
     let Some(file) = a.prompts.clone() else { return run_one(a) };
     let text = std::fs::read_to_string(&file).with_context(|| format!("reading {}", file.display()))?;
-    let lines: Vec<&str> = text.lines().map(str::trim).filter(|l| !l.is_empty() && !l.starts_with("//")).collect();
+    // (line number in the file, text): blank and comment lines are skipped but still counted.
+    let lines: Vec<(usize, &str)> = text.lines().map(str::trim).enumerate().filter(|(_, l)| !l.is_empty() && !l.starts_with("//")).map(|(n, l)| (n + 1, l)).collect();
     if lines.is_empty() {
         bail!("{}: no prompts", file.display());
     }
-    for (k, line) in lines.iter().enumerate() {
+    for (k, &(line_no, line)) in lines.iter().enumerate() {
         let (t, len) = match line.rsplit_once('#') {
-            Some((t, l)) => (t.trim(), Some(l.trim().parse::<usize>().map_err(|_| anyhow::anyhow!("{}: line {}: length '{l}' is not a number", file.display(), k + 1))?)),
-            None => (*line, None),
+            Some((t, l)) => (
+                t.trim(),
+                Some(l.trim().parse::<usize>().ok().filter(|&n| (1..=diffkfc_data::dataset::MAX_FRAMES).contains(&n)).ok_or_else(|| {
+                    anyhow::anyhow!("{}: line {}: length '{l}' is not a number of frames from 1 to {}", file.display(), line_no, diffkfc_data::dataset::MAX_FRAMES)
+                })?),
+            ),
+            None => (line, None),
         };
         let mut one = a.clone();
         one.prompts = None;
         one.text = t.to_string();
         one.length = len.or(a.length);
         one.out = a.out.join(format!("prompt{k:03}"));
-        run_one(one).with_context(|| format!("{}: line {}", file.display(), k + 1))?;
+        run_one(one).with_context(|| format!("{}: line {line_no}", file.display()))?;
     }
     Ok(())
 }
@@ -261,16 +337,25 @@ fn run_one(a: SampleArgs) -> Result<()> {
     let device = if matches!(a.tg_mode, TgModeArg::Exact) { device.autodiff() } else { device };
     let (cfg, model, step) = load_for_inference(&a.checkpoint, &device).map_err(anyhow::Error::msg)?;
     let (mean, std) = normalisation(&a.checkpoint, &cfg)?;
+    let max = diffkfc_data::dataset::MAX_FRAMES;
+    // Checked before anything is allocated for the motion.
+    if let Some(s) = a.seconds {
+        if !(s.is_finite() && s * T2M.fps >= 0.5 && s * T2M.fps <= max as f64) {
+            bail!("--seconds: {s} is not between {:.2} and {:.1} ({max} frames at {} fps)", 0.5 / T2M.fps, max as f64 / T2M.fps, T2M.fps);
+        }
+    }
     let length = a.length.or(a.seconds.map(|s| (s * T2M.fps).round() as usize));
+    if let Some(l) = length.filter(|&l| l == 0 || l > max) {
+        bail!("--length: {l} frames; must be 1 to {max}");
+    }
     let keys = match (&a.from, &a.keyframes) {
         (Some(p), _) => keys_from_motion(&a, p, length, joint_set(a.joints.as_deref(), "--joints")?)?,
         (None, Some(p)) => keys_from_json(p, length, a.joints.as_deref())?,
         (None, None) => {
             let length = length.unwrap_or(120);
-            Keys { length, frames: vec![], values: vec![0.0; length * T2M.feature_dim()], mask: vec![0.0; length * T2M.feature_dim()], source: None, joints: vec![] }
+            Keys { length, frames: vec![], values: vec![0.0; length * T2M.feature_dim()], mask: vec![0.0; length * T2M.feature_dim()], source: None, joints: vec![], root: vec![RootKey::default(); length] }
         }
     };
-    let max = diffkfc_data::dataset::MAX_FRAMES;
     if keys.length == 0 || keys.length > max {
         bail!("--length: {} frames; must be 1 to {max}", keys.length);
     }
@@ -279,22 +364,19 @@ fn run_one(a: SampleArgs) -> Result<()> {
     let (b, n, d) = (a.num_samples, keys.length, T2M.feature_dim());
     let norm = |v: &[f32], m: &[f32]| -> Vec<f32> { v.iter().zip(m).enumerate().map(|(k, (x, mk))| if *mk > 0.0 { (x - mean[k % d]) / std[k % d] } else { 0.0 }).collect() };
     let kf_n = norm(&keys.values, &keys.mask);
+    let (root, root_mask): (Vec<[f32; ROOT_CHANNELS]>, Vec<[f32; ROOT_CHANNELS]>) = keys.root.iter().map(RootKey::channels).unzip();
     let req = Request {
-        batch: b,
-        frames: n,
-        dim: d,
-        text: emb.iter().copied().cycle().take(b * emb.len()).collect(),
-        text_dim: emb.len(),
         kf: kf_n.iter().copied().cycle().take(b * n * d).collect(),
         mask: keys.mask.iter().copied().cycle().take(b * n * d).collect(),
-        lengths: vec![n; b],
+        root: root.concat().iter().copied().cycle().take(b * n * ROOT_CHANNELS).collect(),
+        root_mask: root_mask.concat().iter().copied().cycle().take(b * n * ROOT_CHANNELS).collect(),
+        ..Request::text_only(n, d, emb.iter().copied().cycle().take(b * emb.len()).collect(), emb.len(), vec![n; b])
     };
     let schedule = Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps).context("diffusion schedule of the checkpoint")?;
     let opts = Options {
         sampler: a.sampler.sampler(a.steps),
         kf_guidance: a.kf_guidance,
         transition: a.transition_guidance,
-        write_back: !a.no_snap,
         seed: a.seed,
         window: a.tg_window,
         dct_bases: a.tg_bases,
@@ -308,10 +390,11 @@ fn run_one(a: SampleArgs) -> Result<()> {
     let x = sampler::sample(&model, &schedule, &req, &opts, crate::progress::bar("denoising"));
     let secs = t0.elapsed().as_secs_f64();
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let fit = if a.no_snap { KeyframeFit::None } else { a.keyframe_fit };
+    let layout = rep::Layout::of(&T2M);
     let mut samples = Vec::new();
     for i in 0..b {
-        let mut f: Vec<f32> = x[i * n * d..(i + 1) * n * d].to_vec();
-        diffkfc_data::dataset::denormalise(&mut f, &mean, &std);
+        let (f, corrections) = finish(&x, &req, i, &mean, &std, &layout, fit);
         let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
         let name = format!("sample_{i:02}");
         let stem = a.out.join(&name);
@@ -327,6 +410,8 @@ fn run_one(a: SampleArgs) -> Result<()> {
             "k_err_m": keys.source.as_ref().and_then(|s| k_err_global(&j, s, &keys.frames, &keys.joints)),
             "k_err_root_relative_m": k_err_local(&T2M, &f, &keys.values, &keys.frames, &keys.joints),
             "k_trans": k_trans(&j, &keys.frames, 2),
+            "foot_skating": diffkfc_data::plausibility::foot_skating_ratio(&T2M, &j),
+            "corrections": corrections,
         }));
     }
     let report = json!({
@@ -339,7 +424,8 @@ fn run_one(a: SampleArgs) -> Result<()> {
         "sampler": format!("{:?}", opts.sampler),
         "kf_guidance": opts.kf_guidance,
         "transition_guidance": opts.transition,
-        "snap": opts.write_back,
+        "keyframe_fit": fit,
+        "root_keys": keys.root.iter().enumerate().filter(|(_, k)| **k != RootKey::default()).map(|(f, k)| json!({"frame": f, "place": k.place, "heading_deg": k.heading.map(f64::to_degrees)})).collect::<Vec<_>>(),
         "keyframe_mode": format!("{:?}", a.keyframe_mode).to_lowercase(),
         "tg_mode": format!("{:?}", a.tg_mode).to_lowercase(),
         "tg_window": opts.window,
@@ -347,13 +433,24 @@ fn run_one(a: SampleArgs) -> Result<()> {
         "seed": a.seed,
         "seconds": secs,
         "real_k_trans": keys.source.as_ref().and_then(|s| k_trans(s, &keys.frames, 2)),
+        "real_foot_skating": keys.source.as_ref().map(|s| diffkfc_data::plausibility::foot_skating_ratio(&T2M, s)),
         "samples": samples,
     });
     diffkfc_data::write_atomic(&a.out.join("results.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
     diffkfc_data::write_atomic(&a.out.join("index.html"), index_html(&report).as_bytes())?;
     println!("{}: {b} sample(s) of {n} frames in {secs:.1} s ({:?}); see results.json and index.html", a.out.display(), opts.sampler);
     for (i, s) in report["samples"].as_array().unwrap().iter().enumerate() {
-        println!("  sample_{i:02}: K-Err {} m, root-relative {} m, K-TranS {}", fmt(&s["k_err_m"]), fmt(&s["k_err_root_relative_m"]), fmt(&s["k_trans"]));
+        let most = |k: &str| s["corrections"].as_array().into_iter().flatten().filter_map(|c| c[k].as_f64()).map(f64::abs).fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))));
+        let fit_note = match (most("pose"), most("place_m"), most("heading_deg")) {
+            (None, None, None) => String::new(),
+            (p, m, h) => format!(
+                "; largest {fit:?} correction: pose {}, place {} m, heading {} deg",
+                p.map_or("-".into(), |v| format!("{v:.3}")),
+                m.map_or("-".into(), |v| format!("{v:.3}")),
+                h.map_or("-".into(), |v| format!("{v:.1}"))
+            ),
+        };
+        println!("  sample_{i:02}: K-Err {} m, root-relative {} m, K-TranS {}, foot skating {}{fit_note}", fmt(&s["k_err_m"]), fmt(&s["k_err_root_relative_m"]), fmt(&s["k_trans"]), fmt(&s["foot_skating"]));
     }
     Ok(())
 }

@@ -66,6 +66,27 @@ pub fn parse_duration(s: &str) -> Result<Duration, String> {
     Ok(Duration::from_secs_f64(secs))
 }
 
+/// Exit status of a run stopped by SIGINT or SIGTERM after writing its checkpoint (128 + SIGINT).
+pub const INTERRUPTED_EXIT: i32 = 130;
+
+/// A resumed run must keep its model and its normalisation: checked before any run file is
+/// rewritten, so a refused resume leaves the run as it was.
+fn check_resumable(run_dir: &std::path::Path, cfg: &RunConfig, ds: &Dataset) -> Result<()> {
+    let stored = run_dir.join("config.json");
+    if let Ok(old) = RunConfig::load(&stored) {
+        if old.model != cfg.model {
+            bail!("--resume: {} describes another model than --config (model section differs); pass the run's own config or choose another --out", stored.display());
+        }
+    }
+    let mean = run_dir.join("Mean.npy");
+    if let Ok(m) = diffkfc_data::npy::read_f32(&mean) {
+        if m.data != ds.mean {
+            bail!("--resume: {} differs from the dataset's Mean.npy: the run was trained on another normalisation; resume on its own dataset or choose another --out", mean.display());
+        }
+    }
+    Ok(())
+}
+
 pub fn run(a: TrainArgs) -> Result<()> {
     let mut cfg = RunConfig::load(&a.config).map_err(anyhow::Error::msg)?;
     if let Some(s) = a.seed {
@@ -100,6 +121,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let text = embed_captions(&ds, &splits)?;
     if text.dim != cfg.model.text_dim {
         bail!("model.text_dim is {} but the text encoder gives {}", cfg.model.text_dim, text.dim);
+    }
+    if a.resume {
+        check_resumable(&run_dir, &cfg, &ds)?;
     }
     std::fs::create_dir_all(&run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
     diffkfc_data::write_atomic(&run_dir.join("config.json"), cfg.to_json().as_bytes())?;
@@ -149,5 +173,10 @@ pub fn run(a: TrainArgs) -> Result<()> {
         println!("  validation loss (EMA weights): step {} {:.4} -> step {} {:.4}", a.0, a.1, b.0, b.1);
     }
     println!("  checkpoints, metrics.jsonl, loss.svg in {}", run_dir.display());
+    if interrupted.load(Ordering::SeqCst) {
+        // A script must be able to tell an interrupted run (checkpoint written) from a finished one.
+        eprintln!("interrupted: checkpoint written at step {}; `--resume` continues", outcome.end_step);
+        std::process::exit(INTERRUPTED_EXIT);
+    }
     Ok(())
 }

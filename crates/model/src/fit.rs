@@ -1,0 +1,77 @@
+//! After the last denoising step: how a generated motion is made to meet its keyframes exactly.
+
+use diffkfc_data::dataset::denormalise;
+use diffkfc_data::representation::Layout;
+use diffkfc_data::warp::{self, Correction, RootKey, ROOT_CHANNELS};
+
+use crate::sampler::Request;
+
+/// Frames over which a pose correction fades out past a key when the next key is further away
+/// (1 s at 20 fps): long enough that the added acceleration stays far below a real motion's.
+pub const FALLOFF: usize = 20;
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum KeyframeFit {
+    /// Motion warping: the residual at each key spread smoothly over its neighbours, the root
+    /// re-integrated to the keyed places and headings (`diffkfc_data::warp`).
+    #[default]
+    Warp,
+    /// The observed features written into the keyframe frames alone (the paper's implied
+    /// behaviour; the pose jumps at the key).
+    Paste,
+    /// The network's output as it is.
+    None,
+}
+
+impl std::str::FromStr for KeyframeFit {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "warp" => Ok(KeyframeFit::Warp),
+            "paste" => Ok(KeyframeFit::Paste),
+            "none" => Ok(KeyframeFit::None),
+            _ => Err(format!("unknown keyframe fit '{s}' (warp, paste, none)")),
+        }
+    }
+}
+
+/// Sample `i` of the sampler's normalised output `x` [B, N, D], de-normalised to [len, D] and
+/// fitted to the request's keyframes; with the correction made at each keyed frame.
+pub fn finish(x: &[f32], req: &Request, i: usize, mean: &[f32], std: &[f32], layout: &Layout, fit: KeyframeFit) -> (Vec<f32>, Vec<Correction>) {
+    let (n, d, r) = (req.frames, req.dim, ROOT_CHANNELS);
+    let len = req.lengths[i];
+    let span = |v: &[f32], w: usize| v[i * n * w..(i * n + len) * w].to_vec();
+    let mut out = span(x, d);
+    denormalise(&mut out, mean, std);
+    let mask = span(&req.mask, d);
+    let mut target = span(&req.kf, d);
+    denormalise(&mut target, mean, std);
+    match fit {
+        KeyframeFit::None => (out, Vec::new()),
+        KeyframeFit::Paste => {
+            let mut corr: Vec<Correction> = Vec::new();
+            for f in 0..len {
+                let row = f * d..(f + 1) * d;
+                if !mask[row.clone()].iter().any(|&m| m > 0.0) {
+                    continue;
+                }
+                let mut worst = 0.0f64;
+                for k in row {
+                    if mask[k] > 0.0 {
+                        worst = worst.max((target[k] - out[k]).abs() as f64);
+                        out[k] = target[k];
+                    }
+                }
+                corr.push(Correction { frame: f, pose: worst, ..Default::default() });
+            }
+            (out, corr)
+        }
+        KeyframeFit::Warp => {
+            let (rv, rm) = (span(&req.root, r), span(&req.root_mask, r));
+            let root: Vec<RootKey> = (0..len).map(|f| RootKey::from_channels(&rv[f * r..(f + 1) * r], &rm[f * r..(f + 1) * r])).collect();
+            let corr = warp::warp(layout, &mut out, &warp::Targets { features: &target, mask: &mask, root: &root }, FALLOFF);
+            (out, corr)
+        }
+    }
+}
