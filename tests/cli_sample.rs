@@ -67,6 +67,12 @@ fn sample_outputs_errors_and_determinism() {
     let a2 = args(&out2);
     assert!(diffkfc(&a2.iter().map(String::as_str).collect::<Vec<_>>()).status.success());
     assert_eq!(std::fs::read(out.join("sample_00.npy")).unwrap(), std::fs::read(out2.join("sample_00.npy")).unwrap());
+    // Reusing the folder with fewer samples leaves no stale sample_01 files of the first run.
+    let mut one = args(&out2);
+    let at = one.iter().position(|x| x == "--num-samples").unwrap() + 1;
+    one[at] = "1".into();
+    assert!(diffkfc(&one.iter().map(String::as_str).collect::<Vec<_>>()).status.success());
+    assert!(out2.join("sample_00.gif").exists() && !out2.join("sample_01.gif").exists() && !out2.join("sample_01.npy").exists());
 
     // The BVH reads back as keyframe source and as a picture.
     let bvh = out.join("sample_00.bvh");
@@ -160,6 +166,14 @@ fn sample_outputs_errors_and_determinism() {
     for (bad_frame, needle) in [("-1", "\"frame\" is -1"), ("1.5", "\"frame\" is 1.5"), ("\"3\"", "\"frame\" is \"3\"")] {
         std::fs::write(d.join("bad.json"), format!(r#"{{"length": 20, "keyframes": [{{"frame": {bad_frame}, "root": [0, 1, 0]}}]}}"#)).unwrap();
         run_err(&["--keyframes", s(&d.join("bad.json"))], &["bad.json", "keyframe 0", needle]);
+    }
+    // Flag ranges, and a sampler driven past any useful guidance fails instead of writing NaN.
+    run_err(&["--kf-guidance", "-1"], &["--kf-guidance", "-1"]);
+    run_err(&["--kf-guidance", "inf"], &["--kf-guidance", "inf"]);
+    run_err(&["--kf-guidance", "nan"], &["--kf-guidance", "NaN"]);
+    run_err(&["--transition-guidance", "1e30"], &["--transition-guidance"]);
+    for steps in ["0", "100000"] {
+        assert_one_line_error(&diffkfc(&["sample", "--checkpoint", s(&run), "--text", "walk", "--steps", steps, "--out", s(&out3)]), &["--steps", steps]);
     }
     // Prompt files: real line numbers (blank and comment lines counted), lengths checked.
     std::fs::write(&prompts, "a person jumps.\n\n// comment\nwalk#99999999999\n").unwrap();

@@ -9,6 +9,14 @@ use crate::DataError;
 /// Write bytes to `path` through a temporary file and a rename.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DataError> {
     let io = |e| DataError::Io { path: path.to_path_buf(), err: e };
+    // The rename would replace a device node, FIFO or symlink (as root, `-o /dev/null` would
+    // destroy /dev/null): only regular files are overwritten.
+    if let Ok(m) = std::fs::symlink_metadata(path) {
+        if !m.file_type().is_file() {
+            let kind = if m.file_type().is_symlink() { "a symbolic link" } else if m.is_dir() { "a directory" } else { "a device, FIFO or socket" };
+            return Err(DataError::Invalid(format!("{}: is {kind}, not a regular file: refusing to replace it", path.display())));
+        }
+    }
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(io)?;
     }
@@ -42,6 +50,29 @@ pub fn remove_stale_temps(dir: &Path, prefix: &str) {
 
 #[cfg(test)]
 mod tests {
+    use std::os::unix::fs::FileTypeExt;
+    use std::path::Path;
+
+    #[test]
+    fn only_regular_files_are_replaced() {
+        let d = std::env::temp_dir().join(format!("diffkfc-atomic-{}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        let target = d.join("target.txt");
+        std::fs::write(&target, b"keep").unwrap();
+        let link = d.join("link.txt");
+        std::os::unix::fs::symlink(&target, &link).unwrap();
+        let e = super::write_atomic(&link, b"new").unwrap_err().to_string();
+        assert!(e.contains("link.txt") && e.contains("symbolic link"), "{e}");
+        assert_eq!(std::fs::read(&target).unwrap(), b"keep");
+        let e = super::write_atomic(Path::new("/dev/null"), b"x").unwrap_err().to_string();
+        assert!(e.contains("/dev/null") && e.contains("not a regular file"), "{e}");
+        assert!(std::fs::metadata("/dev/null").unwrap().file_type().is_char_device());
+        super::write_atomic(&d.join("plain.txt"), b"ok").unwrap();
+        super::write_atomic(&d.join("plain.txt"), b"ok2").unwrap();
+        assert_eq!(std::fs::read(d.join("plain.txt")).unwrap(), b"ok2");
+        std::fs::remove_dir_all(d).unwrap();
+    }
+
     #[test]
     fn stale_temps_of_dead_processes_are_removed() {
         let d = std::env::temp_dir().join(format!("diffkfc-stale-{}", std::process::id()));

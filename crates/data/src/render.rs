@@ -199,12 +199,29 @@ fn draw_figure(c: &mut Canvas, cam: &Camera, skel: &Skeleton, f: &[Vec3], colour
     }
 }
 
+/// Farthest a joint may be from the origin and still be drawn (metres): the ground grid has a
+/// line every 0.5 m, so a motion 1e30 m long would take forever.
+pub const MAX_EXTENT_M: f64 = 10_000.0;
+
+/// A motion that can be drawn: every coordinate finite and within `MAX_EXTENT_M`.
+pub fn check_drawable(j: &Joints) -> Result<(), DataError> {
+    for (t, frame) in j.iter().enumerate() {
+        for (k, p) in frame.iter().enumerate() {
+            if let Some(v) = p.iter().find(|v| !(v.is_finite() && v.abs() <= MAX_EXTENT_M)) {
+                return Err(DataError::Invalid(format!("frame {t}, joint {k} is at {v} m: not finite or beyond {MAX_EXTENT_M} m, cannot draw it")));
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Size of GIF frames.
 pub const GIF_SIZE: usize = 320;
 
 /// An animated GIF of a motion; frames listed in `keyframes` are drawn highlighted and their
 /// poses stay visible as ghosts.
 pub fn gif(skel: &Skeleton, j: &Joints, keyframes: &[usize], path: &Path) -> Result<(), DataError> {
+    check_drawable(j).map_err(|e| e.in_file(path))?;
     let (w, h) = (GIF_SIZE, GIF_SIZE);
     let cam = Camera::fit(j, w, h);
     let mut base = Canvas::new(w, h);
@@ -238,6 +255,9 @@ pub fn gif(skel: &Skeleton, j: &Joints, keyframes: &[usize], path: &Path) -> Res
 /// A contact sheet: one cell per clip, each a strobe of `poses` poses from light to dark,
 /// keyframes (if any) in orange; `cols` cells per row.
 pub fn sheet(skel: &Skeleton, clips: &[(Joints, Vec<usize>)], cols: usize, cell: usize, path: &Path) -> Result<(), DataError> {
+    for (j, _) in clips {
+        check_drawable(j).map_err(|e| e.in_file(path))?;
+    }
     let cols = cols.max(1).min(clips.len().max(1));
     let rows = clips.len().div_ceil(cols).max(1);
     let (w, h) = (cols * cell, rows * cell);

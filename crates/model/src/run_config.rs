@@ -163,7 +163,59 @@ impl RunConfig {
         if let Some(k) = unknown_key(&v, &known, "") {
             return Err(format!("unknown key '{k}'"));
         }
-        serde_json::from_value(v).map_err(|e| format!("bad value: {e}"))
+        let cfg: RunConfig = serde_json::from_value(v).map_err(|e| format!("bad value: {e}"))?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Every value in its range, checked before anything is built from it (a zero width or
+    /// batch would divide by zero, a huge one exhaust memory, a NaN train silently).
+    pub fn validate(&self) -> Result<(), String> {
+        let m = &self.model;
+        let t = &self.training;
+        let k = &self.keyframes;
+        let bad = |key: &str, v: &dyn std::fmt::Display, want: &str| Err(format!("{key}: {v} {want}"));
+        let positive = [("model.feat_dim", m.feat_dim), ("model.text_dim", m.text_dim), ("model.d_model", m.d_model), ("model.heads", m.heads), ("model.ffn", m.ffn), ("model.max_frames", m.max_frames), ("diffusion.steps", self.diffusion.steps), ("training.batch_size", t.batch_size)];
+        for (key, v) in positive {
+            if v == 0 {
+                return bad(key, &v, "must be at least 1");
+            }
+        }
+        if m.d_model % m.heads != 0 {
+            return Err(format!("model.heads: {} does not divide model.d_model ({})", m.heads, m.d_model));
+        }
+        // Sizes whose products would not fit in memory on any machine this runs on.
+        let limits = [("model.d_model", m.d_model, 16_384), ("model.ffn", m.ffn, 65_536), ("model.heads", m.heads, 256), ("model.dec_layers", m.dec_layers, 256), ("model.feat_dim", m.feat_dim, 4096), ("model.max_frames", m.max_frames, 196), ("training.batch_size", t.batch_size, 16_384), ("diffusion.steps", self.diffusion.steps, 100_000)];
+        for (key, v, max) in limits {
+            if v > max {
+                return bad(key, &v, &format!("is too large (at most {max})"));
+            }
+        }
+        if m.dma_sizes.len() > 64 {
+            return bad("model.dma_sizes", &m.dma_sizes.len(), "blocks is too many (at most 64)");
+        }
+        if !(0.0..1.0).contains(&m.dropout) {
+            return bad("model.dropout", &m.dropout, "must be in [0, 1)");
+        }
+        if m.root_channels != 0 && m.root_channels != diffkfc_data::warp::ROOT_CHANNELS {
+            return bad("model.root_channels", &m.root_channels, &format!("must be 0 or {}", diffkfc_data::warp::ROOT_CHANNELS));
+        }
+        let unit = [("keyframes.rate", k.rate), ("keyframes.drop_prob", k.drop_prob), ("keyframes.root_drop_prob", k.root_drop_prob), ("training.ema_decay", t.ema_decay)];
+        for (key, v) in unit {
+            if !(0.0..=1.0).contains(&v) {
+                return bad(key, &v, "must be in [0, 1]");
+            }
+        }
+        let non_negative = [("training.grad_clip", t.grad_clip), ("training.lambda_pos", t.lambda_pos), ("training.lambda_vel", t.lambda_vel), ("training.lambda_foot", t.lambda_foot), ("training.keyframe_loss", t.keyframe_loss)];
+        for (key, v) in non_negative {
+            if !(v.is_finite() && v >= 0.0) {
+                return bad(key, &v, "must be a finite number >= 0");
+            }
+        }
+        if !(t.lr.is_finite() && t.lr > 0.0) {
+            return bad("training.lr", &t.lr, "must be a finite number > 0");
+        }
+        Ok(())
     }
 
     pub fn to_json(&self) -> String {
@@ -190,6 +242,22 @@ mod tests {
         assert!(e.contains("model.d_modle"), "{e}");
         let e = RunConfig::parse(r#"{"model": "tiny", "training": {"lr": "fast"}}"#).unwrap_err();
         assert!(e.contains("bad value"), "{e}");
+        for (body, needle) in [
+            (r#""training": {"batch_size": 0}"#, "training.batch_size: 0"),
+            (r#""diffusion": {"steps": 0}"#, "diffusion.steps: 0"),
+            (r#""training": {"batch_size": 100000}"#, "too large"),
+            (r#""training": {"lr": -1}"#, "training.lr: -1"),
+            (r#""training": {"ema_decay": 1.5}"#, "training.ema_decay: 1.5"),
+            (r#""training": {"grad_clip": -1}"#, "training.grad_clip: -1"),
+            (r#""keyframes": {"rate": 2}"#, "keyframes.rate: 2"),
+        ] {
+            let e = RunConfig::parse(&format!(r#"{{"model": "tiny", {body}}}"#)).unwrap_err();
+            assert!(e.contains(needle), "{body}: {e}");
+        }
+        for (model, needle) in [(r#"{"preset": "tiny", "heads": 3}"#, "does not divide"), (r#"{"preset": "tiny", "d_model": 0}"#, "model.d_model: 0"), (r#"{"preset": "tiny", "dropout": 1.5}"#, "model.dropout: 1.5")] {
+            let e = RunConfig::parse(&format!(r#"{{"model": {model}}}"#)).unwrap_err();
+            assert!(e.contains(needle), "{model}: {e}");
+        }
         let e = RunConfig::parse(r#"{"model": "huge"}"#).unwrap_err();
         assert!(e.contains("unknown preset 'huge'"), "{e}");
         let e = RunConfig::parse(r#"{"model": "tiny", "keyframes": {"strategy": "sometimes"}}"#).unwrap_err();

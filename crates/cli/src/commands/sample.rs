@@ -92,9 +92,11 @@ pub struct SampleArgs {
     /// DDIM steps (DDPM always runs every step of the schedule).
     #[arg(long, default_value_t = 50)]
     steps: usize,
-    #[arg(long, default_value_t = 2.5)]
+    /// Keyframe guidance scale s: X(C, none) + s (X(C, kf) - X(C, none)); 1 = the keyframe
+    /// branch alone, 2.5 = the paper.
+    #[arg(long, default_value_t = 2.5, allow_negative_numbers = true)]
     kf_guidance: f64,
-    #[arg(long, default_value_t = 100.0)]
+    #[arg(long, default_value_t = 100.0, allow_negative_numbers = true)]
     transition_guidance: f64,
     /// Half window l of transition guidance (frames on each side of a keyframe).
     #[arg(long, default_value_t = 2)]
@@ -322,10 +324,49 @@ pub fn run(a: SampleArgs) -> Result<()> {
     Ok(())
 }
 
+/// Outputs of an earlier, larger run into the same folder (sample_NN files with NN >= `keep`),
+/// so the folder holds only what results.json describes.
+fn remove_stale_samples(out: &Path, keep: usize) -> Result<()> {
+    let Ok(entries) = std::fs::read_dir(out) else { return Ok(()) };
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let Some(rest) = name.strip_prefix("sample_") else { continue };
+        let (num, tail) = rest.split_at(rest.find(|c: char| !c.is_ascii_digit()).unwrap_or(rest.len()));
+        let ours = [".npy", "_joints.npy", ".gif", ".bvh"].contains(&tail);
+        if ours && num.parse::<usize>().is_ok_and(|k| k >= keep) {
+            std::fs::remove_file(e.path()).with_context(|| format!("removing the stale {}", e.path().display()))?;
+        }
+    }
+    Ok(())
+}
+
+/// Flag values in their ranges, before any work.
+fn check_flags(a: &SampleArgs) -> Result<()> {
+    if !(a.kf_guidance.is_finite() && (0.0..=MAX_GUIDANCE).contains(&a.kf_guidance)) {
+        bail!("--kf-guidance: {} must be a number from 0 to {MAX_GUIDANCE} (1 = no guidance, 2.5 = the paper)", a.kf_guidance);
+    }
+    if !(a.transition_guidance.is_finite() && (0.0..=MAX_TRANSITION).contains(&a.transition_guidance)) {
+        bail!("--transition-guidance: {} must be a number from 0 to {MAX_TRANSITION} (100 = the paper)", a.transition_guidance);
+    }
+    if a.steps == 0 || a.steps > 1000 {
+        bail!("--steps: {} must be 1 to 1000 (the schedule's length)", a.steps);
+    }
+    if a.num_samples == 0 || a.num_samples > 256 {
+        bail!("--num-samples: {} must be 1 to 256", a.num_samples);
+    }
+    Ok(())
+}
+
+/// Largest keyframe and transition guidance accepted: far beyond any useful value, small
+/// enough that the sampler stays finite.
+const MAX_GUIDANCE: f64 = 100.0;
+const MAX_TRANSITION: f64 = 1e5;
+
 fn run_one(a: SampleArgs) -> Result<()> {
     if a.text.trim().is_empty() {
         bail!("--text: empty prompt");
     }
+    check_flags(&a)?;
     if a.num_samples == 0 {
         bail!("--num-samples: must be at least 1");
     }
@@ -372,7 +413,11 @@ fn run_one(a: SampleArgs) -> Result<()> {
         root_mask: root_mask.concat().iter().copied().cycle().take(b * n * ROOT_CHANNELS).collect(),
         ..Request::text_only(n, d, emb.iter().copied().cycle().take(b * emb.len()).collect(), emb.len(), vec![n; b])
     };
-    let schedule = Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps).context("diffusion schedule of the checkpoint")?;
+    let schedule = Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps)
+        .with_context(|| format!("{}: unknown diffusion schedule '{}' in the checkpoint's config (cosine, linear)", a.checkpoint.display(), cfg.diffusion.schedule))?;
+    if a.steps > schedule.steps {
+        bail!("--steps: {} is more than the checkpoint's {} diffusion steps", a.steps, schedule.steps);
+    }
     let opts = Options {
         sampler: a.sampler.sampler(a.steps),
         kf_guidance: a.kf_guidance,
@@ -392,9 +437,18 @@ fn run_one(a: SampleArgs) -> Result<()> {
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let fit = if a.no_snap { KeyframeFit::None } else { a.keyframe_fit };
     let layout = rep::Layout::of(&T2M);
+    // Every sample is checked before any file is written: a diverged sampler (extreme guidance)
+    // gives an error, not NaN files with exit 0.
+    let fitted: Vec<_> = (0..b).map(|i| finish(&x, &req, i, &mean, &std, &layout, fit)).collect();
+    for (i, (f, _)) in fitted.iter().enumerate() {
+        let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
+        if let Err(e) = render::check_drawable(&j).map_err(|e| e.to_string()).and(f.iter().all(|v| v.is_finite()).then_some(()).ok_or_else(|| "features not finite".to_string())) {
+            bail!("sample {i} diverged ({e}); lower --kf-guidance ({}) or --transition-guidance ({})", a.kf_guidance, a.transition_guidance);
+        }
+    }
+    remove_stale_samples(&a.out, b)?;
     let mut samples = Vec::new();
-    for i in 0..b {
-        let (f, corrections) = finish(&x, &req, i, &mean, &std, &layout, fit);
+    for (i, (f, corrections)) in fitted.into_iter().enumerate() {
         let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
         let name = format!("sample_{i:02}");
         let stem = a.out.join(&name);
