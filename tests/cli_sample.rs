@@ -167,6 +167,22 @@ fn sample_outputs_errors_and_determinism() {
         std::fs::write(d.join("bad.json"), format!(r#"{{"length": 20, "keyframes": [{{"frame": {bad_frame}, "root": [0, 1, 0]}}]}}"#)).unwrap();
         run_err(&["--keyframes", s(&d.join("bad.json"))], &["bad.json", "keyframe 0", needle]);
     }
+    // --checkpoint takes one checkpoint file as well as a run directory.
+    let ckpt = std::fs::read_dir(&run).unwrap().map(|e| e.unwrap().path()).find(|p| p.extension().is_some_and(|x| x == "safetensors")).unwrap();
+    let o = diffkfc(&["sample", "--checkpoint", s(&ckpt), "--text", "walk", "--length", "12", "--steps", "2", "--out", s(&d.join("outc"))]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    // A run whose normalisation does not fit its model: one line naming the file.
+    let broken = d.join("broken");
+    std::fs::create_dir_all(&broken).unwrap();
+    for e in std::fs::read_dir(&run).unwrap() {
+        let p = e.unwrap().path();
+        std::fs::copy(&p, broken.join(p.file_name().unwrap())).unwrap();
+    }
+    npy::write(broken.join("Mean.npy"), &[10], &[0f32; 10]).unwrap();
+    assert_one_line_error(&diffkfc(&["sample", "--checkpoint", s(&broken), "--text", "walk", "--steps", "2", "--out", s(&out3)]), &["Mean.npy", "10 values", "263"]);
+    npy::write(broken.join("Mean.npy"), &[263], &[0f32; 263]).unwrap();
+    npy::write(broken.join("Std.npy"), &[263], &[0f32; 263]).unwrap();
+    assert_one_line_error(&diffkfc(&["sample", "--checkpoint", s(&broken), "--text", "walk", "--steps", "2", "--out", s(&out3)]), &["Std.npy", "entry 0", "> 0"]);
     // Flag ranges, and a sampler driven past any useful guidance fails instead of writing NaN.
     run_err(&["--kf-guidance", "-1"], &["--kf-guidance", "-1"]);
     run_err(&["--kf-guidance", "inf"], &["--kf-guidance", "inf"]);

@@ -121,7 +121,11 @@ impl Checkpoint {
         for (_, p) in list.iter().rev() {
             match Self::load(p) {
                 Ok(c) => return Some(Ok(c)),
-                Err(e) => last_err = Some(e),
+                Err(e) => {
+                    // Said, not hidden: the user should know an older checkpoint is in use.
+                    eprintln!("warning: skipping {e}");
+                    last_err = Some(e)
+                }
             }
         }
         last_err.map(Err)

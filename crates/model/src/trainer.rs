@@ -286,9 +286,14 @@ fn truncate_metrics(path: &Path, step: usize) -> std::io::Result<()> {
     diffkfc_data::write_atomic(path, out.as_bytes()).map_err(std::io::Error::other)
 }
 
-/// Load the weights of a run for inference: the EMA when present, else the raw model.
+/// Load the weights of a run for inference: the EMA when present, else the raw model. `run_dir`
+/// is a run directory (its newest checkpoint) or one checkpoint file of it.
 pub fn load_for_inference(run_dir: &Path, device: &Device) -> Result<(RunConfig, Denoiser, usize), String> {
-    let ck = Checkpoint::latest(run_dir).ok_or(format!("{}: no checkpoint found (train first)", run_dir.display()))??;
+    let ck = if run_dir.is_file() {
+        Checkpoint::load(run_dir)?
+    } else {
+        Checkpoint::latest(run_dir).ok_or(format!("{}: no checkpoint found (train first, or pass a run directory or a ckpt-*.safetensors file)", run_dir.display()))??
+    };
     let mut cfg = RunConfig::parse(&ck.config).map_err(|e| format!("{}: stored config: {e}", run_dir.display()))?;
     // Inference: no dropout (it has no parameters, so the weights load the same).
     cfg.model.dropout = 0.0;

@@ -51,11 +51,12 @@ impl SamplerArg {
 
 #[derive(Args, Clone, Debug)]
 pub struct SampleArgs {
-    /// Run directory of `diffkfc train` (its newest checkpoint; EMA weights when present).
+    /// Run directory of `diffkfc train` (its newest checkpoint) or one of its ckpt-*.safetensors
+    /// files; EMA weights when present.
     #[arg(long)]
     checkpoint: PathBuf,
-    /// The prompt.
-    #[arg(long, required_unless_present = "prompts", default_value = "")]
+    /// The prompt (required unless --prompts).
+    #[arg(long, required_unless_present = "prompts", default_value = "", hide_default_value = true)]
     text: String,
     /// Many prompts: one per line, optionally `text#length`; outputs go to <out>/promptNNN.
     #[arg(long, conflicts_with = "text")]
@@ -70,9 +71,16 @@ pub struct SampleArgs {
     /// With --from: pick keyframes as in training at this rate instead of --frames.
     #[arg(long, requires = "from", conflicts_with = "frames")]
     keyframe_rate: Option<f64>,
-    #[arg(long, default_value = "random")]
+    /// How --keyframe-rate picks frames: random, uniform (evenly spaced) or mdo (KeyMotion's
+    /// maximum-distance-optimal).
+    #[arg(long, default_value = "random", value_name = "random|uniform|mdo")]
     keyframe_strategy: String,
-    /// Keyframes from a JSON file (see README).
+    /// Keyframes from a JSON file: {"length": 120, "joints": "lower_body", "keyframes":
+    /// [{"frame": 0, "joints": [[x,y,z] x 22]}, {"frame": 60, "features": [263 numbers],
+    /// "root": [x, y, z], "heading": 90}, {"frame": 100, "root": [0, 0.9, 5]}]}. Each keyframe
+    /// has a pose ("joints" in metres, or "features") and/or a place ("root", metres) and a
+    /// heading (degrees, 0 faces +Z, 90 faces +X) in the output's frame: frame 0 at the origin
+    /// facing +Z. "length" and "joints" (body parts) are optional.
     #[arg(long)]
     keyframes: Option<PathBuf>,
     /// Restrict keyframes to body parts or joints (lower_body, left_arm, head, ...).
@@ -81,12 +89,17 @@ pub struct SampleArgs {
     /// Frames to generate (default: the keyframe source's length, else 120).
     #[arg(long, conflicts_with = "seconds")]
     length: Option<usize>,
+    /// Length in seconds (20 fps), instead of --length.
     #[arg(long)]
     seconds: Option<f64>,
+    /// Motions generated for the prompt (1 to 256), in one batch.
     #[arg(long, default_value_t = 1)]
     num_samples: usize,
+    /// Random seed: the same seed and inputs give the same bytes.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// ddim: deterministic, --steps evenly spaced steps; ddpm: ancestral over every step of the
+    /// schedule (the paper's 1000).
     #[arg(long, value_enum, default_value = "ddim")]
     sampler: SamplerArg,
     /// DDIM steps (DDPM always runs every step of the schedule).
@@ -96,6 +109,8 @@ pub struct SampleArgs {
     /// branch alone, 2.5 = the paper.
     #[arg(long, default_value_t = 2.5, allow_negative_numbers = true)]
     kf_guidance: f64,
+    /// Transition guidance strength r (paper Eq. 4-5): each reverse step is nudged to make the
+    /// window around every keyframe smooth in the DCT sense; 0 = off, 100 = the paper.
     #[arg(long, default_value_t = 100.0, allow_negative_numbers = true)]
     transition_guidance: f64,
     /// Half window l of transition guidance (frames on each side of a keyframe).
@@ -104,8 +119,10 @@ pub struct SampleArgs {
     /// Number of DCT bases m kept by transition guidance.
     #[arg(long, default_value_t = 3)]
     tg_bases: usize,
+    /// How the transition-guidance gradient is taken.
     #[arg(long, value_enum, default_value = "x0")]
     tg_mode: TgModeArg,
+    /// Which method generates: the trained keyframe branch, or the MDM-inp baseline.
     #[arg(long, value_enum, default_value = "diffkfc")]
     keyframe_mode: KeyframeMode,
     /// How the motion meets its keyframes after the last step: warp (the residual at each key
@@ -121,9 +138,12 @@ pub struct SampleArgs {
     /// heading.
     #[arg(long)]
     pub(crate) no_root_keys: bool,
+    /// Output folder (created): sample_NN.npy/_joints.npy/.bvh/.gif, results.json, index.html.
     #[arg(long, default_value = "out/sample")]
     out: PathBuf,
-    #[arg(long, default_value = "flex")]
+    /// Compute device: flex (the CPU default), or ndarray, wgpu, cuda in builds with that
+    /// cargo feature.
+    #[arg(long, default_value = "flex", value_name = "flex|ndarray|wgpu|cuda")]
     device: String,
 }
 
@@ -504,7 +524,7 @@ fn run_one(a: SampleArgs) -> Result<()> {
                 h.map_or("-".into(), |v| format!("{v:.1}"))
             ),
         };
-        println!("  sample_{i:02}: K-Err {} m, root-relative {} m, K-TranS {}, foot skating {}{fit_note}", fmt(&s["k_err_m"]), fmt(&s["k_err_root_relative_m"]), fmt(&s["k_trans"]), fmt(&s["foot_skating"]));
+        println!("  sample_{i:02}: {}, K-TranS {}, foot skating {}{fit_note}", k_err_text(s), fmt(&s["k_trans"]), fmt(&s["foot_skating"]));
     }
     Ok(())
 }
@@ -525,13 +545,23 @@ fn index_html(r: &serde_json::Value) -> String {
     );
     for s in r["samples"].as_array().into_iter().flatten() {
         h += &format!(
-            "<figure><img src=\"{}\" width=320><figcaption>K-Err {} m &middot; K-TranS {}</figcaption></figure>",
+            "<figure><img src=\"{}\" width=320><figcaption>{} &middot; K-TranS {}</figcaption></figure>",
             html_escape(s["gif"].as_str().unwrap_or("")),
-            fmt(&s["k_err_m"]),
+            k_err_text(s),
             fmt(&s["k_trans"])
         );
     }
     h + "\n"
+}
+
+/// K-Err as a sentence: global only where there is a source motion to compare with.
+fn k_err_text(s: &serde_json::Value) -> String {
+    match (s["k_err_m"].as_f64(), s["k_err_root_relative_m"].as_f64()) {
+        (Some(g), Some(l)) => format!("K-Err {g:.4} m (root-relative {l:.4} m)"),
+        (None, Some(l)) => format!("K-Err root-relative {l:.4} m (global: no source motion)"),
+        (Some(g), None) => format!("K-Err {g:.4} m"),
+        (None, None) => "no keyframes".into(),
+    }
 }
 
 fn fmt(v: &serde_json::Value) -> String {
@@ -541,10 +571,25 @@ fn fmt(v: &serde_json::Value) -> String {
 /// Mean/Std the model was trained with: copied into the run directory at training time, or
 /// read from the dataset the config names.
 pub fn normalisation(run: &Path, cfg: &diffkfc_model::run_config::RunConfig) -> Result<(Vec<f32>, Vec<f32>)> {
+    // A checkpoint file: its run directory holds the normalisation.
+    let run = if run.is_file() { run.parent().unwrap_or(Path::new(".")) } else { run };
     let dir = if run.join("Mean.npy").exists() {
         run.to_path_buf()
     } else {
         PathBuf::from(cfg.data.dir.clone().with_context(|| format!("{}: no Mean.npy/Std.npy and no data.dir in its config", run.display()))?)
     };
-    Ok((npy::read_f32(dir.join("Mean.npy"))?.data, npy::read_f32(dir.join("Std.npy"))?.data))
+    let (mean, std) = (npy::read_f32(dir.join("Mean.npy"))?.data, npy::read_f32(dir.join("Std.npy"))?.data);
+    let d = cfg.model.feat_dim;
+    for (name, v) in [("Mean.npy", &mean), ("Std.npy", &std)] {
+        if v.len() != d {
+            bail!("{}: {} values, but the model has {d} features", dir.join(name).display(), v.len());
+        }
+    }
+    if let Some(k) = mean.iter().position(|m| !m.is_finite()) {
+        bail!("{}: entry {k} is {} (not finite)", dir.join("Mean.npy").display(), mean[k]);
+    }
+    if let Some(k) = std.iter().position(|s| !(s.is_finite() && *s > 0.0)) {
+        bail!("{}: entry {k} is {} (must be finite and > 0)", dir.join("Std.npy").display(), std[k]);
+    }
+    Ok((mean, std))
 }
