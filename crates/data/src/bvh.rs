@@ -153,6 +153,9 @@ pub fn read(skel: &Skeleton, text: &str) -> Result<Joints, DataError> {
             }
             Some("OFFSET") if !in_end => {
                 let v: Vec<f64> = it.map(|x| x.parse().map_err(|_| bad("bad OFFSET"))).collect::<Result<_, _>>()?;
+                if v.len() != 3 || v.iter().any(|x| !x.is_finite()) {
+                    return Err(bad("OFFSET needs three finite numbers"));
+                }
                 let k = stack.last().copied().flatten().ok_or_else(|| bad("OFFSET outside a joint"))?;
                 offsets[k] = [v[0] / CM, v[1] / CM, v[2] / CM];
             }
@@ -163,17 +166,29 @@ pub fn read(skel: &Skeleton, text: &str) -> Result<Joints, DataError> {
             _ => {}
         }
     }
+    if let Some(k) = chans.iter().position(|&c| c != 3 && c != 6) {
+        return Err(bad(&format!("joint '{}' has {} channels; this reader takes 3 (rotation) or 6 (position and rotation)", names[k], chans[k])));
+    }
     let per_frame: usize = chans.iter().sum();
     let index: Vec<usize> = skel
         .joint_names
         .iter()
         .map(|n| names.iter().position(|m| m == n).ok_or_else(|| bad(&format!("joint '{n}' missing"))))
         .collect::<Result<_, _>>()?;
+    if let Some(ft) = motion.lines().map(str::trim).find_map(|l| l.strip_prefix("Frame Time:")) {
+        let ft: f64 = ft.trim().parse().map_err(|_| bad(&format!("Frame Time '{}' is not a number", ft.trim())))?;
+        if !(ft.is_finite() && ft > 0.0) {
+            return Err(bad(&format!("Frame Time {ft} must be a positive number of seconds")));
+        }
+    }
     let mut out = Vec::new();
     for line in motion.lines().map(str::trim).filter(|l| !l.is_empty() && !l.starts_with("Frames") && !l.starts_with("Frame Time")) {
         let v: Vec<f64> = line.split_whitespace().map(|x| x.parse().map_err(|_| bad("bad number in MOTION"))).collect::<Result<_, _>>()?;
         if v.len() != per_frame {
             return Err(bad(&format!("a frame has {} values, expected {per_frame}", v.len())));
+        }
+        if v.iter().any(|x| !x.is_finite()) {
+            return Err(bad("a frame has a value that is not finite"));
         }
         let (mut pos, mut g) = (vec![[0.0; 3]; names.len()], vec![quat::IDENTITY; names.len()]);
         let mut c = 0;

@@ -68,7 +68,14 @@ pub fn qrot(q: Quat, v: Vec3) -> Vec3 {
 pub fn qbetween(v0: Vec3, v1: Vec3) -> Quat {
     let v = cross(v0, v1);
     let w = (dot(v0, v0) * dot(v1, v1)).sqrt() + dot(v0, v1);
-    qnormalize([w, v[0], v[1], v[2]])
+    let q = [w, v[0], v[1], v[2]];
+    if q.iter().map(|x| x * x).sum::<f64>() < 1e-24 {
+        // Opposite directions: any half turn about an axis perpendicular to v0 (the formula
+        // above gives 0/0 there).
+        let axis = if v0[0].abs() < 0.9 { cross(v0, [1.0, 0.0, 0.0]) } else { cross(v0, [0.0, 1.0, 0.0]) };
+        return qnormalize([0.0, axis[0], axis[1], axis[2]]);
+    }
+    qnormalize(q)
 }
 
 /// Rotation about +Y by `angle` in HumanML3D's convention for the root: (cos a, 0, sin a, 0).

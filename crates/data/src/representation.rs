@@ -309,6 +309,9 @@ pub fn features_from_joints(skel: &Skeleton, joints: &Joints, feet_threshold: f6
         row[c + 2] = contact(f, skel.feet_right[0]) as f32;
         row[c + 3] = contact(f, skel.feet_right[1]) as f32;
     }
+    if let Some(k) = out.iter().position(|v| !v.is_finite()) {
+        return Err(DataError::Invalid(format!("frame {}: feature {} is not finite (a degenerate pose)", k / dim, k % dim)));
+    }
     Ok(out)
 }
 
@@ -329,6 +332,22 @@ pub fn validate_joints(skel: &Skeleton, joints: &Joints) -> Result<(), DataError
     }
     if let Some(f) = joints.iter().position(|f| f.iter().flatten().any(|v| !v.is_finite())) {
         return Err(DataError::Invalid(format!("frame {f} contains NaN or infinite values")));
+    }
+    // Rotations are undefined for a bone of zero length or a body whose facing cannot be told
+    // (hips and shoulders giving no horizontal left-right direction).
+    for (f, frame) in joints.iter().enumerate() {
+        for chain in skel.kinematic_chain {
+            for w in chain.windows(2) {
+                if quat::norm(quat::sub(frame[w[1]], frame[w[0]])) < 1e-6 {
+                    return Err(DataError::Invalid(format!("frame {f}: joints {} and {} coincide (a bone of zero length)", skel.joint_names[w[0]], skel.joint_names[w[1]])));
+                }
+            }
+        }
+        let [r_hip, l_hip, r_sho, l_sho] = skel.face_joints;
+        let across = quat::add(quat::sub(frame[r_hip], frame[l_hip]), quat::sub(frame[r_sho], frame[l_sho]));
+        if across[0].hypot(across[2]) < 1e-6 {
+            return Err(DataError::Invalid(format!("frame {f}: hips and shoulders give no left-right direction on the ground, so the facing is undefined")));
+        }
     }
     Ok(())
 }

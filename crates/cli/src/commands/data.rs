@@ -134,8 +134,15 @@ fn is_bvh(path: &std::path::Path) -> bool {
 
 fn read_bvh(path: &std::path::Path, skel: &Skeleton) -> Result<rep::Joints> {
     let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    diffkfc_data::bvh::read(skel, &text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    let j = diffkfc_data::bvh::read(skel, &text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    if j.len() < MIN_MOTION_FRAMES {
+        anyhow::bail!("{}: has {} frame(s); at least {MIN_MOTION_FRAMES} needed", path.display(), j.len());
+    }
+    Ok(j)
 }
+
+/// A motion has at least two frames (one pose has no velocity, no path, nothing to animate).
+pub const MIN_MOTION_FRAMES: usize = 2;
 
 /// Joint positions from a motion file: features (T, D) are recovered, joints (T, J, 3) taken
 /// as they are, a BVH written by diffkfc read back.
@@ -145,10 +152,10 @@ pub fn load_motion(path: &std::path::Path, skel: &Skeleton) -> Result<rep::Joint
     }
     let a = npy::read_f64(path)?;
     if a.ndim() == 2 {
-        let f = load_features(path, skel, 1)?;
+        let f = load_features(path, skel, MIN_MOTION_FRAMES)?;
         Ok(rep::recover_from_ric(skel, &f.data.iter().map(|&v| v as f64).collect::<Vec<_>>()))
     } else {
-        Ok(load_joints(path, skel, 1)?)
+        Ok(load_joints(path, skel, MIN_MOTION_FRAMES)?)
     }
 }
 
@@ -158,7 +165,7 @@ pub fn load_motion_features(path: &std::path::Path, skel: &Skeleton) -> Result<V
     let joints = if is_bvh(path) {
         read_bvh(path, skel)?
     } else if npy::read_f64(path)?.ndim() == 2 {
-        return Ok(load_features(path, skel, 1)?.data);
+        return Ok(load_features(path, skel, MIN_MOTION_FRAMES)?.data);
     } else {
         load_joints(path, skel, 2)?
     };
@@ -303,7 +310,7 @@ fn features(a: FeaturesArgs) -> Result<()> {
 
 fn joints(a: JointsArgs) -> Result<()> {
     let skel = a.skeleton.skeleton();
-    let feats = load_features(&a.input, skel, 1)?;
+    let feats = load_features(&a.input, skel, MIN_MOTION_FRAMES)?;
     let data: Vec<f64> = feats.data.iter().map(|&v| v as f64).collect();
     let joints = rep::recover_from_ric(skel, &data);
     let jn = skel.num_joints();
