@@ -100,6 +100,20 @@ fn patch(bytes: &[u8], from: &str, to: &str) -> Vec<u8> {
     b
 }
 
+/// A valid .npy header claiming (2^61, 22, 3) float32 elements, followed by 64 bytes.
+fn huge_header() -> Vec<u8> {
+    let mut dict = "{'descr': '<f4', 'fortran_order': False, 'shape': (2305843009213693952, 22, 3), }".to_string();
+    while (10 + dict.len() + 1) % 64 != 0 {
+        dict.push(' ');
+    }
+    dict.push('\n');
+    let mut b = b"\x93NUMPY\x01\x00".to_vec();
+    b.extend((dict.len() as u16).to_le_bytes());
+    b.extend(dict.bytes());
+    b.extend([0u8; 64]);
+    b
+}
+
 #[test]
 fn bad_inputs_give_one_line_errors() {
     let d = scratch("bad");
@@ -111,7 +125,12 @@ fn bad_inputs_give_one_line_errors() {
         ("width.npy", npy::encode(&[10, 200], &[0f32; 2000]), "joints", vec!["width.npy", "(T, 263)", "[10, 200]"]),
         ("shape.npy", npy::encode(&[10, 20, 3], &[0f32; 600]), "features", vec!["shape.npy", "(T, 22, 3)", "[10, 20, 3]"]),
         ("one_frame.npy", npy::encode(&[1, 22, 3], &[0.1f32; 66]), "features", vec!["one_frame.npy", "at least 2"]),
-        ("empty.npy", npy::encode(&[0, 263], &[0f32; 0]), "joints", vec!["empty.npy", "at least 1"]),
+        ("empty.npy", npy::encode(&[0, 263], &[0f32; 0]), "joints", vec!["empty.npy", "at least 2"]),
+        ("one_row.npy", npy::encode(&[1, 263], &[0f32; 263]), "joints", vec!["one_row.npy", "at least 2"]),
+        // A header whose shape product overflows (it used to wrap and index out of range).
+        ("huge.npy", huge_header(), "features", vec!["huge.npy", "truncated data"]),
+        // Every joint at one point: rotations are undefined, an error rather than NaN features.
+        ("collapsed.npy", npy::encode(&[3, 22, 3], &[0.5f32; 198]), "features", vec!["collapsed.npy", "coincide"]),
     ];
     for (name, bytes, cmd, needles) in cases {
         let p = d.join(name);
@@ -137,6 +156,8 @@ fn bad_inputs_give_one_line_errors() {
     let p = d.join("ok.npy");
     npy::write(&p, &[5, 22, 3], &(0..330).map(|i| i as f32 * 0.01).collect::<Vec<_>>()).unwrap();
     assert_one_line_error(&diffkfc(&["data", "features", s(&p), "--fps=-3", "-o", "o.npy"]), &["--fps"]);
+    assert_one_line_error(&diffkfc(&["data", "features", s(&p), "--fps", "1e-9", "-o", "o.npy"]), &["--fps", "1 to 1000"]);
+    assert_one_line_error(&diffkfc(&["data", "features", s(&p), "--feet-threshold", "nan", "-o", "o.npy"]), &["--feet-threshold", "NaN"]);
     assert_one_line_error(&diffkfc(&["data", "features", s(&p), "--bogus"]), &["--bogus"]);
     // Nothing half-written is left behind by failures.
     assert!(!d.join("out.npy").exists() && !d.join("o.npy").exists());

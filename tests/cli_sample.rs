@@ -191,6 +191,12 @@ fn sample_outputs_errors_and_determinism() {
     for steps in ["0", "100000"] {
         assert_one_line_error(&diffkfc(&["sample", "--checkpoint", s(&run), "--text", "walk", "--steps", steps, "--out", s(&out3)]), &["--steps", steps]);
     }
+    // Body parts must be named; an empty frame list is an error, not zero keyframes.
+    for bad_joints in ["\"\"", "5"] {
+        std::fs::write(d.join("bad.json"), format!(r#"{{"length": 20, "joints": {bad_joints}, "keyframes": [{{"frame": 2, "root": [0, 1, 0]}}]}}"#)).unwrap();
+        run_err(&["--keyframes", s(&d.join("bad.json"))], &["bad.json", "\"joints\" is"]);
+    }
+    run_err(&["--from", s(&src), "--frames", ""], &["--frames", "empty"]);
     // Prompt files: real line numbers (blank and comment lines counted), lengths checked.
     std::fs::write(&prompts, "a person jumps.\n\n// comment\nwalk#99999999999\n").unwrap();
     assert_one_line_error(&diffkfc(&["sample", "--checkpoint", s(&run), "--prompts", s(&prompts)]), &["prompts.txt", "line 4", "99999999999"]);

@@ -65,6 +65,9 @@ impl Dataset {
                 msg: format!("width {} differs from Mean.npy ({})", std.len(), mean.len()),
             });
         }
+        if let Some(i) = mean.iter().position(|m| !m.is_finite()) {
+            return Err(DataError::Npy { path: root.join("Mean.npy"), msg: format!("entry {i} is {} (not finite)", mean[i]) });
+        }
         if let Some(i) = std.iter().position(|&s| !(s.is_finite() && s > 0.0)) {
             return Err(DataError::Npy { path: root.join("Std.npy"), msg: format!("entry {i} is {} (must be > 0)", std[i]) });
         }

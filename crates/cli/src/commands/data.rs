@@ -207,11 +207,17 @@ fn bench_loader(a: BenchLoaderArgs) -> Result<()> {
 pub fn loader_case(a: &BenchLoaderArgs) -> Result<serde_json::Value> {
     use diffkfc_data::batch::{KeyframeConfig, Loader};
     use diffkfc_data::cache::{default_cache_dir, PackedSplit};
+    if a.batch_size == 0 || a.batches == 0 {
+        bail!("--batch-size and --batches: must be at least 1 (got {} and {})", a.batch_size, a.batches);
+    }
     let ds = diffkfc_data::dataset::Dataset::open(&a.dir)?;
     let rss0 = rss_mib();
     let t0 = std::time::Instant::now();
     let split = PackedSplit::open(&ds, &a.split, &default_cache_dir(&ds), crate::progress::bar("caching"))?;
     let open_s = t0.elapsed().as_secs_f64();
+    if split.items.is_empty() {
+        bail!("{}: split '{}' has no usable items", a.dir.display(), a.split);
+    }
     let mut loader = Loader::new(&ds, &split, a.batch_size, 0, KeyframeConfig::default());
     loader.threads = a.threads;
     let per_epoch = loader.batches_per_epoch();
@@ -284,6 +290,9 @@ fn check(a: CheckArgs) -> Result<()> {
 }
 
 fn features(a: FeaturesArgs) -> Result<()> {
+    if !(a.feet_threshold.is_finite() && a.feet_threshold > 0.0) {
+        bail!("--feet-threshold: {} must be a positive number (squared metres per frame; HumanML3D: 0.002)", a.feet_threshold);
+    }
     let skel = a.skeleton.skeleton();
     let mut joints = load_joints(&a.input, skel, 2)?;
     let frames_in = joints.len();
@@ -291,8 +300,9 @@ fn features(a: FeaturesArgs) -> Result<()> {
         rep::z_up_to_y_up(&mut joints);
     }
     if let Some(fps) = a.fps {
-        if !(fps.is_finite() && fps > 0.0) {
-            bail!("--fps: must be a positive number, got {fps}");
+        // Checked before resampling allocates frames_in * 20 / fps frames.
+        if !(fps.is_finite() && (1.0..=1000.0).contains(&fps)) {
+            bail!("--fps: {fps} must be a frame rate from 1 to 1000");
         }
         joints = rep::resample(&joints, fps, skel.fps);
         if joints.len() < 2 {

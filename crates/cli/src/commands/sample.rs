@@ -166,6 +166,9 @@ fn parse_frames(spec: &str, len: usize) -> Result<Vec<usize>> {
     if spec.trim() == "all" {
         return Ok((0..len).collect());
     }
+    if spec.trim().is_empty() {
+        bail!("--frames: empty; give frame numbers (0,40,80) or `all`");
+    }
     let mut v = Vec::new();
     for p in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
         let f: usize = p.parse().map_err(|_| anyhow::anyhow!("--frames: '{p}' is not a frame number"))?;
@@ -229,7 +232,14 @@ fn keys_from_json(path: &Path, length: Option<usize>, joints_flag: Option<&str>)
             None => return Err(err(format!("\"length\" is {l}; must be a whole number of frames from 1 to {max}"))),
         },
     };
-    let spec = joints_flag.map(str::to_string).or(v["joints"].as_str().map(str::to_string));
+    let spec = match (joints_flag, v.get("joints")) {
+        (Some(f), _) => Some(f.to_string()),
+        (None, None) => None,
+        (None, Some(j)) => match j.as_str().map(str::trim).filter(|s| !s.is_empty()) {
+            Some(s) => Some(s.to_string()),
+            None => return Err(err(format!("\"joints\" is {j}; must name body parts or joints, e.g. \"lower_body\" or \"left_arm,head\""))),
+        },
+    };
     let joints = joint_set(spec.as_deref(), "joints")?;
     let d = T2M.feature_dim();
     let dims = keyframes::dim_mask(&T2M, Some(&joints));
