@@ -159,6 +159,14 @@ fn bad_inputs_give_one_line_errors() {
     assert_one_line_error(&diffkfc(&["data", "features", s(&p), "--fps", "1e-9", "-o", "o.npy"]), &["--fps", "1 to 1000"]);
     assert_one_line_error(&diffkfc(&["data", "features", s(&p), "--feet-threshold", "nan", "-o", "o.npy"]), &["--feet-threshold", "NaN"]);
     assert_one_line_error(&diffkfc(&["data", "features", s(&p), "--bogus"]), &["--bogus"]);
+    // A motion that runs off to 1e38 m is refused at once (drawing its ground grid never ended).
+    let mut f = vec![0.0f32; 4 * 263];
+    f[263 + 2] = 3e38;
+    let p = d.join("far.npy");
+    npy::write(&p, &[4, 263], &f).unwrap();
+    let t0 = std::time::Instant::now();
+    assert_one_line_error(&diffkfc(&["render", s(&p), "-o", s(&d.join("far.gif"))]), &["far.gif", "cannot draw"]);
+    assert!(t0.elapsed().as_secs() < 10);
     // Nothing half-written is left behind by failures.
     assert!(!d.join("out.npy").exists() && !d.join("o.npy").exists());
 }

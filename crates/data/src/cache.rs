@@ -197,7 +197,15 @@ fn build(
         let frames = a.shape[0];
         let its = ds.items_of_clip(id, frames, &caps);
         if its.is_empty() {
-            skipped.push((id.clone(), format!("no item: {frames} frames outside [{}, 200) and no usable sub-clip", ds.min_frames())));
+            let (min, fps) = (ds.min_frames(), ds.skeleton.fps);
+            let spans = caps.iter().filter(|c| !c.whole_clip()).count();
+            let why = if caps.iter().any(|c| c.whole_clip()) {
+                format!("its {frames} frames are outside [{min}, 200)")
+            } else {
+                format!("it has no whole-clip caption ({frames} frames)")
+            };
+            let also = if spans > 0 { format!("; its {spans} sub-clip caption span(s) run past its end or are not {min} to 199 frames long at {fps} fps") } else { String::new() };
+            skipped.push((id.clone(), format!("no item: {why}{also}")));
             continue;
         }
         for v in &a.data {

@@ -503,6 +503,7 @@ fn run_one(a: SampleArgs) -> Result<()> {
         "checkpoint": a.checkpoint.display().to_string(),
         "checkpoint_step": step,
         "length": n,
+        "source": a.from.as_ref().or(a.keyframes.as_ref()).map(|p| p.display().to_string()),
         "keyframes": keys.frames,
         "keyframe_joints": keys.joints,
         "sampler": format!("{:?}", opts.sampler),
