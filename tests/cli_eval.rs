@@ -43,7 +43,8 @@ fn evaluate_tiny_checkpoint(d: &std::path::Path, data: &std::path::Path, evaluat
     let rep = d.join("report");
     let common = ["eval", "--checkpoint", s(&run), "--evaluator", s(evaluator), "--data", s(data), "--replications", "2", "--steps", "3", "--samples-for-ade", "2"];
     let mut args: Vec<&str> = common.to_vec();
-    args.extend(["--num-items", "32", "--compare", "--sweep-rates", "0,0.1", "--multimodality", "--mm-texts", "2", "--out", s(&rep)]);
+    // The paper's guidance (the defaults are s = 1, r = 0), so the sweep rows carry TG too.
+    args.extend(["--num-items", "32", "--compare", "--sweep-rates", "0,0.1", "--multimodality", "--mm-texts", "2", "--transition-guidance", "100", "--kf-guidance", "2.5", "--out", s(&rep)]);
     let o = diffkfc(&args);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stdout(&o).contains("estimate"), "{}", stdout(&o));

@@ -118,6 +118,7 @@ impl<'a> Sampling<'a> {
     /// A full sample: DDIM with keyframe guidance 2.5 and transition guidance 100 (x0 mode).
     pub fn sample(&self, steps: usize) -> Vec<f32> {
         let schedule = Schedule::cosine(1000);
-        sampler::sample(self.model, &schedule, &self.req, &Options { sampler: Sampler::Ddim(steps), ..Options::default() }, |_, _| {})
+        let opts = Options { sampler: Sampler::Ddim(steps), kf_guidance: 2.5, transition: 100.0, ..Options::default() };
+        sampler::sample(self.model, &schedule, &self.req, &opts, |_, _| {})
     }
 }

@@ -69,9 +69,11 @@ struct RunArgs {
     keyframe_strategy: String,
     #[arg(long, value_enum, default_value = "diffkfc")]
     keyframe_mode: KeyframeMode,
-    #[arg(long, default_value_t = 100.0)]
+    /// Transition guidance strength r (0 = off; the paper: 100).
+    #[arg(long, default_value_t = 0.0)]
     transition_guidance: f64,
-    #[arg(long, default_value_t = 2.5)]
+    /// Keyframe guidance scale s (1 = the keyframe branch alone; the paper: 2.5).
+    #[arg(long, default_value_t = 1.0)]
     kf_guidance: f64,
     #[arg(long, value_enum, default_value = "ddim")]
     sampler: SamplerArg,
