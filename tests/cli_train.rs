@@ -100,6 +100,15 @@ fn bad_train_arguments() {
     assert_one_line_error(&diffkfc(&["train", "--config", s(&cfg)]), &["--data"]);
     assert_one_line_error(&diffkfc(&["train", "--config", s(&cfg), "--data", s(&d.join("nothing"))]), &["nothing", "not found"]);
     assert_one_line_error(&diffkfc(&["train", "--config", s(&cfg), "--time-budget", "soon"]), &["soon"]);
+    // A batch the machine cannot hold is refused before anything is loaded (it used to grow
+    // until the kernel killed it).
+    if diffkfc_model::memory::available_bytes().is_some_and(|b| b > 50e9) {
+        eprintln!("SKIPPED: more than 50 GB free, a 16000 batch may fit here");
+        return;
+    }
+    let big = d.join("big.json");
+    std::fs::write(&big, CFG.replace("\"batch_size\": 4", "\"batch_size\": 16000")).unwrap();
+    assert_one_line_error(&diffkfc(&["train", "--config", s(&big), "--data", s(&d)]), &["training.batch_size", "16000", "GB", "fits"]);
 }
 
 /// SIGTERM (what schedulers and `timeout` send) stops like Ctrl-C: a checkpoint at the step

@@ -17,6 +17,7 @@ pub mod flops;
 pub mod kernels;
 pub mod kinematics;
 pub mod losses;
+pub mod memory;
 pub mod optim;
 pub mod params;
 pub mod run_config;

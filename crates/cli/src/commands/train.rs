@@ -66,6 +66,28 @@ pub fn parse_duration(s: &str) -> Result<Duration, String> {
     Ok(Duration::from_secs_f64(secs))
 }
 
+/// Refuse a CPU run whose estimated peak memory exceeds what the machine has free.
+fn check_memory(cfg: &RunConfig, device: &str) -> Result<()> {
+    if !matches!(device, "flex" | "cpu" | "ndarray") {
+        return Ok(());
+    }
+    use diffkfc_model::memory;
+    let frames = diffkfc_data::dataset::MAX_FRAMES;
+    let need = memory::training_bytes(cfg, frames);
+    if let Some(free) = memory::available_bytes() {
+        if need > free {
+            let fits = ((free * 0.8 - memory::fixed_bytes(cfg)) / memory::per_sample_bytes(cfg, frames)).floor().max(0.0);
+            bail!(
+                "training.batch_size: {} needs about {:.1} GB but {:.1} GB is free; at most about {fits} fits",
+                cfg.training.batch_size,
+                need / 1e9,
+                free / 1e9
+            );
+        }
+    }
+    Ok(())
+}
+
 /// Exit status of a run stopped by SIGINT or SIGTERM after writing its checkpoint (128 + SIGINT).
 pub const INTERRUPTED_EXIT: i32 = 130;
 
@@ -103,6 +125,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         bail!("--out: {} already holds checkpoints; pass --resume to continue it or choose another --out", run_dir.display());
     }
     let device = crate::device::parse(&a.device)?;
+    check_memory(&cfg, &a.device)?;
     let ds = Dataset::open(&data)?;
     if ds.dim() != cfg.model.feat_dim {
         bail!("{}: features are {}-dimensional but model.feat_dim is {}", data.display(), ds.dim(), cfg.model.feat_dim);
