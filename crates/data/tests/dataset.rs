@@ -72,6 +72,20 @@ fn items_follow_mdm_rules_and_cache_maps_the_features() {
     std::fs::remove_dir_all(root).unwrap();
 }
 
+/// A clip whose only caption spans past its end is skipped with the reason.
+#[test]
+fn skipped_clip_says_why() {
+    let Some((root, clip)) = small_dataset("skip") else { return };
+    write_clip(&root, "D", &clip, 263, &["a person turns.#a/DET person/NOUN turn/VERB#8.0#12.0"]);
+    std::fs::write(root.join("val.txt"), "D\n").unwrap();
+    let ds = Dataset::open(&root).unwrap();
+    let split = PackedSplit::open(&ds, "val", &root.join(".cache"), |_, _| {}).unwrap();
+    assert!(split.items.is_empty());
+    let why = &split.skipped[0].1;
+    assert!(why.contains("no whole-clip caption") && why.contains("1 sub-clip caption span(s) run past its end"), "{why}");
+    std::fs::remove_dir_all(root).unwrap();
+}
+
 #[test]
 fn batches_are_normalised_padded_and_deterministic() {
     let Some((root, _)) = small_dataset("batch") else { return };
@@ -110,6 +124,17 @@ fn batches_are_normalised_padded_and_deterministic() {
         assert!(kf_frames.iter().all(|&f| f < len));
         for &f in &kf_frames {
             assert!(b.kf_mask[(i * n + f) * d..(i * n + f + 1) * d].iter().all(|&v| v == 1.0));
+        }
+        // Root channels: the crop's own frame (its first frame at the origin facing +Z), the
+        // whole trajectory of the crop, observed only at keyframes.
+        let r = diffkfc_data::warp::ROOT_CHANNELS;
+        assert_eq!(&b.root[i * n * r..i * n * r + r], &[0.0, 0.0, 0.0, 1.0]);
+        let want = diffkfc_data::warp::root_channels(&raw[start * d..(start + len) * d], d);
+        assert!(b.root[i * n * r..(i * n + len) * r].iter().zip(&want).all(|(a, b)| (a - b).abs() < 1e-6));
+        for f in 0..n {
+            if !kf_frames.contains(&f) {
+                assert!(b.root_mask[(i * n + f) * r..(i * n + f + 1) * r].iter().all(|&m| m == 0.0), "root observed off a keyframe");
+            }
         }
     }
     // Same seed: same batch, whatever the number of threads; another seed: another batch.

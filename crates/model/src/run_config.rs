@@ -181,6 +181,9 @@ impl RunConfig {
                 return bad(key, &v, "must be at least 1");
             }
         }
+        if crate::diffusion::Schedule::by_name(&self.diffusion.schedule, 2).is_none() {
+            return Err(format!("diffusion.schedule: unknown '{}' (cosine, linear)", self.diffusion.schedule));
+        }
         if m.d_model % m.heads != 0 {
             return Err(format!("model.heads: {} does not divide model.d_model ({})", m.heads, m.d_model));
         }
@@ -250,6 +253,7 @@ mod tests {
             (r#""training": {"ema_decay": 1.5}"#, "training.ema_decay: 1.5"),
             (r#""training": {"grad_clip": -1}"#, "training.grad_clip: -1"),
             (r#""keyframes": {"rate": 2}"#, "keyframes.rate: 2"),
+            (r#""diffusion": {"schedule": "foo"}"#, "diffusion.schedule: unknown 'foo'"),
         ] {
             let e = RunConfig::parse(&format!(r#"{{"model": "tiny", {body}}}"#)).unwrap_err();
             assert!(e.contains(needle), "{body}: {e}");

@@ -248,7 +248,8 @@ fn evaluate(a: RunArgs) -> Result<()> {
     }
     let (_, real) = embed_split(&ev, &ds, &split).map_err(anyhow::Error::msg)?;
     let reference = Gaussian::fit(&real);
-    let schedule = Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps).context("diffusion schedule of the checkpoint")?;
+    let schedule = Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps)
+        .with_context(|| format!("{}: unknown diffusion schedule '{}' in the checkpoint's config (cosine, linear)", run_dir.display(), cfg.diffusion.schedule))?;
     let sampler = a.sampler.sampler(a.steps);
     let opts = protocol::Options {
         replications: a.replications,

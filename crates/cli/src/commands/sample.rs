@@ -264,7 +264,11 @@ fn keys_from_json(path: &Path, length: Option<usize>, joints_flag: Option<&str>)
                     Ok([c[0], c[1], c[2]])
                 })
                 .collect::<Result<_>>()?;
-            pose::pose_features(&T2M, &pose).map_err(|e| err(format!("keyframe {i}: {e}")))?
+            let (vals, obs) = pose::pose_features(&T2M, &pose).map_err(|e| err(format!("keyframe {i}: {e}")))?;
+            if vals.iter().zip(&obs).any(|(v, &o)| o && !v.is_finite()) {
+                return Err(err(format!("keyframe {i}: the pose gives non-finite features (joints too far apart or coinciding)")));
+            }
+            (vals, obs)
         } else if let Some(fe) = k["features"].as_array() {
             if fe.len() != d {
                 return Err(err(format!("keyframe {i}: {} features, expected {d}", fe.len())));
@@ -604,4 +608,38 @@ pub fn normalisation(run: &Path, cfg: &diffkfc_model::run_config::RunConfig) -> 
         bail!("{}: entry {k} is {} (must be finite and > 0)", dir.join("Std.npy").display(), std[k]);
     }
     Ok((mean, std))
+}
+
+#[cfg(test)]
+mod tests {
+    /// Bounded fuzzing of the keyframe JSON reader (`diffkfc_data::fuzz`): mutated keyframe
+    /// files give keyframes or a clean error, never a panic or a hang; whatever is accepted has
+    /// finite values, frames inside the motion and a length from 1 to 196.
+    #[test]
+    fn keyframe_json_never_panics() {
+        let dir = std::env::temp_dir().join(format!("diffkfc-kjfuzz-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let pose: Vec<[f64; 3]> = diffkfc_data::T2M.target_offsets().map(|o| {
+            let rot = vec![vec![diffkfc_data::quat::IDENTITY; 22]];
+            super::rep::forward_kinematics(&diffkfc_data::T2M, &rot, &[[0.0, 0.9, 0.0]], &o)[0].clone()
+        }).unwrap();
+        let feats = vec![0.1f32; 263];
+        let seeds: Vec<Vec<u8>> = vec![
+            serde_json::json!({"length": 60, "joints": "lower_body", "keyframes": [{"frame": 0, "joints": pose}, {"frame": 30, "features": feats, "root": [1.0, 0.9, 2.0], "heading": 45}]}).to_string().into_bytes(),
+            serde_json::json!({"length": 40, "keyframes": [{"frame": 10, "root": [0.5, 0.9, 1.5]}, {"frame": 39, "heading": -90}]}).to_string().into_bytes(),
+        ];
+        let path = dir.join("keys.json");
+        diffkfc_data::fuzz::fuzz("keyframe json", &seeds, diffkfc_data::fuzz::cases() / 10, &|b| {
+            std::fs::write(&path, b).unwrap();
+            match super::keys_from_json(&path, None, None) {
+                Ok(k) => {
+                    assert!((1..=196).contains(&k.length) && k.frames.iter().all(|&f| f < k.length));
+                    assert!(k.values.iter().all(|v| v.is_finite()), "non-finite keyframe values accepted");
+                    true
+                }
+                Err(_) => false,
+            }
+        });
+        std::fs::remove_dir_all(dir).unwrap();
+    }
 }
