@@ -39,16 +39,7 @@ impl Dataset {
         if !root.is_dir() {
             return Err(DataError::Invalid(format!("{}: dataset directory not found", root.display())));
         }
-        let read_vec = |name: &str| -> Result<Vec<f32>, DataError> {
-            let p = root.join(name);
-            let a = npy::read_f32(&p)?;
-            if a.ndim() != 1 {
-                return Err(DataError::Npy { path: p, msg: format!("expected a vector, got shape {:?}", a.shape) });
-            }
-            Ok(a.data)
-        };
-        let mean = read_vec("Mean.npy")?;
-        let std = read_vec("Std.npy")?;
+        let (mean, std) = read_normalisation(&root, None)?;
         let skeleton = match mean.len() {
             263 => &crate::T2M,
             251 => &crate::KIT,
@@ -59,18 +50,6 @@ impl Dataset {
                 })
             }
         };
-        if std.len() != mean.len() {
-            return Err(DataError::Npy {
-                path: root.join("Std.npy"),
-                msg: format!("width {} differs from Mean.npy ({})", std.len(), mean.len()),
-            });
-        }
-        if let Some(i) = mean.iter().position(|m| !m.is_finite()) {
-            return Err(DataError::Npy { path: root.join("Mean.npy"), msg: format!("entry {i} is {} (not finite)", mean[i]) });
-        }
-        if let Some(i) = std.iter().position(|&s| !(s.is_finite() && s > 0.0)) {
-            return Err(DataError::Npy { path: root.join("Std.npy"), msg: format!("entry {i} is {} (must be > 0)", std[i]) });
-        }
         Ok(Dataset { root, skeleton, mean, std })
     }
 
@@ -131,6 +110,34 @@ impl Dataset {
     pub fn denormalise(&self, x: &mut [f32]) {
         denormalise(x, &self.mean, &self.std);
     }
+}
+
+/// `Mean.npy` and `Std.npy` of `dir` (a dataset root or a run directory): vectors of one width
+/// (`width` when given), the mean finite, every std finite and > 0.
+pub fn read_normalisation(dir: &Path, width: Option<usize>) -> Result<(Vec<f32>, Vec<f32>), DataError> {
+    let read_vec = |name: &str, want: Option<usize>| -> Result<Vec<f32>, DataError> {
+        let p = dir.join(name);
+        let a = npy::read_f32(&p)?;
+        if a.ndim() != 1 {
+            return Err(DataError::Npy { path: p, msg: format!("expected a vector, got shape {:?}", a.shape) });
+        }
+        if let Some(w) = want.filter(|&w| w != a.data.len()) {
+            return Err(DataError::Npy { path: p, msg: format!("{} values, expected {w}", a.data.len()) });
+        }
+        Ok(a.data)
+    };
+    let mean = read_vec("Mean.npy", width)?;
+    let std = read_vec("Std.npy", width)?;
+    if std.len() != mean.len() {
+        return Err(DataError::Npy { path: dir.join("Std.npy"), msg: format!("width {} differs from Mean.npy ({})", std.len(), mean.len()) });
+    }
+    if let Some(i) = mean.iter().position(|m| !m.is_finite()) {
+        return Err(DataError::Npy { path: dir.join("Mean.npy"), msg: format!("entry {i} is {} (not finite)", mean[i]) });
+    }
+    if let Some(i) = std.iter().position(|&s| !(s.is_finite() && s > 0.0)) {
+        return Err(DataError::Npy { path: dir.join("Std.npy"), msg: format!("entry {i} is {} (must be > 0)", std[i]) });
+    }
+    Ok((mean, std))
 }
 
 /// Z-normalise row-major rows of width `mean.len()` in place.

@@ -224,24 +224,17 @@ fn warp_root(feats: &mut [f32], d: usize, keys: &[RootKey], corr: &mut [Correcti
     if len < 2 || keys.iter().all(|k| k.place.is_none() && k.heading.is_none()) {
         return;
     }
-    // Yaw angle a(f) (HumanML3D's, heading = -2a) and the facing-frame velocities.
-    let mut angle = vec![0.0f64; len];
-    for f in 1..len {
-        angle[f] = angle[f - 1] + feats[(f - 1) * d] as f64;
-    }
-    let heading_anchors: Vec<(usize, f64)> =
-        (0..len).filter_map(|f| keys[f].heading.map(|h| (f, wrap(h - heading_of_angle(angle[f]))))).collect();
+    // Heading first: channel 0 is the per-frame change of the yaw angle a (heading = -2a).
+    let heading_of = |t: &[RootKey], f: usize| t[f].heading.expect("a trajectory has every heading");
+    let traj = root_trajectory(feats, d);
+    let heading_anchors: Vec<(usize, f64)> = (0..len).filter_map(|f| keys[f].heading.map(|h| (f, wrap(h - heading_of(&traj, f))))).collect();
     let dh = displacement(len, &heading_anchors, Ends::Hold);
-    for (a, dh) in angle.iter_mut().zip(&dh) {
-        *a -= dh / 2.0;
+    for f in 0..len - 1 {
+        feats[f * d] -= ((dh[f + 1] - dh[f]) / 2.0) as f32;
     }
-    // Global path with the new headings and the model's own facing-frame steps.
-    let step = |f: usize| -> Vec3 { [feats[f * d + 1] as f64, 0.0, feats[f * d + 2] as f64] };
-    let mut pos = vec![[0.0f64; 3]; len];
-    for f in 1..len {
-        let q = quat::root_yaw_quat(angle[f]);
-        pos[f] = quat::add(pos[f - 1], quat::qrot(quat::qinv(q), step(f - 1)));
-    }
+    // The path the new headings give with the model's own facing-frame steps, then displaced.
+    let traj = root_trajectory(feats, d);
+    let mut pos: Vec<Vec3> = traj.iter().map(|k| k.place.map(|[x, z]| [x, 0.0, z]).expect("a trajectory has every place")).collect();
     let place_anchors: Vec<(usize, [f64; 2])> =
         (0..len).filter_map(|f| keys[f].place.map(|[x, z]| (f, [x - pos[f][0], z - pos[f][2]]))).collect();
     for axis in 0..2 {
@@ -250,9 +243,11 @@ fn warp_root(feats: &mut [f32], d: usize, keys: &[RootKey], corr: &mut [Correcti
             p[axis * 2] += v;
         }
     }
+    // Channels 1..3: the displaced path's steps in the facing frame of the next frame (the
+    // inverse of `recover_root_rot_pos`).
     for f in 0..len - 1 {
-        feats[f * d] = (angle[f + 1] - angle[f]) as f32;
-        let v = quat::qrot(quat::root_yaw_quat(angle[f + 1]), quat::sub(pos[f + 1], pos[f]));
+        let q = quat::root_yaw_quat(-heading_of(&traj, f + 1) / 2.0);
+        let v = quat::qrot(q, quat::sub(pos[f + 1], pos[f]));
         feats[f * d + 1] = v[0] as f32;
         feats[f * d + 2] = v[2] as f32;
     }

@@ -181,6 +181,7 @@ impl Protocol<'_> {
     fn generate(&self, items: &[Item], keys: &[Vec<usize>], s: &Setting, k: usize, seed: u64, tick: &mut dyn FnMut()) -> Vec<Vec<Vec<f32>>> {
         let d = self.ds.dim();
         let all_dims = keyframes::dim_mask(self.ds.skeleton, None);
+        let layout = Layout::of(self.ds.skeleton);
         let mut out: Vec<Vec<Vec<f32>>> = items.iter().map(|_| vec![Vec::new(); k]).collect();
         for (c, chunk) in self.batches(items, k).iter().enumerate() {
             let b = chunk.len();
@@ -218,7 +219,6 @@ impl Protocol<'_> {
                 ..Default::default()
             };
             let x = sampler::sample(self.model, self.schedule, &req, &opts, |_, _| tick());
-            let layout = Layout::of(self.ds.skeleton);
             for (r, &(p, j)) in chunk.iter().enumerate() {
                 out[p][j] = finish(&x, &req, r, self.mean, self.std, &layout, self.opts.fit).0;
             }

@@ -42,7 +42,7 @@ pub struct TrainStep {
     model: Option<Denoiser>,
     vals: Vec<Vec<f32>>,
     adam: Adam,
-    pub req: Request,
+    req: Request,
     x0: Tensor<3>,
     noise: Tensor<3>,
     t: Vec<usize>,

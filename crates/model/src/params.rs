@@ -27,6 +27,20 @@ pub fn values<M: Module>(m: &M) -> Vec<(Vec<usize>, Vec<f32>)> {
     v.0
 }
 
+struct Shapes(Vec<Vec<usize>>);
+impl ModuleVisitor for Shapes {
+    fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
+        self.0.push(p.val().dims().to_vec());
+    }
+}
+
+/// The shape of every float parameter (visit order), without reading any value.
+pub fn shapes<M: Module>(m: &M) -> Vec<Vec<usize>> {
+    let mut v = Shapes(Vec::new());
+    m.visit(&mut v);
+    v.0
+}
+
 struct Grads<'a> {
     grads: &'a GradientsParams,
     out: Vec<Vec<f32>>,

@@ -297,16 +297,16 @@ pub fn load_for_inference(run_dir: &Path, device: &Device) -> Result<(RunConfig,
     let mut cfg = RunConfig::parse(&ck.config).map_err(|e| format!("{}: stored config: {e}", run_dir.display()))?;
     // Inference: no dropout (it has no parameters, so the weights load the same).
     cfg.model.dropout = 0.0;
-    let shapes = |c: &crate::DiffKfcConfig| params::values(&c.init(&Device::flex())).into_iter().map(|(s, _)| s).collect::<Vec<_>>();
-    if shapes(&cfg.model) != ck.shapes {
+    let mut model = cfg.model.init(device);
+    if params::shapes(&model) != ck.shapes {
         // Checkpoints from before root channels: their configs do not name them.
         let old = cfg.model.clone().with_root_channels(0);
-        if shapes(&old) != ck.shapes {
+        model = old.init(device);
+        if params::shapes(&model) != ck.shapes {
             return Err(format!("{}: checkpoint tensors do not match its stored config", run_dir.display()));
         }
         cfg.model = old;
     }
-    let model = cfg.model.init(device);
     let weights = ck.ema.as_ref().unwrap_or(&ck.model);
     Ok((cfg, params::load(model, weights), ck.step))
 }
