@@ -199,7 +199,9 @@ fn sample_outputs_errors_and_determinism() {
     run_err(&["--from", s(&src), "--frames", ""], &["--frames", "empty"]);
     // Prompt files: real line numbers (blank and comment lines counted), lengths checked.
     std::fs::write(&prompts, "a person jumps.\n\n// comment\nwalk#99999999999\n").unwrap();
-    assert_one_line_error(&diffkfc(&["sample", "--checkpoint", s(&run), "--prompts", s(&prompts)]), &["prompts.txt", "line 4", "99999999999"]);
+    let out7 = d.join("out7");
+    assert_one_line_error(&diffkfc(&["sample", "--checkpoint", s(&run), "--prompts", s(&prompts), "--out", s(&out7)]), &["prompts.txt", "line 4", "99999999999"]);
+    assert!(!out7.exists(), "a bad line must stop the file before any prompt is sampled");
     let bad = d.join("bad.json");
     std::fs::write(&bad, r#"{"length": 20, "keyframes": [{"frame": 25, "features": []}]}"#).unwrap();
     run_err(&["--keyframes", s(&bad)], &["bad.json", "beyond the length"]);

@@ -339,16 +339,19 @@ pub fn run(a: SampleArgs) -> Result<()> {
     if lines.is_empty() {
         bail!("{}: no prompts", file.display());
     }
-    for (k, &(line_no, line)) in lines.iter().enumerate() {
-        let (t, len) = match line.rsplit_once('#') {
-            Some((t, l)) => (
-                t.trim(),
-                Some(l.trim().parse::<usize>().ok().filter(|&n| (1..=diffkfc_data::dataset::MAX_FRAMES).contains(&n)).ok_or_else(|| {
-                    anyhow::anyhow!("{}: line {}: length '{l}' is not a number of frames from 1 to {}", file.display(), line_no, diffkfc_data::dataset::MAX_FRAMES)
-                })?),
-            ),
-            None => (line, None),
-        };
+    // Every line is parsed before any is sampled: a bad line 4 writes nothing for lines 1-3.
+    let max = diffkfc_data::dataset::MAX_FRAMES;
+    let prompts: Vec<(usize, &str, Option<usize>)> = lines
+        .iter()
+        .map(|&(line_no, line)| match line.rsplit_once('#') {
+            Some((t, l)) => match l.trim().parse::<usize>().ok().filter(|&n| (1..=max).contains(&n)) {
+                Some(n) => Ok((line_no, t.trim(), Some(n))),
+                None => bail!("{}: line {line_no}: length '{l}' is not a number of frames from 1 to {max}", file.display()),
+            },
+            None => Ok((line_no, line, None)),
+        })
+        .collect::<Result<_>>()?;
+    for (k, &(line_no, t, len)) in prompts.iter().enumerate() {
         let mut one = a.clone();
         one.prompts = None;
         one.text = t.to_string();
@@ -594,20 +597,7 @@ pub fn normalisation(run: &Path, cfg: &diffkfc_model::run_config::RunConfig) -> 
     } else {
         PathBuf::from(cfg.data.dir.clone().with_context(|| format!("{}: no Mean.npy/Std.npy and no data.dir in its config", run.display()))?)
     };
-    let (mean, std) = (npy::read_f32(dir.join("Mean.npy"))?.data, npy::read_f32(dir.join("Std.npy"))?.data);
-    let d = cfg.model.feat_dim;
-    for (name, v) in [("Mean.npy", &mean), ("Std.npy", &std)] {
-        if v.len() != d {
-            bail!("{}: {} values, but the model has {d} features", dir.join(name).display(), v.len());
-        }
-    }
-    if let Some(k) = mean.iter().position(|m| !m.is_finite()) {
-        bail!("{}: entry {k} is {} (not finite)", dir.join("Mean.npy").display(), mean[k]);
-    }
-    if let Some(k) = std.iter().position(|s| !(s.is_finite() && *s > 0.0)) {
-        bail!("{}: entry {k} is {} (must be finite and > 0)", dir.join("Std.npy").display(), std[k]);
-    }
-    Ok((mean, std))
+    Ok(diffkfc_data::dataset::read_normalisation(&dir, Some(cfg.model.feat_dim))?)
 }
 
 #[cfg(test)]
