@@ -67,6 +67,28 @@ fn sample_outputs_errors_and_determinism() {
     let a2 = args(&out2);
     assert!(diffkfc(&a2.iter().map(String::as_str).collect::<Vec<_>>()).status.success());
     assert_eq!(std::fs::read(out.join("sample_00.npy")).unwrap(), std::fs::read(out2.join("sample_00.npy")).unwrap());
+    // An exported model directory samples like its run: the same bytes in f32, within f16
+    // rounding in f16, and its weights file holds no optimiser state.
+    for (dtype, tol) in [("f32", 0.0f32), ("f16", 0.05)] {
+        let model = d.join(format!("model-{dtype}"));
+        let o = diffkfc(&["model", "export", "--checkpoint", s(&run), "--out", s(&model), "--dtype", dtype]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        for f in ["model.safetensors", "config.json", "Mean.npy", "Std.npy", "metrics.jsonl", "loss.svg"] {
+            assert!(model.join(f).is_file(), "{dtype}: {f} missing");
+        }
+        let mut am = args(&d.join(format!("out-{dtype}")));
+        let at = am.iter().position(|x| x == "--checkpoint").unwrap() + 1;
+        am[at] = s(&model).to_string();
+        let o = diffkfc(&am.iter().map(String::as_str).collect::<Vec<_>>());
+        assert!(o.status.success(), "{}", stderr(&o));
+        let m = npy::read_f32(d.join(format!("out-{dtype}/sample_00.npy"))).unwrap();
+        let worst = m.data.iter().zip(&gen.data).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+        assert!(worst <= tol, "{dtype}: largest difference {worst}");
+    }
+    let ckpt_bytes = std::fs::metadata(std::fs::read_dir(&run).unwrap().flatten().find(|e| e.file_name().to_string_lossy().starts_with("ckpt-")).unwrap().path()).unwrap().len();
+    let f16_bytes = std::fs::metadata(d.join("model-f16/model.safetensors")).unwrap().len();
+    assert!(f16_bytes * 6 < ckpt_bytes, "f16 weights {f16_bytes} bytes vs checkpoint {ckpt_bytes}");
+    assert_one_line_error(&diffkfc(&["model", "export", "--checkpoint", s(&d.join("nothing")), "--out", s(&d.join("m"))]), &["nothing"]);
     // Reusing the folder with fewer samples leaves no stale sample_01 files of the first run.
     let mut one = args(&out2);
     let at = one.iter().position(|x| x == "--num-samples").unwrap() + 1;

@@ -100,6 +100,10 @@ fn bad_train_arguments() {
     assert_one_line_error(&diffkfc(&["train", "--config", s(&cfg)]), &["--data"]);
     assert_one_line_error(&diffkfc(&["train", "--config", s(&cfg), "--data", s(&d.join("nothing"))]), &["nothing", "not found"]);
     assert_one_line_error(&diffkfc(&["train", "--config", s(&cfg), "--time-budget", "soon"]), &["soon"]);
+    // Past max_steps a cosine schedule is at lr 0: refused rather than trained for nothing.
+    let cos = d.join("cos.json");
+    std::fs::write(&cos, CFG.replace("\"max_steps\": 6", "\"max_steps\": 6, \"cosine_decay\": true")).unwrap();
+    assert_one_line_error(&diffkfc(&["train", "--config", s(&cos), "--data", s(&d), "--max-steps", "7"]), &["--max-steps", "7", "training.max_steps 6"]);
     // A batch the machine cannot hold is refused before anything is loaded (it used to grow
     // until the kernel killed it).
     if diffkfc_model::memory::available_bytes().is_some_and(|b| b > 50e9) {

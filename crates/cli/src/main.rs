@@ -37,7 +37,7 @@ enum Command {
     /// `eval train-evaluator` trains the text-motion evaluator first.
     #[command(after_help = commands::eval::AFTER_HELP)]
     Eval(commands::eval::EvalArgs),
-    /// Inspect the network: parameter counts.
+    /// The network: parameter counts; a trained run exported as a model directory.
     #[command(after_help = "Example:\n  diffkfc model summary --config configs/paper-humanml3d.json")]
     Model(commands::model::ModelArgs),
     /// Benchmarks: training step, sampling call, DDIM sample, data loading (JSON lines), and

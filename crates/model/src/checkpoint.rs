@@ -22,6 +22,10 @@ pub struct Checkpoint {
 }
 
 const FORMAT: &str = "diffkfc-checkpoint-1";
+/// Inference weights alone (`diffkfc model export`): no optimiser state, optionally f16.
+const WEIGHTS_FORMAT: &str = "diffkfc-weights-1";
+/// File name of exported weights inside a model directory.
+pub const WEIGHTS_FILE: &str = "model.safetensors";
 
 fn bytes(v: &[f32]) -> Vec<u8> {
     v.iter().flat_map(|f| f.to_le_bytes()).collect()
@@ -58,17 +62,74 @@ impl Checkpoint {
         Ok(path)
     }
 
+    /// Write the inference weights (EMA when the checkpoint has them) as `dir/model.safetensors`,
+    /// in f16 when `half` (tiny and small models lose nothing measurable, the file halves).
+    pub fn save_weights(&self, dir: &Path, half: bool) -> Result<PathBuf, String> {
+        let weights = self.ema.as_ref().unwrap_or(&self.model);
+        let (dtype, owned): (Dtype, Vec<Vec<u8>>) = if half {
+            (Dtype::F16, weights.iter().map(|w| w.iter().flat_map(|&f| half::f16::from_f32(f).to_le_bytes()).collect()).collect())
+        } else {
+            (Dtype::F32, weights.iter().map(|w| bytes(w)).collect())
+        };
+        let views: Vec<(String, TensorView)> = owned
+            .iter()
+            .enumerate()
+            .map(|(i, b)| (format!("weights/{i:04}"), TensorView::new(dtype, self.shapes[i].clone(), b).expect("view")))
+            .collect();
+        let meta = HashMap::from([
+            ("format".to_string(), WEIGHTS_FORMAT.to_string()),
+            ("step".to_string(), self.step.to_string()),
+            ("seed".to_string(), self.seed.to_string()),
+            ("params".to_string(), self.shapes.len().to_string()),
+            ("weights".to_string(), if self.ema.is_some() { "ema" } else { "model" }.to_string()),
+            ("config".to_string(), self.config.clone()),
+        ]);
+        let data = safetensors::serialize(views, Some(meta)).map_err(|e| e.to_string())?;
+        let path = dir.join(WEIGHTS_FILE);
+        diffkfc_data::write_atomic(&path, &data).map_err(|e| e.to_string())?;
+        Ok(path)
+    }
+
+    /// Read a training checkpoint, or exported weights (then `model` holds them, in f32, and
+    /// there is no optimiser state: such a file serves inference only).
     pub fn load(path: &Path) -> Result<Checkpoint, String> {
         let err = |m: String| format!("{}: {m}", path.display());
         let data = std::fs::read(path).map_err(|e| err(e.to_string()))?;
         let (_, meta) = safetensors::SafeTensors::read_metadata(&data).map_err(|e| err(format!("not a checkpoint ({e})")))?;
         let meta = meta.metadata().clone().unwrap_or_default();
-        if meta.get("format").map(String::as_str) != Some(FORMAT) {
-            return Err(err("not a diffkfc checkpoint".into()));
-        }
+        let weights_only = match meta.get("format").map(String::as_str) {
+            Some(FORMAT) => false,
+            Some(WEIGHTS_FORMAT) => true,
+            _ => return Err(err("not a diffkfc checkpoint".into())),
+        };
         let num = |k: &str| -> Result<u64, String> { meta.get(k).and_then(|v| v.parse().ok()).ok_or_else(|| err(format!("metadata '{k}' missing"))) };
         let n = num("params")? as usize;
         let st = safetensors::SafeTensors::deserialize(&data).map_err(|e| err(e.to_string()))?;
+        if weights_only {
+            let (mut shapes, mut model) = (vec![], vec![]);
+            for i in 0..n {
+                let name = format!("weights/{i:04}");
+                let t = st.tensor(&name).map_err(|_| err(format!("tensor {name} missing")))?;
+                let values: Vec<f32> = match t.dtype() {
+                    Dtype::F32 => t.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect(),
+                    Dtype::F16 => t.data().chunks_exact(2).map(|c| half::f16::from_le_bytes([c[0], c[1]]).to_f32()).collect(),
+                    other => return Err(err(format!("tensor {name} is {other:?}; expected F32 or F16"))),
+                };
+                shapes.push(t.shape().to_vec());
+                model.push(values);
+            }
+            return Ok(Checkpoint {
+                step: num("step")? as usize,
+                shapes,
+                model,
+                ema: None,
+                adam_step: 0,
+                adam_m: Vec::new(),
+                adam_v: Vec::new(),
+                config: meta.get("config").cloned().unwrap_or_default(),
+                seed: num("seed")?,
+            });
+        }
         let get = |name: String| -> Result<(Vec<usize>, Vec<f32>), String> {
             let t = st.tensor(&name).map_err(|_| err(format!("tensor {name} missing")))?;
             Ok((t.shape().to_vec(), t.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()))
@@ -138,4 +199,50 @@ impl Checkpoint {
             let _ = std::fs::remove_file(p);
         }
     }
+}
+
+/// What `export` wrote.
+#[derive(Debug)]
+pub struct Exported {
+    pub step: usize,
+    pub weights: PathBuf,
+    pub bytes: u64,
+    pub files: Vec<PathBuf>,
+}
+
+/// Turn a run directory (or one checkpoint file in it) into a model directory `out` that
+/// `--checkpoint` loads: `model.safetensors` (inference weights), `config.json` (the stored
+/// config) and the run's `Mean.npy`, `Std.npy`, `metrics.jsonl`, `loss.svg` where present.
+pub fn export(run: &Path, out: &Path, half: bool) -> Result<Exported, String> {
+    let (ck, dir) = if run.is_file() {
+        (Checkpoint::load(run)?, run.parent().unwrap_or(Path::new(".")).to_path_buf())
+    } else {
+        let ck = Checkpoint::latest(run).ok_or(format!("{}: no ckpt-*.safetensors to export", run.display()))??;
+        (ck, run.to_path_buf())
+    };
+    if out == dir {
+        return Err(format!("{}: export into the run directory itself is refused; choose another --out", out.display()));
+    }
+    for needed in ["Mean.npy", "Std.npy"] {
+        if !dir.join(needed).is_file() {
+            return Err(format!("{}: {needed} missing; a model directory needs the run's normalisation", dir.display()));
+        }
+    }
+    std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
+    let weights = ck.save_weights(out, half)?;
+    let mut files = vec![weights.clone()];
+    let config: serde_json::Value = serde_json::from_str(&ck.config).map_err(|e| format!("{}: stored config: {e}", run.display()))?;
+    let text = serde_json::to_string_pretty(&config).map_err(|e| e.to_string())? + "\n";
+    diffkfc_data::write_atomic(&out.join("config.json"), text.as_bytes()).map_err(|e| e.to_string())?;
+    files.push(out.join("config.json"));
+    for name in ["Mean.npy", "Std.npy", "metrics.jsonl", "loss.svg"] {
+        let src = dir.join(name);
+        if src.is_file() {
+            let data = std::fs::read(&src).map_err(|e| format!("{}: {e}", src.display()))?;
+            diffkfc_data::write_atomic(&out.join(name), &data).map_err(|e| e.to_string())?;
+            files.push(out.join(name));
+        }
+    }
+    let bytes = std::fs::metadata(&weights).map(|m| m.len()).unwrap_or(0);
+    Ok(Exported { step: ck.step, weights, bytes, files })
 }

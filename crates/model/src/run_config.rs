@@ -65,6 +65,20 @@ pub struct TrainingConfig {
     pub keyframe_loss: f64,
 }
 
+impl TrainingConfig {
+    /// Refuses a stop step past `max_steps` when the learning rate decays to 0 there: every
+    /// further step would be wasted (a run continued that way once trained 3000 steps at lr 0).
+    pub fn check_stop(&self, stop: usize) -> Result<(), String> {
+        if self.cosine_decay && stop > self.max_steps {
+            return Err(format!(
+                "--max-steps: {stop} is past training.max_steps {} of the config, where the cosine learning rate has decayed to 0; raise training.max_steps in the config instead",
+                self.max_steps
+            ));
+        }
+        Ok(())
+    }
+}
+
 impl Default for TrainingConfig {
     fn default() -> Self {
         TrainingConfig {

@@ -141,6 +141,7 @@ impl Trainer<'_> {
     pub fn run(&self, resume: bool, max_steps: usize, stop: &dyn Fn() -> bool, on_event: &mut dyn FnMut(Event)) -> Result<Outcome, String> {
         let tc = &self.cfg.training;
         let dm = &self.cfg.diffusion;
+        tc.check_stop(max_steps)?;
         let schedule = Schedule::by_name(&dm.schedule, dm.steps).ok_or(format!("diffusion.schedule: unknown '{}' (cosine, linear)", dm.schedule))?;
         std::fs::create_dir_all(&self.run_dir).map_err(|e| format!("{}: {e}", self.run_dir.display()))?;
         let device = self.device.clone().autodiff();
@@ -289,10 +290,15 @@ fn truncate_metrics(path: &Path, step: usize) -> std::io::Result<()> {
 /// Load the weights of a run for inference: the EMA when present, else the raw model. `run_dir`
 /// is a run directory (its newest checkpoint) or one checkpoint file of it.
 pub fn load_for_inference(run_dir: &Path, device: &Device) -> Result<(RunConfig, Denoiser, usize), String> {
+    let exported = run_dir.join(crate::checkpoint::WEIGHTS_FILE);
     let ck = if run_dir.is_file() {
         Checkpoint::load(run_dir)?
+    } else if let Some(ck) = Checkpoint::latest(run_dir) {
+        ck?
+    } else if exported.is_file() {
+        Checkpoint::load(&exported)?
     } else {
-        Checkpoint::latest(run_dir).ok_or(format!("{}: no checkpoint found (train first, or pass a run directory or a ckpt-*.safetensors file)", run_dir.display()))??
+        return Err(format!("{}: no checkpoint found (train first, or pass a run directory, a model directory or a ckpt-*.safetensors file)", run_dir.display()));
     };
     let mut cfg = RunConfig::parse(&ck.config).map_err(|e| format!("{}: stored config: {e}", run_dir.display()))?;
     // Inference: no dropout (it has no parameters, so the weights load the same).

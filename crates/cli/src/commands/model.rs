@@ -22,6 +22,21 @@ enum ModelCommand {
         #[arg(long)]
         config: PathBuf,
     },
+    /// A trained run as a model directory for `--checkpoint`: model.safetensors (the EMA
+    /// weights, f16 by default; no optimiser state), config.json, Mean.npy/Std.npy, and the
+    /// run's metrics.jsonl and loss.svg.
+    #[command(after_help = "Example:\n  diffkfc model export --checkpoint work/runs/tiny --out models/my-model\n  diffkfc sample --checkpoint models/my-model --text \"a person walks forward\"")]
+    Export {
+        /// Run directory (its newest checkpoint) or one ckpt-*.safetensors file.
+        #[arg(long)]
+        checkpoint: PathBuf,
+        /// Model directory to write (created; its files are replaced).
+        #[arg(long)]
+        out: PathBuf,
+        /// Weight precision: f16 (half the size) or f32.
+        #[arg(long, default_value = "f16", value_parser = ["f16", "f32"])]
+        dtype: String,
+    },
 }
 
 #[derive(Args)]
@@ -45,6 +60,11 @@ pub fn run(a: ModelArgs) -> Result<()> {
                 println!("  {name:<42} {n:>12} ({:.2} M)", n as f64 / 1e6);
             }
             println!("  (the frozen text encoder, all-MiniLM-L6-v2, adds 22.7 M that are not trained)");
+            Ok(())
+        }
+        ModelCommand::Export { checkpoint, out, dtype } => {
+            let e = diffkfc_model::checkpoint::export(&checkpoint, &out, dtype == "f16").map_err(anyhow::Error::msg)?;
+            println!("{}: step {} as {dtype}, {:.2} MB; wrote {}", out.display(), e.step, e.bytes as f64 / 1e6, e.files.iter().filter_map(|f| f.file_name()).map(|n| n.to_string_lossy().into_owned()).collect::<Vec<_>>().join(", "));
             Ok(())
         }
     }

@@ -119,6 +119,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
     }
     let data = cfg.data.dir.clone().map(PathBuf::from).context("--data: no dataset given (make one with `diffkfc data synth --out work/synth`)")?;
     let max_steps = a.max_steps.unwrap_or(cfg.training.max_steps);
+    cfg.training.check_stop(max_steps).map_err(anyhow::Error::msg)?;
     let stem = a.config.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "run".into());
     let run_dir = a.out.clone().unwrap_or_else(|| PathBuf::from("runs").join(stem));
     if !a.resume && diffkfc_model::checkpoint::Checkpoint::list(&run_dir).first().is_some() {
