@@ -63,6 +63,8 @@ pub struct TrainingConfig {
     /// Weight of the reconstruction error on the elements the keyframes observe (the paper's
     /// L_simple leaves them out; 0 = the paper).
     pub keyframe_loss: f64,
+    /// Weight of the error of frame-to-frame feature changes (`losses::l_smooth`; 0 = the paper).
+    pub smooth_loss: f64,
 }
 
 impl TrainingConfig {
@@ -99,6 +101,7 @@ impl Default for TrainingConfig {
             lambda_vel: 0.0,
             lambda_foot: 0.0,
             keyframe_loss: 0.0,
+            smooth_loss: 0.0,
         }
     }
 }
@@ -223,7 +226,7 @@ impl RunConfig {
                 return bad(key, &v, "must be in [0, 1]");
             }
         }
-        let non_negative = [("training.grad_clip", t.grad_clip), ("training.lambda_pos", t.lambda_pos), ("training.lambda_vel", t.lambda_vel), ("training.lambda_foot", t.lambda_foot), ("training.keyframe_loss", t.keyframe_loss)];
+        let non_negative = [("training.grad_clip", t.grad_clip), ("training.lambda_pos", t.lambda_pos), ("training.lambda_vel", t.lambda_vel), ("training.lambda_foot", t.lambda_foot), ("training.keyframe_loss", t.keyframe_loss), ("training.smooth_loss", t.smooth_loss)];
         for (key, v) in non_negative {
             if !(v.is_finite() && v >= 0.0) {
                 return bad(key, &v, "must be a finite number >= 0");

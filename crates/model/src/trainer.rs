@@ -35,6 +35,8 @@ pub struct StepRecord {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub l_key: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
+    pub l_smooth: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub l_pos: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub l_vel: Option<f64>,
@@ -95,6 +97,7 @@ impl Trainer<'_> {
             lambda_vel: t.lambda_vel,
             lambda_foot: t.lambda_foot,
             keyframe_loss: t.keyframe_loss,
+            smooth_loss: t.smooth_loss,
         }
     }
 
@@ -240,6 +243,7 @@ impl Trainer<'_> {
                 loss,
                 l_simple: scalar(l.simple),
                 l_key: l.key.map(scalar),
+                l_smooth: l.smooth.map(scalar),
                 l_pos: l.pos.map(scalar),
                 l_vel: l.vel.map(scalar),
                 l_foot: l.foot.map(scalar),
