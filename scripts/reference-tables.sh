@@ -1,0 +1,96 @@
+#!/usr/bin/env bash
+# The reference model's tables of README ("Reference model"): the paper's Table 2 (methods at
+# 5% keyframes) and Table 4 (keyframe rates), a guidance sweep and quality against sampling
+# steps, each row an `diffkfc eval` report under OUT, then one markdown summary.
+#   scripts/reference-tables.sh MODEL EVALUATOR DATA OUT [--items 256] [--reps 3] [--ade 1]
+set -euo pipefail
+if [ $# -lt 4 ]; then
+  echo "usage: scripts/reference-tables.sh MODEL EVALUATOR DATA OUT [--items N] [--reps N] [--ade N]" >&2
+  exit 2
+fi
+model=$1 evaluator=$2 data=$3 out=$4
+shift 4
+items=256 reps=3 ade=1
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --items) items=$2; shift 2 ;;
+    --reps) reps=$2; shift 2 ;;
+    --ade) ade=$2; shift 2 ;;
+    *) echo "error: unknown argument '$1'" >&2; exit 2 ;;
+  esac
+done
+bin=${DIFFKFC_BIN:-target/release/diffkfc}
+ev() { # name, then eval flags
+  local name=$1; shift
+  if [ -f "$out/$name/report.json" ]; then echo "present: $out/$name" >&2; return; fi
+  local t0; t0=$(date +%s)
+  "$bin" eval --checkpoint "$model" --evaluator "$evaluator" --data "$data" --out "$out/$name" "$@" >/dev/null
+  echo "done: $name ($(( $(date +%s) - t0 )) s)" >&2
+}
+# Table 2 and Table 4 in one run: defaults (s = 1, r = 0, warp) at 5%, transition guidance
+# r = 100, MDM-inp, and the defaults at 0, 2 and 10%.
+ev tables --num-items "$items" --replications "$reps" --samples-for-ade "$ade" --compare --sweep-rates 0,0.02,0.05,0.1
+# Guidance: the paper's keyframe guidance scale, with and without transition guidance, against
+# the default on the same items (half the tables' items, one replication).
+half=$(( items / 2 )); [ "$half" -lt 32 ] && half=32
+ev s2.5-r0 --num-items "$half" --replications 1 --samples-for-ade "$ade" --kf-guidance 2.5
+ev s2.5-r100 --num-items "$half" --replications 1 --samples-for-ade "$ade" --kf-guidance 2.5 --transition-guidance 100
+ev s1-r0-half --num-items "$half" --replications 1 --samples-for-ade "$ade"
+# Steps: DDIM 10 and 20 (one replication of the tables' items; DDIM-50 is the tables' 5% row);
+# DDPM-1000 and its DDIM-50 twin on 32 items.
+ev ddim10 --num-items "$items" --replications 1 --samples-for-ade "$ade" --steps 10
+ev ddim20 --num-items "$items" --replications 1 --samples-for-ade "$ade" --steps 20
+few=32 # DDPM runs all 1000 steps: about 5 s per motion here
+ev ddpm1000-32 --num-items "$few" --replications 1 --samples-for-ade 1 --sampler ddpm
+ev ddim50-32 --num-items "$few" --replications 1 --samples-for-ade 1
+python3 - "$out" <<'PY'
+import json, os, sys
+out = sys.argv[1]
+cols = [("fid", "FID"), ("r_top3", "R top-3"), ("ade", "ADE"), ("k_err", "K-Err"), ("k_err_local", "K-Err root-rel."),
+        ("k_trans", "K-TranS"), ("foot_skate", "foot skate")]
+def report(name):
+    p = os.path.join(out, name, "report.json")
+    return json.load(open(p)) if os.path.exists(p) else None
+def cell(row, k):
+    m = row["metrics"].get(k)
+    return "-" if m is None else f"{m['mean']:.3f} ± {m['ci95']:.3f}" if "ci95" in m else f"{m['mean']:.3f}"
+def table(rows, label):
+    print("| " + label + " | " + " | ".join(c[1] for c in cols) + " | s per item |")
+    print("|---" * (len(cols) + 2) + "|")
+    for title, row, secs in rows:
+        print(f"| {title} | " + " | ".join(cell(row, k) for k, _ in cols) + f" | {secs} |")
+    print()
+r = report("tables")
+if r:
+    meta = r["meta"]
+    n = meta["num_items"] * meta["replications"]
+    print(f"Tables 2 and 4: {meta['replications']} x {meta['num_items']} items, {meta['sampler']}, ADE over {meta['samples_for_ade']} sample(s), {meta['seconds']:.0f} s\n")
+    rows, real_seen = [], False
+    for row in r["rows"]:
+        if row["real"]:
+            # One real row per keyframe rate (only K-TranS differs): the 5% one is shown.
+            if real_seen or abs(row["keyframe_rate"] - 0.05) > 1e-9:
+                continue
+            real_seen = True
+        title = f"Real motion ({n} items)" if row["real"] else f"{row['name']} @ {row['keyframe_rate'] * 100:g}%"
+        rows.append((title, row, "-"))
+    table(rows, "row")
+steps = []
+for name, label in [("ddim10", "DDIM-10"), ("ddim20", "DDIM-20"), ("ddim50-32", "DDIM-50 (32 items)"), ("ddpm1000-32", "DDPM-1000 (32 items)")]:
+    rr = report(name)
+    if rr:
+        gen = next(x for x in rr["rows"] if not x["real"])
+        n = rr["meta"]["num_items"] * rr["meta"]["replications"] * max(1, rr["meta"]["samples_for_ade"])
+        steps.append((label, gen, f"{rr['meta']['seconds'] / n:.3f}"))
+if steps:
+    print("Sampling steps (defaults s = 1, r = 0, warp, 5% keyframes):\n")
+    table(steps, "sampler")
+guid = []
+for name, label in [("s1-r0-half", "s = 1, r = 0 (default)"), ("s2.5-r0", "s = 2.5, r = 0"), ("s2.5-r100", "s = 2.5, r = 100 (paper)")]:
+    rr = report(name)
+    if rr:
+        guid.append((label, next(x for x in rr["rows"] if not x["real"]), "-"))
+if guid:
+    print("Keyframe guidance s and transition guidance r (DDIM-50, 5% keyframes, warp):\n")
+    table(guid, "guidance")
+PY
