@@ -89,6 +89,9 @@ fn sample_outputs_errors_and_determinism() {
     let f16_bytes = std::fs::metadata(d.join("model-f16/model.safetensors")).unwrap().len();
     assert!(f16_bytes * 6 < ckpt_bytes, "f16 weights {f16_bytes} bytes vs checkpoint {ckpt_bytes}");
     assert_one_line_error(&diffkfc(&["model", "export", "--checkpoint", s(&d.join("nothing")), "--out", s(&d.join("m"))]), &["nothing"]);
+    // Exporting into the run itself (spelled differently) would mix the two: refused.
+    let run_slash = format!("{}/", s(&run));
+    assert_one_line_error(&diffkfc(&["model", "export", "--checkpoint", s(&run), "--out", &run_slash]), &["run directory itself"]);
     // Reusing the folder with fewer samples leaves no stale sample_01 files of the first run.
     let mut one = args(&out2);
     let at = one.iter().position(|x| x == "--num-samples").unwrap() + 1;

@@ -31,6 +31,17 @@ fn bytes(v: &[f32]) -> Vec<u8> {
     v.iter().flat_map(|f| f.to_le_bytes()).collect()
 }
 
+/// Shape and values (as f32) of tensor `name`, stored as F32 or F16.
+fn tensor_values(st: &safetensors::SafeTensors, name: &str) -> Result<(Vec<usize>, Vec<f32>), String> {
+    let t = st.tensor(name).map_err(|_| format!("tensor {name} missing"))?;
+    let values = match t.dtype() {
+        Dtype::F32 => t.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect(),
+        Dtype::F16 => t.data().chunks_exact(2).map(|c| half::f16::from_le_bytes([c[0], c[1]]).to_f32()).collect(),
+        other => return Err(format!("tensor {name} is {other:?}; expected F32 or F16")),
+    };
+    Ok((t.shape().to_vec(), values))
+}
+
 impl Checkpoint {
     pub fn file_name(step: usize) -> String {
         format!("ckpt-{step:08}.safetensors")
@@ -108,14 +119,8 @@ impl Checkpoint {
         if weights_only {
             let (mut shapes, mut model) = (vec![], vec![]);
             for i in 0..n {
-                let name = format!("weights/{i:04}");
-                let t = st.tensor(&name).map_err(|_| err(format!("tensor {name} missing")))?;
-                let values: Vec<f32> = match t.dtype() {
-                    Dtype::F32 => t.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect(),
-                    Dtype::F16 => t.data().chunks_exact(2).map(|c| half::f16::from_le_bytes([c[0], c[1]]).to_f32()).collect(),
-                    other => return Err(err(format!("tensor {name} is {other:?}; expected F32 or F16"))),
-                };
-                shapes.push(t.shape().to_vec());
+                let (shape, values) = tensor_values(&st, &format!("weights/{i:04}")).map_err(err)?;
+                shapes.push(shape);
                 model.push(values);
             }
             return Ok(Checkpoint {
@@ -130,10 +135,7 @@ impl Checkpoint {
                 seed: num("seed")?,
             });
         }
-        let get = |name: String| -> Result<(Vec<usize>, Vec<f32>), String> {
-            let t = st.tensor(&name).map_err(|_| err(format!("tensor {name} missing")))?;
-            Ok((t.shape().to_vec(), t.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()))
-        };
+        let get = |name: String| tensor_values(&st, &name).map_err(err);
         let (mut shapes, mut model, mut m, mut v, mut ema) = (vec![], vec![], vec![], vec![], vec![]);
         let has_ema = st.names().iter().any(|k| k.starts_with("ema/"));
         for i in 0..n {
@@ -220,14 +222,13 @@ pub fn export(run: &Path, out: &Path, half: bool) -> Result<Exported, String> {
         let ck = Checkpoint::latest(run).ok_or(format!("{}: no ckpt-*.safetensors to export", run.display()))??;
         (ck, run.to_path_buf())
     };
-    if out == dir {
+    let same = |a: &Path, b: &Path| a == b || matches!((a.canonicalize(), b.canonicalize()), (Ok(x), Ok(y)) if x == y);
+    if same(out, &dir) {
         return Err(format!("{}: export into the run directory itself is refused; choose another --out", out.display()));
     }
-    for needed in ["Mean.npy", "Std.npy"] {
-        if !dir.join(needed).is_file() {
-            return Err(format!("{}: {needed} missing; a model directory needs the run's normalisation", dir.display()));
-        }
-    }
+    // A model directory needs the run's normalisation, readable and as wide as the model.
+    let cfg = crate::run_config::RunConfig::parse(&ck.config).map_err(|e| format!("{}: stored config: {e}", run.display()))?;
+    diffkfc_data::dataset::read_normalisation(&dir, Some(cfg.model.feat_dim)).map_err(|e| e.to_string())?;
     std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
     let weights = ck.save_weights(out, half)?;
     let mut files = vec![weights.clone()];
