@@ -36,8 +36,9 @@ half=$(( items / 2 )); [ "$half" -lt 32 ] && half=32
 ev s2.5-r0 --num-items "$half" --replications 1 --samples-for-ade "$ade" --kf-guidance 2.5
 ev s2.5-r100 --num-items "$half" --replications 1 --samples-for-ade "$ade" --kf-guidance 2.5 --transition-guidance 100
 ev s1-r0-half --num-items "$half" --replications 1 --samples-for-ade "$ade"
-# Steps: DDIM 10 and 20 (one replication of the tables' items; DDIM-50 is the tables' 5% row);
+# Steps: DDIM 5, 10 and 20 (one replication of the tables' items; DDIM-50 is the tables' 5% row);
 # DDPM-1000 and its DDIM-50 twin on 32 items.
+ev ddim5 --num-items "$items" --replications 1 --samples-for-ade "$ade" --steps 5
 ev ddim10 --num-items "$items" --replications 1 --samples-for-ade "$ade" --steps 10
 ev ddim20 --num-items "$items" --replications 1 --samples-for-ade "$ade" --steps 20
 few=32 # DDPM runs all 1000 steps: about 5 s per motion here
@@ -76,7 +77,7 @@ if r:
         rows.append((title, row, "-"))
     table(rows, "row")
 steps = []
-for name, label in [("ddim10", "DDIM-10"), ("ddim20", "DDIM-20"), ("ddim50-32", "DDIM-50 (32 items)"), ("ddpm1000-32", "DDPM-1000 (32 items)")]:
+for name, label in [("ddim5", "DDIM-5"), ("ddim10", "DDIM-10"), ("ddim20", "DDIM-20"), ("ddim50-32", "DDIM-50 (32 items)"), ("ddpm1000-32", "DDPM-1000 (32 items)")]:
     rr = report(name)
     if rr:
         gen = next(x for x in rr["rows"] if not x["real"])

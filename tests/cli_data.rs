@@ -11,9 +11,7 @@ fn max_abs(a: &[f32], b: &[f32]) -> f32 {
 
 #[test]
 fn features_of_raw_mocap_reproduce_reference() {
-    let (Some(raw), Some(reference)) =
-        (fixtures::require("humanml3d/000021.npy"), fixtures::require("humanml3d/000021_features_reference.npy"))
-    else {
+    let (Some(raw), Some(reference)) = (fixtures::require("humanml3d/000021.npy"), fixtures::require("humanml3d/000021_features_reference.npy")) else {
         return;
     };
     let d = scratch("features");
@@ -40,9 +38,7 @@ fn features_of_raw_mocap_reproduce_reference() {
 
 #[test]
 fn joints_of_released_features_match_released_joints() {
-    let (Some(feats), Some(joints)) =
-        (fixtures::require("humanml3d/new_joint_vecs/012314.npy"), fixtures::require("humanml3d/new_joints/012314.npy"))
-    else {
+    let (Some(feats), Some(joints)) = (fixtures::require("humanml3d/new_joint_vecs/012314.npy"), fixtures::require("humanml3d/new_joints/012314.npy")) else {
         return;
     };
     let d = scratch("joints");
@@ -57,9 +53,7 @@ fn joints_of_released_features_match_released_joints() {
 /// `--up z --fps 40`.
 #[test]
 fn z_up_and_frame_rate_options() {
-    let (Some(raw), Some(reference)) =
-        (fixtures::require("humanml3d/000021.npy"), fixtures::require("humanml3d/000021_features_reference.npy"))
-    else {
+    let (Some(raw), Some(reference)) = (fixtures::require("humanml3d/000021.npy"), fixtures::require("humanml3d/000021_features_reference.npy")) else {
         return;
     };
     let a = npy::read_f64(&raw).unwrap();

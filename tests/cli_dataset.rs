@@ -25,7 +25,9 @@ const CAP: &str = "a person walks forward.#a/DET person/NOUN walk/VERB forward/A
 
 #[test]
 fn clean_dataset_passes_with_statistics() {
-    let Some((d, feats)) = base("check-clean") else { return };
+    let Some((d, feats)) = base("check-clean") else {
+        return;
+    };
     clip(&d, "000001", &feats, 170, CAP);
     clip(&d, "M000001", &feats, 170, CAP);
     clip(&d, "000002", &feats[..100 * 263], 100, CAP);
@@ -50,7 +52,9 @@ fn clean_dataset_passes_with_statistics() {
 
 #[test]
 fn every_problem_is_listed() {
-    let Some((d, feats)) = base("check-broken") else { return };
+    let Some((d, feats)) = base("check-broken") else {
+        return;
+    };
     clip(&d, "good", &feats, 170, CAP);
     let mut nan = feats.clone();
     nan[5 * 263 + 9] = f32::NAN;

@@ -74,7 +74,32 @@ fn evaluate_tiny_checkpoint(d: &std::path::Path, data: &std::path::Path, evaluat
     assert_one_line_error(&diffkfc(&few), &["--num-items", "at least 32"]);
     // Without snapping the raw model misses its keyframes; the report says which mode ran.
     let raw = d.join("raw");
-    let o = diffkfc(&["eval", "--checkpoint", s(&run), "--evaluator", s(evaluator), "--data", s(data), "--replications", "1", "--steps", "2", "--samples-for-ade", "1", "--num-items", "32", "--no-snap", "--transition-guidance", "0", "--kf-guidance", "1", "--keyframe-strategy", "uniform", "--out", s(&raw)]);
+    let o = diffkfc(&[
+        "eval",
+        "--checkpoint",
+        s(&run),
+        "--evaluator",
+        s(evaluator),
+        "--data",
+        s(data),
+        "--replications",
+        "1",
+        "--steps",
+        "2",
+        "--samples-for-ade",
+        "1",
+        "--num-items",
+        "32",
+        "--no-snap",
+        "--transition-guidance",
+        "0",
+        "--kf-guidance",
+        "1",
+        "--keyframe-strategy",
+        "uniform",
+        "--out",
+        s(&raw),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let r: serde_json::Value = serde_json::from_slice(&std::fs::read(raw.join("report.json")).unwrap()).unwrap();
     assert_eq!((r["meta"]["keyframe_fit"].as_str() == Some("none"), r["meta"]["keyframe_strategy"].as_str(), r["meta"]["kf_guidance"].as_f64()), (true, Some("uniform"), Some(1.0)));

@@ -83,7 +83,9 @@ fn bad_configs_name_the_key() {
 
 #[test]
 fn text_embed_prints_ids_and_embedding() {
-    let Some(reference) = diffkfc_data::fixtures::require("minilm/reference_embeddings.json") else { return };
+    let Some(reference) = diffkfc_data::fixtures::require("minilm/reference_embeddings.json") else {
+        return;
+    };
     let r: serde_json::Value = serde_json::from_slice(&std::fs::read(reference).unwrap()).unwrap();
     let item = &r["items"][0];
     let o = diffkfc(&["text-embed", "--text", item["text"].as_str().unwrap()]);

@@ -28,10 +28,14 @@ enum Command {
     #[command(after_help = "Examples:\n  diffkfc render work/synth/new_joint_vecs/000000.npy -o walk.gif --keyframes 0,40,80\n  diffkfc render a.npy b.npy c.npy --sheet -o sheet.png")]
     Render(commands::render::RenderArgs),
     /// Train DiffKFC: diffusion with keyframe masking, checkpoints, exact resume.
-    #[command(after_help = "Examples:\n  diffkfc train --config configs/tiny.json --data work/synth --out runs/tiny --time-budget 10m\n  diffkfc train --config configs/tiny.json --data work/synth --out runs/tiny --resume")]
+    #[command(
+        after_help = "Examples:\n  diffkfc train --config configs/tiny.json --data work/synth --out runs/tiny --time-budget 10m\n  diffkfc train --config configs/tiny.json --data work/synth --out runs/tiny --resume"
+    )]
     Train(commands::train::TrainArgs),
     /// Generate motion from text and keyframes with keyframe and transition guidance.
-    #[command(after_help = "Examples:\n  diffkfc sample --checkpoint runs/tiny --text \"a person walks forward and waves\" --from clip.npy --frames 0,40,80\n  diffkfc sample --checkpoint runs/tiny --text \"a person squats\" --keyframes keys.json --out out/squat")]
+    #[command(
+        after_help = "Examples:\n  diffkfc sample --checkpoint runs/tiny --text \"a person walks forward and waves\" --from clip.npy --frames 0,40,80\n  diffkfc sample --checkpoint runs/tiny --text \"a person squats\" --keyframes keys.json --out out/squat"
+    )]
     Sample(commands::sample::SampleArgs),
     /// Evaluate a checkpoint: FID, R-precision, Diversity, ADE, K-Err, K-TranS (Tables 2 and 4);
     /// `eval train-evaluator` trains the text-motion evaluator first.

@@ -4,8 +4,12 @@
 pub fn loss_svg(metrics: &str) -> String {
     let (mut train, mut val) = (Vec::new(), Vec::new());
     for line in metrics.lines() {
-        let Ok(v) = serde_json::from_str::<serde_json::Value>(line) else { continue };
-        let Some(step) = v["step"].as_f64() else { continue };
+        let Ok(v) = serde_json::from_str::<serde_json::Value>(line) else {
+            continue;
+        };
+        let Some(step) = v["step"].as_f64() else {
+            continue;
+        };
         if let Some(l) = v["loss"].as_f64() {
             train.push((step, l));
         }
@@ -33,9 +37,23 @@ pub fn loss_svg(metrics: &str) -> String {
         })
         .collect();
     let mut s = format!("<svg xmlns='http://www.w3.org/2000/svg' width='{w}' height='{h}' font-family='sans-serif' font-size='12'>");
-    s += &format!("<rect width='{w}' height='{h}' fill='white'/><line x1='{m}' y1='{}' x2='{}' y2='{}' stroke='black'/><line x1='{m}' y1='{m}' x2='{m}' y2='{}' stroke='black'/>", h - m, w - m, h - m, h - m);
+    s += &format!(
+        "<rect width='{w}' height='{h}' fill='white'/><line x1='{m}' y1='{}' x2='{}' y2='{}' stroke='black'/><line x1='{m}' y1='{m}' x2='{m}' y2='{}' stroke='black'/>",
+        h - m,
+        w - m,
+        h - m,
+        h - m
+    );
     s += &format!("<text x='{}' y='{}' text-anchor='middle'>step</text><text x='12' y='{}' transform='rotate(-90 12 {})' text-anchor='middle'>loss (log)</text>", w / 2.0, h - 12.0, h / 2.0, h / 2.0);
-    s += &format!("<text x='{m}' y='{}'>{:.3}</text><text x='{m}' y='{}'>{:.3}</text><text x='{}' y='{}' text-anchor='end'>{smax}</text>", m - 6.0, hi.exp(), h - m + 14.0, lo.exp(), w - m, h - m + 14.0);
+    s += &format!(
+        "<text x='{m}' y='{}'>{:.3}</text><text x='{m}' y='{}'>{:.3}</text><text x='{}' y='{}' text-anchor='end'>{smax}</text>",
+        m - 6.0,
+        hi.exp(),
+        h - m + 14.0,
+        lo.exp(),
+        w - m,
+        h - m + 14.0
+    );
     s += &format!("<path d='{}' fill='none' stroke='#9bb' stroke-width='1'/><path d='{}' fill='none' stroke='#157' stroke-width='2'/>", path(&train), path(&smooth));
     for p in &val {
         s += &format!("<circle cx='{:.1}' cy='{:.1}' r='3.5' fill='#d60'/>", x(p.0), y(p.1));

@@ -13,7 +13,13 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DataError> {
     // destroy /dev/null): only regular files are overwritten.
     if let Ok(m) = std::fs::symlink_metadata(path) {
         if !m.file_type().is_file() {
-            let kind = if m.file_type().is_symlink() { "a symbolic link" } else if m.is_dir() { "a directory" } else { "a device, FIFO or socket" };
+            let kind = if m.file_type().is_symlink() {
+                "a symbolic link"
+            } else if m.is_dir() {
+                "a directory"
+            } else {
+                "a device, FIFO or socket"
+            };
             return Err(DataError::Invalid(format!("{}: is {kind}, not a regular file: refusing to replace it", path.display())));
         }
     }
@@ -37,11 +43,15 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DataError> {
 /// Remove temporary files `<prefix>.tmp<PID>` in `dir` left by processes that no longer run
 /// (a `kill -9` in the middle of a write). Files of live processes are left alone.
 pub fn remove_stale_temps(dir: &Path, prefix: &str) {
-    let Ok(entries) = std::fs::read_dir(dir) else { return };
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
     let me = std::process::id();
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
-        let Some(pid) = name.strip_prefix(prefix).and_then(|r| r.strip_prefix(".tmp")).and_then(|p| p.parse::<u32>().ok()) else { continue };
+        let Some(pid) = name.strip_prefix(prefix).and_then(|r| r.strip_prefix(".tmp")).and_then(|p| p.parse::<u32>().ok()) else {
+            continue;
+        };
         if pid != me && !Path::new(&format!("/proc/{pid}")).exists() {
             let _ = std::fs::remove_file(e.path());
         }

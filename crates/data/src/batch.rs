@@ -93,17 +93,18 @@ impl<'a> Loader<'a> {
     /// Batch `b` of `epoch`.
     pub fn batch(&self, epoch: u64, b: usize) -> Batch {
         let order = self.order(epoch);
-        let picks: Vec<(usize, usize)> =
-            (0..self.batch_size).map(|k| { let pos = b * self.batch_size + k; (pos, order[pos % order.len()]) }).collect();
+        let picks: Vec<(usize, usize)> = (0..self.batch_size)
+            .map(|k| {
+                let pos = b * self.batch_size + k;
+                (pos, order[pos % order.len()])
+            })
+            .collect();
         let samples: Vec<Sample> = if self.threads <= 1 {
             picks.iter().map(|&(pos, item)| self.sample(epoch, pos, item)).collect()
         } else {
             let chunk = picks.len().div_ceil(self.threads);
             std::thread::scope(|s| {
-                let handles: Vec<_> = picks
-                    .chunks(chunk)
-                    .map(|c| s.spawn(move || c.iter().map(|&(pos, item)| self.sample(epoch, pos, item)).collect::<Vec<_>>()))
-                    .collect();
+                let handles: Vec<_> = picks.chunks(chunk).map(|c| s.spawn(move || c.iter().map(|&(pos, item)| self.sample(epoch, pos, item)).collect::<Vec<_>>())).collect();
                 handles.into_iter().flat_map(|h| h.join().expect("loader thread")).collect()
             })
         };
@@ -120,11 +121,7 @@ impl<'a> Loader<'a> {
         let root = warp::root_channels(&x0, dim);
         self.ds.normalise(&mut x0);
         let kc = &self.keyframes;
-        let kf = if rng.chance(kc.drop_prob) {
-            vec![]
-        } else {
-            keyframes::select(kc.strategy, len, kc.rate, &x0, dim, &mut rng)
-        };
+        let kf = if rng.chance(kc.drop_prob) { vec![] } else { keyframes::select(kc.strategy, len, kc.rate, &x0, dim, &mut rng) };
         let mut root_mask = vec![0f32; len * ROOT_CHANNELS];
         for &f in &kf {
             for pair in [0..2, 2..4] {

@@ -170,11 +170,7 @@ pub fn read(skel: &Skeleton, text: &str) -> Result<Joints, DataError> {
         return Err(bad(&format!("joint '{}' has {} channels; this reader takes 3 (rotation) or 6 (position and rotation)", names[k], chans[k])));
     }
     let per_frame: usize = chans.iter().sum();
-    let index: Vec<usize> = skel
-        .joint_names
-        .iter()
-        .map(|n| names.iter().position(|m| m == n).ok_or_else(|| bad(&format!("joint '{n}' missing"))))
-        .collect::<Result<_, _>>()?;
+    let index: Vec<usize> = skel.joint_names.iter().map(|n| names.iter().position(|m| m == n).ok_or_else(|| bad(&format!("joint '{n}' missing")))).collect::<Result<_, _>>()?;
     if let Some(ft) = motion.lines().map(str::trim).find_map(|l| l.strip_prefix("Frame Time:")) {
         let ft: f64 = ft.trim().parse().map_err(|_| bad(&format!("Frame Time '{}' is not a number", ft.trim())))?;
         if !(ft.is_finite() && ft > 0.0) {
@@ -226,7 +222,9 @@ mod tests {
     /// Real motion -> BVH -> positions: the same motion (on the target skeleton).
     #[test]
     fn round_trip_real_motion() {
-        let Some(p) = fixtures::require("humanml3d/new_joints/012314.npy") else { return };
+        let Some(p) = fixtures::require("humanml3d/new_joints/012314.npy") else {
+            return;
+        };
         let a = npy::read_f64(p).unwrap();
         let j = rep::joints_from_array(&a.data, 170, 22, 22);
         // BVH carries the target skeleton's bone lengths; compare against the retargeted motion.

@@ -58,12 +58,7 @@ pub struct PackedSplit {
 
 fn source(path: &Path) -> Result<Source, DataError> {
     let md = std::fs::metadata(path).map_err(|e| DataError::Io { path: path.to_path_buf(), err: e })?;
-    let mtime_ns = md
-        .modified()
-        .ok()
-        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
-        .map(|d| d.as_nanos())
-        .unwrap_or(0);
+    let mtime_ns = md.modified().ok().and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok()).map(|d| d.as_nanos()).unwrap_or(0);
     Ok(Source { path: path.to_string_lossy().into_owned(), size: md.len(), mtime_ns })
 }
 
@@ -108,16 +103,7 @@ impl PackedSplit {
             None
         };
         let clip_of = index.clips.iter().enumerate().map(|(i, c)| (c.id.clone(), i)).collect();
-        Ok(PackedSplit {
-            split: split.to_string(),
-            dim: index.dim,
-            clips: index.clips,
-            items: index.items,
-            skipped: index.skipped,
-            clip_of,
-            map,
-            built,
-        })
+        Ok(PackedSplit { split: split.to_string(), dim: index.dim, clips: index.clips, items: index.items, skipped: index.skipped, clip_of, map, built })
     }
 
     /// Raw (un-normalised) features of frames [start, start+len) of a clip, row-major.
@@ -152,15 +138,7 @@ fn data_ok(path: &Path, ix: &Index) -> bool {
     std::fs::metadata(path).map(|m| m.len() == want).unwrap_or(want == 0)
 }
 
-fn build(
-    ds: &Dataset,
-    ids: &[String],
-    srcs: Vec<Source>,
-    dir: &Path,
-    index_path: &Path,
-    data_path: &Path,
-    progress: &mut impl FnMut(usize, usize),
-) -> Result<Index, DataError> {
+fn build(ds: &Dataset, ids: &[String], srcs: Vec<Source>, dir: &Path, index_path: &Path, data_path: &Path, progress: &mut impl FnMut(usize, usize)) -> Result<Index, DataError> {
     let io = |p: &Path| {
         let p = p.to_path_buf();
         move |e| DataError::Io { path: p, err: e }
@@ -199,11 +177,7 @@ fn build(
         if its.is_empty() {
             let (min, fps) = (ds.min_frames(), ds.skeleton.fps);
             let spans = caps.iter().filter(|c| !c.whole_clip()).count();
-            let why = if caps.iter().any(|c| c.whole_clip()) {
-                format!("its {frames} frames are outside [{min}, 200)")
-            } else {
-                format!("it has no whole-clip caption ({frames} frames)")
-            };
+            let why = if caps.iter().any(|c| c.whole_clip()) { format!("its {frames} frames are outside [{min}, 200)") } else { format!("it has no whole-clip caption ({frames} frames)") };
             let also = if spans > 0 { format!("; its {spans} sub-clip caption span(s) run past its end or are not {min} to 199 frames long at {fps} fps") } else { String::new() };
             skipped.push((id.clone(), format!("no item: {why}{also}")));
             continue;

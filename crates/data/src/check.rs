@@ -57,10 +57,7 @@ impl CheckReport {
         s += &format!("dataset {} ({} skeleton, {} features)\n", self.root, self.skeleton, self.dim);
         s += &format!("{:<6} {:>7} {:>7} {:>7} {:>9} {:>7} {:>8}\n", "split", "ids", "clips", "items", "frames", "hours", "captions");
         for st in &self.splits {
-            s += &format!(
-                "{:<6} {:>7} {:>7} {:>7} {:>9} {:>7.2} {:>8}\n",
-                st.split, st.ids, st.clips, st.items, st.frames, st.hours, st.captions
-            );
+            s += &format!("{:<6} {:>7} {:>7} {:>7} {:>9} {:>7.2} {:>8}\n", st.split, st.ids, st.clips, st.items, st.frames, st.hours, st.captions);
         }
         s += &format!("distinct words: {}\nclip lengths (frames):\n", self.distinct_words);
         let max = self.length_histogram.iter().map(|b| b.2).max().unwrap_or(0).max(1);
@@ -84,15 +81,7 @@ pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport
         Ok(ds) => ds,
         Err(e) => {
             problems.push(Problem { file: root.display().to_string(), problem: e.to_string() });
-            return CheckReport {
-                root: root.display().to_string(),
-                skeleton: "unknown".into(),
-                dim: 0,
-                problems,
-                splits: vec![],
-                distinct_words: 0,
-                length_histogram: vec![],
-            };
+            return CheckReport { root: root.display().to_string(), skeleton: "unknown".into(), dim: 0, problems, splits: vec![], distinct_words: 0, length_histogram: vec![] };
         }
     };
     let dim = ds.dim();
@@ -126,7 +115,9 @@ pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport
                 }
                 Some((frames?, caps?))
             });
-            let Some((frames, caps)) = entry else { continue };
+            let Some((frames, caps)) = entry else {
+                continue;
+            };
             for c in caps.iter() {
                 words.extend(c.text.split(|ch: char| !ch.is_alphanumeric()).filter(|w| !w.is_empty()).map(str::to_lowercase));
             }
@@ -140,15 +131,7 @@ pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport
     }
     progress(total, total);
     let length_histogram = hist.iter().enumerate().map(|(i, &n)| (i * 20, (i < 10).then_some(i * 20 + 20), n)).collect();
-    CheckReport {
-        root: root.display().to_string(),
-        skeleton: ds.skeleton.name.to_string(),
-        dim,
-        problems,
-        splits: stats,
-        distinct_words: words.len(),
-        length_histogram,
-    }
+    CheckReport { root: root.display().to_string(), skeleton: ds.skeleton.name.to_string(), dim, problems, splits: stats, distinct_words: words.len(), length_histogram }
 }
 
 /// An io error without the path (the report line already names the file).

@@ -43,12 +43,7 @@ impl Dataset {
         let skeleton = match mean.len() {
             263 => &crate::T2M,
             251 => &crate::KIT,
-            n => {
-                return Err(DataError::Npy {
-                    path: root.join("Mean.npy"),
-                    msg: format!("width {n} is neither HumanML3D (263) nor KIT-ML (251)"),
-                })
-            }
+            n => return Err(DataError::Npy { path: root.join("Mean.npy"), msg: format!("width {n} is neither HumanML3D (263) nor KIT-ML (251)") }),
         };
         Ok(Dataset { root, skeleton, mean, std })
     }

@@ -62,4 +62,3 @@ pub fn fuzz(name: &str, seeds: &[Vec<u8>], count: usize, read: &dyn Fn(&[u8]) ->
     eprintln!("fuzz {name}: {count} cases, {ok} accepted, {errors} clean errors, 0 panics, 0 hangs");
     (ok, errors)
 }
-

@@ -62,14 +62,7 @@ pub fn mdo(frames: &[f32], dim: usize, k: usize) -> Vec<usize> {
     if k <= 1 {
         return if k == 1 { vec![0] } else { vec![] };
     }
-    let dist = |i: usize, j: usize| -> f64 {
-        frames[i * dim..(i + 1) * dim]
-            .iter()
-            .zip(&frames[j * dim..(j + 1) * dim])
-            .map(|(a, b)| ((a - b) as f64).powi(2))
-            .sum::<f64>()
-            .sqrt()
-    };
+    let dist = |i: usize, j: usize| -> f64 { frames[i * dim..(i + 1) * dim].iter().zip(&frames[j * dim..(j + 1) * dim]).map(|(a, b)| ((a - b) as f64).powi(2)).sum::<f64>().sqrt() };
     // best[c][j]: best score of a chain of c+1 frames ending at j.
     let mut best = vec![vec![f64::NEG_INFINITY; n]; k];
     let mut from = vec![vec![usize::MAX; n]; k];
@@ -176,11 +169,7 @@ mod tests {
         for trial in 0..20 {
             let (n, dim, k) = (6 + trial % 5, 3, 2 + trial % 3);
             let f: Vec<f32> = (0..n * dim).map(|_| rng.normal() as f32).collect();
-            let score = |s: &[usize]| -> f64 {
-                s.windows(2)
-                    .map(|w| (0..dim).map(|c| ((f[w[0] * dim + c] - f[w[1] * dim + c]) as f64).powi(2)).sum::<f64>().sqrt())
-                    .sum()
-            };
+            let score = |s: &[usize]| -> f64 { s.windows(2).map(|w| (0..dim).map(|c| ((f[w[0] * dim + c] - f[w[1] * dim + c]) as f64).powi(2)).sum::<f64>().sqrt()).sum() };
             let mut best = f64::NEG_INFINITY;
             for bits in 0u32..(1 << n) {
                 if bits.count_ones() as usize == k {

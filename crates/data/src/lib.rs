@@ -22,8 +22,8 @@ pub mod synth;
 pub mod texts;
 pub mod warp;
 
-pub use representation::{features_from_joints, recover_from_ric, Joints, Layout};
 pub use atomic::write_atomic;
+pub use representation::{features_from_joints, recover_from_ric, Joints, Layout};
 pub use skeleton::{Skeleton, KIT, T2M};
 
 use std::path::PathBuf;

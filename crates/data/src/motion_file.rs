@@ -22,10 +22,7 @@ pub fn load_features(path: &Path, skel: &Skeleton, min_frames: usize) -> Result<
     let arr = npy::read_f32(path)?;
     let dim = skel.feature_dim();
     if arr.ndim() != 2 || arr.shape[1] != dim {
-        return Err(invalid(
-            path,
-            format!("expected features of shape (T, {dim}) for the {} skeleton, got {:?}", skel.name, arr.shape),
-        ));
+        return Err(invalid(path, format!("expected features of shape (T, {dim}) for the {} skeleton, got {:?}", skel.name, arr.shape)));
     }
     if arr.shape[0] < min_frames {
         return Err(invalid(path, format!("has {} frame(s); at least {min_frames} needed", arr.shape[0])));
@@ -44,10 +41,7 @@ pub fn load_joints(path: &Path, skel: &Skeleton, min_frames: usize) -> Result<Jo
     let ok_joints = |j: usize| j == jn || (skel.name == "t2m" && (j == 52 || j == 24));
     if arr.ndim() != 3 || arr.shape[2] != 3 || !ok_joints(arr.shape[1]) {
         let extra = if skel.name == "t2m" { ", (T, 24, 3) SMPL or (T, 52, 3) SMPL-H" } else { "" };
-        return Err(invalid(
-            path,
-            format!("expected joint positions of shape (T, {jn}, 3){extra}, got {:?}", arr.shape),
-        ));
+        return Err(invalid(path, format!("expected joint positions of shape (T, {jn}, 3){extra}, got {:?}", arr.shape)));
     }
     if arr.shape[0] < min_frames {
         return Err(invalid(path, format!("has {} frame(s); at least {min_frames} needed", arr.shape[0])));

@@ -70,19 +70,13 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header, DataError> {
     if bytes.len() < end {
         return Err(err(path, "truncated header"));
     }
-    let text = std::str::from_utf8(&bytes[start..end])
-        .map_err(|_| err(path, "header is not valid text"))?;
+    let text = std::str::from_utf8(&bytes[start..end]).map_err(|_| err(path, "header is not valid text"))?;
     let descr = dict_value(text, "descr").ok_or_else(|| err(path, "header has no 'descr'"))?;
     let descr = descr.trim().trim_matches(|c| c == '\'' || c == '"');
     let dtype = match descr {
         "<f4" | "=f4" => DType::F32,
         "<f8" | "=f8" => DType::F64,
-        other => {
-            return Err(err(
-                path,
-                format!("dtype '{other}' is not supported (expected little-endian float32 '<f4' or float64 '<f8')"),
-            ))
-        }
+        other => return Err(err(path, format!("dtype '{other}' is not supported (expected little-endian float32 '<f4' or float64 '<f8')"))),
     };
     let order = dict_value(text, "fortran_order").ok_or_else(|| err(path, "header has no 'fortran_order'"))?;
     if order.trim() != "False" {
@@ -130,14 +124,8 @@ pub fn decode_f64(path: &Path, bytes: &[u8]) -> Result<(Array<f64>, DType), Data
         return Err(err(path, format!("truncated data: shape {:?} needs {needs} bytes, file has {}", h.shape, body.len())));
     };
     let data: Vec<f64> = match h.dtype {
-        DType::F32 => body[..n * 4]
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64)
-            .collect(),
-        DType::F64 => body[..n * 8]
-            .chunks_exact(8)
-            .map(|c| f64::from_le_bytes(c.try_into().unwrap()))
-            .collect(),
+        DType::F32 => body[..n * 4].chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64).collect(),
+        DType::F64 => body[..n * 8].chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().unwrap())).collect(),
     };
     Ok((Array { shape: h.shape, data }, h.dtype))
 }

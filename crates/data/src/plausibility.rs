@@ -29,17 +29,8 @@ pub fn measure(skel: &Skeleton, j: &Joints) -> Plausibility {
         bone_std = bone_std.max(v.sqrt());
     }
     let min_height = j.iter().flatten().map(|p| p[1]).fold(f64::INFINITY, f64::min);
-    let max_speed = j
-        .windows(2)
-        .flat_map(|w| w[0].iter().zip(&w[1]).map(|(a, b)| quat::norm(quat::sub(*b, *a))))
-        .fold(0.0, f64::max)
-        * skel.fps;
-    let max_accel = j
-        .windows(3)
-        .flat_map(|w| (0..w[0].len()).map(move |k| quat::norm(quat::add(quat::sub(w[2][k], quat::scale(w[1][k], 2.0)), w[0][k]))))
-        .fold(0.0, f64::max)
-        * skel.fps
-        * skel.fps;
+    let max_speed = j.windows(2).flat_map(|w| w[0].iter().zip(&w[1]).map(|(a, b)| quat::norm(quat::sub(*b, *a)))).fold(0.0, f64::max) * skel.fps;
+    let max_accel = j.windows(3).flat_map(|w| (0..w[0].len()).map(move |k| quat::norm(quat::add(quat::sub(w[2][k], quat::scale(w[1][k], 2.0)), w[0][k])))).fold(0.0, f64::max) * skel.fps * skel.fps;
     Plausibility { bone_length_std: bone_std, min_height, foot_skating: foot_skating_ratio(skel, j), max_speed, max_accel }
 }
 

@@ -49,7 +49,9 @@ mod tests {
     /// HumanML3D's root rotation is the identity and the body faces +Z).
     #[test]
     fn single_pose_matches_process_file_at_frame_zero() {
-        let Some(p) = fixtures::require("humanml3d/000021_features_reference.npy") else { return };
+        let Some(p) = fixtures::require("humanml3d/000021_features_reference.npy") else {
+            return;
+        };
         let f = npy::read_f64(p).unwrap();
         let joints = rep::recover_from_ric(&T2M, &f.data);
         let (v, m) = pose_features(&T2M, &joints[0]).unwrap();

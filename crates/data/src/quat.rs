@@ -38,12 +38,7 @@ pub fn normalize(a: Vec3) -> Vec3 {
 pub fn qmul(q: Quat, r: Quat) -> Quat {
     let [w0, x0, y0, z0] = r;
     let [w1, x1, y1, z1] = q;
-    [
-        w1 * w0 - x1 * x0 - y1 * y0 - z1 * z0,
-        w1 * x0 + x1 * w0 + y1 * z0 - z1 * y0,
-        w1 * y0 - x1 * z0 + y1 * w0 + z1 * x0,
-        w1 * z0 + x1 * y0 - y1 * x0 + z1 * w0,
-    ]
+    [w1 * w0 - x1 * x0 - y1 * y0 - z1 * z0, w1 * x0 + x1 * w0 + y1 * z0 - z1 * y0, w1 * y0 - x1 * z0 + y1 * w0 + z1 * x0, w1 * z0 + x1 * y0 - y1 * x0 + z1 * w0]
 }
 
 /// Conjugate (the inverse of a unit quaternion).

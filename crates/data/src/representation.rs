@@ -137,7 +137,13 @@ pub(crate) enum Facing {
 /// up x across for each frame.
 pub(crate) fn facing(skel: &Skeleton, joints: &Joints, how: Facing) -> Vec<Vec3> {
     let [r_hip, l_hip, r_sho, l_sho] = skel.face_joints;
-    let hips = |f: &[Vec3]| if how == Facing::Reference { quat::sub(f[l_hip], f[r_hip]) } else { quat::sub(f[r_hip], f[l_hip]) };
+    let hips = |f: &[Vec3]| {
+        if how == Facing::Reference {
+            quat::sub(f[l_hip], f[r_hip])
+        } else {
+            quat::sub(f[r_hip], f[l_hip])
+        }
+    };
     joints
         .iter()
         .map(|f| {
@@ -224,13 +230,9 @@ pub fn bone_offsets(skel: &Skeleton, pose: &[Vec3]) -> Vec<Vec3> {
 /// Retarget a motion to the skeleton's target bone lengths, scaling the root path by the ratio
 /// of lower-leg lengths (HumanML3D `uniform_skeleton`).
 pub fn uniform_skeleton(skel: &Skeleton, joints: &Joints) -> Result<Joints, DataError> {
-    let tgt = skel.target_offsets().ok_or_else(|| {
-        DataError::Invalid(format!("skeleton '{}' has no target bone lengths to retarget to", skel.name))
-    })?;
+    let tgt = skel.target_offsets().ok_or_else(|| DataError::Invalid(format!("skeleton '{}' has no target bone lengths to retarget to", skel.name)))?;
     let src = bone_offsets(skel, &joints[0]);
-    let leg = |o: &[Vec3]| -> f64 {
-        skel.leg_bones.iter().map(|&b| o[b].iter().fold(0.0f64, |m, v| m.max(v.abs()))).sum()
-    };
+    let leg = |o: &[Vec3]| -> f64 { skel.leg_bones.iter().map(|&b| o[b].iter().fold(0.0f64, |m, v| m.max(v.abs()))).sum() };
     let scale = leg(&tgt) / leg(&src);
     let root: Vec<Vec3> = joints.iter().map(|f| quat::scale(f[0], scale)).collect();
     let rotations = inverse_kinematics(skel, joints, false);
@@ -318,17 +320,10 @@ pub fn features_from_joints(skel: &Skeleton, joints: &Joints, feet_threshold: f6
 /// Reject sequences `features_from_joints` cannot process, with a reason.
 pub fn validate_joints(skel: &Skeleton, joints: &Joints) -> Result<(), DataError> {
     if joints.len() < 2 {
-        return Err(DataError::Invalid(format!(
-            "motion has {} frame(s); at least 2 are needed to compute velocities",
-            joints.len()
-        )));
+        return Err(DataError::Invalid(format!("motion has {} frame(s); at least 2 are needed to compute velocities", joints.len())));
     }
     if let Some(f) = joints.iter().position(|f| f.len() != skel.num_joints()) {
-        return Err(DataError::Invalid(format!(
-            "frame {f} has {} joints, expected {}",
-            joints[f].len(),
-            skel.num_joints()
-        )));
+        return Err(DataError::Invalid(format!("frame {f} has {} joints, expected {}", joints[f].len(), skel.num_joints())));
     }
     if let Some(f) = joints.iter().position(|f| f.iter().flatten().any(|v| !v.is_finite())) {
         return Err(DataError::Invalid(format!("frame {f} contains NaN or infinite values")));
@@ -381,10 +376,14 @@ pub fn z_up_to_y_up(joints: &mut Joints) {
 /// (T, J, 3) array data to a joint sequence, keeping the first `take` joints.
 pub fn joints_from_array(data: &[f64], frames: usize, joints: usize, take: usize) -> Joints {
     (0..frames)
-        .map(|f| (0..take).map(|j| {
-            let o = (f * joints + j) * 3;
-            [data[o], data[o + 1], data[o + 2]]
-        }).collect())
+        .map(|f| {
+            (0..take)
+                .map(|j| {
+                    let o = (f * joints + j) * 3;
+                    [data[o], data[o + 1], data[o + 2]]
+                })
+                .collect()
+        })
         .collect()
 }
 

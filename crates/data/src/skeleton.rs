@@ -74,11 +74,7 @@ impl Skeleton {
                 out.push(j);
             } else {
                 let parts: Vec<_> = self.parts.iter().map(|p| p.name).collect();
-                return Err(format!(
-                    "unknown joint or body part '{item}' (body parts: {}; joints: {})",
-                    parts.join(", "),
-                    self.joint_names.join(", ")
-                ));
+                return Err(format!("unknown joint or body part '{item}' (body parts: {}; joints: {})", parts.join(", "), self.joint_names.join(", ")));
             }
         }
         out.sort_unstable();
@@ -106,17 +102,55 @@ impl Skeleton {
 /// the raw offset directions (the README of the fixtures lists the same numbers rounded).
 /// The golden test `target_lengths_match_000021` recomputes them from the fixture.
 const T2M_LENGTHS: [f64; 22] = [
-    0.0, 0.103100177, 0.109867721, 0.131602724, 0.393589222, 0.390126114, 0.143163828, 0.432214947,
-    0.425707550, 0.057362134, 0.143381093, 0.149540883, 0.219349397, 0.137450143, 0.143360774,
-    0.103108706, 0.131557726, 0.123003279, 0.256924639, 0.263132272, 0.266010486, 0.269717635,
+    0.0,
+    0.103100177,
+    0.109867721,
+    0.131602724,
+    0.393589222,
+    0.390126114,
+    0.143163828,
+    0.432214947,
+    0.425707550,
+    0.057362134,
+    0.143381093,
+    0.149540883,
+    0.219349397,
+    0.137450143,
+    0.143360774,
+    0.103108706,
+    0.131557726,
+    0.123003279,
+    0.256924639,
+    0.263132272,
+    0.266010486,
+    0.269717635,
 ];
 
 pub static T2M: Skeleton = Skeleton {
     name: "t2m",
     joint_names: &[
-        "pelvis", "l_hip", "r_hip", "spine1", "l_knee", "r_knee", "spine2", "l_ankle", "r_ankle",
-        "spine3", "l_foot", "r_foot", "neck", "l_collar", "r_collar", "head", "l_shoulder",
-        "r_shoulder", "l_elbow", "r_elbow", "l_wrist", "r_wrist",
+        "pelvis",
+        "l_hip",
+        "r_hip",
+        "spine1",
+        "l_knee",
+        "r_knee",
+        "spine2",
+        "l_ankle",
+        "r_ankle",
+        "spine3",
+        "l_foot",
+        "r_foot",
+        "neck",
+        "l_collar",
+        "r_collar",
+        "head",
+        "l_shoulder",
+        "r_shoulder",
+        "l_elbow",
+        "r_elbow",
+        "l_wrist",
+        "r_wrist",
     ],
     kinematic_chain: &[&[0, 2, 5, 8, 11], &[0, 1, 4, 7, 10], &[0, 3, 6, 9, 12, 15], &[9, 14, 17, 19, 21], &[9, 13, 16, 18, 20]],
     raw_offsets: &[
@@ -169,9 +203,27 @@ pub static T2M: Skeleton = Skeleton {
 pub static KIT: Skeleton = Skeleton {
     name: "kit",
     joint_names: &[
-        "root", "torso", "chest", "neck", "head", "l_shoulder", "l_elbow", "l_wrist", "r_shoulder",
-        "r_elbow", "r_wrist", "l_hip", "l_knee", "l_ankle", "l_toe_base", "l_toe", "r_hip",
-        "r_knee", "r_ankle", "r_toe_base", "r_toe",
+        "root",
+        "torso",
+        "chest",
+        "neck",
+        "head",
+        "l_shoulder",
+        "l_elbow",
+        "l_wrist",
+        "r_shoulder",
+        "r_elbow",
+        "r_wrist",
+        "l_hip",
+        "l_knee",
+        "l_ankle",
+        "l_toe_base",
+        "l_toe",
+        "r_hip",
+        "r_knee",
+        "r_ankle",
+        "r_toe_base",
+        "r_toe",
     ],
     kinematic_chain: &[&[0, 11, 12, 13, 14, 15], &[0, 16, 17, 18, 19, 20], &[0, 1, 2, 3, 4], &[3, 5, 6, 7], &[3, 8, 9, 10]],
     raw_offsets: &[

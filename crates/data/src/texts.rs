@@ -74,7 +74,9 @@ mod tests {
 
     #[test]
     fn parses_humanml3d_lines() {
-        let c = parse_line("a man kicks with something or someone with his left leg.#a/DET man/NOUN kick/VERB with/ADP something/PRON or/CCONJ someone/PRON with/ADP his/DET left/ADJ leg/NOUN#0.0#0.0").unwrap();
+        let c =
+            parse_line("a man kicks with something or someone with his left leg.#a/DET man/NOUN kick/VERB with/ADP something/PRON or/CCONJ someone/PRON with/ADP his/DET left/ADJ leg/NOUN#0.0#0.0")
+                .unwrap();
         assert!(c.whole_clip());
         assert_eq!(c.tokens[2], ("kick".into(), "VERB".into()));
         let c = parse_line("a person jumps.#a/DET person/NOUN jump/VERB#1.5#4.0").unwrap();

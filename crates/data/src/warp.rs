@@ -47,10 +47,7 @@ impl RootKey {
 
     /// Inverse of `channels` (a channel pair counts as observed when its mask is set).
     pub fn from_channels(v: &[f32], m: &[f32]) -> RootKey {
-        RootKey {
-            place: (m[0] > 0.0).then(|| [v[0] as f64 * ROOT_POS_SCALE, v[1] as f64 * ROOT_POS_SCALE]),
-            heading: (m[2] > 0.0).then(|| (v[2] as f64).atan2(v[3] as f64)),
-        }
+        RootKey { place: (m[0] > 0.0).then(|| [v[0] as f64 * ROOT_POS_SCALE, v[1] as f64 * ROOT_POS_SCALE]), heading: (m[2] > 0.0).then(|| (v[2] as f64).atan2(v[3] as f64)) }
     }
 }
 
@@ -190,18 +187,12 @@ pub fn warp(layout: &Layout, feats: &mut [f32], targets: &Targets, falloff: usiz
     let d = layout.dim();
     let len = feats.len() / d;
     let keyed = |f: usize| targets.mask[f * d..(f + 1) * d].iter().any(|&m| m > 0.0);
-    let mut corr: Vec<Correction> = (0..len)
-        .filter(|&f| keyed(f) || targets.root[f] != RootKey::default())
-        .map(|frame| Correction { frame, ..Default::default() })
-        .collect();
+    let mut corr: Vec<Correction> = (0..len).filter(|&f| keyed(f) || targets.root[f] != RootKey::default()).map(|frame| Correction { frame, ..Default::default() }).collect();
     let slot = |corr: &mut Vec<Correction>, f: usize| corr.iter().position(|c| c.frame == f);
     // Pose: every observed channel except the root's velocities (rewritten below from the
     // trajectory) and the foot contacts (labels, not values to blend).
     for c in 3..layout.contacts().start {
-        let anchors: Vec<(usize, f64)> = (0..len)
-            .filter(|&f| targets.mask[f * d + c] > 0.0)
-            .map(|f| (f, (targets.features[f * d + c] - feats[f * d + c]) as f64))
-            .collect();
+        let anchors: Vec<(usize, f64)> = (0..len).filter(|&f| targets.mask[f * d + c] > 0.0).map(|f| (f, (targets.features[f * d + c] - feats[f * d + c]) as f64)).collect();
         if anchors.is_empty() {
             continue;
         }
@@ -235,8 +226,7 @@ fn warp_root(feats: &mut [f32], d: usize, keys: &[RootKey], corr: &mut [Correcti
     // The path the new headings give with the model's own facing-frame steps, then displaced.
     let traj = root_trajectory(feats, d);
     let mut pos: Vec<Vec3> = traj.iter().map(|k| k.place.map(|[x, z]| [x, 0.0, z]).expect("a trajectory has every place")).collect();
-    let place_anchors: Vec<(usize, [f64; 2])> =
-        (0..len).filter_map(|f| keys[f].place.map(|[x, z]| (f, [x - pos[f][0], z - pos[f][2]]))).collect();
+    let place_anchors: Vec<(usize, [f64; 2])> = (0..len).filter_map(|f| keys[f].place.map(|[x, z]| (f, [x - pos[f][0], z - pos[f][2]]))).collect();
     for axis in 0..2 {
         let anchors: Vec<(usize, f64)> = place_anchors.iter().map(|(f, r)| (*f, r[axis])).collect();
         for (p, v) in pos.iter_mut().zip(displacement(len, &anchors, Ends::Hold)) {

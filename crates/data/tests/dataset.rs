@@ -38,18 +38,16 @@ fn small_dataset(name: &str) -> Option<(PathBuf, Vec<f32>)> {
 
 #[test]
 fn items_follow_mdm_rules_and_cache_maps_the_features() {
-    let Some((root, clip)) = small_dataset("items") else { return };
+    let Some((root, clip)) = small_dataset("items") else {
+        return;
+    };
     let ds = Dataset::open(&root).unwrap();
     assert_eq!(ds.skeleton.name, "t2m");
     let cache = root.join(".cache");
     let split = PackedSplit::open(&ds, "train", &cache, |_, _| {}).unwrap();
     assert!(split.built);
-    let items: Vec<(String, usize, usize, usize)> =
-        split.items.iter().map(|i| (i.clip.clone(), i.start, i.len, i.captions.len())).collect();
-    assert_eq!(
-        items,
-        vec![("A".into(), 0, 170, 2), ("C".into(), 0, 100, 1), ("C".into(), 20, 60, 1), ("M012314".into(), 0, 170, 1)]
-    );
+    let items: Vec<(String, usize, usize, usize)> = split.items.iter().map(|i| (i.clip.clone(), i.start, i.len, i.captions.len())).collect();
+    assert_eq!(items, vec![("A".into(), 0, 170, 2), ("C".into(), 0, 100, 1), ("C".into(), 20, 60, 1), ("M012314".into(), 0, 170, 1)]);
     assert_eq!(split.skipped.len(), 1);
     assert!(split.skipped[0].1.contains("30 frames"), "{:?}", split.skipped);
     assert_eq!(split.item_frames(0), &clip[..]);
@@ -75,7 +73,9 @@ fn items_follow_mdm_rules_and_cache_maps_the_features() {
 /// A clip whose only caption spans past its end is skipped with the reason.
 #[test]
 fn skipped_clip_says_why() {
-    let Some((root, clip)) = small_dataset("skip") else { return };
+    let Some((root, clip)) = small_dataset("skip") else {
+        return;
+    };
     write_clip(&root, "D", &clip, 263, &["a person turns.#a/DET person/NOUN turn/VERB#8.0#12.0"]);
     std::fs::write(root.join("val.txt"), "D\n").unwrap();
     let ds = Dataset::open(&root).unwrap();
@@ -88,7 +88,9 @@ fn skipped_clip_says_why() {
 
 #[test]
 fn batches_are_normalised_padded_and_deterministic() {
-    let Some((root, _)) = small_dataset("batch") else { return };
+    let Some((root, _)) = small_dataset("batch") else {
+        return;
+    };
     let ds = Dataset::open(&root).unwrap();
     let split = PackedSplit::open(&ds, "train", &root.join(".cache"), |_, _| {}).unwrap();
     let kf = KeyframeConfig { strategy: Strategy::Random, rate: 0.05, drop_prob: 0.0, ..Default::default() };
@@ -109,9 +111,7 @@ fn batches_are_normalised_padded_and_deterministic() {
         // The sample is a normalised window of the item.
         let raw = split.item_frames(b.items[i]);
         let first: Vec<f32> = (0..d).map(|k| b.x0[i * n * d + k] * ds.std[k] + ds.mean[k]).collect();
-        let start = (0..=item.len - len)
-            .find(|&s| (0..d).all(|k| (raw[s * d + k] - first[k]).abs() < 1e-4))
-            .expect("crop start");
+        let start = (0..=item.len - len).find(|&s| (0..d).all(|k| (raw[s * d + k] - first[k]).abs() < 1e-4)).expect("crop start");
         for f in 0..len {
             for k in 0..d {
                 let want = (raw[(start + f) * d + k] - ds.mean[k]) / ds.std[k];

@@ -21,7 +21,9 @@ fn npy_reader_never_panics() {
     let feats: Vec<f32> = (0..6 * 263).map(|_| r.normal() as f32).collect();
     let seeds = vec![npy::encode(&[6, 263], &feats), npy::encode(&[4, 22, 3], &vec![0.5f64; 264]), npy::encode(&[263], &vec![1f32; 263])];
     let (_, errors) = fuzz("npy", &seeds, cases(), &|b| {
-        let Ok((a, _)) = npy::decode_f64(Path::new("fuzz.npy"), b) else { return false };
+        let Ok((a, _)) = npy::decode_f64(Path::new("fuzz.npy"), b) else {
+            return false;
+        };
         // What the commands do next with an array must hold too.
         if a.ndim() == 2 && a.shape[1] == 263 && a.shape[0] >= 2 && a.data.iter().all(|v| v.is_finite() && v.abs() < 1e6) {
             let _ = rep::recover_from_ric(&T2M, &a.data);
@@ -35,7 +37,9 @@ fn npy_reader_never_panics() {
 fn bvh_reader_never_panics() {
     let seeds = vec![bvh::write(&T2M, &walk(4)).into_bytes()];
     fuzz("bvh", &seeds, cases(), &|b| {
-        let Ok(text) = std::str::from_utf8(b) else { return false };
+        let Ok(text) = std::str::from_utf8(b) else {
+            return false;
+        };
         bvh::read(&T2M, text).is_ok()
     });
 }

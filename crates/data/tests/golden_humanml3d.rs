@@ -38,7 +38,9 @@ fn flat(j: &rep::Joints) -> Vec<f64> {
 
 #[test]
 fn recover_from_ric_matches_released_joints() {
-    let (Some(feats), Some(joints)) = (load("new_joint_vecs/012314.npy"), load("new_joints/012314.npy")) else { return };
+    let (Some(feats), Some(joints)) = (load("new_joint_vecs/012314.npy"), load("new_joints/012314.npy")) else {
+        return;
+    };
     assert_eq!(feats.shape, vec![170, 263]);
     let rec = rep::recover_from_ric(&T2M, &feats.data);
     let err = max_abs_diff(&flat(&rec), &joints.data);
@@ -48,7 +50,9 @@ fn recover_from_ric_matches_released_joints() {
 
 #[test]
 fn process_file_matches_released_features() {
-    let (Some(feats), Some(joints)) = (load("new_joint_vecs/012314.npy"), load("new_joints/012314.npy")) else { return };
+    let (Some(feats), Some(joints)) = (load("new_joint_vecs/012314.npy"), load("new_joints/012314.npy")) else {
+        return;
+    };
     let j = rep::joints_from_array(&joints.data, 170, 22, 22);
     let out: Vec<f64> = rep::features_from_joints(&T2M, &j, 0.002).unwrap().iter().map(|&v| v as f64).collect();
     assert_eq!(out.len(), 169 * 263);
@@ -63,9 +67,7 @@ fn process_file_matches_released_features() {
 
 #[test]
 fn process_file_from_raw_mocap_matches_reference() {
-    let (Some(raw), Some(reff), Some(refj)) =
-        (load("000021.npy"), load("000021_features_reference.npy"), load("000021_joints_reference.npy"))
-    else {
+    let (Some(raw), Some(reff), Some(refj)) = (load("000021.npy"), load("000021_features_reference.npy"), load("000021_joints_reference.npy")) else {
         return;
     };
     assert_eq!(raw.shape, vec![180, 52, 3]);
@@ -85,7 +87,9 @@ fn process_file_from_raw_mocap_matches_reference() {
 
 #[test]
 fn target_lengths_match_000021() {
-    let Some(raw) = load("000021.npy") else { return };
+    let Some(raw) = load("000021.npy") else {
+        return;
+    };
     let j = rep::joints_from_array(&raw.data, 1, 52, 22);
     let offs = rep::bone_offsets(&T2M, &j[0]);
     let want = T2M.target_offsets().unwrap();

@@ -27,10 +27,7 @@ fn random_motion(seed: u64, t: usize) -> rep::Joints {
     let mut root = Vec::new();
     for f in 0..t {
         let s = f as f64 / 20.0;
-        let mut q: Vec<_> = params
-            .iter()
-            .map(|(axis, amp, freq, ph)| quat::from_axis_angle(*axis, amp * (freq * s + ph).sin()))
-            .collect();
+        let mut q: Vec<_> = params.iter().map(|(axis, amp, freq, ph)| quat::from_axis_angle(*axis, amp * (freq * s + ph).sin())).collect();
         q[0] = quat::qmul(quat::from_axis_angle([0.0, 1.0, 0.0], yaw0 + yaw_rate * s), q[0]);
         rots.push(q);
         root.push([speed[0] * s + 0.1 * (2.0 * s).sin(), 0.95 + 0.05 * (3.0 * s).cos(), speed[1] * s]);

@@ -80,7 +80,17 @@ impl EvaluatorTraining<'_> {
             last = l;
             on_step(step + 1, l);
         }
-        let ck = Checkpoint { step: self.steps, shapes, model: vals.clone(), ema: None, adam_step: adam.step, adam_m: adam.m, adam_v: adam.v, config: serde_json::to_string(&self.cfg).expect("config serialises"), seed: self.seed };
+        let ck = Checkpoint {
+            step: self.steps,
+            shapes,
+            model: vals.clone(),
+            ema: None,
+            adam_step: adam.step,
+            adam_m: adam.m,
+            adam_v: adam.v,
+            config: serde_json::to_string(&self.cfg).expect("config serialises"),
+            seed: self.seed,
+        };
         ck.save(&self.out)?;
         Checkpoint::prune(&self.out, 1);
         let dims = [self.ds.dim()];

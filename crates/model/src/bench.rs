@@ -10,7 +10,7 @@ use diffkfc_data::rng::Rng;
 use crate::diffusion::Schedule;
 use crate::optim::{descend_timed, Adam};
 use crate::sampler::{self, Options, Request, Sampler};
-use crate::{params, DiffKfcConfig, Denoiser, Encoded};
+use crate::{params, Denoiser, DiffKfcConfig, Encoded};
 
 /// Random inputs of a fixed seed: `batch` motions of `frames` frames with 5% uniform keyframes.
 pub fn request(cfg: &DiffKfcConfig, batch: usize, frames: usize, seed: u64) -> Request {

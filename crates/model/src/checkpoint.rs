@@ -57,8 +57,7 @@ impl Checkpoint {
                 owned.push((format!("ema/{i:04}"), shape.clone(), bytes(&e[i])));
             }
         }
-        let views: Vec<(String, TensorView)> =
-            owned.iter().map(|(n, s, b)| (n.clone(), TensorView::new(Dtype::F32, s.clone(), b).expect("view"))).collect();
+        let views: Vec<(String, TensorView)> = owned.iter().map(|(n, s, b)| (n.clone(), TensorView::new(Dtype::F32, s.clone(), b).expect("view"))).collect();
         let meta = HashMap::from([
             ("format".to_string(), FORMAT.to_string()),
             ("step".to_string(), self.step.to_string()),
@@ -82,11 +81,7 @@ impl Checkpoint {
         } else {
             (Dtype::F32, weights.iter().map(|w| bytes(w)).collect())
         };
-        let views: Vec<(String, TensorView)> = owned
-            .iter()
-            .enumerate()
-            .map(|(i, b)| (format!("weights/{i:04}"), TensorView::new(dtype, self.shapes[i].clone(), b).expect("view")))
-            .collect();
+        let views: Vec<(String, TensorView)> = owned.iter().enumerate().map(|(i, b)| (format!("weights/{i:04}"), TensorView::new(dtype, self.shapes[i].clone(), b).expect("view"))).collect();
         let meta = HashMap::from([
             ("format".to_string(), WEIGHTS_FORMAT.to_string()),
             ("step".to_string(), self.step.to_string()),

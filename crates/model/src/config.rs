@@ -31,6 +31,10 @@ pub struct DiffKfcConfig {
     /// and checkpoints made before root channels existed).
     #[config(default = 4)]
     pub root_channels: usize,
+    /// Taps of a depthwise convolution over the frames in each decoder layer (odd; our
+    /// extension, `crate::temporal`); 0 = none (the paper, and checkpoints made before it).
+    #[config(default = 0)]
+    pub temporal_kernel: usize,
 }
 
 impl DiffKfcConfig {

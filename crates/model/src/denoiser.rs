@@ -10,7 +10,7 @@ use crate::config::DiffKfcConfig;
 use crate::decoder::DecoderLayer;
 use crate::dma::{DmaPlan, KeyframeEncoder};
 use crate::embed::{positions, TimestepEmbed};
-use crate::kernels::{linear, key_mask, Mask};
+use crate::kernels::{key_mask, linear, Mask};
 
 /// What the model is conditioned on, for a batch of B samples of N frames.
 #[derive(Clone, Debug)]
@@ -73,6 +73,8 @@ pub struct Encoded {
     pub self_pad: Mask,
     /// [1, N, d] frame position encodings (sin/cos of every frame: computed once, not per step).
     pub pos: Tensor<3>,
+    /// [B, N, 1] 1 on real frames, 0 on padding (what the temporal convolution may read).
+    pub real: Tensor<3>,
 }
 
 #[derive(Module, Debug)]
@@ -95,7 +97,7 @@ impl DiffKfcConfig {
             text_in: LinearConfig::new(self.text_dim, d).init(device),
             time: TimestepEmbed::new(d, device),
             encoder: KeyframeEncoder::new(self.feat_dim, self.root_channels, d, self.heads, self.ffn, self.dma_sizes.len(), device),
-            layers: (0..self.dec_layers).map(|_| DecoderLayer::new(d, self.heads, self.ffn, self.dropout, device)).collect(),
+            layers: (0..self.dec_layers).map(|_| DecoderLayer::new(d, self.heads, self.ffn, self.dropout, self.temporal_kernel, device)).collect(),
             out: LinearConfig::new(d, self.feat_dim).init(device),
             d_model: d,
             dma_sizes: self.dma_sizes.clone(),
@@ -116,14 +118,8 @@ impl Denoiser {
         let key_pad = plan.final_valid().iter().map(|v| !v).collect();
         let self_pad = (0..b * (n + 2)).map(|k| k % (n + 2) >= 2 && !c.real[k / (n + 2) * n + k % (n + 2) - 2]).collect();
         let cross_kv = self.layers.iter().map(|l| l.cross_kv(tokens.clone())).collect();
-        Encoded {
-            cross_kv,
-            tokens,
-            key_pad: key_mask(key_pad),
-            text_tok,
-            self_pad: key_mask(self_pad),
-            pos,
-        }
+        let real: Vec<f32> = c.real.iter().map(|&r| if r { 1.0 } else { 0.0 }).collect();
+        Encoded { real: Tensor::<1>::from_floats(real.as_slice(), &device).reshape([b, n, 1]), cross_kv, tokens, key_pad: key_mask(key_pad), text_tok, self_pad: key_mask(self_pad), pos }
     }
 
     /// Predict x0 from x_t [B, N, D] at timesteps `t` (one per sample) -> [B, N, D].
@@ -134,7 +130,7 @@ impl Denoiser {
         let y_t = self.time.forward(t, &device);
         let mut h = Tensor::cat(vec![y_t, e.text_tok.clone(), frames], 1);
         for (layer, kv) in self.layers.iter().zip(&e.cross_kv) {
-            h = layer.forward(h, e.self_pad.clone(), kv, e.key_pad.clone());
+            h = layer.forward(h, e.self_pad.clone(), kv, e.key_pad.clone(), &e.real);
         }
         let d = self.d_model;
         linear(&self.out, h.slice([0..b, 2..n + 2, 0..d]))

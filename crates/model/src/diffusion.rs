@@ -37,12 +37,22 @@ impl Schedule {
 
     fn from_betas(betas: Vec<f64>) -> Schedule {
         let mut acc = 1.0;
-        let alphas_cumprod = betas.iter().map(|b| { acc *= 1.0 - b; acc }).collect();
+        let alphas_cumprod = betas
+            .iter()
+            .map(|b| {
+                acc *= 1.0 - b;
+                acc
+            })
+            .collect();
         Schedule { steps: betas.len(), betas, alphas_cumprod }
     }
 
     pub fn alpha_bar_prev(&self, t: usize) -> f64 {
-        if t == 0 { 1.0 } else { self.alphas_cumprod[t - 1] }
+        if t == 0 {
+            1.0
+        } else {
+            self.alphas_cumprod[t - 1]
+        }
     }
 
     /// x_t = sqrt(abar_t) x0 + sqrt(1 - abar_t) noise, per sample.

@@ -107,12 +107,7 @@ pub struct DmaBlock {
 
 impl DmaBlock {
     pub fn new(d: usize, heads: usize, ffn: usize, device: &Device) -> Self {
-        DmaBlock {
-            attn: Attention::new(d, heads, device),
-            fc: LinearConfig::new(2 * d, d).init(device),
-            mlp1: LinearConfig::new(d, ffn).init(device),
-            mlp2: LinearConfig::new(ffn, d).init(device),
-        }
+        DmaBlock { attn: Attention::new(d, heads, device), fc: LinearConfig::new(2 * d, d).init(device), mlp1: LinearConfig::new(d, ffn).init(device), mlp2: LinearConfig::new(ffn, d).init(device) }
     }
 
     /// `z`: [B, 1+N, d]; `blocked`: the block's [B, 1+N, 1+N] mask; `active`: per token (B x
@@ -184,11 +179,7 @@ pub struct KeyframeEncoder {
 
 impl KeyframeEncoder {
     pub fn new(feat: usize, root_channels: usize, d: usize, heads: usize, ffn: usize, blocks: usize, device: &Device) -> Self {
-        KeyframeEncoder {
-            kf_in: LinearConfig::new(2 * (feat + root_channels), d).init(device),
-            blocks: (0..blocks).map(|_| DmaBlock::new(d, heads, ffn, device)).collect(),
-            root_channels,
-        }
+        KeyframeEncoder { kf_in: LinearConfig::new(2 * (feat + root_channels), d).init(device), blocks: (0..blocks).map(|_| DmaBlock::new(d, heads, ffn, device)).collect(), root_channels }
     }
 
     /// `text_tok` [B,1,d]; the condition's keyframes `kf`/`kf_mask` [B,N,D] and root channels

@@ -35,7 +35,8 @@ pub fn forward(c: &DiffKfcConfig, batch: usize, frames: usize) -> Flops {
     let (le, ld) = (n + 1, n + 2);
     let block = linear(b * le, d, 3 * d) + attend(b, le, le, d) + linear(b * le, d, d) + linear(b * le, 2 * d, d) + linear(b * le, d, f) + linear(b * le, f, d);
     let encoder = linear(b, c.text_dim, d) + linear(b * n, 2 * c.feat_dim, d) + c.dma_sizes.len() as f64 * block + c.dec_layers as f64 * linear(b * le, d, 2 * d);
-    let layer = linear(b * ld, d, 3 * d) + attend(b, ld, ld, d) + linear(b * ld, d, d) + linear(b * ld, d, d) + attend(b, ld, le, d) + linear(b * ld, d, d) + linear(b * ld, d, f) + linear(b * ld, f, d);
+    let layer =
+        linear(b * ld, d, 3 * d) + attend(b, ld, ld, d) + linear(b * ld, d, d) + linear(b * ld, d, d) + attend(b, ld, le, d) + linear(b * ld, d, d) + linear(b * ld, d, f) + linear(b * ld, f, d);
     let decoder = linear(b * n, c.feat_dim, d) + 2.0 * linear(b, d, d) + c.dec_layers as f64 * layer + linear(b * n, d, c.feat_dim);
     Flops { encoder, decoder }
 }

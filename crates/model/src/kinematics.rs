@@ -39,7 +39,9 @@ mod tests {
 
     #[test]
     fn matches_the_reference_implementation_on_real_data() {
-        let Some(p) = fixtures::require("humanml3d/new_joint_vecs/012314.npy") else { return };
+        let Some(p) = fixtures::require("humanml3d/new_joint_vecs/012314.npy") else {
+            return;
+        };
         let a = npy::read_f32(p).unwrap();
         let dev = Device::flex();
         let t = Tensor::<1>::from_floats(a.data.as_slice(), &dev).reshape([1, 170, 263]);

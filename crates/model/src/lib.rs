@@ -22,6 +22,7 @@ pub mod optim;
 pub mod params;
 pub mod run_config;
 pub mod sampler;
+pub mod temporal;
 pub mod text;
 pub mod trainer;
 pub mod transition;

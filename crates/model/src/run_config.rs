@@ -123,7 +123,9 @@ pub struct RunConfig {
 /// Every key of `v` must exist in `known` (recursively); returns the dotted path of the first
 /// that does not.
 fn unknown_key(v: &serde_json::Value, known: &serde_json::Value, path: &str) -> Option<String> {
-    let (serde_json::Value::Object(a), serde_json::Value::Object(b)) = (v, known) else { return None };
+    let (serde_json::Value::Object(a), serde_json::Value::Object(b)) = (v, known) else {
+        return None;
+    };
     for (k, val) in a {
         let p = if path.is_empty() { k.clone() } else { format!("{path}.{k}") };
         match b.get(k) {
@@ -192,7 +194,16 @@ impl RunConfig {
         let t = &self.training;
         let k = &self.keyframes;
         let bad = |key: &str, v: &dyn std::fmt::Display, want: &str| Err(format!("{key}: {v} {want}"));
-        let positive = [("model.feat_dim", m.feat_dim), ("model.text_dim", m.text_dim), ("model.d_model", m.d_model), ("model.heads", m.heads), ("model.ffn", m.ffn), ("model.max_frames", m.max_frames), ("diffusion.steps", self.diffusion.steps), ("training.batch_size", t.batch_size)];
+        let positive = [
+            ("model.feat_dim", m.feat_dim),
+            ("model.text_dim", m.text_dim),
+            ("model.d_model", m.d_model),
+            ("model.heads", m.heads),
+            ("model.ffn", m.ffn),
+            ("model.max_frames", m.max_frames),
+            ("diffusion.steps", self.diffusion.steps),
+            ("training.batch_size", t.batch_size),
+        ];
         for (key, v) in positive {
             if v == 0 {
                 return bad(key, &v, "must be at least 1");
@@ -205,7 +216,16 @@ impl RunConfig {
             return Err(format!("model.heads: {} does not divide model.d_model ({})", m.heads, m.d_model));
         }
         // Sizes whose products would not fit in memory on any machine this runs on.
-        let limits = [("model.d_model", m.d_model, 16_384), ("model.ffn", m.ffn, 65_536), ("model.heads", m.heads, 256), ("model.dec_layers", m.dec_layers, 256), ("model.feat_dim", m.feat_dim, 4096), ("model.max_frames", m.max_frames, 196), ("training.batch_size", t.batch_size, 16_384), ("diffusion.steps", self.diffusion.steps, 100_000)];
+        let limits = [
+            ("model.d_model", m.d_model, 16_384),
+            ("model.ffn", m.ffn, 65_536),
+            ("model.heads", m.heads, 256),
+            ("model.dec_layers", m.dec_layers, 256),
+            ("model.feat_dim", m.feat_dim, 4096),
+            ("model.max_frames", m.max_frames, 196),
+            ("training.batch_size", t.batch_size, 16_384),
+            ("diffusion.steps", self.diffusion.steps, 100_000),
+        ];
         for (key, v, max) in limits {
             if v > max {
                 return bad(key, &v, &format!("is too large (at most {max})"));
@@ -220,13 +240,23 @@ impl RunConfig {
         if m.root_channels != 0 && m.root_channels != diffkfc_data::warp::ROOT_CHANNELS {
             return bad("model.root_channels", &m.root_channels, &format!("must be 0 or {}", diffkfc_data::warp::ROOT_CHANNELS));
         }
+        if (m.temporal_kernel % 2 == 0 && m.temporal_kernel != 0) || m.temporal_kernel > 31 {
+            return bad("model.temporal_kernel", &m.temporal_kernel, "must be 0 (none) or an odd number up to 31");
+        }
         let unit = [("keyframes.rate", k.rate), ("keyframes.drop_prob", k.drop_prob), ("keyframes.root_drop_prob", k.root_drop_prob), ("training.ema_decay", t.ema_decay)];
         for (key, v) in unit {
             if !(0.0..=1.0).contains(&v) {
                 return bad(key, &v, "must be in [0, 1]");
             }
         }
-        let non_negative = [("training.grad_clip", t.grad_clip), ("training.lambda_pos", t.lambda_pos), ("training.lambda_vel", t.lambda_vel), ("training.lambda_foot", t.lambda_foot), ("training.keyframe_loss", t.keyframe_loss), ("training.smooth_loss", t.smooth_loss)];
+        let non_negative = [
+            ("training.grad_clip", t.grad_clip),
+            ("training.lambda_pos", t.lambda_pos),
+            ("training.lambda_vel", t.lambda_vel),
+            ("training.lambda_foot", t.lambda_foot),
+            ("training.keyframe_loss", t.keyframe_loss),
+            ("training.smooth_loss", t.smooth_loss),
+        ];
         for (key, v) in non_negative {
             if !(v.is_finite() && v >= 0.0) {
                 return bad(key, &v, "must be a finite number >= 0");
@@ -275,7 +305,9 @@ mod tests {
             let e = RunConfig::parse(&format!(r#"{{"model": "tiny", {body}}}"#)).unwrap_err();
             assert!(e.contains(needle), "{body}: {e}");
         }
-        for (model, needle) in [(r#"{"preset": "tiny", "heads": 3}"#, "does not divide"), (r#"{"preset": "tiny", "d_model": 0}"#, "model.d_model: 0"), (r#"{"preset": "tiny", "dropout": 1.5}"#, "model.dropout: 1.5")] {
+        for (model, needle) in
+            [(r#"{"preset": "tiny", "heads": 3}"#, "does not divide"), (r#"{"preset": "tiny", "d_model": 0}"#, "model.d_model: 0"), (r#"{"preset": "tiny", "dropout": 1.5}"#, "model.dropout: 1.5"), (r#"{"preset": "tiny", "temporal_kernel": 4}"#, "model.temporal_kernel: 4")]
+        {
             let e = RunConfig::parse(&format!(r#"{{"model": {model}}}"#)).unwrap_err();
             assert!(e.contains(needle), "{model}: {e}");
         }

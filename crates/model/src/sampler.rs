@@ -78,7 +78,18 @@ impl Request {
     pub fn text_only(frames: usize, dim: usize, text: Vec<f32>, text_dim: usize, lengths: Vec<usize>) -> Request {
         let b = lengths.len();
         let r = ROOT_CHANNELS;
-        Request { batch: b, frames, dim, text, text_dim, kf: vec![0.0; b * frames * dim], mask: vec![0.0; b * frames * dim], root: vec![0.0; b * frames * r], root_mask: vec![0.0; b * frames * r], lengths }
+        Request {
+            batch: b,
+            frames,
+            dim,
+            text,
+            text_dim,
+            kf: vec![0.0; b * frames * dim],
+            mask: vec![0.0; b * frames * dim],
+            root: vec![0.0; b * frames * r],
+            root_mask: vec![0.0; b * frames * r],
+            lengths,
+        }
     }
 
     /// Frames of sample `b` whose pose (any feature) is observed.
@@ -123,6 +134,10 @@ pub fn timesteps(schedule: &Schedule, sampler: Sampler) -> Vec<usize> {
         Sampler::Ddpm => (0..t).rev().collect(),
         Sampler::Ddim(k) => {
             let k = k.clamp(1, t);
+            // One step is the prediction from pure noise, at the schedule's last timestep.
+            if k == 1 {
+                return vec![t - 1];
+            }
             let mut v: Vec<usize> = (0..k).map(|i| ((i as f64) * (t - 1) as f64 / (k - 1).max(1) as f64).round() as usize).collect();
             v.dedup();
             v.reverse();

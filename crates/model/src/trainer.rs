@@ -79,10 +79,7 @@ fn scalar(t: Tensor<1>) -> f64 {
 
 impl Trainer<'_> {
     fn text_of(&self, b: &Batch) -> Vec<f32> {
-        b.captions
-            .iter()
-            .flat_map(|c| self.text.get(c).unwrap_or_else(|| panic!("caption not embedded: {c}")).to_vec())
-            .collect()
+        b.captions.iter().flat_map(|c| self.text.get(c).unwrap_or_else(|| panic!("caption not embedded: {c}")).to_vec()).collect()
     }
 
     fn kinematic(&self) -> Kinematic<'_> {
@@ -160,7 +157,10 @@ impl Trainer<'_> {
             if let Some(ck) = Checkpoint::latest(&self.run_dir) {
                 let ck = ck?;
                 if ck.shapes != shapes {
-                    return Err(format!("{}: checkpoint does not match the model in the config (different shapes; runs made before keyframes had root channels cannot be resumed: start a new --out)", self.run_dir.display()));
+                    return Err(format!(
+                        "{}: checkpoint does not match the model in the config (different shapes; runs made before keyframes had root channels cannot be resumed: start a new --out)",
+                        self.run_dir.display()
+                    ));
                 }
                 start = ck.step;
                 vals = ck.model;
@@ -187,7 +187,17 @@ impl Trainer<'_> {
             if let Some(x) = vals.iter().chain(ema.iter().flatten()).flat_map(|v| v.iter()).find(|x| !x.is_finite()) {
                 return Err(non_finite(step, "a weight", *x as f64, &self.run_dir));
             }
-            let ck = Checkpoint { step, shapes: shapes.clone(), model: vals.to_vec(), ema: ema.clone(), adam_step: adam.step, adam_m: adam.m.clone(), adam_v: adam.v.clone(), config: self.cfg.to_json(), seed: tc.seed };
+            let ck = Checkpoint {
+                step,
+                shapes: shapes.clone(),
+                model: vals.to_vec(),
+                ema: ema.clone(),
+                adam_step: adam.step,
+                adam_m: adam.m.clone(),
+                adam_v: adam.v.clone(),
+                config: self.cfg.to_json(),
+                seed: tc.seed,
+            };
             let p = ck.save(&self.run_dir)?;
             Checkpoint::prune(&self.run_dir, tc.keep_checkpoints);
             Ok(p)
@@ -279,11 +289,10 @@ fn non_finite(step: usize, what: &str, value: f64, run_dir: &Path) -> String {
 
 /// Keep only the metrics lines of steps <= `step` (a resumed run rewrites what follows).
 fn truncate_metrics(path: &Path, step: usize) -> std::io::Result<()> {
-    let Ok(text) = std::fs::read_to_string(path) else { return Ok(()) };
-    let kept: Vec<&str> = text
-        .lines()
-        .filter(|l| serde_json::from_str::<serde_json::Value>(l).ok().and_then(|v| v["step"].as_u64()).is_some_and(|s| s as usize <= step))
-        .collect();
+    let Ok(text) = std::fs::read_to_string(path) else {
+        return Ok(());
+    };
+    let kept: Vec<&str> = text.lines().filter(|l| serde_json::from_str::<serde_json::Value>(l).ok().and_then(|v| v["step"].as_u64()).is_some_and(|s| s as usize <= step)).collect();
     let mut out = kept.join("\n");
     if !out.is_empty() {
         out.push('\n');

@@ -39,7 +39,11 @@ pub fn loss_and_grad(x: &[f32], kf: &[f32], mask: &[f32], keys: &[usize], len: u
     }
     let value = |f: usize, c: usize| -> f64 {
         let k = f * dim + c;
-        if mask[k] > 0.0 { kf[k] as f64 } else { x[k] as f64 }
+        if mask[k] > 0.0 {
+            kf[k] as f64
+        } else {
+            x[k] as f64
+        }
     };
     let norm = 1.0 / ((2 * l + 1) as f64 * keys.len() as f64);
     let mut loss = 0.0;

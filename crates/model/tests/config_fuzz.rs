@@ -12,7 +12,9 @@ fn configs_never_panic() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
     let seeds: Vec<Vec<u8>> = ["tiny", "small", "paper-humanml3d"].iter().map(|n| std::fs::read(dir.join(format!("{n}.json"))).unwrap()).collect();
     fuzz("config", &seeds, cases() / 4, &|b| {
-        let Ok(text) = std::str::from_utf8(b) else { return false };
+        let Ok(text) = std::str::from_utf8(b) else {
+            return false;
+        };
         match RunConfig::parse(text) {
             Ok(c) => {
                 // What `train` and `model summary` compute first from a config.

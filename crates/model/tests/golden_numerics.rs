@@ -11,11 +11,14 @@ use diffkfc_model::{params, DiffKfcConfig};
 fn model(cfg: &DiffKfcConfig, device: &Device) -> diffkfc_model::Denoiser {
     let m = cfg.init(device);
     let mut r = Rng::new(17);
-    let vals: Vec<Vec<f32>> = params::values(&m).into_iter().map(|(shape, v)| {
-        // Fan-in scaled normals: activations stay O(1) through every layer.
-        let fan_in = if shape.len() >= 2 { shape[0] } else { 1 } as f64;
-        (0..v.len()).map(|_| (r.normal() / fan_in.sqrt()) as f32 * if shape.len() >= 2 { 1.0 } else { 0.1 }).collect()
-    }).collect();
+    let vals: Vec<Vec<f32>> = params::values(&m)
+        .into_iter()
+        .map(|(shape, v)| {
+            // Fan-in scaled normals: activations stay O(1) through every layer.
+            let fan_in = if shape.len() >= 2 { shape[0] } else { 1 } as f64;
+            (0..v.len()).map(|_| (r.normal() / fan_in.sqrt()) as f32 * if shape.len() >= 2 { 1.0 } else { 0.1 }).collect()
+        })
+        .collect();
     params::load(m, &vals)
 }
 

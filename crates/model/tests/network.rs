@@ -4,8 +4,8 @@ use burn::module::{ModuleVisitor, Param};
 use burn::optim::GradientsParams;
 use burn::prelude::*;
 use burn::tensor::Distribution;
-use diffkfc_model::dma::{DmaBlock, DmaPlan};
 use diffkfc_data::warp::ROOT_CHANNELS;
+use diffkfc_model::dma::{DmaBlock, DmaPlan};
 use diffkfc_model::{Condition, DiffKfcConfig};
 
 const N: usize = 24;
@@ -46,6 +46,31 @@ fn condition(lens: &[usize], keys: &[Vec<usize>], dev: &Device, seed: u64) -> (T
     (x, cond)
 }
 
+/// The tiny network, and the tiny network with a temporal convolution whose (zero-initialised)
+/// taps are made non-zero, so that the invariants are checked through it too.
+fn tiny_models(dev: &Device) -> Vec<diffkfc_model::Denoiser> {
+    let plain = DiffKfcConfig::tiny().init(dev);
+    let conv = DiffKfcConfig::tiny().with_temporal_kernel(3).init(dev);
+    let mut k = 0u32;
+    let vals: Vec<Vec<f32>> = diffkfc_model::params::values(&conv)
+        .into_iter()
+        .map(|(_, v)| {
+            if v.iter().all(|&x| x == 0.0) && v.len() == 3 * 64 {
+                v.iter()
+                    .map(|_| {
+                        k += 1;
+                        ((k as f32 * 0.37).sin()) * 0.5
+                    })
+                    .collect()
+            } else {
+                v
+            }
+        })
+        .collect();
+    assert!(k > 0, "the temporal taps were found");
+    vec![plain, diffkfc_model::params::load(conv, &vals)]
+}
+
 fn max_diff(a: &[f32], b: &[f32]) -> f32 {
     a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
 }
@@ -53,37 +78,39 @@ fn max_diff(a: &[f32], b: &[f32]) -> f32 {
 #[test]
 fn sample_alone_equals_sample_in_batch() {
     let dev = device();
-    let model = DiffKfcConfig::tiny().init(&dev);
-    let (x, c) = condition(&[20, 24, 12], &[vec![0, 10], vec![5], vec![]], &dev, 1);
-    let out = to_vec(model.forward(x.clone(), &[10, 500, 999], &c));
-    // The middle sample alone.
-    let one = Condition {
-        text: c.text.clone().slice([1..2, 0..384]),
-        kf: c.kf.clone().slice([1..2, 0..N, 0..D]),
-        kf_mask: c.kf_mask.clone().slice([1..2, 0..N, 0..D]),
-        root: c.root.clone().slice([1..2, 0..N, 0..ROOT_CHANNELS]),
-        root_mask: c.root_mask.clone().slice([1..2, 0..N, 0..ROOT_CHANNELS]),
-        kf_frames: c.kf_frames[N..2 * N].to_vec(),
-        real: c.real[N..2 * N].to_vec(),
-    };
-    let alone = to_vec(model.forward(x.slice([1..2, 0..N, 0..D]), &[500], &one));
-    let e = max_diff(&out[N * D..2 * N * D], &alone);
-    assert!(e < 1e-5, "{e}");
+    for model in tiny_models(&dev) {
+        let (x, c) = condition(&[20, 24, 12], &[vec![0, 10], vec![5], vec![]], &dev, 1);
+        let out = to_vec(model.forward(x.clone(), &[10, 500, 999], &c));
+        // The middle sample alone.
+        let one = Condition {
+            text: c.text.clone().slice([1..2, 0..384]),
+            kf: c.kf.clone().slice([1..2, 0..N, 0..D]),
+            kf_mask: c.kf_mask.clone().slice([1..2, 0..N, 0..D]),
+            root: c.root.clone().slice([1..2, 0..N, 0..ROOT_CHANNELS]),
+            root_mask: c.root_mask.clone().slice([1..2, 0..N, 0..ROOT_CHANNELS]),
+            kf_frames: c.kf_frames[N..2 * N].to_vec(),
+            real: c.real[N..2 * N].to_vec(),
+        };
+        let alone = to_vec(model.forward(x.slice([1..2, 0..N, 0..D]), &[500], &one));
+        let e = max_diff(&out[N * D..2 * N * D], &alone);
+        assert!(e < 1e-5, "{e}");
+    }
 }
 
 #[test]
 fn padding_never_changes_real_frames() {
     let dev = device();
-    let model = DiffKfcConfig::tiny().init(&dev);
-    let (x, c) = condition(&[15], &[vec![3, 14]], &dev, 2);
-    let base = to_vec(model.forward(x.clone(), &[100], &c));
-    // Garbage in the padding of x_t and of the keyframe inputs.
-    let noise = Tensor::<3>::random([1, N, D], Distribution::Normal(0.0, 5.0), &dev);
-    let pad: Vec<f32> = (0..N).map(|f| if f >= 15 { 1.0 } else { 0.0 }).collect();
-    let pad = Tensor::<1>::from_floats(pad.as_slice(), &dev).reshape([1, N, 1]);
-    let c2 = Condition { kf: c.kf.clone() + noise.clone() * pad.clone(), ..c.clone() };
-    let out = to_vec(model.forward(x + noise * pad, &[100], &c2));
-    assert!(max_diff(&base[..15 * D], &out[..15 * D]) < 1e-5);
+    for model in tiny_models(&dev) {
+        let (x, c) = condition(&[15], &[vec![3, 14]], &dev, 2);
+        let base = to_vec(model.forward(x.clone(), &[100], &c));
+        // Garbage in the padding of x_t and of the keyframe inputs.
+        let noise = Tensor::<3>::random([1, N, D], Distribution::Normal(0.0, 5.0), &dev);
+        let pad: Vec<f32> = (0..N).map(|f| if f >= 15 { 1.0 } else { 0.0 }).collect();
+        let pad = Tensor::<1>::from_floats(pad.as_slice(), &dev).reshape([1, N, 1]);
+        let c2 = Condition { kf: c.kf.clone() + noise.clone() * pad.clone(), ..c.clone() };
+        let out = to_vec(model.forward(x + noise * pad, &[100], &c2));
+        assert!(max_diff(&base[..15 * D], &out[..15 * D]) < 1e-5);
+    }
 }
 
 #[test]
@@ -141,13 +168,14 @@ impl ModuleVisitor for CountParams {
 #[test]
 fn gradients_reach_every_parameter() {
     let dev = device().autodiff();
-    let model = DiffKfcConfig::tiny().init(&dev);
-    let (x, c) = condition(&[24, 18], &[vec![1, 12], vec![4]], &dev, 5);
-    let loss = model.forward(x, &[7, 300], &c).powf_scalar(2.0).mean();
-    let grads = GradientsParams::from_grads(loss.backward(), &model);
-    let mut count = CountParams(0);
-    model.visit(&mut count);
-    assert_eq!(grads.len(), count.0, "parameters without gradient");
+    for model in tiny_models(&dev) {
+        let (x, c) = condition(&[24, 18], &[vec![1, 12], vec![4]], &dev, 5);
+        let loss = model.forward(x, &[7, 300], &c).powf_scalar(2.0).mean();
+        let grads = GradientsParams::from_grads(loss.backward(), &model);
+        let mut count = CountParams(0);
+        model.visit(&mut count);
+        assert_eq!(grads.len(), count.0, "parameters without gradient");
+    }
 }
 
 #[test]

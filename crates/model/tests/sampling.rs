@@ -1,10 +1,10 @@
 //! Sampling: guidance identities, exact keyframes, determinism (tiny random-weight model).
 
 use burn::prelude::*;
-use diffkfc_model::diffusion::Schedule;
-use diffkfc_model::sampler::{sample, timesteps, Options, Request, Sampler};
 use diffkfc_data::representation::Layout;
+use diffkfc_model::diffusion::Schedule;
 use diffkfc_model::fit::{finish, KeyframeFit};
+use diffkfc_model::sampler::{sample, timesteps, Options, Request, Sampler};
 use diffkfc_model::DiffKfcConfig;
 
 fn request() -> Request {
@@ -78,6 +78,8 @@ fn guidance_identities_and_exact_keyframes() {
 fn ddpm_runs_and_ddim_steps_are_spaced() {
     let s = Schedule::cosine(1000);
     assert_eq!(timesteps(&s, Sampler::Ddim(5)), vec![999, 749, 500, 250, 0]);
+    // One step predicts from pure noise, at the last timestep (it used to run at t = 0).
+    assert_eq!(timesteps(&s, Sampler::Ddim(1)), vec![999]);
     assert_eq!(timesteps(&s, Sampler::Ddpm).len(), 1000);
     let s20 = Schedule::cosine(20);
     let dev = Device::flex();

@@ -21,7 +21,9 @@ fn encoder() -> Option<MiniLm> {
 
 #[test]
 fn matches_reference_embeddings() {
-    let Some(path) = fixtures::require("minilm/reference_embeddings.json") else { return };
+    let Some(path) = fixtures::require("minilm/reference_embeddings.json") else {
+        return;
+    };
     let Some(enc) = encoder() else { return };
     let reference: serde_json::Value = serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap();
     let items = reference["items"].as_array().unwrap();

@@ -47,9 +47,11 @@ fn prepared(name: &str, clips: usize) -> (PathBuf, Dataset, PackedSplit, PackedS
 }
 
 fn config() -> RunConfig {
-    RunConfig::parse(r#"{"model": {"preset": "tiny", "dma_sizes": [2, 0], "dec_layers": 1, "dropout": 0.1},
+    RunConfig::parse(
+        r#"{"model": {"preset": "tiny", "dma_sizes": [2, 0], "dec_layers": 1, "dropout": 0.1},
         "training": {"batch_size": 4, "lr": 0.001, "max_steps": 6, "checkpoint_every": 3, "keep_checkpoints": 2,
-                     "val_every": 3, "val_batches": 1, "lambda_pos": 0.1, "lambda_vel": 0.1, "lambda_foot": 0.1}}"#)
+                     "val_every": 3, "val_batches": 1, "lambda_pos": 0.1, "lambda_vel": 0.1, "lambda_foot": 0.1}}"#,
+    )
     .unwrap()
 }
 
@@ -81,12 +83,13 @@ fn resume_is_exact_and_checkpoints_rotate() {
     let half = mk("half");
     half.run(false, 3, &never, &mut |_| {}).unwrap();
     let mut ckpts = Vec::new();
-    let out = half.run(true, 6, &never, &mut |e| {
-        if let Event::Checkpoint(s, _) = e {
-            ckpts.push(s)
-        }
-    })
-    .unwrap();
+    let out = half
+        .run(true, 6, &never, &mut |e| {
+            if let Event::Checkpoint(s, _) = e {
+                ckpts.push(s)
+            }
+        })
+        .unwrap();
     assert_eq!((out.start_step, out.end_step), (3, 6));
     assert_eq!(ckpts, vec![6]);
     let b = losses(&root.join("half"));

@@ -130,7 +130,9 @@ pub fn run(a: BenchArgs) -> Result<()> {
     let runs = if a.quick { 1 } else { a.repeats };
     let preset = match (&a.torch, a.config.as_str()) {
         (None, _) | (_, "paper" | "tiny") => a.config.as_str(),
-        (Some(_), other) => bail!("--torch: the reference has the paper and its own tiny network, not '{other}'"),
+        (Some(_), other) => {
+            bail!("--torch: the reference has the paper and its own tiny network, not '{other}'")
+        }
     };
     let rounds = if a.torch.is_some() { a.rounds } else { 1 };
     let mut ratios: Vec<BTreeMap<&str, f64>> = Vec::new();

@@ -187,14 +187,7 @@ pub fn run(args: DataArgs) -> Result<()> {
 /// what the process itself holds.
 pub fn rss_mib() -> (f64, f64) {
     let s = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
-    let field = |name: &str| -> f64 {
-        s.lines()
-            .find(|l| l.starts_with(name))
-            .and_then(|l| l.split_whitespace().nth(1))
-            .and_then(|v| v.parse::<f64>().ok())
-            .unwrap_or(0.0)
-            / 1024.0
-    };
+    let field = |name: &str| -> f64 { s.lines().find(|l| l.starts_with(name)).and_then(|l| l.split_whitespace().nth(1)).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0) / 1024.0 };
     (field("VmRSS:"), field("RssAnon:"))
 }
 
@@ -263,15 +256,7 @@ fn synth(a: SynthArgs) -> Result<()> {
     let bar = std::sync::Mutex::new(crate::progress::bar("synthesising"));
     let t0 = std::time::Instant::now();
     let s = diffkfc_data::synth::write_dataset(&a.out, a.clips, a.seed, threads, &|d, n| (bar.lock().unwrap())(d, n))?;
-    println!(
-        "{}: {} clips, {} frames ({:.2} h at 20 fps), seed {}, in {:.1} s",
-        s.out.display(),
-        s.clips,
-        s.frames,
-        s.frames as f64 / 20.0 / 3600.0,
-        a.seed,
-        t0.elapsed().as_secs_f64()
-    );
+    println!("{}: {} clips, {} frames ({:.2} h at 20 fps), seed {}, in {:.1} s", s.out.display(), s.clips, s.frames, s.frames as f64 / 20.0 / 3600.0, a.seed, t0.elapsed().as_secs_f64());
     Ok(())
 }
 
@@ -309,8 +294,7 @@ fn features(a: FeaturesArgs) -> Result<()> {
             bail!("{}: only {} frame(s) after resampling from {fps} to {} fps", a.input.display(), joints.len(), skel.fps);
         }
     }
-    let feats = rep::features_from_joints(skel, &joints, a.feet_threshold)
-        .map_err(|e| e.in_file(&a.input))?;
+    let feats = rep::features_from_joints(skel, &joints, a.feet_threshold).map_err(|e| e.in_file(&a.input))?;
     let dim = skel.feature_dim();
     let t = feats.len() / dim;
     npy::write(&a.output, &[t, dim], &feats).with_context(|| format!("writing {}", a.output.display()))?;
@@ -324,8 +308,7 @@ fn joints(a: JointsArgs) -> Result<()> {
     let data: Vec<f64> = feats.data.iter().map(|&v| v as f64).collect();
     let joints = rep::recover_from_ric(skel, &data);
     let jn = skel.num_joints();
-    npy::write(&a.output, &[joints.len(), jn, 3], &rep::joints_to_f32(&joints))
-        .with_context(|| format!("writing {}", a.output.display()))?;
+    npy::write(&a.output, &[joints.len(), jn, 3], &rep::joints_to_f32(&joints)).with_context(|| format!("writing {}", a.output.display()))?;
     println!("{}: ({}, {jn}, 3) joint positions", a.output.display(), joints.len());
     Ok(())
 }

@@ -170,7 +170,10 @@ pub fn run(a: EvalArgs) -> Result<()> {
                 "mm_dist": r.mm_dist, "chance": [1.0 / 32.0, 2.0 / 32.0, 3.0 / 32.0]});
             diffkfc_data::write_atomic(&out.join("report.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
             println!("{}: {} steps in {:.1} s, InfoNCE {:.3} -> {:.3}", out.display(), r.steps, t0.elapsed().as_secs_f64(), r.first_loss, r.last_loss);
-            println!("  R-precision on {} real '{split}' motions: top-1 {:.3}, top-2 {:.3}, top-3 {:.3} (chance 0.031, 0.062, 0.094); MM-dist {:.3}", r.items, r.r_precision[0], r.r_precision[1], r.r_precision[2], r.mm_dist);
+            println!(
+                "  R-precision on {} real '{split}' motions: top-1 {:.3}, top-2 {:.3}, top-3 {:.3} (chance 0.031, 0.062, 0.094); MM-dist {:.3}",
+                r.items, r.r_precision[0], r.r_precision[1], r.r_precision[2], r.mm_dist
+            );
             Ok(())
         }
     }

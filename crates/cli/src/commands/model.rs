@@ -55,7 +55,15 @@ pub fn run(a: ModelArgs) -> Result<()> {
         ModelCommand::Summary { config } => {
             let cfg = RunConfig::load(&config).map_err(anyhow::Error::msg)?;
             let model = cfg.model.init(&Device::flex());
-            println!("{}: d_model {}, heads {}, ffn {}, decoder layers {}, DMA sizes {:?}", config.display(), cfg.model.d_model, cfg.model.heads, cfg.model.ffn, cfg.model.dec_layers, cfg.model.dma_sizes);
+            println!(
+                "{}: d_model {}, heads {}, ffn {}, decoder layers {}, DMA sizes {:?}",
+                config.display(),
+                cfg.model.d_model,
+                cfg.model.heads,
+                cfg.model.ffn,
+                cfg.model.dec_layers,
+                cfg.model.dma_sizes
+            );
             for (name, n) in model.param_counts() {
                 println!("  {name:<42} {n:>12} ({:.2} M)", n as f64 / 1e6);
             }
@@ -64,7 +72,13 @@ pub fn run(a: ModelArgs) -> Result<()> {
         }
         ModelCommand::Export { checkpoint, out, dtype } => {
             let e = diffkfc_model::checkpoint::export(&checkpoint, &out, dtype == "f16").map_err(anyhow::Error::msg)?;
-            println!("{}: step {} as {dtype}, {:.2} MB; wrote {}", out.display(), e.step, e.bytes as f64 / 1e6, e.files.iter().filter_map(|f| f.file_name()).map(|n| n.to_string_lossy().into_owned()).collect::<Vec<_>>().join(", "));
+            println!(
+                "{}: step {} as {dtype}, {:.2} MB; wrote {}",
+                out.display(),
+                e.step,
+                e.bytes as f64 / 1e6,
+                e.files.iter().filter_map(|f| f.file_name()).map(|n| n.to_string_lossy().into_owned()).collect::<Vec<_>>().join(", ")
+            );
             Ok(())
         }
     }

@@ -317,7 +317,9 @@ fn keys_from_json(path: &Path, length: Option<usize>, joints_flag: Option<&str>)
 /// origin facing +Z. A keyframe at frame 0 with its own place or heading moves that frame:
 /// every key is re-expressed relative to it.
 fn relative_to_first_frame(root: &mut [RootKey]) {
-    let Some(first) = root.first().copied() else { return };
+    let Some(first) = root.first().copied() else {
+        return;
+    };
     let [ox, oz] = first.place.unwrap_or([0.0, 0.0]);
     let h0 = first.heading.unwrap_or(0.0);
     let (s, c) = (-h0).sin_cos();
@@ -332,7 +334,9 @@ fn relative_to_first_frame(root: &mut [RootKey]) {
 }
 
 pub fn run(a: SampleArgs) -> Result<()> {
-    let Some(file) = a.prompts.clone() else { return run_one(a) };
+    let Some(file) = a.prompts.clone() else {
+        return run_one(a);
+    };
     let text = std::fs::read_to_string(&file).with_context(|| format!("reading {}", file.display()))?;
     // (line number in the file, text): blank and comment lines are skipped but still counted.
     let lines: Vec<(usize, &str)> = text.lines().map(str::trim).enumerate().filter(|(_, l)| !l.is_empty() && !l.starts_with("//")).map(|(n, l)| (n + 1, l)).collect();
@@ -365,10 +369,14 @@ pub fn run(a: SampleArgs) -> Result<()> {
 /// Outputs of an earlier, larger run into the same folder (sample_NN files with NN >= `keep`),
 /// so the folder holds only what results.json describes.
 fn remove_stale_samples(out: &Path, keep: usize) -> Result<()> {
-    let Ok(entries) = std::fs::read_dir(out) else { return Ok(()) };
+    let Ok(entries) = std::fs::read_dir(out) else {
+        return Ok(());
+    };
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
-        let Some(rest) = name.strip_prefix("sample_") else { continue };
+        let Some(rest) = name.strip_prefix("sample_") else {
+            continue;
+        };
         let (num, tail) = rest.split_at(rest.find(|c: char| !c.is_ascii_digit()).unwrap_or(rest.len()));
         let ours = [".npy", "_joints.npy", ".gif", ".bvh"].contains(&tail);
         if ours && num.parse::<usize>().is_ok_and(|k| k >= keep) {
@@ -432,7 +440,15 @@ fn run_one(a: SampleArgs) -> Result<()> {
         (None, Some(p)) => keys_from_json(p, length, a.joints.as_deref())?,
         (None, None) => {
             let length = length.unwrap_or(120);
-            Keys { length, frames: vec![], values: vec![0.0; length * T2M.feature_dim()], mask: vec![0.0; length * T2M.feature_dim()], source: None, joints: vec![], root: vec![RootKey::default(); length] }
+            Keys {
+                length,
+                frames: vec![],
+                values: vec![0.0; length * T2M.feature_dim()],
+                mask: vec![0.0; length * T2M.feature_dim()],
+                source: None,
+                joints: vec![],
+                root: vec![RootKey::default(); length],
+            }
         }
     };
     if keys.length == 0 || keys.length > max {
@@ -563,12 +579,7 @@ fn index_html(r: &serde_json::Value) -> String {
         r["transition_guidance"]
     );
     for s in r["samples"].as_array().into_iter().flatten() {
-        h += &format!(
-            "<figure><img src=\"{}\" width=320><figcaption>{} &middot; K-TranS {}</figcaption></figure>",
-            html_escape(s["gif"].as_str().unwrap_or("")),
-            k_err_text(s),
-            fmt(&s["k_trans"])
-        );
+        h += &format!("<figure><img src=\"{}\" width=320><figcaption>{} &middot; K-TranS {}</figcaption></figure>", html_escape(s["gif"].as_str().unwrap_or("")), k_err_text(s), fmt(&s["k_trans"]));
     }
     h + "\n"
 }
@@ -609,13 +620,18 @@ mod tests {
     fn keyframe_json_never_panics() {
         let dir = std::env::temp_dir().join(format!("diffkfc-kjfuzz-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let pose: Vec<[f64; 3]> = diffkfc_data::T2M.target_offsets().map(|o| {
-            let rot = vec![vec![diffkfc_data::quat::IDENTITY; 22]];
-            super::rep::forward_kinematics(&diffkfc_data::T2M, &rot, &[[0.0, 0.9, 0.0]], &o)[0].clone()
-        }).unwrap();
+        let pose: Vec<[f64; 3]> = diffkfc_data::T2M
+            .target_offsets()
+            .map(|o| {
+                let rot = vec![vec![diffkfc_data::quat::IDENTITY; 22]];
+                super::rep::forward_kinematics(&diffkfc_data::T2M, &rot, &[[0.0, 0.9, 0.0]], &o)[0].clone()
+            })
+            .unwrap();
         let feats = vec![0.1f32; 263];
         let seeds: Vec<Vec<u8>> = vec![
-            serde_json::json!({"length": 60, "joints": "lower_body", "keyframes": [{"frame": 0, "joints": pose}, {"frame": 30, "features": feats, "root": [1.0, 0.9, 2.0], "heading": 45}]}).to_string().into_bytes(),
+            serde_json::json!({"length": 60, "joints": "lower_body", "keyframes": [{"frame": 0, "joints": pose}, {"frame": 30, "features": feats, "root": [1.0, 0.9, 2.0], "heading": 45}]})
+                .to_string()
+                .into_bytes(),
             serde_json::json!({"length": 40, "keyframes": [{"frame": 10, "root": [0.5, 0.9, 1.5]}, {"frame": 39, "heading": -90}]}).to_string().into_bytes(),
         ];
         let path = dir.join("keys.json");

@@ -77,12 +77,7 @@ fn check_memory(cfg: &RunConfig, device: &str) -> Result<()> {
     if let Some(free) = memory::available_bytes() {
         if need > free {
             let fits = ((free * 0.8 - memory::fixed_bytes(cfg)) / memory::per_sample_bytes(cfg, frames)).floor().max(0.0);
-            bail!(
-                "training.batch_size: {} needs about {:.1} GB but {:.1} GB is free; at most about {fits} fits",
-                cfg.training.batch_size,
-                need / 1e9,
-                free / 1e9
-            );
+            bail!("training.batch_size: {} needs about {:.1} GB but {:.1} GB is free; at most about {fits} fits", cfg.training.batch_size, need / 1e9, free / 1e9);
         }
     }
     Ok(())
@@ -180,15 +175,17 @@ pub fn run(a: TrainArgs) -> Result<()> {
         .map_err(anyhow::Error::msg)?;
     pb.finish_and_clear();
     let metrics = std::fs::read_to_string(run_dir.join("metrics.jsonl")).unwrap_or_default();
-    let vals: Vec<(u64, f64)> = metrics
-        .lines()
-        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
-        .filter_map(|v| Some((v["step"].as_u64()?, v["val_loss"].as_f64()?)))
-        .collect();
+    let vals: Vec<(u64, f64)> = metrics.lines().filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok()).filter_map(|v| Some((v["step"].as_u64()?, v["val_loss"].as_f64()?))).collect();
     diffkfc_data::write_atomic(&run_dir.join("loss.svg"), crate::plot::loss_svg(&metrics).as_bytes())?;
     let secs = started.elapsed().as_secs_f64();
     let steps = outcome.end_step - outcome.start_step;
-    let why = if interrupted.load(Ordering::SeqCst) { " (interrupted)" } else if outcome.stopped_early { " (time budget reached)" } else { "" };
+    let why = if interrupted.load(Ordering::SeqCst) {
+        " (interrupted)"
+    } else if outcome.stopped_early {
+        " (time budget reached)"
+    } else {
+        ""
+    };
     println!("{}: steps {}..{}{why} in {secs:.1} s ({:.2} s/step)", run_dir.display(), outcome.start_step, outcome.end_step, secs / steps.max(1) as f64);
     if let (Some((s0, l0)), Some(last)) = (first, &outcome.last) {
         println!("  train loss: step {s0} {l0:.4} -> step {} {:.4}", last.step, last.loss);

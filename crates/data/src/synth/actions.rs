@@ -224,7 +224,14 @@ fn jumps(s: &Pose, n: usize, reps: usize, height: f64, dist: f64, one_leg: Optio
             let x = ((t as f64 - lead) / cycle).clamp(0.0, reps as f64 - 1e-9);
             let (k, f) = (x.floor(), x.fract());
             let y = if t as f64 >= lead && t as f64 <= lead + cycle * reps as f64 { jump_height(f, height) } else { 0.0 };
-            let adv = dist * (k + if f < 0.4 { 0.0 } else if f < 0.7 { (f - 0.4) / 0.3 } else { 1.0 });
+            let adv = dist
+                * (k + if f < 0.4 {
+                    0.0
+                } else if f < 0.7 {
+                    (f - 0.4) / 0.3
+                } else {
+                    1.0
+                });
             let adv = if (t as f64) < lead { 0.0 } else { adv };
             let mut p = *s;
             p.root = shift(s.root, adv, y);
@@ -245,11 +252,7 @@ fn jumps(s: &Pose, n: usize, reps: usize, height: f64, dist: f64, one_leg: Optio
                 let w = smooth(t as f64 / 8.0) * smooth((n - 1 - t) as f64 / 8.0);
                 let sgn = if free == 0 { 1.0 } else { -1.0 };
                 let base_y = p.root[1] - body::standing_height() + body::ANKLE_HEIGHT + 0.3;
-                let tucked = [
-                    p.root[0] - fwd[0] * 0.22 + left[0] * sgn * 0.1,
-                    base_y.max(p.feet[1 - free][1] + 0.25),
-                    p.root[2] - fwd[2] * 0.22 + left[2] * sgn * 0.1,
-                ];
+                let tucked = [p.root[0] - fwd[0] * 0.22 + left[0] * sgn * 0.1, base_y.max(p.feet[1 - free][1] + 0.25), p.root[2] - fwd[2] * 0.22 + left[2] * sgn * 0.1];
                 p.feet[free] = body::lerp3(p.feet[free], tucked, w);
                 p.toe[free] = 0.6 * w;
                 p.lean = -sgn * 0.08 * w;
@@ -397,7 +400,13 @@ pub fn idle(r: &mut Rng, s: &Pose, n: usize) -> Segment {
 // ---- upper-body actions: they only set arms (the base supplies everything else) ----
 
 fn arms_over(s: &Pose, n: usize, f: impl Fn(f64, &mut Pose)) -> Vec<Pose> {
-    (0..n).map(|t| { let mut p = *s; f(t as f64 / (n - 1).max(1) as f64, &mut p); p }).collect()
+    (0..n)
+        .map(|t| {
+            let mut p = *s;
+            f(t as f64 / (n - 1).max(1) as f64, &mut p);
+            p
+        })
+        .collect()
 }
 
 /// Envelope rising over the first and falling over the last `edge` of the clip.
@@ -480,29 +489,209 @@ fn punch(r: &mut Rng, s: &Pose, n: usize) -> Segment {
 }
 
 pub static ACTIONS: &[Action] = &[
-    Action { name: "walk_forward", part: Part::Lower, frames: (60, 196), gen: walk, phrases: &[("walks forward", "walking forward"), ("walks straight ahead", "walking straight ahead"), ("takes a few steps forward", "taking a few steps forward"), ("moves forward", "moving forward"), ("strolls forward", "strolling forward"), ("marches ahead", "marching ahead")] },
-    Action { name: "walk_backward", part: Part::Lower, frames: (60, 160), gen: walk_backward, phrases: &[("walks backward", "walking backward"), ("steps backwards", "stepping backwards"), ("moves back a few steps", "moving back a few steps"), ("retreats backwards", "retreating backwards")] },
-    Action { name: "walk_sideways", part: Part::Lower, frames: (60, 140), gen: walk_sideways, phrases: &[("walks sideways to the {side}", "walking sideways to the {side}"), ("side steps to the {side}", "side stepping to the {side}"), ("shuffles to the {side}", "shuffling to the {side}")] },
-    Action { name: "walk_circle", part: Part::Lower, frames: (100, 196), gen: walk_circle, phrases: &[("walks in a circle", "walking in a circle"), ("walks around in a circle", "walking around in a circle"), ("circles around", "circling around")] },
+    Action {
+        name: "walk_forward",
+        part: Part::Lower,
+        frames: (60, 196),
+        gen: walk,
+        phrases: &[
+            ("walks forward", "walking forward"),
+            ("walks straight ahead", "walking straight ahead"),
+            ("takes a few steps forward", "taking a few steps forward"),
+            ("moves forward", "moving forward"),
+            ("strolls forward", "strolling forward"),
+            ("marches ahead", "marching ahead"),
+        ],
+    },
+    Action {
+        name: "walk_backward",
+        part: Part::Lower,
+        frames: (60, 160),
+        gen: walk_backward,
+        phrases: &[
+            ("walks backward", "walking backward"),
+            ("steps backwards", "stepping backwards"),
+            ("moves back a few steps", "moving back a few steps"),
+            ("retreats backwards", "retreating backwards"),
+        ],
+    },
+    Action {
+        name: "walk_sideways",
+        part: Part::Lower,
+        frames: (60, 140),
+        gen: walk_sideways,
+        phrases: &[
+            ("walks sideways to the {side}", "walking sideways to the {side}"),
+            ("side steps to the {side}", "side stepping to the {side}"),
+            ("shuffles to the {side}", "shuffling to the {side}"),
+        ],
+    },
+    Action {
+        name: "walk_circle",
+        part: Part::Lower,
+        frames: (100, 196),
+        gen: walk_circle,
+        phrases: &[("walks in a circle", "walking in a circle"), ("walks around in a circle", "walking around in a circle"), ("circles around", "circling around")],
+    },
     Action { name: "jog", part: Part::Lower, frames: (60, 160), gen: jog, phrases: &[("jogs forward", "jogging forward"), ("jogs", "jogging"), ("runs slowly forward", "running slowly forward")] },
-    Action { name: "run", part: Part::Lower, frames: (50, 140), gen: run, phrases: &[("runs forward", "running forward"), ("sprints ahead", "sprinting ahead"), ("runs quickly", "running quickly"), ("dashes forward", "dashing forward")] },
-    Action { name: "jump_in_place", part: Part::Lower, frames: (50, 120), gen: jump_in_place, phrases: &[("jumps in place", "jumping in place"), ("jumps up and down", "jumping up and down"), ("hops up on the spot", "hopping up on the spot"), ("bounces up and down", "bouncing up and down")] },
-    Action { name: "jump_forward", part: Part::Lower, frames: (50, 120), gen: jump_forward, phrases: &[("jumps forward", "jumping forward"), ("leaps forward", "leaping forward"), ("does a long jump", "doing a long jump")] },
-    Action { name: "hop_one_leg", part: Part::Lower, frames: (60, 140), gen: hop, phrases: &[("hops on the {side} leg", "hopping on the {side} leg"), ("hops on one foot", "hopping on one foot"), ("jumps on the {side} foot", "jumping on the {side} foot")] },
-    Action { name: "squat", part: Part::Lower, frames: (60, 160), gen: squat, phrases: &[("squats down", "squatting down"), ("does squats", "doing squats"), ("crouches down and stands back up", "crouching down and standing back up")] },
-    Action { name: "sit_stand", part: Part::Lower, frames: (90, 196), gen: sit, phrases: &[("sits down and stands up", "sitting down and standing up"), ("sits down then gets back up", "sitting down then getting back up"), ("lowers into a chair and rises again", "lowering into a chair and rising again")] },
-    Action { name: "kneel", part: Part::Lower, frames: (80, 180), gen: kneel, phrases: &[("kneels down on the {side} knee", "kneeling down on the {side} knee"), ("kneels down", "kneeling down"), ("goes down on one knee", "going down on one knee")] },
-    Action { name: "kick", part: Part::Lower, frames: (50, 120), gen: kick, phrases: &[("kicks with the {side} leg", "kicking with the {side} leg"), ("kicks the {side} foot forward", "kicking the {side} foot forward"), ("does a {side} kick", "doing a {side} kick")] },
-    Action { name: "turn", part: Part::Lower, frames: (50, 110), gen: turn, phrases: &[("turns to the {side}", "turning to the {side}"), ("turns around to the {side}", "turning around to the {side}"), ("rotates towards the {side}", "rotating towards the {side}"), ("pivots to face the {side}", "pivoting to face the {side}")] },
-    Action { name: "spin", part: Part::Lower, frames: (50, 100), gen: spin, phrases: &[("spins around", "spinning around"), ("twirls in a full circle", "twirling in a full circle"), ("spins to the {side}", "spinning to the {side}")] },
-    Action { name: "pick_up", part: Part::Lower, frames: (70, 160), gen: pick_up, phrases: &[("bends over and picks something up", "bending over and picking something up"), ("picks up an object from the floor with the {side} hand", "picking up an object from the floor with the {side} hand"), ("reaches down to the ground", "reaching down to the ground"), ("leans down to grab an item off the floor", "leaning down to grab an item off the floor")] },
-    Action { name: "stretch", part: Part::Lower, frames: (80, 180), gen: stretch, phrases: &[("stretches", "stretching"), ("stretches the arms above the head", "stretching the arms above the head"), ("does a stretching exercise", "doing a stretching exercise")] },
-    Action { name: "dance", part: Part::Lower, frames: (80, 196), gen: dance, phrases: &[("dances", "dancing"), ("does a dance step", "doing a dance step"), ("sways side to side to music", "swaying side to side to music"), ("grooves to a rhythm", "grooving to a rhythm")] },
-    Action { name: "wave", part: Part::Upper, frames: (50, 140), gen: wave, phrases: &[("waves the {side} hand", "waving the {side} hand"), ("waves hello with the {side} hand", "waving hello with the {side} hand"), ("raises the {side} hand and waves", "raising the {side} hand and waving"), ("greets somebody with a wave", "greeting somebody with a wave")] },
-    Action { name: "raise_arm", part: Part::Upper, frames: (50, 120), gen: raise_arm, phrases: &[("raises the {side} arm", "raising the {side} arm"), ("lifts the {side} arm up", "lifting the {side} arm up"), ("puts the {side} arm in the air", "putting the {side} arm in the air")] },
-    Action { name: "raise_both_arms", part: Part::Upper, frames: (50, 140), gen: raise_both, phrases: &[("raises both arms", "raising both arms"), ("lifts both hands above the head", "lifting both hands above the head"), ("puts both arms up", "putting both arms up")] },
+    Action {
+        name: "run",
+        part: Part::Lower,
+        frames: (50, 140),
+        gen: run,
+        phrases: &[("runs forward", "running forward"), ("sprints ahead", "sprinting ahead"), ("runs quickly", "running quickly"), ("dashes forward", "dashing forward")],
+    },
+    Action {
+        name: "jump_in_place",
+        part: Part::Lower,
+        frames: (50, 120),
+        gen: jump_in_place,
+        phrases: &[
+            ("jumps in place", "jumping in place"),
+            ("jumps up and down", "jumping up and down"),
+            ("hops up on the spot", "hopping up on the spot"),
+            ("bounces up and down", "bouncing up and down"),
+        ],
+    },
+    Action {
+        name: "jump_forward",
+        part: Part::Lower,
+        frames: (50, 120),
+        gen: jump_forward,
+        phrases: &[("jumps forward", "jumping forward"), ("leaps forward", "leaping forward"), ("does a long jump", "doing a long jump")],
+    },
+    Action {
+        name: "hop_one_leg",
+        part: Part::Lower,
+        frames: (60, 140),
+        gen: hop,
+        phrases: &[("hops on the {side} leg", "hopping on the {side} leg"), ("hops on one foot", "hopping on one foot"), ("jumps on the {side} foot", "jumping on the {side} foot")],
+    },
+    Action {
+        name: "squat",
+        part: Part::Lower,
+        frames: (60, 160),
+        gen: squat,
+        phrases: &[("squats down", "squatting down"), ("does squats", "doing squats"), ("crouches down and stands back up", "crouching down and standing back up")],
+    },
+    Action {
+        name: "sit_stand",
+        part: Part::Lower,
+        frames: (90, 196),
+        gen: sit,
+        phrases: &[
+            ("sits down and stands up", "sitting down and standing up"),
+            ("sits down then gets back up", "sitting down then getting back up"),
+            ("lowers into a chair and rises again", "lowering into a chair and rising again"),
+        ],
+    },
+    Action {
+        name: "kneel",
+        part: Part::Lower,
+        frames: (80, 180),
+        gen: kneel,
+        phrases: &[("kneels down on the {side} knee", "kneeling down on the {side} knee"), ("kneels down", "kneeling down"), ("goes down on one knee", "going down on one knee")],
+    },
+    Action {
+        name: "kick",
+        part: Part::Lower,
+        frames: (50, 120),
+        gen: kick,
+        phrases: &[("kicks with the {side} leg", "kicking with the {side} leg"), ("kicks the {side} foot forward", "kicking the {side} foot forward"), ("does a {side} kick", "doing a {side} kick")],
+    },
+    Action {
+        name: "turn",
+        part: Part::Lower,
+        frames: (50, 110),
+        gen: turn,
+        phrases: &[
+            ("turns to the {side}", "turning to the {side}"),
+            ("turns around to the {side}", "turning around to the {side}"),
+            ("rotates towards the {side}", "rotating towards the {side}"),
+            ("pivots to face the {side}", "pivoting to face the {side}"),
+        ],
+    },
+    Action {
+        name: "spin",
+        part: Part::Lower,
+        frames: (50, 100),
+        gen: spin,
+        phrases: &[("spins around", "spinning around"), ("twirls in a full circle", "twirling in a full circle"), ("spins to the {side}", "spinning to the {side}")],
+    },
+    Action {
+        name: "pick_up",
+        part: Part::Lower,
+        frames: (70, 160),
+        gen: pick_up,
+        phrases: &[
+            ("bends over and picks something up", "bending over and picking something up"),
+            ("picks up an object from the floor with the {side} hand", "picking up an object from the floor with the {side} hand"),
+            ("reaches down to the ground", "reaching down to the ground"),
+            ("leans down to grab an item off the floor", "leaning down to grab an item off the floor"),
+        ],
+    },
+    Action {
+        name: "stretch",
+        part: Part::Lower,
+        frames: (80, 180),
+        gen: stretch,
+        phrases: &[("stretches", "stretching"), ("stretches the arms above the head", "stretching the arms above the head"), ("does a stretching exercise", "doing a stretching exercise")],
+    },
+    Action {
+        name: "dance",
+        part: Part::Lower,
+        frames: (80, 196),
+        gen: dance,
+        phrases: &[
+            ("dances", "dancing"),
+            ("does a dance step", "doing a dance step"),
+            ("sways side to side to music", "swaying side to side to music"),
+            ("grooves to a rhythm", "grooving to a rhythm"),
+        ],
+    },
+    Action {
+        name: "wave",
+        part: Part::Upper,
+        frames: (50, 140),
+        gen: wave,
+        phrases: &[
+            ("waves the {side} hand", "waving the {side} hand"),
+            ("waves hello with the {side} hand", "waving hello with the {side} hand"),
+            ("raises the {side} hand and waves", "raising the {side} hand and waving"),
+            ("greets somebody with a wave", "greeting somebody with a wave"),
+        ],
+    },
+    Action {
+        name: "raise_arm",
+        part: Part::Upper,
+        frames: (50, 120),
+        gen: raise_arm,
+        phrases: &[
+            ("raises the {side} arm", "raising the {side} arm"),
+            ("lifts the {side} arm up", "lifting the {side} arm up"),
+            ("puts the {side} arm in the air", "putting the {side} arm in the air"),
+        ],
+    },
+    Action {
+        name: "raise_both_arms",
+        part: Part::Upper,
+        frames: (50, 140),
+        gen: raise_both,
+        phrases: &[("raises both arms", "raising both arms"), ("lifts both hands above the head", "lifting both hands above the head"), ("puts both arms up", "putting both arms up")],
+    },
     Action { name: "clap", part: Part::Upper, frames: (50, 120), gen: clap, phrases: &[("claps the hands", "clapping the hands"), ("claps", "clapping"), ("applauds", "applauding")] },
-    Action { name: "punch", part: Part::Upper, frames: (50, 120), gen: punch, phrases: &[("punches with the {side} hand", "punching with the {side} hand"), ("throws a punch", "throwing a punch"), ("boxes with the {side} fist", "boxing with the {side} fist"), ("strikes the air with a fist", "striking the air with a fist")] },
+    Action {
+        name: "punch",
+        part: Part::Upper,
+        frames: (50, 120),
+        gen: punch,
+        phrases: &[
+            ("punches with the {side} hand", "punching with the {side} hand"),
+            ("throws a punch", "throwing a punch"),
+            ("boxes with the {side} fist", "boxing with the {side} fist"),
+            ("strikes the air with a fist", "striking the air with a fist"),
+        ],
+    },
 ];
 
 pub fn by_name(name: &str) -> &'static Action {

@@ -88,18 +88,7 @@ const HIP_DIR: Vec3 = [0.958, -0.287, 0.0];
 impl Pose {
     /// Standing still at `root_xz` facing `yaw`, feet under the hips.
     pub fn standing(x: f64, z: f64, yaw: f64) -> Pose {
-        let mut p = Pose {
-            root: [x, standing_height(), z],
-            yaw,
-            pitch: 0.0,
-            lean: 0.0,
-            twist: 0.0,
-            head_pitch: 0.0,
-            feet: [[0.0; 3]; 2],
-            toe: [0.0; 2],
-            knee_out: 0.0,
-            arms: [Arm::REST; 2],
-        };
+        let mut p = Pose { root: [x, standing_height(), z], yaw, pitch: 0.0, lean: 0.0, twist: 0.0, head_pitch: 0.0, feet: [[0.0; 3]; 2], toe: [0.0; 2], knee_out: 0.0, arms: [Arm::REST; 2] };
         p.feet = [neutral_foot(x, z, yaw, 0), neutral_foot(x, z, yaw, 1)];
         p
     }
@@ -193,10 +182,7 @@ fn joints_with(p: &Pose, bend: &mut [Option<Vec3>; 2]) -> Vec<Vec3> {
     for (side, (sho, elb, wri)) in [(0usize, (16usize, 18usize, 20usize)), (1, (17, 19, 21))] {
         let out = quat::qrot(q3, [if side == 0 { 1.0 } else { -1.0 }, 0.0, 0.0]);
         let a = p.arms[side];
-        let d = quat::normalize(quat::add(
-            quat::add(quat::scale(u, -a.flex.cos() * a.abd.cos()), quat::scale(f, a.flex.sin() * a.abd.cos())),
-            quat::scale(out, a.abd.sin()),
-        ));
+        let d = quat::normalize(quat::add(quat::add(quat::scale(u, -a.flex.cos() * a.abd.cos()), quat::scale(f, a.flex.sin() * a.abd.cos())), quat::scale(out, a.abd.sin())));
         j[elb] = quat::add(j[sho], quat::scale(d, len(elb)));
         // The forearm bends towards the front, as elbows do; where the front is along the upper
         // arm, the previous frame's bend direction carries on.

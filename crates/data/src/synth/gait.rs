@@ -90,10 +90,7 @@ pub fn locomote(traj: &[RootState], gait: &Gait, start_feet: [Vec3; 2], fps: f64
     let mut last_plant = start_feet;
     let mut poses = Vec::with_capacity(n);
     let mut si = [0usize; 2];
-    let side_swings: [Vec<_>; 2] = [
-        swings.iter().filter(|s| s.0 == 0).copied().collect(),
-        swings.iter().filter(|s| s.0 == 1).copied().collect(),
-    ];
+    let side_swings: [Vec<_>; 2] = [swings.iter().filter(|s| s.0 == 0).copied().collect(), swings.iter().filter(|s| s.0 == 1).copied().collect()];
     for (t, r) in traj.iter().enumerate() {
         let tf = t as f64;
         let mut pose = Pose::standing(r.x, r.z, r.yaw);

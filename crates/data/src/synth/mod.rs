@@ -70,9 +70,19 @@ struct Ambiguous {
 }
 
 const AMBIGUOUS: &[Ambiguous] = &[
-    Ambiguous { name: "bend_and_walk", phrases: &["bends over and walks", "walks and bends over", "bends down and walks forward"], sequence: ["pick_up", "walk_forward"], simultaneous: ("walk_forward", "bent") },
+    Ambiguous {
+        name: "bend_and_walk",
+        phrases: &["bends over and walks", "walks and bends over", "bends down and walks forward"],
+        sequence: ["pick_up", "walk_forward"],
+        simultaneous: ("walk_forward", "bent"),
+    },
     Ambiguous { name: "walk_and_wave", phrases: &["walks and waves", "walks forward and waves a hand", "waves and walks"], sequence: ["walk_forward", "wave"], simultaneous: ("walk_forward", "wave") },
-    Ambiguous { name: "squat_and_raise", phrases: &["squats and raises both arms", "raises both arms and squats", "squats with arms raised"], sequence: ["raise_both_arms", "squat"], simultaneous: ("squat", "raise_both_arms") },
+    Ambiguous {
+        name: "squat_and_raise",
+        phrases: &["squats and raises both arms", "raises both arms and squats", "squats with arms raised"],
+        sequence: ["raise_both_arms", "squat"],
+        simultaneous: ("squat", "raise_both_arms"),
+    },
     Ambiguous { name: "turn_and_walk", phrases: &["turns and walks", "walks and turns", "turns while walking"], sequence: ["turn", "walk_forward"], simultaneous: ("walk_circle", "") },
 ];
 
@@ -266,7 +276,12 @@ fn clip_attempt(seed: u64, index: usize, attempt: u64) -> Clip {
                 }
             }
             let amb = amb.unwrap();
-            caps = (0..3).map(|_| { let p = r.pick(amb.phrases).to_string(); captions::sentence(&mut r, &p) }).collect();
+            caps = (0..3)
+                .map(|_| {
+                    let p = r.pick(amb.phrases).to_string();
+                    captions::sentence(&mut r, &p)
+                })
+                .collect();
             spans.insert(0, ActionSpan { action: amb.name, start: 0, end: poses.len(), params: json!({}) });
         }
         Pattern::Simultaneous => {
@@ -300,10 +315,7 @@ fn clip_attempt(seed: u64, index: usize, attempt: u64) -> Clip {
 fn finish(index: usize, pattern: Pattern, realisation: Option<&'static str>, poses: Vec<Pose>, actions: Vec<ActionSpan>, captions: Vec<String>) -> Clip {
     let joints: rep::Joints = body::joints_seq(&poses);
     let frames = joints.len() - 1;
-    Clip {
-        joints,
-        meta: ClipMeta { id: format!("{index:06}"), pattern, realisation, frames, actions, captions, split: "train" },
-    }
+    Clip { joints, meta: ClipMeta { id: format!("{index:06}"), pattern, realisation, frames, actions, captions, split: "train" } }
 }
 
 /// Split of the `k`-th clip of a (pattern, first action) group: about 75% train, 5% val,
@@ -394,11 +406,7 @@ pub fn write_dataset(out: &Path, n: usize, seed: u64, threads: usize, progress: 
         *k += 1;
     }
     for m in &metas {
-        let lines: Vec<String> = m
-            .captions
-            .iter()
-            .map(|c| Caption { text: c.clone(), tokens: captions::tokens(c), start: 0.0, end: 0.0 }.to_line())
-            .collect();
+        let lines: Vec<String> = m.captions.iter().map(|c| Caption { text: c.clone(), tokens: captions::tokens(c), start: 0.0, end: 0.0 }.to_line()).collect();
         crate::write_atomic(&tmp.join(format!("texts/{}.txt", m.id)), (lines.join("\n") + "\n").as_bytes())?;
     }
     for split in ["train", "val", "test"] {

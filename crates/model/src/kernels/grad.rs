@@ -138,12 +138,7 @@ impl Backward<Flex, 3> for AttentionBackward {
 
 impl<C: CheckpointStrategy> FusedOps for Autodiff<Flex, C> {
     fn fused_layer_norm(x: FloatTensor<Self>, gamma: FloatTensor<Self>, beta: FloatTensor<Self>) -> FloatTensor<Self> {
-        record::<_, C, 3>(
-            LayerNormBackward,
-            [x, gamma, beta],
-            |[x, g, b]| (Flex::fused_layer_norm(x.clone(), g.clone(), b), (x, g)),
-            |[x, g, b]| Flex::fused_layer_norm(x, g, b),
-        )
+        record::<_, C, 3>(LayerNormBackward, [x, gamma, beta], |[x, g, b]| (Flex::fused_layer_norm(x.clone(), g.clone(), b), (x, g)), |[x, g, b]| Flex::fused_layer_norm(x, g, b))
     }
 
     fn fused_residual_layer_norm(h: FloatTensor<Self>, a: FloatTensor<Self>, gamma: FloatTensor<Self>, beta: FloatTensor<Self>, drop: DropMask) -> FloatTensor<Self> {

@@ -42,7 +42,7 @@ fn exp_neg(x: f32) -> f32 {
     let t = x * std::f32::consts::LOG2_E + 12_582_912.0;
     let n = t - 12_582_912.0;
     let f = (x - n * 0.693_145_75) - n * 1.428_606_8e-6; // |f| <= ln2 / 2
-    // Taylor series of e^f to degree 7: truncation < 2e-9 on |f| <= 0.347.
+                                                         // Taylor series of e^f to degree 7: truncation < 2e-9 on |f| <= 0.347.
     let p = 1.0 + f * (1.0 + f * (0.5 + f * (1.0 / 6.0 + f * (1.0 / 24.0 + f * (1.0 / 120.0 + f * (1.0 / 720.0 + f * (1.0 / 5040.0)))))));
     // n in [-126, 0]: (bits of t + 127) << 23 keeps exactly the exponent field n + 127.
     p * f32::from_bits(t.to_bits().wrapping_add(127) << 23)

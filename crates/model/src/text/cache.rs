@@ -48,10 +48,7 @@ impl EmbeddingCache {
             }
             progress(missing.len(), missing.len());
             let bytes_of: HashMap<&String, Vec<u8>> = map.iter().map(|(k, v)| (k, v.iter().flat_map(|f| f.to_le_bytes()).collect())).collect();
-            let views: Vec<(&str, TensorView)> = bytes_of
-                .iter()
-                .map(|(k, b)| (k.as_str(), TensorView::new(Dtype::F32, vec![b.len() / 4], b).expect("view")))
-                .collect();
+            let views: Vec<(&str, TensorView)> = bytes_of.iter().map(|(k, b)| (k.as_str(), TensorView::new(Dtype::F32, vec![b.len() / 4], b).expect("view"))).collect();
             let meta = HashMap::from([("encoder".to_string(), encoder.name().to_string())]);
             let out = safetensors::serialize(views, Some(meta)).map_err(|e| bad(e.to_string()))?;
             diffkfc_data::write_atomic(path, &out).map_err(|e| bad(e.to_string()))?;
