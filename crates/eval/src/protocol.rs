@@ -142,7 +142,7 @@ impl Protocol<'_> {
 
     /// Whether generating `s` runs both keyframe-guidance branches (a doubled batch).
     fn guided(&self, s: &Setting) -> bool {
-        s.rate > 0.0 && !s.inpaint && (self.opts.kf_guidance - 1.0).abs() > 1e-12
+        diffkfc_model::guidance::is_guided(self.opts.kf_guidance, s.rate > 0.0, s.inpaint)
     }
 
     /// Generation jobs (item, sample) in denoiser batches, sorted by length to limit padding.

@@ -97,7 +97,7 @@ impl<'a> Sampling<'a> {
     pub fn new(model: &'a Denoiser, cfg: &DiffKfcConfig, batch: usize, frames: usize) -> Sampling<'a> {
         let device = model.devices().first().cloned().unwrap_or_else(Device::flex);
         let req = request(cfg, batch, frames, 3);
-        let encoded = model.encode(&sampler::guidance_pair(&req.condition(&device)));
+        let encoded = model.encode(&crate::guidance::pair(&req.condition(&device)));
         let mut r = Rng::new(4);
         let x = normal_tensor(&mut r, [2 * batch, frames, cfg.feat_dim], &device);
         Sampling { model, req, encoded, x, t: vec![500; 2 * batch] }
@@ -107,7 +107,7 @@ impl<'a> Sampling<'a> {
     /// the first) or encoder + decoder.
     pub fn call(&self, with_encoder: bool) -> Vec<f32> {
         let out = if with_encoder {
-            let enc = self.model.encode(&sampler::guidance_pair(&self.req.condition(&self.x.device())));
+            let enc = self.model.encode(&crate::guidance::pair(&self.req.condition(&self.x.device())));
             self.model.decode(self.x.clone(), &self.t, &enc)
         } else {
             self.model.decode(self.x.clone(), &self.t, &self.encoded)

@@ -14,6 +14,7 @@ pub mod dropout;
 pub mod embed;
 pub mod fit;
 pub mod flops;
+pub mod guidance;
 pub mod kernels;
 pub mod kinematics;
 pub mod losses;

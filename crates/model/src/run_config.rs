@@ -305,9 +305,12 @@ mod tests {
             let e = RunConfig::parse(&format!(r#"{{"model": "tiny", {body}}}"#)).unwrap_err();
             assert!(e.contains(needle), "{body}: {e}");
         }
-        for (model, needle) in
-            [(r#"{"preset": "tiny", "heads": 3}"#, "does not divide"), (r#"{"preset": "tiny", "d_model": 0}"#, "model.d_model: 0"), (r#"{"preset": "tiny", "dropout": 1.5}"#, "model.dropout: 1.5"), (r#"{"preset": "tiny", "temporal_kernel": 4}"#, "model.temporal_kernel: 4")]
-        {
+        for (model, needle) in [
+            (r#"{"preset": "tiny", "heads": 3}"#, "does not divide"),
+            (r#"{"preset": "tiny", "d_model": 0}"#, "model.d_model: 0"),
+            (r#"{"preset": "tiny", "dropout": 1.5}"#, "model.dropout: 1.5"),
+            (r#"{"preset": "tiny", "temporal_kernel": 4}"#, "model.temporal_kernel: 4"),
+        ] {
             let e = RunConfig::parse(&format!(r#"{{"model": {model}}}"#)).unwrap_err();
             assert!(e.contains(needle), "{model}: {e}");
         }

@@ -1,12 +1,13 @@
-//! Reverse diffusion with keyframe classifier-free guidance (one batched forward of the
-//! conditional and keyframe-free branches), transition guidance (x0 mode), DDPM over all steps
-//! or DDIM over a few. Meeting the keyframes exactly afterwards is `fit`'s job.
+//! Reverse diffusion with keyframe classifier-free guidance (`guidance`: one batched forward of
+//! the conditional and keyframe-free branches), transition guidance (x0 mode), DDPM over all
+//! steps or DDIM over a few. Meeting the keyframes exactly afterwards is `fit`'s job.
 
 use burn::prelude::*;
 use diffkfc_data::rng::Rng;
 use diffkfc_data::warp::ROOT_CHANNELS;
 
 use crate::diffusion::Schedule;
+use crate::guidance;
 use crate::params::host;
 use crate::transition;
 use crate::{Condition, Denoiser};
@@ -109,24 +110,6 @@ impl Request {
     }
 }
 
-/// The keyframe-guidance batch of a condition: [with keyframes; without], one forward for both.
-pub fn guidance_pair(c: &Condition) -> Condition {
-    stack(c, &c.without_keyframes())
-}
-
-/// Two conditions stacked along the batch: [a; b].
-fn stack(a: &Condition, b: &Condition) -> Condition {
-    Condition {
-        text: Tensor::cat(vec![a.text.clone(), b.text.clone()], 0),
-        kf: Tensor::cat(vec![a.kf.clone(), b.kf.clone()], 0),
-        kf_mask: Tensor::cat(vec![a.kf_mask.clone(), b.kf_mask.clone()], 0),
-        root: Tensor::cat(vec![a.root.clone(), b.root.clone()], 0),
-        root_mask: Tensor::cat(vec![a.root_mask.clone(), b.root_mask.clone()], 0),
-        kf_frames: a.kf_frames.iter().chain(&b.kf_frames).copied().collect(),
-        real: a.real.iter().chain(&b.real).copied().collect(),
-    }
-}
-
 /// The timesteps visited, from noisy to clean.
 pub fn timesteps(schedule: &Schedule, sampler: Sampler) -> Vec<usize> {
     let t = schedule.steps;
@@ -154,13 +137,13 @@ pub fn sample(model: &Denoiser, schedule: &Schedule, req: &Request, opts: &Optio
     let cond = req.condition(&device);
     let keys: Vec<Vec<usize>> = (0..b).map(|i| req.key_frames(i)).collect();
     let any_keys = keys.iter().any(|k| !k.is_empty());
-    let guided = any_keys && !opts.inpaint && (opts.kf_guidance - 1.0).abs() > 1e-12;
+    let guided = guidance::is_guided(opts.kf_guidance, any_keys, opts.inpaint);
     let exact = opts.tg_mode == TgMode::Exact && opts.transition > 0.0 && any_keys;
     assert!(!exact || device.is_autodiff(), "exact transition guidance needs the model on an autodiff device");
     // The encoder runs once; both guidance branches share each decoder call. Its output is
     // detached so per-step backward passes (exact mode) never reach into it.
     let cond = if opts.inpaint { cond.without_keyframes() } else { cond };
-    let mut enc = if guided { model.encode(&guidance_pair(&cond)) } else { model.encode(&cond) };
+    let mut enc = if guided { model.encode(&guidance::pair(&cond)) } else { model.encode(&cond) };
     enc.tokens = enc.tokens.detach();
     enc.text_tok = enc.text_tok.detach();
     enc.cross_kv = enc.cross_kv.into_iter().map(|(k, v)| (k.detach(), v.detach())).collect();
@@ -174,14 +157,8 @@ pub fn sample(model: &Denoiser, schedule: &Schedule, req: &Request, opts: &Optio
         if exact {
             xt = xt.require_grad();
         }
-        let x0_t = if guided {
-            let out = model.decode(Tensor::cat(vec![xt.clone(), xt.clone()], 0), &vec![t; 2 * b], &enc);
-            let c = out.clone().slice([0..b, 0..n, 0..d]);
-            let u = out.slice([b..2 * b, 0..n, 0..d]);
-            u.clone() + (c - u) * opts.kf_guidance
-        } else {
-            model.decode(xt.clone(), &vec![t; b], &enc)
-        };
+        let x0_t =
+            if guided { guidance::combine(model.decode(Tensor::cat(vec![xt.clone(), xt.clone()], 0), &vec![t; 2 * b], &enc), opts.kf_guidance) } else { model.decode(xt.clone(), &vec![t; b], &enc) };
         // MDM-inp: the observed features replace the prediction at every step.
         let x0_t = if opts.inpaint { x0_t.clone() * (mask_t.ones_like() - mask_t.clone()) + kf_t.clone() * mask_t.clone() } else { x0_t };
         let x0 = host(x0_t.clone().detach());
