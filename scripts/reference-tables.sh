@@ -27,23 +27,29 @@ ev() { # name, then eval flags
   "$bin" eval --checkpoint "$model" --evaluator "$evaluator" --data "$data" --out "$out/$name" "$@" >/dev/null
   echo "done: $name ($(( $(date +%s) - t0 )) s)" >&2
 }
-# Table 2 and Table 4 in one run: defaults (s = 1, r = 0, warp) at 5%, transition guidance
-# r = 100, MDM-inp, and the defaults at 0, 2 and 10%.
+# Table 2 and Table 4 in one run: defaults (DDIM-10, s = 1, r = 10, warp, foot lock) at 5%,
+# the same without transition guidance, MDM-inp, and the defaults at 0, 2 and 10%.
 ev tables --num-items "$items" --replications "$reps" --samples-for-ade "$ade" --compare --sweep-rates 0,0.02,0.05,0.1
-# Guidance: the paper's keyframe guidance scale, with and without transition guidance, against
-# the default on the same items (half the tables' items, one replication).
+# Guidance: transition guidance strengths and the paper's keyframe guidance scale against the
+# default on the same items (half the tables' items, one replication).
 half=$(( items / 2 )); [ "$half" -lt 32 ] && half=32
-ev s2.5-r0 --num-items "$half" --replications 1 --samples-for-ade "$ade" --kf-guidance 2.5
+ev s1-r10-half --num-items "$half" --replications 1 --samples-for-ade "$ade"
+for r in 0 30 100; do
+  ev s1-r$r-half --num-items "$half" --replications 1 --samples-for-ade "$ade" --transition-guidance $r
+done
+ev s2.5-r0 --num-items "$half" --replications 1 --samples-for-ade "$ade" --kf-guidance 2.5 --transition-guidance 0
 ev s2.5-r100 --num-items "$half" --replications 1 --samples-for-ade "$ade" --kf-guidance 2.5 --transition-guidance 100
-ev s1-r0-half --num-items "$half" --replications 1 --samples-for-ade "$ade"
-# Steps: DDIM 5, 10 and 20 (one replication of the tables' items; DDIM-50 is the tables' 5% row);
-# DDPM-1000 and its DDIM-50 twin on 32 items.
-ev ddim5 --num-items "$items" --replications 1 --samples-for-ade "$ade" --steps 5
-ev ddim10 --num-items "$items" --replications 1 --samples-for-ade "$ade" --steps 10
-ev ddim20 --num-items "$items" --replications 1 --samples-for-ade "$ade" --steps 20
-few=32 # DDPM runs all 1000 steps: about 5 s per motion here
+# Post-processing: the defaults without foot locking, and without any fit (one replication).
+ev no-foot-lock --num-items "$items" --replications 1 --samples-for-ade "$ade" --no-foot-lock
+ev fit-none --num-items "$items" --replications 1 --samples-for-ade "$ade" --keyframe-fit none --no-foot-lock
+# Steps: DDIM 5, 10, 20 and 50 on one replication of the tables' items; DDPM-1000 and its
+# DDIM-10 twin on 32 items.
+for k in 5 10 20 50; do
+  ev ddim$k --num-items "$items" --replications 1 --samples-for-ade "$ade" --steps $k
+done
+few=32 # DDPM runs all 1000 steps: about 4 s per motion here
 ev ddpm1000-32 --num-items "$few" --replications 1 --samples-for-ade 1 --sampler ddpm
-ev ddim50-32 --num-items "$few" --replications 1 --samples-for-ade 1
+ev ddim10-32 --num-items "$few" --replications 1 --samples-for-ade 1
 python3 - "$out" <<'PY'
 import json, os, sys
 out = sys.argv[1]
@@ -54,7 +60,8 @@ def report(name):
     return json.load(open(p)) if os.path.exists(p) else None
 def cell(row, k):
     m = row["metrics"].get(k)
-    return "-" if m is None else f"{m['mean']:.3f} ± {m['ci95']:.3f}" if "ci95" in m else f"{m['mean']:.3f}"
+    p = 4 if k in ("k_err", "k_err_local", "k_trans") else 3  # K-TranS and K-Err are small
+    return "-" if m is None else f"{m['mean']:.{p}f} ± {m['ci95']:.{p}f}" if "ci95" in m else f"{m['mean']:.{p}f}"
 def table(rows, label):
     print("| " + label + " | " + " | ".join(c[1] for c in cols) + " | s per item |")
     print("|---" * (len(cols) + 2) + "|")
@@ -77,21 +84,29 @@ if r:
         rows.append((title, row, "-"))
     table(rows, "row")
 steps = []
-for name, label in [("ddim5", "DDIM-5"), ("ddim10", "DDIM-10"), ("ddim20", "DDIM-20"), ("ddim50-32", "DDIM-50 (32 items)"), ("ddpm1000-32", "DDPM-1000 (32 items)")]:
+for name, label in [("ddim5", "DDIM-5"), ("ddim10", "DDIM-10 (default)"), ("ddim20", "DDIM-20"), ("ddim50", "DDIM-50"), ("ddim10-32", "DDIM-10 (32 items)"), ("ddpm1000-32", "DDPM-1000 (32 items)")]:
     rr = report(name)
     if rr:
         gen = next(x for x in rr["rows"] if not x["real"])
         n = rr["meta"]["num_items"] * rr["meta"]["replications"] * max(1, rr["meta"]["samples_for_ade"])
         steps.append((label, gen, f"{rr['meta']['seconds'] / n:.3f}"))
 if steps:
-    print("Sampling steps (defaults s = 1, r = 0, warp, 5% keyframes):\n")
+    print("Sampling steps (defaults s = 1, r = 10, warp, foot lock, 5% keyframes; one replication):\n")
     table(steps, "sampler")
 guid = []
-for name, label in [("s1-r0-half", "s = 1, r = 0 (default)"), ("s2.5-r0", "s = 2.5, r = 0"), ("s2.5-r100", "s = 2.5, r = 100 (paper)")]:
+for name, label in [("s1-r10-half", "s = 1, r = 10 (default)"), ("s1-r0-half", "s = 1, r = 0"), ("s1-r30-half", "s = 1, r = 30"), ("s1-r100-half", "s = 1, r = 100"), ("s2.5-r0", "s = 2.5, r = 0"), ("s2.5-r100", "s = 2.5, r = 100 (paper)")]:
     rr = report(name)
     if rr:
         guid.append((label, next(x for x in rr["rows"] if not x["real"]), "-"))
 if guid:
-    print("Keyframe guidance s and transition guidance r (DDIM-50, 5% keyframes, warp):\n")
+    print("Keyframe guidance s and transition guidance r (DDIM-10, 5% keyframes, warp, foot lock):\n")
     table(guid, "guidance")
+post = []
+for name, label in [("ddim10", "warp + foot lock (default)"), ("no-foot-lock", "warp"), ("fit-none", "none (the network's output)")]:
+    rr = report(name)
+    if rr:
+        post.append((label, next(x for x in rr["rows"] if not x["real"]), "-"))
+if post:
+    print("After the last step (DDIM-10, 5% keyframes; one replication):\n")
+    table(post, "fit")
 PY

@@ -49,11 +49,16 @@ fn sample_outputs_errors_and_determinism() {
     // Keyed places too: the global joint error at the keys is under a millimetre.
     assert!(report["samples"][0]["k_err_m"].as_f64().unwrap() < 1e-3, "{}", report["samples"][0]);
     assert_eq!(report["samples"][0]["corrections"].as_array().unwrap().len(), 3);
+    // Foot locking is on by default and says what it moved; --no-foot-lock turns it off.
+    assert_eq!(report["foot_lock"], true);
+    assert!(report["samples"][0]["foot_lock"]["frames"].is_u64() && report["samples"][0]["foot_lock"]["dragged"].is_u64(), "{}", report["samples"][0]);
     // The paste writes every observed feature into the key frames.
     let outp = d.join("outp");
     let mut ap = args(&outp);
-    ap.extend(["--keyframe-fit".to_string(), "paste".to_string()]);
+    ap.extend(["--keyframe-fit".to_string(), "paste".to_string(), "--no-foot-lock".to_string()]);
     assert!(diffkfc(&ap.iter().map(String::as_str).collect::<Vec<_>>()).status.success());
+    let rp: serde_json::Value = serde_json::from_slice(&std::fs::read(outp.join("results.json")).unwrap()).unwrap();
+    assert_eq!((rp["foot_lock"].as_bool(), rp["samples"][0]["foot_lock"].is_null()), (Some(false), true));
     let pasted = npy::read_f32(outp.join("sample_00.npy")).unwrap();
     for f in [0usize, 20, 39] {
         for c in 0..263 {

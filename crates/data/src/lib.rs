@@ -7,6 +7,7 @@ pub mod cache;
 pub mod check;
 pub mod dataset;
 pub mod fixtures;
+pub mod footlock;
 pub mod fuzz;
 pub mod keyframes;
 pub mod motion_file;

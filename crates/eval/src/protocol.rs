@@ -10,12 +10,11 @@ use diffkfc_data::cache::PackedSplit;
 use diffkfc_data::dataset::{self, Dataset};
 use diffkfc_data::keyframes::{self, Strategy};
 use diffkfc_data::plausibility::foot_skating_ratio;
-use diffkfc_data::representation::Layout;
 use diffkfc_data::representation::{recover_from_ric, Joints};
 use diffkfc_data::rng::Rng;
 use diffkfc_data::warp::{self, ROOT_CHANNELS};
 use diffkfc_model::diffusion::Schedule;
-use diffkfc_model::fit::{finish, KeyframeFit};
+use diffkfc_model::fit::{finish, Fit};
 use diffkfc_model::sampler::{self, Request, Sampler, TgMode};
 use diffkfc_model::text::cache::EmbeddingCache;
 use diffkfc_model::Denoiser;
@@ -52,8 +51,9 @@ pub struct Options {
     pub multimodality: usize,
     pub sampler: Sampler,
     pub kf_guidance: f64,
-    /// How generated motions are made to meet their keyframes after the last step.
-    pub fit: KeyframeFit,
+    /// How generated motions are made to meet their keyframes after the last step, and whether
+    /// their planted feet are locked.
+    pub fit: Fit,
     /// Keyframes observe their root place and heading as well as their pose.
     pub root_keys: bool,
     pub strategy: Strategy,
@@ -181,7 +181,6 @@ impl Protocol<'_> {
     fn generate(&self, items: &[Item], keys: &[Vec<usize>], s: &Setting, k: usize, seed: u64, tick: &mut dyn FnMut()) -> Vec<Vec<Vec<f32>>> {
         let d = self.ds.dim();
         let all_dims = keyframes::dim_mask(self.ds.skeleton, None);
-        let layout = Layout::of(self.ds.skeleton);
         let mut out: Vec<Vec<Vec<f32>>> = items.iter().map(|_| vec![Vec::new(); k]).collect();
         for (c, chunk) in self.batches(items, k).iter().enumerate() {
             let b = chunk.len();
@@ -220,7 +219,7 @@ impl Protocol<'_> {
             };
             let x = sampler::sample(self.model, self.schedule, &req, &opts, |_, _| tick());
             for (r, &(p, j)) in chunk.iter().enumerate() {
-                out[p][j] = finish(&x, &req, r, self.mean, self.std, &layout, self.opts.fit).0;
+                out[p][j] = finish(&x, &req, r, self.mean, self.std, self.ds.skeleton, self.opts.fit).features;
             }
         }
         out

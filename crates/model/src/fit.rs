@@ -1,8 +1,10 @@
 //! After the last denoising step: how a generated motion is made to meet its keyframes exactly.
 
 use diffkfc_data::dataset::denormalise;
+use diffkfc_data::footlock::{self, LockReport};
 use diffkfc_data::representation::Layout;
 use diffkfc_data::warp::{self, Correction, RootKey, ROOT_CHANNELS};
+use diffkfc_data::Skeleton;
 
 use crate::sampler::Request;
 
@@ -36,9 +38,44 @@ impl std::str::FromStr for KeyframeFit {
     }
 }
 
-/// Sample `i` of the sampler's normalised output `x` [B, N, D], de-normalised to [len, D] and
-/// fitted to the request's keyframes; with the correction made at each keyed frame.
-pub fn finish(x: &[f32], req: &Request, i: usize, mean: &[f32], std: &[f32], layout: &Layout, fit: KeyframeFit) -> (Vec<f32>, Vec<Correction>) {
+/// What follows the last denoising step.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Fit {
+    pub keyframes: KeyframeFit,
+    /// Hold planted feet still after the keyframe fit (`diffkfc_data::footlock`).
+    pub foot_lock: bool,
+}
+
+impl Default for Fit {
+    fn default() -> Self {
+        Fit { keyframes: KeyframeFit::Warp, foot_lock: true }
+    }
+}
+
+/// A finished motion: de-normalised features [len, D], the correction made at each keyed
+/// frame, and what foot locking moved.
+pub struct Fitted {
+    pub features: Vec<f32>,
+    pub corrections: Vec<Correction>,
+    pub feet: LockReport,
+}
+
+/// Sample `i` of the sampler's normalised output `x` [B, N, D], de-normalised, fitted to the
+/// request's keyframes and, with `fit.foot_lock`, its planted feet held (pose keyframes untouched).
+pub fn finish(x: &[f32], req: &Request, i: usize, mean: &[f32], std: &[f32], skel: &Skeleton, fit: Fit) -> Fitted {
+    let layout = Layout::of(skel);
+    let (mut features, corrections) = fit_keys(x, req, i, mean, std, &layout, fit.keyframes);
+    let d = layout.dim();
+    let mut feet = LockReport::default();
+    if fit.foot_lock {
+        let (n, len) = (req.frames, req.lengths[i]);
+        let hold: Vec<bool> = (0..len).map(|f| req.mask[(i * n + f) * d..(i * n + f + 1) * d].iter().any(|&m| m > 0.0)).collect();
+        feet = footlock::lock_feet(skel, &mut features, &hold, footlock::BLEND);
+    }
+    Fitted { features, corrections, feet }
+}
+
+fn fit_keys(x: &[f32], req: &Request, i: usize, mean: &[f32], std: &[f32], layout: &Layout, fit: KeyframeFit) -> (Vec<f32>, Vec<Correction>) {
     let (n, d, r) = (req.frames, req.dim, ROOT_CHANNELS);
     let len = req.lengths[i];
     let span = |v: &[f32], w: usize| v[i * n * w..(i * n + len) * w].to_vec();

@@ -1,9 +1,8 @@
 //! Sampling: guidance identities, exact keyframes, determinism (tiny random-weight model).
 
 use burn::prelude::*;
-use diffkfc_data::representation::Layout;
 use diffkfc_model::diffusion::Schedule;
-use diffkfc_model::fit::{finish, KeyframeFit};
+use diffkfc_model::fit::{finish, Fit, KeyframeFit};
 use diffkfc_model::sampler::{sample, timesteps, Options, Request, Sampler};
 use diffkfc_model::DiffKfcConfig;
 
@@ -52,10 +51,17 @@ fn guidance_identities_and_exact_keyframes() {
     let req = request();
     assert!(a[20 * 263..24 * 263].iter().all(|&v| v == 0.0));
     let (mean, std) = (vec![0.1f32; 263], vec![0.5f32; 263]);
-    let layout = Layout::of(&diffkfc_data::T2M);
     for fit in [KeyframeFit::Paste, KeyframeFit::Warp] {
         for i in 0..2 {
-            let (f, corr) = finish(&a, &req, i, &mean, &std, &layout, fit);
+            let done = finish(&a, &req, i, &mean, &std, &diffkfc_data::T2M, Fit { keyframes: fit, foot_lock: false });
+            let (f, corr) = (done.features, done.corrections);
+            // Foot locking leaves the keyed frames as the fit made them.
+            let locked = finish(&a, &req, i, &mean, &std, &diffkfc_data::T2M, Fit { keyframes: fit, foot_lock: true }).features;
+            for (k, (x, y)) in f.iter().zip(&locked).enumerate() {
+                if req.mask[i * 24 * 263 + k] > 0.0 {
+                    assert_eq!(x, y, "{fit:?} sample {i} element {k}");
+                }
+            }
             assert_eq!(f.len(), req.lengths[i] * 263);
             assert_eq!(corr.len(), if i == 0 { 3 } else { 1 }, "{fit:?}");
             for (k, &v) in f.iter().enumerate() {

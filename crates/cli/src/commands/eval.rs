@@ -14,11 +14,11 @@ use diffkfc_eval::report;
 use diffkfc_eval::text_motion::Gaussian;
 use diffkfc_eval::train_evaluator::{embed_split, EvaluatorTraining};
 use diffkfc_model::diffusion::Schedule;
-use diffkfc_model::fit::KeyframeFit;
+use diffkfc_model::sampler;
 use diffkfc_model::trainer::load_for_inference;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use super::sample::{KeyframeMode, SamplerArg};
+use super::sample::{FitArgs, KeyframeMode, SamplerArg};
 
 pub const AFTER_HELP: &str = "\
 Examples:
@@ -70,7 +70,7 @@ struct RunArgs {
     #[arg(long, value_enum, default_value = "diffkfc")]
     keyframe_mode: KeyframeMode,
     /// Transition guidance strength r (0 = off; the paper: 100).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = sampler::DEFAULT_TRANSITION)]
     transition_guidance: f64,
     /// Keyframe guidance scale s (1 = the keyframe branch alone; the paper: 2.5).
     #[arg(long, default_value_t = 1.0)]
@@ -78,7 +78,7 @@ struct RunArgs {
     #[arg(long, value_enum, default_value = "ddim")]
     sampler: SamplerArg,
     /// DDIM steps (DDPM runs every step of the schedule).
-    #[arg(long, default_value_t = 50)]
+    #[arg(long, default_value_t = sampler::DEFAULT_STEPS)]
     steps: usize,
     /// Generations per item for ADE (the minimum over them is kept).
     #[arg(long, default_value_t = 10)]
@@ -94,13 +94,8 @@ struct RunArgs {
     /// Table 4: run the main setting at each of these keyframe rates (e.g. 0,0.02,0.05,0.1).
     #[arg(long)]
     sweep_rates: Option<String>,
-    /// How generated motions meet their keyframes after the last step: warp, paste or none
-    /// (see `diffkfc sample --help`).
-    #[arg(long, default_value = "warp", value_name = "warp|paste|none")]
-    keyframe_fit: KeyframeFit,
-    /// Same as --keyframe-fit none (kept for older scripts).
-    #[arg(long, hide = true)]
-    no_snap: bool,
+    #[command(flatten)]
+    fit: FitArgs,
     /// Keyframes observe their pose only, not their place on the ground and their heading.
     #[arg(long)]
     no_root_keys: bool,
@@ -261,7 +256,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
         multimodality: if a.multimodality { a.mm_texts } else { 0 },
         sampler,
         kf_guidance: a.kf_guidance,
-        fit: if a.no_snap { KeyframeFit::None } else { a.keyframe_fit },
+        fit: a.fit.fit(),
         root_keys: !a.no_root_keys,
         strategy,
         batch: a.batch_size,
@@ -288,11 +283,11 @@ fn evaluate(a: RunArgs) -> Result<()> {
         "checkpoint": run_dir.display().to_string(), "checkpoint_step": step, "evaluator": eval_dir.display().to_string(),
         "data": data.display().to_string(), "split": a.split, "replications": a.replications, "num_items": num_items,
         "samples_for_ade": a.samples_for_ade, "sampler": format!("{sampler:?}"), "kf_guidance": a.kf_guidance,
-        "keyframe_strategy": a.keyframe_strategy, "keyframe_fit": if a.no_snap { KeyframeFit::None } else { a.keyframe_fit }, "root_keys": !a.no_root_keys, "multimodality_texts": if a.multimodality { a.mm_texts } else { 0 },
+        "keyframe_strategy": a.keyframe_strategy, "keyframe_fit": a.fit.fit().keyframes, "foot_lock": a.fit.fit().foot_lock, "root_keys": !a.no_root_keys, "multimodality_texts": if a.multimodality { a.mm_texts } else { 0 },
         "seed": a.seed, "seconds": secs, "reference_motions": real.len(),
     });
     let header = format!(
-        "Checkpoint `{}` (step {step}), evaluator `{}`, split `{}` of `{}`: {} replication(s) x {num_items} items, {sampler:?}, keyframe guidance {}, {} keyframes, ADE over {} sample(s), keyframe fit {:?}, root keyframes {}; {:.0} s.",
+        "Checkpoint `{}` (step {step}), evaluator `{}`, split `{}` of `{}`: {} replication(s) x {num_items} items, {sampler:?}, keyframe guidance {}, {} keyframes, ADE over {} sample(s), keyframe fit {:?}, foot lock {}, root keyframes {}; {:.0} s.",
         run_dir.display(),
         eval_dir.display(),
         a.split,
@@ -301,7 +296,8 @@ fn evaluate(a: RunArgs) -> Result<()> {
         a.kf_guidance,
         a.keyframe_strategy,
         a.samples_for_ade,
-        if a.no_snap { KeyframeFit::None } else { a.keyframe_fit },
+        a.fit.fit().keyframes,
+        if a.fit.fit().foot_lock { "on" } else { "off" },
         if a.no_root_keys { "off" } else { "on" },
         secs
     );

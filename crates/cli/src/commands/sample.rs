@@ -11,11 +11,37 @@ use diffkfc_data::warp::{self, RootKey, ROOT_CHANNELS};
 use diffkfc_data::{npy, pose, render, representation as rep, T2M};
 use diffkfc_eval::keyframe_metrics::{k_err_global, k_err_local, k_trans};
 use diffkfc_model::diffusion::Schedule;
-use diffkfc_model::fit::{finish, KeyframeFit};
+use diffkfc_model::fit::{finish, Fit, KeyframeFit};
 use diffkfc_model::sampler::{self, Options, Request, Sampler};
 use diffkfc_model::text::{self, minilm::MiniLm, TextEncoder};
 use diffkfc_model::trainer::load_for_inference;
 use serde_json::json;
+
+/// What follows the last denoising step (shared by `sample` and `eval`).
+#[derive(Args, Clone, Debug)]
+pub(crate) struct FitArgs {
+    /// How the motion meets its keyframes after the last step: warp (the residual at each key
+    /// spread smoothly over its neighbours and the root re-integrated to the keyed places and
+    /// headings: exact, no seam), paste (observed features written into the key frames alone:
+    /// the pose jumps there), none (the network's output as it is).
+    #[arg(long, default_value = "warp", value_name = "warp|paste|none")]
+    keyframe_fit: KeyframeFit,
+    /// Same as --keyframe-fit none (kept for older scripts).
+    #[arg(long, hide = true)]
+    no_snap: bool,
+    /// Leave planted feet where the network put them. By default a foot whose toe the motion
+    /// labels as in contact is held still on the ground (its leg re-solved by two-bone IK,
+    /// fading in and out over 4 frames; pose keyframes and the root untouched): generated walks
+    /// otherwise slide their feet.
+    #[arg(long)]
+    no_foot_lock: bool,
+}
+
+impl FitArgs {
+    pub(crate) fn fit(&self) -> Fit {
+        Fit { keyframes: if self.no_snap { KeyframeFit::None } else { self.keyframe_fit }, foot_lock: !self.no_foot_lock }
+    }
+}
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 enum TgModeArg {
@@ -103,16 +129,16 @@ pub struct SampleArgs {
     #[arg(long, value_enum, default_value = "ddim")]
     sampler: SamplerArg,
     /// DDIM steps (DDPM always runs every step of the schedule).
-    #[arg(long, default_value_t = 50)]
+    #[arg(long, default_value_t = sampler::DEFAULT_STEPS)]
     steps: usize,
     /// Keyframe guidance scale s: X(C, none) + s (X(C, kf) - X(C, none)); 1 = the keyframe
     /// branch alone (the default: measured better than the paper's 2.5 with DDIM-50, see README).
     #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     kf_guidance: f64,
     /// Transition guidance strength r (paper Eq. 4-5): each reverse step is nudged to make the
-    /// window around every keyframe smooth in the DCT sense; 0 = off (the default: with DDIM-50
-    /// the paper's 100 measured worse on every metric, see README).
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    /// window around every keyframe smooth in the DCT sense; 0 = off. The default 10 lowers
+    /// K-TranS at equal FID; the paper's 100 doubles FID here (see README).
+    #[arg(long, default_value_t = sampler::DEFAULT_TRANSITION, allow_negative_numbers = true)]
     transition_guidance: f64,
     /// Half window l of transition guidance (frames on each side of a keyframe).
     #[arg(long, default_value_t = 2)]
@@ -126,15 +152,8 @@ pub struct SampleArgs {
     /// Which method generates: the trained keyframe branch, or the MDM-inp baseline.
     #[arg(long, value_enum, default_value = "diffkfc")]
     keyframe_mode: KeyframeMode,
-    /// How the motion meets its keyframes after the last step: warp (the residual at each key
-    /// spread smoothly over its neighbours and the root re-integrated to the keyed places and
-    /// headings: exact, no seam), paste (observed features written into the key frames alone:
-    /// the pose jumps there), none (the network's output as it is).
-    #[arg(long, default_value = "warp", value_name = "warp|paste|none")]
-    pub(crate) keyframe_fit: KeyframeFit,
-    /// Same as --keyframe-fit none (kept for older scripts).
-    #[arg(long, hide = true)]
-    pub(crate) no_snap: bool,
+    #[command(flatten)]
+    pub(crate) fit: FitArgs,
     /// Keyframes from --from observe their pose only, not their place on the ground and their
     /// heading.
     #[arg(long)]
@@ -489,12 +508,11 @@ fn run_one(a: SampleArgs) -> Result<()> {
     let x = sampler::sample(&model, &schedule, &req, &opts, crate::progress::bar("denoising"));
     let secs = t0.elapsed().as_secs_f64();
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    let fit = if a.no_snap { KeyframeFit::None } else { a.keyframe_fit };
-    let layout = rep::Layout::of(&T2M);
+    let fit = a.fit.fit();
     // Every sample is checked before any file is written: a diverged sampler (extreme guidance)
     // gives an error, not NaN files with exit 0.
-    let fitted: Vec<_> = (0..b).map(|i| finish(&x, &req, i, &mean, &std, &layout, fit)).collect();
-    for (i, (f, _)) in fitted.iter().enumerate() {
+    let fitted: Vec<_> = (0..b).map(|i| finish(&x, &req, i, &mean, &std, &T2M, fit)).collect();
+    for (i, f) in fitted.iter().map(|s| &s.features).enumerate() {
         let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
         if let Err(e) = render::check_drawable(&j).map_err(|e| e.to_string()).and(f.iter().all(|v| v.is_finite()).then_some(()).ok_or_else(|| "features not finite".to_string())) {
             bail!("sample {i} diverged ({e}); lower --kf-guidance ({}) or --transition-guidance ({})", a.kf_guidance, a.transition_guidance);
@@ -502,7 +520,8 @@ fn run_one(a: SampleArgs) -> Result<()> {
     }
     remove_stale_samples(&a.out, b)?;
     let mut samples = Vec::new();
-    for (i, (f, corrections)) in fitted.into_iter().enumerate() {
+    for (i, done) in fitted.into_iter().enumerate() {
+        let (f, corrections) = (done.features, done.corrections);
         let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
         let name = format!("sample_{i:02}");
         let stem = a.out.join(&name);
@@ -520,6 +539,7 @@ fn run_one(a: SampleArgs) -> Result<()> {
             "k_trans": k_trans(&j, &keys.frames, 2),
             "foot_skating": diffkfc_data::plausibility::foot_skating_ratio(&T2M, &j),
             "corrections": corrections,
+            "foot_lock": fit.foot_lock.then_some(&done.feet),
         }));
     }
     let report = json!({
@@ -533,7 +553,8 @@ fn run_one(a: SampleArgs) -> Result<()> {
         "sampler": format!("{:?}", opts.sampler),
         "kf_guidance": opts.kf_guidance,
         "transition_guidance": opts.transition,
-        "keyframe_fit": fit,
+        "keyframe_fit": fit.keyframes,
+        "foot_lock": fit.foot_lock,
         "root_keys": keys.root.iter().enumerate().filter(|(_, k)| **k != RootKey::default()).map(|(f, k)| json!({"frame": f, "place": k.place, "heading_deg": k.heading.map(f64::to_degrees)})).collect::<Vec<_>>(),
         "keyframe_mode": format!("{:?}", a.keyframe_mode).to_lowercase(),
         "tg_mode": format!("{:?}", a.tg_mode).to_lowercase(),
@@ -553,13 +574,18 @@ fn run_one(a: SampleArgs) -> Result<()> {
         let fit_note = match (most("pose"), most("place_m"), most("heading_deg")) {
             (None, None, None) => String::new(),
             (p, m, h) => format!(
-                "; largest {fit:?} correction: pose {}, place {} m, heading {} deg",
+                "; largest {:?} correction: pose {}, place {} m, heading {} deg",
+                fit.keyframes,
                 p.map_or("-".into(), |v| format!("{v:.3}")),
                 m.map_or("-".into(), |v| format!("{v:.3}")),
                 h.map_or("-".into(), |v| format!("{v:.1}"))
             ),
         };
-        println!("  sample_{i:02}: {}, K-TranS {}, foot skating {}{fit_note}", k_err_text(s), fmt(&s["k_trans"]), fmt(&s["foot_skating"]));
+        let lock_note = match s["foot_lock"]["frames"].as_u64() {
+            Some(frames) => format!("; foot lock moved {frames} frame(s) (left {} dragged span(s))", s["foot_lock"]["dragged"]),
+            None => String::new(),
+        };
+        println!("  sample_{i:02}: {}, K-TranS {}, foot skating {}{fit_note}{lock_note}", k_err_text(s), fmt(&s["k_trans"]), fmt(&s["foot_skating"]));
     }
     Ok(())
 }
