@@ -83,30 +83,22 @@ if r:
         title = f"Real motion ({n} items)" if row["real"] else f"{row['name']} @ {row['keyframe_rate'] * 100:g}%"
         rows.append((title, row, "-"))
     table(rows, "row")
-steps = []
-for name, label in [("ddim5", "DDIM-5"), ("ddim10", "DDIM-10 (default)"), ("ddim20", "DDIM-20"), ("ddim50", "DDIM-50"), ("ddim10-32", "DDIM-10 (32 items)"), ("ddpm1000-32", "DDPM-1000 (32 items)")]:
-    rr = report(name)
-    if rr:
-        gen = next(x for x in rr["rows"] if not x["real"])
-        n = rr["meta"]["num_items"] * rr["meta"]["replications"] * max(1, rr["meta"]["samples_for_ade"])
-        steps.append((label, gen, f"{rr['meta']['seconds'] / n:.3f}"))
-if steps:
-    print("Sampling steps (defaults s = 1, r = 10, warp, foot lock, 5% keyframes; one replication):\n")
-    table(steps, "sampler")
-guid = []
-for name, label in [("s1-r10-half", "s = 1, r = 10 (default)"), ("s1-r0-half", "s = 1, r = 0"), ("s1-r30-half", "s = 1, r = 30"), ("s1-r100-half", "s = 1, r = 100"), ("s2.5-r0", "s = 2.5, r = 0"), ("s2.5-r100", "s = 2.5, r = 100 (paper)")]:
-    rr = report(name)
-    if rr:
-        guid.append((label, next(x for x in rr["rows"] if not x["real"]), "-"))
-if guid:
-    print("Keyframe guidance s and transition guidance r (DDIM-10, 5% keyframes, warp, foot lock):\n")
-    table(guid, "guidance")
-post = []
-for name, label in [("ddim10", "warp + foot lock (default)"), ("no-foot-lock", "warp"), ("fit-none", "none (the network's output)")]:
-    rr = report(name)
-    if rr:
-        post.append((label, next(x for x in rr["rows"] if not x["real"]), "-"))
-if post:
-    print("After the last step (DDIM-10, 5% keyframes; one replication):\n")
-    table(post, "fit")
+def section(title, label, runs, timed=False):
+    """One table of single-setting reports: (report name, row label) pairs, in order."""
+    rows = []
+    for name, text in runs:
+        rr = report(name)
+        if rr:
+            gen = next(x for x in rr["rows"] if not x["real"])
+            n = rr["meta"]["num_items"] * rr["meta"]["replications"] * max(1, rr["meta"]["samples_for_ade"])
+            rows.append((text, gen, f"{rr['meta']['seconds'] / n:.3f}" if timed else "-"))
+    if rows:
+        print(title + "\n")
+        table(rows, label)
+section("Sampling steps (defaults s = 1, r = 10, warp, foot lock, 5% keyframes; one replication):", "sampler",
+        [("ddim5", "DDIM-5"), ("ddim10", "DDIM-10 (default)"), ("ddim20", "DDIM-20"), ("ddim50", "DDIM-50"), ("ddim10-32", "DDIM-10 (32 items)"), ("ddpm1000-32", "DDPM-1000 (32 items)")], timed=True)
+section("Keyframe guidance s and transition guidance r (DDIM-10, 5% keyframes, warp, foot lock):", "guidance",
+        [("s1-r10-half", "s = 1, r = 10 (default)"), ("s1-r0-half", "s = 1, r = 0"), ("s1-r30-half", "s = 1, r = 30"), ("s1-r100-half", "s = 1, r = 100"), ("s2.5-r0", "s = 2.5, r = 0"), ("s2.5-r100", "s = 2.5, r = 100 (paper)")])
+section("After the last step (DDIM-10, 5% keyframes; one replication):", "fit",
+        [("ddim10", "warp + foot lock (default)"), ("no-foot-lock", "warp"), ("fit-none", "none (the network's output)")])
 PY

@@ -15,6 +15,7 @@ use diffkfc_data::rng::Rng;
 use diffkfc_data::warp::{self, ROOT_CHANNELS};
 use diffkfc_model::diffusion::Schedule;
 use diffkfc_model::fit::{finish, Fit};
+use diffkfc_model::place::PlaceGuidance;
 use diffkfc_model::sampler::{self, Request, Sampler, TgMode};
 use diffkfc_model::text::cache::EmbeddingCache;
 use diffkfc_model::Denoiser;
@@ -56,6 +57,8 @@ pub struct Options {
     pub fit: Fit,
     /// Keyframes observe their root place and heading as well as their pose.
     pub root_keys: bool,
+    /// Place guidance strength (0 = off).
+    pub place_guidance: f64,
     pub strategy: Strategy,
     /// Generated motions per denoiser batch (keyframe guidance doubles it).
     pub batch: usize,
@@ -215,6 +218,7 @@ impl Protocol<'_> {
                 seed: Rng::derive(seed, 7, c as u64).next_u64(),
                 tg_mode: TgMode::X0,
                 inpaint: s.inpaint,
+                place: (self.opts.place_guidance > 0.0).then(|| PlaceGuidance::new(self.opts.place_guidance, self.mean, self.std)),
                 ..Default::default()
             };
             let x = sampler::sample(self.model, self.schedule, &req, &opts, |_, _| tick());

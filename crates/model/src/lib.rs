@@ -21,6 +21,7 @@ pub mod losses;
 pub mod memory;
 pub mod optim;
 pub mod params;
+pub mod place;
 pub mod run_config;
 pub mod sampler;
 pub mod temporal;

@@ -72,6 +72,9 @@ struct RunArgs {
     /// Transition guidance strength r (0 = off; the paper: 100).
     #[arg(long, default_value_t = sampler::DEFAULT_TRANSITION)]
     transition_guidance: f64,
+    /// Place guidance strength (see `diffkfc sample --help`; 0 = off).
+    #[arg(long, default_value_t = 0.0)]
+    place_guidance: f64,
     /// Keyframe guidance scale s (1 = the keyframe branch alone; the paper: 2.5).
     #[arg(long, default_value_t = 1.0)]
     kf_guidance: f64,
@@ -257,6 +260,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
         sampler,
         kf_guidance: a.kf_guidance,
         fit: a.fit.fit(),
+        place_guidance: a.place_guidance,
         root_keys: !a.no_root_keys,
         strategy,
         batch: a.batch_size,
@@ -282,7 +286,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
     let meta = serde_json::json!({
         "checkpoint": run_dir.display().to_string(), "checkpoint_step": step, "evaluator": eval_dir.display().to_string(),
         "data": data.display().to_string(), "split": a.split, "replications": a.replications, "num_items": num_items,
-        "samples_for_ade": a.samples_for_ade, "sampler": format!("{sampler:?}"), "kf_guidance": a.kf_guidance,
+        "samples_for_ade": a.samples_for_ade, "sampler": format!("{sampler:?}"), "kf_guidance": a.kf_guidance, "place_guidance": a.place_guidance,
         "keyframe_strategy": a.keyframe_strategy, "keyframe_fit": a.fit.fit().keyframes, "foot_lock": a.fit.fit().foot_lock, "root_keys": !a.no_root_keys, "multimodality_texts": if a.multimodality { a.mm_texts } else { 0 },
         "seed": a.seed, "seconds": secs, "reference_motions": real.len(),
     });

@@ -12,6 +12,7 @@ use diffkfc_data::{npy, pose, render, representation as rep, T2M};
 use diffkfc_eval::keyframe_metrics::{k_err_global, k_err_local, k_trans};
 use diffkfc_model::diffusion::Schedule;
 use diffkfc_model::fit::{finish, Fit, KeyframeFit};
+use diffkfc_model::place::PlaceGuidance;
 use diffkfc_model::sampler::{self, Options, Request, Sampler};
 use diffkfc_model::text::{self, minilm::MiniLm, TextEncoder};
 use diffkfc_model::trainer::load_for_inference;
@@ -140,6 +141,10 @@ pub struct SampleArgs {
     /// K-TranS at equal FID; the paper's 100 doubles FID here (see README).
     #[arg(long, default_value_t = sampler::DEFAULT_TRANSITION, allow_negative_numbers = true)]
     transition_guidance: f64,
+    /// Place guidance strength: each reverse step pulls the root path of the predicted motion
+    /// towards the keyed places (root keyframes only); 0 = off.
+    #[arg(long, default_value_t = 0.0)]
+    place_guidance: f64,
     /// Half window l of transition guidance (frames on each side of a keyframe).
     #[arg(long, default_value_t = 2)]
     tg_window: usize,
@@ -410,6 +415,9 @@ fn check_flags(a: &SampleArgs) -> Result<()> {
     if !(a.kf_guidance.is_finite() && (0.0..=MAX_GUIDANCE).contains(&a.kf_guidance)) {
         bail!("--kf-guidance: {} must be a number from 0 to {MAX_GUIDANCE} (1 = no guidance, 2.5 = the paper)", a.kf_guidance);
     }
+    if !(a.place_guidance.is_finite() && (0.0..=MAX_TRANSITION).contains(&a.place_guidance)) {
+        bail!("--place-guidance: {} must be a number from 0 to {MAX_TRANSITION}", a.place_guidance);
+    }
     if !(a.transition_guidance.is_finite() && (0.0..=MAX_TRANSITION).contains(&a.transition_guidance)) {
         bail!("--transition-guidance: {} must be a number from 0 to {MAX_TRANSITION} (100 = the paper)", a.transition_guidance);
     }
@@ -503,6 +511,7 @@ fn run_one(a: SampleArgs) -> Result<()> {
             TgModeArg::Exact => sampler::TgMode::Exact,
         },
         inpaint: matches!(a.keyframe_mode, KeyframeMode::Inpaint),
+        place: (a.place_guidance > 0.0).then(|| PlaceGuidance::new(a.place_guidance, &mean, &std)),
     };
     let t0 = std::time::Instant::now();
     let x = sampler::sample(&model, &schedule, &req, &opts, crate::progress::bar("denoising"));
