@@ -218,6 +218,8 @@ fn sample_outputs_errors_and_determinism() {
     run_err(&["--kf-guidance", "inf"], &["--kf-guidance", "inf"]);
     run_err(&["--kf-guidance", "nan"], &["--kf-guidance", "NaN"]);
     run_err(&["--transition-guidance", "1e30"], &["--transition-guidance"]);
+    run_err(&["--place-guidance", "1e30"], &["--place-guidance"]);
+    run_err(&["--place-guidance", "-2"], &["--place-guidance", "-2"]);
     for steps in ["0", "100000"] {
         assert_one_line_error(&diffkfc(&["sample", "--checkpoint", s(&run), "--text", "walk", "--steps", steps, "--out", s(&out3)]), &["--steps", steps]);
     }

@@ -143,7 +143,7 @@ pub struct SampleArgs {
     transition_guidance: f64,
     /// Place guidance strength: each reverse step pulls the root path of the predicted motion
     /// towards the keyed places (root keyframes only); 0 = off.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     place_guidance: f64,
     /// Half window l of transition guidance (frames on each side of a keyframe).
     #[arg(long, default_value_t = 2)]
