@@ -65,11 +65,10 @@ pub struct Fitted {
 pub fn finish(x: &[f32], req: &Request, i: usize, mean: &[f32], std: &[f32], skel: &Skeleton, fit: Fit) -> Fitted {
     let layout = Layout::of(skel);
     let (mut features, corrections) = fit_keys(x, req, i, mean, std, &layout, fit.keyframes);
-    let d = layout.dim();
     let mut feet = LockReport::default();
     if fit.foot_lock {
-        let (n, len) = (req.frames, req.lengths[i]);
-        let hold: Vec<bool> = (0..len).map(|f| req.mask[(i * n + f) * d..(i * n + f + 1) * d].iter().any(|&m| m > 0.0)).collect();
+        let mut hold = vec![false; req.lengths[i]];
+        req.key_frames(i).into_iter().for_each(|f| hold[f] = true);
         feet = footlock::lock_feet(skel, &mut features, &hold, footlock::BLEND);
     }
     Fitted { features, corrections, feet }

@@ -35,7 +35,12 @@ impl PlaceGuidance {
             return (0.0, grad);
         }
         // The root channels de-normalised; row 3 (height) does not enter the path.
-        let feats: Vec<f64> = (0..len).flat_map(|f| (0..4).map(move |c| (c, f))).map(|(c, f)| if c < 3 { (x0[f * dim + c] * self.std[c] + self.mean[c]) as f64 } else { 0.0 }).collect();
+        let mut feats = vec![0f64; len * 4];
+        for f in 0..len {
+            for c in 0..3 {
+                feats[f * 4 + c] = (x0[f * dim + c] * self.std[c] + self.mean[c]) as f64;
+            }
+        }
         let (q, pos) = recover_root_rot_pos(&feats, 4);
         let k = keys.len() as f64;
         let mut loss = 0.0;

@@ -23,7 +23,7 @@ pub enum Sampler {
 
 /// DDIM steps by default: the fewest whose metrics on the reference model are within 5% of
 /// DDIM-50's (README, "Reference model": DDIM-10 matches or beats DDIM-50 on every metric but
-/// foot skating, +4%; DDIM-5 adds 7% foot skating).
+/// foot skating, +2%; DDIM-5 adds 6.5% foot skating).
 pub const DEFAULT_STEPS: usize = 10;
 
 /// Transition guidance strength r by default. The paper's 100 overshoots here (its loss is a sum
@@ -107,7 +107,7 @@ impl Request {
     }
 
     /// Frames of sample `b` whose pose (any feature) is observed.
-    fn key_frames(&self, b: usize) -> Vec<usize> {
+    pub(crate) fn key_frames(&self, b: usize) -> Vec<usize> {
         let (n, d) = (self.frames, self.dim);
         (0..self.lengths[b]).filter(|&f| self.mask[(b * n + f) * d..(b * n + f + 1) * d].iter().any(|&m| m > 0.0)).collect()
     }

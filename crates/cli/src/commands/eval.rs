@@ -252,6 +252,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
     let schedule = Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps)
         .with_context(|| format!("{}: unknown diffusion schedule '{}' in the checkpoint's config (cosine, linear)", run_dir.display(), cfg.diffusion.schedule))?;
     let sampler = a.sampler.sampler(a.steps);
+    let fit = a.fit.fit();
     let opts = protocol::Options {
         replications: a.replications,
         num_items,
@@ -259,7 +260,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
         multimodality: if a.multimodality { a.mm_texts } else { 0 },
         sampler,
         kf_guidance: a.kf_guidance,
-        fit: a.fit.fit(),
+        fit,
         place_guidance: a.place_guidance,
         root_keys: !a.no_root_keys,
         strategy,
@@ -287,7 +288,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
         "checkpoint": run_dir.display().to_string(), "checkpoint_step": step, "evaluator": eval_dir.display().to_string(),
         "data": data.display().to_string(), "split": a.split, "replications": a.replications, "num_items": num_items,
         "samples_for_ade": a.samples_for_ade, "sampler": format!("{sampler:?}"), "kf_guidance": a.kf_guidance, "place_guidance": a.place_guidance,
-        "keyframe_strategy": a.keyframe_strategy, "keyframe_fit": a.fit.fit().keyframes, "foot_lock": a.fit.fit().foot_lock, "root_keys": !a.no_root_keys, "multimodality_texts": if a.multimodality { a.mm_texts } else { 0 },
+        "keyframe_strategy": a.keyframe_strategy, "keyframe_fit": fit.keyframes, "foot_lock": fit.foot_lock, "root_keys": !a.no_root_keys, "multimodality_texts": if a.multimodality { a.mm_texts } else { 0 },
         "seed": a.seed, "seconds": secs, "reference_motions": real.len(),
     });
     let header = format!(
@@ -300,8 +301,8 @@ fn evaluate(a: RunArgs) -> Result<()> {
         a.kf_guidance,
         a.keyframe_strategy,
         a.samples_for_ade,
-        a.fit.fit().keyframes,
-        if a.fit.fit().foot_lock { "on" } else { "off" },
+        fit.keyframes,
+        if fit.foot_lock { "on" } else { "off" },
         if a.no_root_keys { "off" } else { "on" },
         secs
     );
