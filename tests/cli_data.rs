@@ -175,6 +175,7 @@ fn version_and_help_with_examples() {
         vec!["data", "--help"],
         vec!["data", "features", "--help"],
         vec!["data", "joints", "--help"],
+        vec!["data", "bvh", "--help"],
         vec!["data", "check", "--help"],
         vec!["data", "synth", "--help"],
         vec!["data", "bench-loader", "--help"],
@@ -183,6 +184,7 @@ fn version_and_help_with_examples() {
         vec!["sample", "--help"],
         vec!["model", "--help"],
         vec!["model", "summary", "--help"],
+        vec!["model", "export", "--help"],
         vec!["bench", "--help"],
         vec!["text-embed", "--help"],
         vec!["eval", "--help"],
@@ -193,5 +195,54 @@ fn version_and_help_with_examples() {
         assert!(o.status.success(), "{cmd:?}");
         let out = stdout(&o);
         assert!(out.contains("Example"), "{cmd:?} has no example:\n{out}");
+        // Every flag has a description: in the long help an option line is followed by its
+        // text, indented deeper (a bare option line is followed by a blank line).
+        let lines: Vec<&str> = out.lines().collect();
+        for (i, l) in lines.iter().enumerate() {
+            let t = l.trim_start();
+            if l.starts_with("  ") && (t.starts_with("--") || (t.starts_with('-') && t.chars().nth(2) == Some(','))) {
+                if t.split_once("  ").is_some_and(|(_, rest)| !rest.trim().is_empty() && !rest.trim().starts_with('[')) {
+                    continue; // short help: the text on the same line
+                }
+                let next = lines.get(i + 1).copied().unwrap_or("");
+                let indent = |x: &str| x.len() - x.trim_start().len();
+                assert!(!next.trim().is_empty() && indent(next) > indent(l) && !next.trim_start().starts_with('['), "{cmd:?}: {t} has no description");
+            }
+        }
     }
+}
+
+/// `data bvh` and `data joints` on BVH files: the rig round trip, a renamed joint named in the
+/// error and resolved by --rig-map, bad BVH flags.
+#[test]
+fn bvh_rig_round_trip_and_rig_map() {
+    let Some(real) = fixtures::require("humanml3d/new_joints/012314.npy") else {
+        return;
+    };
+    let d = scratch("bvh-rig");
+    let bvh = d.join("walk.bvh");
+    let o = diffkfc(&["data", "bvh", s(&real), "-o", s(&bvh)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("170 frames"), "{}", stdout(&o));
+    let back = d.join("back.npy");
+    let o = diffkfc(&["data", "joints", s(&bvh), "-o", s(&back)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (a, b) = (npy::read_f32(&real).unwrap(), npy::read_f32(&back).unwrap());
+    assert!(max_abs(&a.data, &b.data) < 1e-4);
+
+    let renamed = d.join("renamed.bvh");
+    std::fs::write(&renamed, std::fs::read_to_string(&bvh).unwrap().replace("JOINT LeftHand", "JOINT hand_L")).unwrap();
+    let o = diffkfc(&["data", "joints", s(&renamed), "-o", s(&d.join("x.npy"))]);
+    assert_one_line_error(&o, &["renamed.bvh", "l_wrist (LeftHand)", "--rig-map"]);
+    let map = d.join("map.json");
+    std::fs::write(&map, r#"{"LeftHand": "hand_L"}"#).unwrap();
+    let o = diffkfc(&["data", "joints", s(&renamed), "--rig-map", s(&map), "-o", s(&back)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(max_abs(&a.data, &npy::read_f32(&back).unwrap().data) < 1e-4);
+
+    std::fs::write(&map, r#"{"LeftHand": 3}"#).unwrap();
+    let o = diffkfc(&["data", "joints", s(&renamed), "--rig-map", s(&map), "-o", s(&back)]);
+    assert_one_line_error(&o, &["--rig-map", "map.json", "LeftHand"]);
+    let o = diffkfc(&["data", "joints", s(&bvh), "--bvh-units", "furlong", "-o", s(&back)]);
+    assert_one_line_error(&o, &["--bvh-units", "furlong"]);
 }

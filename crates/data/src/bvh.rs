@@ -1,239 +1,296 @@
-//! BVH export and import of joint-position motions on a skeleton, positions in centimetres.
-//!
-//! Rotations come from HumanML3D's inverse kinematics, whose local rotation of joint j turns the
-//! bone *ending* at j; BVH rotates the bones leaving a joint. Where a joint has one child the two
-//! agree after a shift along the chain; where it has several (the pelvis, spine3) each child gets
-//! a zero-length `<parent>_to_<child>` joint carrying that bone's rotation. The export
-//! reproduces the input positions exactly (up to float rounding; tested).
+//! The BVH format: a joint hierarchy with rest offsets, per-joint channels and frames of values.
+//! [`Bvh::parse`] reads any BVH (any channel order, position channels on any joint);
+//! [`Bvh::world_positions`] is plain BVH forward kinematics: a joint's position is its parent's
+//! plus the parent's global rotation applied to the joint's offset, and each joint's rotation is
+//! the product of its rotation channels in the order they are listed (Blender's reading).
+//! Mapping a file onto a skeleton, and fitting a skeleton's motion into a rig, live in `rig.rs`.
 
 use std::fmt::Write;
 
 use crate::quat::{self, Quat, Vec3};
-use crate::representation::{inverse_kinematics, Joints};
-use crate::skeleton::Skeleton;
 use crate::DataError;
 
-const CM: f64 = 100.0;
-
-/// A BVH node: a skeleton joint, or a zero-length joint before a child of a branching joint.
-struct Node {
-    name: String,
-    parent: Option<usize>,
-    offset: Vec3,
-    /// Which skeleton bone's global rotation this node carries (None: its parent's).
-    bone: Option<usize>,
-    end_site: bool,
+/// One channel of a joint.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Channel {
+    Position(usize),
+    Rotation(usize),
 }
 
-fn children(skel: &Skeleton, j: usize) -> Vec<usize> {
-    let p = skel.parents();
-    (0..skel.num_joints()).filter(|&c| p[c] == j as i64).collect()
-}
-
-fn nodes(skel: &Skeleton) -> Vec<Node> {
-    let offsets = skel.target_offsets().unwrap_or_else(|| skel.raw_offsets.to_vec());
-    let mut out = Vec::new();
-    fn add(skel: &Skeleton, offsets: &[Vec3], j: usize, parent: Option<usize>, out: &mut Vec<Node>) {
-        let kids = children(skel, j);
-        let idx = out.len();
-        let bone = match kids.len() {
-            1 => Some(kids[0]),
-            0 => None,
-            _ => (j == 0).then_some(0),
+impl Channel {
+    fn parse(s: &str) -> Option<Channel> {
+        let axis = match s.as_bytes().first()?.to_ascii_lowercase() {
+            b'x' => 0,
+            b'y' => 1,
+            b'z' => 2,
+            _ => return None,
         };
-        out.push(Node { name: skel.joint_names[j].to_string(), parent, offset: if parent.is_some() { offsets[j] } else { [0.0; 3] }, bone, end_site: kids.is_empty() });
-        if kids.len() > 1 {
-            for &c in &kids {
-                let d = out.len();
-                out.push(Node { name: format!("{}_to_{}", skel.joint_names[j], skel.joint_names[c]), parent: Some(idx), offset: [0.0; 3], bone: Some(c), end_site: false });
-                add(skel, offsets, c, Some(d), out);
-            }
-        } else {
-            for &c in &kids {
-                add(skel, offsets, c, Some(idx), out);
-            }
+        match s[1..].to_ascii_lowercase().as_str() {
+            "position" => Some(Channel::Position(axis)),
+            "rotation" => Some(Channel::Rotation(axis)),
+            _ => None,
         }
     }
-    add(skel, &offsets, 0, None, &mut out);
-    out
+
+    fn name(self) -> String {
+        let (a, kind) = match self {
+            Channel::Position(a) => (a, "position"),
+            Channel::Rotation(a) => (a, "rotation"),
+        };
+        format!("{}{kind}", ["X", "Y", "Z"][a])
+    }
 }
 
-/// Euler angles (degrees) for channels "Zrotation Yrotation Xrotation": R = Rz Ry Rx.
-fn zyx_degrees(q: Quat) -> [f64; 3] {
+/// A joint of the hierarchy (End Sites are kept as `end_site` of their joint).
+#[derive(Clone, Debug)]
+pub struct BvhJoint {
+    pub name: String,
+    pub parent: Option<usize>,
+    pub offset: Vec3,
+    pub channels: Vec<Channel>,
+    pub end_site: Option<Vec3>,
+}
+
+/// A whole BVH file: joints in file order (parents before children), frames of channel values.
+#[derive(Clone, Debug)]
+pub struct Bvh {
+    pub joints: Vec<BvhJoint>,
+    pub frame_time: f64,
+    pub frames: Vec<Vec<f64>>,
+}
+
+fn bad(m: impl std::fmt::Display) -> DataError {
+    DataError::Invalid(format!("BVH: {m}"))
+}
+
+/// Rotation of Euler angles (degrees) applied in the listed axis order: R = R(a0) R(a1) R(a2).
+pub fn euler_to_quat(axes: [usize; 3], deg: [f64; 3]) -> Quat {
+    let mut q = quat::IDENTITY;
+    for (a, d) in axes.iter().zip(deg) {
+        let mut axis = [0.0; 3];
+        axis[*a] = 1.0;
+        q = quat::qmul(q, quat::from_axis_angle(axis, d.to_radians()));
+    }
+    q
+}
+
+/// Euler angles (degrees) for channels "Zrotation Yrotation Xrotation" (R = Rz Ry Rx), the one
+/// of the two equivalent solutions (with whole turns added) nearest to `prev`, so that curves
+/// do not flip between frames.
+pub fn zyx_degrees(q: Quat, prev: Option<[f64; 3]>) -> [f64; 3] {
     let m = quat::to_matrix(q);
     let b = (-m[2][0]).clamp(-1.0, 1.0).asin();
     let (a, c) = if m[2][0].abs() < 1.0 - 1e-9 { (m[1][0].atan2(m[0][0]), m[2][1].atan2(m[2][2])) } else { ((-m[0][1]).atan2(m[1][1]), 0.0) };
-    [a.to_degrees(), b.to_degrees(), c.to_degrees()]
+    let first = [a.to_degrees(), b.to_degrees(), c.to_degrees()];
+    let Some(p) = prev else {
+        return first;
+    };
+    let second = [first[0] + 180.0, 180.0 - first[1], first[2] + 180.0];
+    let near = |v: [f64; 3]| v.iter().zip(p).map(|(x, p)| x + 360.0 * ((p - x) / 360.0).round()).collect::<Vec<_>>();
+    let (u, w) = (near(first), near(second));
+    let dist = |v: &[f64]| v.iter().zip(p).map(|(x, p)| (x - p).abs()).sum::<f64>();
+    let best = if dist(&u) <= dist(&w) { u } else { w };
+    [best[0], best[1], best[2]]
 }
 
-fn from_zyx_degrees(z: f64, y: f64, x: f64) -> Quat {
-    let qz = quat::from_axis_angle([0.0, 0.0, 1.0], z.to_radians());
-    let qy = quat::from_axis_angle([0.0, 1.0, 0.0], y.to_radians());
-    let qx = quat::from_axis_angle([1.0, 0.0, 0.0], x.to_radians());
-    quat::qmul(quat::qmul(qz, qy), qx)
-}
-
-/// BVH text of a motion (Y up, centimetres).
-pub fn write(skel: &Skeleton, j: &Joints) -> String {
-    let ns = nodes(skel);
-    let local = inverse_kinematics(skel, j, false);
-    let mut s = String::from("HIERARCHY\n");
-    fn hier(ns: &[Node], i: usize, depth: usize, s: &mut String) {
-        let ind = "  ".repeat(depth);
-        let kw = if depth == 0 { "ROOT" } else { "JOINT" };
-        let o = ns[i].offset;
-        let _ = writeln!(s, "{ind}{kw} {}\n{ind}{{\n{ind}  OFFSET {:.6} {:.6} {:.6}", ns[i].name, o[0] * CM, o[1] * CM, o[2] * CM);
-        let ch = if depth == 0 { "CHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation" } else { "CHANNELS 3 Zrotation Yrotation Xrotation" };
-        let _ = writeln!(s, "{ind}  {ch}");
-        for k in (0..ns.len()).filter(|&k| ns[k].parent == Some(i)) {
-            hier(ns, k, depth + 1, s);
+impl Bvh {
+    /// Parse BVH text; errors name what is wrong (and the frame, for values).
+    pub fn parse(text: &str) -> Result<Bvh, DataError> {
+        let (hier, motion) = text.split_once("MOTION").ok_or_else(|| bad("no MOTION section"))?;
+        let mut joints: Vec<BvhJoint> = Vec::new();
+        // Stack of open blocks: Some(joint) or None for an End Site.
+        let mut stack: Vec<Option<usize>> = Vec::new();
+        let (mut pending, mut in_end) = (None::<usize>, false);
+        let mut end_offset = [0.0; 3];
+        for line in hier.lines().map(str::trim) {
+            let mut it = line.split_whitespace();
+            match it.next() {
+                Some("ROOT") | Some("JOINT") => {
+                    let parent = stack.last().copied().flatten();
+                    if parent.is_none() && !joints.is_empty() {
+                        return Err(bad("a second ROOT (one skeleton per file is read)"));
+                    }
+                    let name = it.collect::<Vec<_>>().join(" ");
+                    if name.is_empty() {
+                        return Err(bad("joint without a name"));
+                    }
+                    joints.push(BvhJoint { name, parent, offset: [0.0; 3], channels: Vec::new(), end_site: None });
+                    pending = Some(joints.len() - 1);
+                }
+                Some("End") => in_end = true,
+                Some("{") => stack.push(if in_end { None } else { pending }),
+                Some("}") => match stack.pop() {
+                    Some(None) => {
+                        in_end = false;
+                        let k = stack.last().copied().flatten().ok_or_else(|| bad("End Site outside a joint"))?;
+                        joints[k].end_site = Some(end_offset);
+                    }
+                    Some(Some(_)) => {}
+                    None => return Err(bad("unbalanced '}'")),
+                },
+                Some("OFFSET") => {
+                    let v: Vec<f64> = it.map(|x| x.parse().map_err(|_| bad(format!("OFFSET value '{x}' is not a number")))).collect::<Result<_, _>>()?;
+                    if v.len() != 3 || v.iter().any(|x| !x.is_finite()) {
+                        return Err(bad("OFFSET needs three finite numbers"));
+                    }
+                    if in_end {
+                        end_offset = [v[0], v[1], v[2]];
+                    } else {
+                        let k = stack.last().copied().flatten().ok_or_else(|| bad("OFFSET outside a joint"))?;
+                        joints[k].offset = [v[0], v[1], v[2]];
+                    }
+                }
+                Some("CHANNELS") => {
+                    let k = stack.last().copied().flatten().ok_or_else(|| bad("CHANNELS outside a joint"))?;
+                    let n: usize = it.next().and_then(|n| n.parse().ok()).ok_or_else(|| bad("CHANNELS needs a count"))?;
+                    let ch: Vec<Channel> = it.map(|c| Channel::parse(c).ok_or_else(|| bad(format!("joint '{}': unknown channel '{c}'", joints[k].name)))).collect::<Result<_, _>>()?;
+                    if ch.len() != n {
+                        return Err(bad(format!("joint '{}': CHANNELS says {n} but lists {}", joints[k].name, ch.len())));
+                    }
+                    if ch.iter().filter(|c| matches!(c, Channel::Rotation(_))).count() % 3 != 0 || ch.len() > 6 {
+                        return Err(bad(format!("joint '{}': channels must be 3 rotations, optionally after 3 positions", joints[k].name)));
+                    }
+                    joints[k].channels = ch;
+                }
+                _ => {}
+            }
         }
-        if ns[i].end_site {
-            let _ = writeln!(s, "{ind}  End Site\n{ind}  {{\n{ind}    OFFSET 0.000000 0.000000 0.000000\n{ind}  }}");
+        if joints.is_empty() {
+            return Err(bad("no ROOT joint"));
+        }
+        if !stack.is_empty() {
+            return Err(bad("unclosed '{' in HIERARCHY"));
+        }
+        let mut frame_time = None;
+        let mut frames = Vec::new();
+        let per_frame: usize = joints.iter().map(|j| j.channels.len()).sum();
+        for line in motion.lines().map(str::trim).filter(|l| !l.is_empty()) {
+            if let Some(ft) = line.strip_prefix("Frame Time:") {
+                let ft: f64 = ft.trim().parse().map_err(|_| bad(format!("Frame Time '{}' is not a number", ft.trim())))?;
+                if !(ft.is_finite() && ft > 0.0) {
+                    return Err(bad(format!("Frame Time {ft} must be a positive number of seconds")));
+                }
+                frame_time = Some(ft);
+                continue;
+            }
+            if line.starts_with("Frames") {
+                continue;
+            }
+            let v: Vec<f64> = line.split_whitespace().map(|x| x.parse().map_err(|_| bad(format!("frame {}: '{x}' is not a number", frames.len())))).collect::<Result<_, _>>()?;
+            if v.len() != per_frame {
+                return Err(bad(format!("frame {} has {} values, the hierarchy's channels need {per_frame}", frames.len(), v.len())));
+            }
+            if v.iter().any(|x| !x.is_finite()) {
+                return Err(bad(format!("frame {} has a value that is not finite", frames.len())));
+            }
+            frames.push(v);
+        }
+        let frame_time = frame_time.ok_or_else(|| bad("no 'Frame Time:' line"))?;
+        Ok(Bvh { joints, frame_time, frames })
+    }
+
+    /// BVH text (six decimals).
+    pub fn to_text(&self) -> String {
+        let mut s = String::from("HIERARCHY\n");
+        self.write_joint(0, 0, &mut s);
+        let _ = writeln!(s, "MOTION\nFrames: {}\nFrame Time: {:.6}", self.frames.len(), self.frame_time);
+        for f in &self.frames {
+            let line: Vec<String> = f.iter().map(|v| format!("{v:.6}")).collect();
+            let _ = writeln!(s, "{}", line.join(" "));
+        }
+        s
+    }
+
+    fn write_joint(&self, i: usize, depth: usize, s: &mut String) {
+        let ind = "  ".repeat(depth);
+        let j = &self.joints[i];
+        let kw = if j.parent.is_none() { "ROOT" } else { "JOINT" };
+        let o = j.offset;
+        let _ = writeln!(s, "{ind}{kw} {}\n{ind}{{\n{ind}  OFFSET {:.6} {:.6} {:.6}", j.name, o[0], o[1], o[2]);
+        let ch: Vec<String> = j.channels.iter().map(|c| c.name()).collect();
+        let _ = writeln!(s, "{ind}  CHANNELS {} {}", ch.len(), ch.join(" "));
+        for k in (0..self.joints.len()).filter(|&k| self.joints[k].parent == Some(i)) {
+            self.write_joint(k, depth + 1, s);
+        }
+        if let Some(e) = j.end_site {
+            let _ = writeln!(s, "{ind}  End Site\n{ind}  {{\n{ind}    OFFSET {:.6} {:.6} {:.6}\n{ind}  }}", e[0], e[1], e[2]);
         }
         let _ = writeln!(s, "{ind}}}");
     }
-    hier(&ns, 0, 0, &mut s);
-    let _ = writeln!(s, "MOTION\nFrames: {}\nFrame Time: {:.6}", j.len(), 1.0 / skel.fps);
-    for (f, q) in local.iter().enumerate() {
-        // Global rotation of every bone: as HumanML3D's forward kinematics, each chain starts
-        // from the root rotation (not from its first joint's accumulated rotation).
-        let mut g = vec![quat::IDENTITY; skel.num_joints()];
-        g[0] = q[0];
-        for chain in skel.kinematic_chain {
-            let mut r = q[0];
-            for &c in &chain[1..] {
-                r = quat::qmul(r, q[c]);
-                g[c] = r;
-            }
-        }
-        let mut node_g = vec![quat::IDENTITY; ns.len()];
-        let mut row = Vec::new();
-        for (i, n) in ns.iter().enumerate() {
-            let pg = n.parent.map(|p| node_g[p]).unwrap_or(quat::IDENTITY);
-            node_g[i] = n.bone.map(|b| g[b]).unwrap_or(pg);
-            let l = quat::qmul(quat::qinv(pg), node_g[i]);
-            if i == 0 {
-                row.extend(j[f][0].iter().map(|v| v * CM));
-            }
-            row.extend(zyx_degrees(l));
-        }
-        let line: Vec<String> = row.iter().map(|v| format!("{v:.6}")).collect();
-        let _ = writeln!(s, "{}", line.join(" "));
-    }
-    s
-}
 
-/// Joint positions (metres) of a BVH written by [`write`] (joints found by name).
-pub fn read(skel: &Skeleton, text: &str) -> Result<Joints, DataError> {
-    let bad = |m: &str| DataError::Invalid(format!("BVH: {m}"));
-    let (hier, motion) = text.split_once("MOTION").ok_or_else(|| bad("no MOTION section"))?;
-    // Parse the hierarchy: names, parents, offsets, channel counts.
-    let (mut names, mut parents, mut offsets, mut chans) = (Vec::<String>::new(), Vec::<Option<usize>>::new(), Vec::<Vec3>::new(), Vec::<usize>::new());
-    let mut stack: Vec<Option<usize>> = Vec::new();
-    let mut pending: Option<usize> = None;
-    let mut in_end = false;
-    for line in hier.lines().map(str::trim) {
-        let mut it = line.split_whitespace();
-        match it.next() {
-            Some("ROOT") | Some("JOINT") => {
-                let parent = stack.last().copied().flatten();
-                names.push(it.next().ok_or_else(|| bad("joint without a name"))?.to_string());
-                parents.push(parent);
-                offsets.push([0.0; 3]);
-                chans.push(0);
-                pending = Some(names.len() - 1);
-            }
-            Some("End") => in_end = true,
-            Some("{") => stack.push(if in_end { None } else { pending }),
-            Some("}") => {
-                if stack.pop().flatten().is_none() {
-                    in_end = false;
+    /// Position of every joint at every frame, in the file's units and axes.
+    pub fn world_positions(&self) -> Vec<Vec<Vec3>> {
+        let n = self.joints.len();
+        self.frames
+            .iter()
+            .map(|v| {
+                let (mut pos, mut g) = (vec![[0.0; 3]; n], vec![quat::IDENTITY; n]);
+                let mut c = 0;
+                for (k, j) in self.joints.iter().enumerate() {
+                    let (pp, pg) = j.parent.map(|p| (pos[p], g[p])).unwrap_or(([0.0; 3], quat::IDENTITY));
+                    let mut local = j.offset;
+                    let (mut axes, mut deg, mut r) = ([0; 3], [0.0; 3], 0);
+                    for ch in &j.channels {
+                        match *ch {
+                            Channel::Position(a) => local[a] = v[c],
+                            Channel::Rotation(a) if r < 3 => {
+                                axes[r] = a;
+                                deg[r] = v[c];
+                                r += 1;
+                            }
+                            Channel::Rotation(_) => {}
+                        }
+                        c += 1;
+                    }
+                    pos[k] = quat::add(pp, quat::qrot(pg, local));
+                    g[k] = if r == 3 { quat::qmul(pg, euler_to_quat(axes, deg)) } else { pg };
                 }
-            }
-            Some("OFFSET") if !in_end => {
-                let v: Vec<f64> = it.map(|x| x.parse().map_err(|_| bad("bad OFFSET"))).collect::<Result<_, _>>()?;
-                if v.len() != 3 || v.iter().any(|x| !x.is_finite()) {
-                    return Err(bad("OFFSET needs three finite numbers"));
-                }
-                let k = stack.last().copied().flatten().ok_or_else(|| bad("OFFSET outside a joint"))?;
-                offsets[k] = [v[0] / CM, v[1] / CM, v[2] / CM];
-            }
-            Some("CHANNELS") => {
-                let k = stack.last().copied().flatten().ok_or_else(|| bad("CHANNELS outside a joint"))?;
-                chans[k] = it.next().and_then(|n| n.parse().ok()).ok_or_else(|| bad("bad CHANNELS"))?;
-            }
-            _ => {}
-        }
+                pos
+            })
+            .collect()
     }
-    if let Some(k) = chans.iter().position(|&c| c != 3 && c != 6) {
-        return Err(bad(&format!("joint '{}' has {} channels; this reader takes 3 (rotation) or 6 (position and rotation)", names[k], chans[k])));
-    }
-    let per_frame: usize = chans.iter().sum();
-    let index: Vec<usize> = skel.joint_names.iter().map(|n| names.iter().position(|m| m == n).ok_or_else(|| bad(&format!("joint '{n}' missing")))).collect::<Result<_, _>>()?;
-    if let Some(ft) = motion.lines().map(str::trim).find_map(|l| l.strip_prefix("Frame Time:")) {
-        let ft: f64 = ft.trim().parse().map_err(|_| bad(&format!("Frame Time '{}' is not a number", ft.trim())))?;
-        if !(ft.is_finite() && ft > 0.0) {
-            return Err(bad(&format!("Frame Time {ft} must be a positive number of seconds")));
-        }
-    }
-    let mut out = Vec::new();
-    for line in motion.lines().map(str::trim).filter(|l| !l.is_empty() && !l.starts_with("Frames") && !l.starts_with("Frame Time")) {
-        let v: Vec<f64> = line.split_whitespace().map(|x| x.parse().map_err(|_| bad("bad number in MOTION"))).collect::<Result<_, _>>()?;
-        if v.len() != per_frame {
-            return Err(bad(&format!("a frame has {} values, expected {per_frame}", v.len())));
-        }
-        if v.iter().any(|x| !x.is_finite()) {
-            return Err(bad("a frame has a value that is not finite"));
-        }
-        let (mut pos, mut g) = (vec![[0.0; 3]; names.len()], vec![quat::IDENTITY; names.len()]);
-        let mut c = 0;
-        for k in 0..names.len() {
-            let (pp, pg) = parents[k].map(|p| (pos[p], g[p])).unwrap_or(([0.0; 3], quat::IDENTITY));
-            if chans[k] == 6 {
-                pos[k] = [v[c] / CM, v[c + 1] / CM, v[c + 2] / CM];
-                c += 3;
-            } else {
-                pos[k] = quat::add(pp, quat::qrot(pg, offsets[k]));
-            }
-            g[k] = quat::qmul(pg, from_zyx_degrees(v[c], v[c + 1], v[c + 2]));
-            c += 3;
-        }
-        out.push(index.iter().map(|&k| pos[k]).collect());
-    }
-    Ok(out)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{fixtures, npy, representation as rep, T2M};
 
     #[test]
-    fn euler_round_trip() {
+    fn euler_round_trip_and_continuity() {
         let q = quat::from_axis_angle([0.3, -1.0, 0.4], 1.1);
-        let [z, y, x] = zyx_degrees(q);
-        let r = from_zyx_degrees(z, y, x);
+        let d = zyx_degrees(q, None);
+        let r = euler_to_quat([2, 1, 0], d);
         let v = [0.2, 0.5, -0.7];
         let (a, b) = (quat::qrot(q, v), quat::qrot(r, v));
         assert!((0..3).all(|k| (a[k] - b[k]).abs() < 1e-9));
+        // A half-turn about Z and a little more: the nearest solution to 179 degrees is 181, not -179.
+        let q = quat::from_axis_angle([0.0, 0.0, 1.0], 181f64.to_radians());
+        let d = zyx_degrees(q, Some([179.0, 0.0, 0.0]));
+        assert!((d[0] - 181.0).abs() < 1e-9 && d[1].abs() < 1e-9, "{d:?}");
+        let back = euler_to_quat([2, 1, 0], d);
+        assert!(quat::dot([back[1], back[2], back[3]], [q[1], q[2], q[3]]).abs() > 0.99);
     }
 
-    /// Real motion -> BVH -> positions: the same motion (on the target skeleton).
+    /// A hand-written two-bone file: the forearm turned 90 degrees about Z puts the hand on +Y.
     #[test]
-    fn round_trip_real_motion() {
-        let Some(p) = fixtures::require("humanml3d/new_joints/012314.npy") else {
-            return;
-        };
-        let a = npy::read_f64(p).unwrap();
-        let j = rep::joints_from_array(&a.data, 170, 22, 22);
-        // BVH carries the target skeleton's bone lengths; compare against the retargeted motion.
-        let j = rep::uniform_skeleton(&T2M, &j).unwrap();
-        let text = write(&T2M, &j);
-        assert!(text.contains("ROOT pelvis") && text.contains("JOINT pelvis_to_l_hip") && text.contains("Frames: 170"));
-        let back = read(&T2M, &text).unwrap();
-        let e = back.iter().flatten().zip(j.iter().flatten()).map(|(x, y)| quat::norm(quat::sub(*x, *y))).fold(0.0, f64::max);
-        assert!(e < 1e-4, "BVH round trip error {e} m");
-        assert!(read(&T2M, "HIERARCHY\n").is_err());
+    fn forward_kinematics_by_the_convention() {
+        let text = "HIERARCHY\nROOT a\n{\n OFFSET 0 0 0\n CHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation\n JOINT b\n {\n  OFFSET 10 0 0\n  CHANNELS 3 Xrotation Zrotation Yrotation\n  JOINT c\n  {\n   OFFSET 5 0 0\n   CHANNELS 3 Zrotation Xrotation Yrotation\n   End Site\n   {\n    OFFSET 1 0 0\n   }\n  }\n }\n}\nMOTION\nFrames: 1\nFrame Time: 0.05\n1 2 3 0 0 0 0 90 0 0 0 0\n";
+        let b = Bvh::parse(text).unwrap();
+        assert_eq!(b.joints.len(), 3);
+        assert_eq!(b.joints[2].end_site, Some([1.0, 0.0, 0.0]));
+        let p = &b.world_positions()[0];
+        let want = [[1.0, 2.0, 3.0], [11.0, 2.0, 3.0], [11.0, 7.0, 3.0]];
+        for (x, y) in p.iter().zip(want) {
+            assert!(quat::norm(quat::sub(*x, y)) < 1e-9, "{p:?}");
+        }
+        let again = Bvh::parse(&b.to_text()).unwrap();
+        assert_eq!(again.world_positions(), b.world_positions());
+        for broken in [
+            "HIERARCHY\n",
+            "HIERARCHY\nROOT a\n{\n OFFSET 0 0 x\n}\nMOTION\nFrame Time: 0.1\n",
+            "HIERARCHY\nROOT a\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n}\nMOTION\nFrame Time: 0.1\n1 2\n",
+        ] {
+            assert!(Bvh::parse(broken).is_err(), "{broken}");
+        }
     }
 }

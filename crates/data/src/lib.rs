@@ -17,6 +17,7 @@ pub mod pose;
 pub mod quat;
 pub mod render;
 pub mod representation;
+pub mod rig;
 pub mod rng;
 pub mod skeleton;
 pub mod synth;

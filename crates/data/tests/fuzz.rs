@@ -8,7 +8,7 @@ use std::path::Path;
 
 use diffkfc_data::fuzz::{cases, fuzz};
 use diffkfc_data::rng::Rng;
-use diffkfc_data::{bvh, npy, representation as rep, T2M};
+use diffkfc_data::{npy, representation as rep, rig, T2M};
 
 fn walk(frames: usize) -> rep::Joints {
     let pose = T2M.target_offsets().map(|o| rep::forward_kinematics(&T2M, &[vec![diffkfc_data::quat::IDENTITY; 22]], &[[0.0, 0.9, 0.0]], &o)[0].clone()).unwrap();
@@ -35,12 +35,12 @@ fn npy_reader_never_panics() {
 
 #[test]
 fn bvh_reader_never_panics() {
-    let seeds = vec![bvh::write(&T2M, &walk(4)).into_bytes()];
+    let seeds = vec![rig::write(&T2M, &walk(4)).into_bytes()];
     fuzz("bvh", &seeds, cases(), &|b| {
         let Ok(text) = std::str::from_utf8(b) else {
             return false;
         };
-        bvh::read(&T2M, text).is_ok()
+        rig::read(&T2M, text, &Default::default()).is_ok()
     });
 }
 

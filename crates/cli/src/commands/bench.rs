@@ -37,11 +37,13 @@ pub struct BenchArgs {
     /// Training batch size (the sampling cases generate one motion: a guidance batch of 2).
     #[arg(long, default_value_t = 8)]
     batch: usize,
+    /// Motion length of the benchmarked cases, frames (196 = HumanML3D's longest).
     #[arg(long, default_value_t = 196)]
     frames: usize,
     /// Timed runs per case after one warm-up (the median is reported).
     #[arg(long, default_value_t = 3)]
     repeats: usize,
+    /// Steps of the DDIM sampling case.
     #[arg(long, default_value_t = 50)]
     ddim_steps: usize,
     /// Dataset for the loader case (default: a generated 300-clip set in a temporary folder).
@@ -60,7 +62,9 @@ pub struct BenchArgs {
     /// Smoke test: one run per case, 2 DDIM steps, 20 loader batches.
     #[arg(long)]
     quick: bool,
-    #[arg(long, default_value = "flex")]
+    /// Compute device: flex (the CPU default), or ndarray, wgpu, cuda in builds with that
+    /// cargo feature.
+    #[arg(long, default_value = "flex", value_name = "flex|ndarray|wgpu|cuda")]
     device: String,
 }
 

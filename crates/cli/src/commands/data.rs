@@ -6,6 +6,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
 use diffkfc_data::motion_file::{load_features, load_joints};
 use diffkfc_data::representation::{self as rep, FOOT_CONTACT_THRESHOLD};
+use diffkfc_data::rig::{self, ImportOptions};
 use diffkfc_data::{npy, Skeleton};
 
 #[derive(Args)]
@@ -31,9 +32,14 @@ enum DataCommand {
     /// Prints one JSON line.
     #[command(after_help = "Example:\n  diffkfc data bench-loader work/synth --batches 200 --batch-size 64")]
     BenchLoader(BenchLoaderArgs),
-    /// HumanML3D features (T,263) to global joint positions (T,22,3) (`recover_from_ric`).
-    #[command(after_help = "Example:\n  diffkfc data joints new_joint_vecs/012314.npy -o 012314_joints.npy")]
+    /// HumanML3D features (T,263) to global joint positions (T,22,3) (`recover_from_ric`), or
+    /// a BVH's joints (metres, Y up, 20 fps).
+    #[command(after_help = "Examples:\n  diffkfc data joints new_joint_vecs/012314.npy -o 012314_joints.npy\n  diffkfc data joints walk.bvh --bvh-units cm -o walk_joints.npy")]
     Joints(JointsArgs),
+    /// Any motion (features, joints, a BVH of another rig) to a BVH on our rig: T-pose rest,
+    /// common joint names, Y up, centimetres. Prints how far its joints are from the input's.
+    #[command(after_help = "Examples:\n  diffkfc data bvh new_joints/012314.npy -o 012314.bvh\n  diffkfc data bvh mixamo_walk.bvh -o walk.bvh")]
+    Bvh(BvhArgs),
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -88,6 +94,7 @@ struct SynthArgs {
     /// Number of clips.
     #[arg(long, default_value_t = 3000)]
     clips: usize,
+    /// Random seed: the same seed and clip count give the same bytes.
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Worker threads (default: all cores). The output does not depend on it.
@@ -97,13 +104,18 @@ struct SynthArgs {
 
 #[derive(Args)]
 pub struct BenchLoaderArgs {
+    /// Dataset root (HumanML3D layout).
     pub dir: PathBuf,
+    /// Split to load.
     #[arg(long, default_value = "train")]
     pub split: String,
+    /// Batches to time.
     #[arg(long, default_value_t = 200)]
     pub batches: usize,
+    /// Items per batch.
     #[arg(long, default_value_t = 64)]
     pub batch_size: usize,
+    /// Loader worker threads.
     #[arg(long, default_value_t = 1)]
     pub threads: usize,
 }
@@ -119,22 +131,79 @@ struct CheckArgs {
 
 #[derive(Args)]
 struct JointsArgs {
-    /// Features .npy, shape (T, 263) (KIT: 251).
+    /// Features .npy, shape (T, 263) (KIT: 251), or a BVH (any common rig; see --rig-map).
     input: PathBuf,
     /// Output joint positions .npy (float32, (T, J, 3)).
     #[arg(short, long)]
     output: PathBuf,
     #[arg(long, value_enum, default_value = "t2m")]
     skeleton: SkeletonArg,
+    #[command(flatten)]
+    bvh: BvhInputArgs,
+}
+
+#[derive(Args)]
+struct BvhArgs {
+    /// A motion: features (T,263), joints (T,22,3) .npy, or a BVH of any common rig.
+    input: PathBuf,
+    /// Output BVH: T-pose rig with the common joint names (Hips, LeftUpLeg, ...), Y up,
+    /// centimetres, the skeleton's frame rate.
+    #[arg(short, long)]
+    output: PathBuf,
+    #[arg(long, value_enum, default_value = "t2m")]
+    skeleton: SkeletonArg,
+    #[command(flatten)]
+    bvh: BvhInputArgs,
 }
 
 fn is_bvh(path: &std::path::Path) -> bool {
     path.extension().is_some_and(|e| e.eq_ignore_ascii_case("bvh"))
 }
 
-fn read_bvh(path: &std::path::Path, skel: &Skeleton) -> Result<rep::Joints> {
+/// How a BVH input is read: its joint names, units and up axis.
+#[derive(Args, Clone, Debug, Default)]
+pub struct BvhInputArgs {
+    /// BVH input whose joint names follow no known convention (ours, Mixamo, LaFAN1, CMU):
+    /// a JSON object from joint (ours, e.g. "l_wrist" or "LeftHand") to the file's joint name,
+    /// e.g. {"pelvis": "root", "l_wrist": "lHand"}; joints it leaves out use the closest
+    /// known naming.
+    #[arg(long, value_name = "MAP.json")]
+    pub rig_map: Option<PathBuf>,
+    /// Units of a BVH input; auto picks the one that makes the leg (hip to ankle) nearest 0.8 m.
+    #[arg(long, default_value = "auto", value_name = "auto|m|cm|mm|in")]
+    pub bvh_units: String,
+    /// Up axis of a BVH input; auto takes the axis from the ankles to the head.
+    #[arg(long, default_value = "auto", value_name = "auto|y|z|-y|-z|x|-x")]
+    pub bvh_up: String,
+}
+
+impl BvhInputArgs {
+    pub fn options(&self) -> Result<ImportOptions> {
+        let metres_per_unit = match self.bvh_units.as_str() {
+            "auto" => None,
+            u => Some(rig::UNITS.iter().find(|(n, _)| *n == u).map(|x| x.1).with_context(|| format!("--bvh-units: '{u}' is not one of auto, m, cm, mm, in"))?),
+        };
+        let up = match self.bvh_up.as_str() {
+            "auto" => None,
+            u => Some(rig::Up::parse(u).with_context(|| format!("--bvh-up: '{u}' is not one of auto, y, z, -y, -z, x, -x"))?),
+        };
+        let mut rig_map = Vec::new();
+        if let Some(p) = &self.rig_map {
+            let text = std::fs::read_to_string(p).with_context(|| format!("--rig-map: reading {}", p.display()))?;
+            let v: serde_json::Value = serde_json::from_str(&text).with_context(|| format!("--rig-map: {} is not JSON", p.display()))?;
+            let obj = v.as_object().with_context(|| format!("--rig-map: {} must hold a JSON object from our joint names to the file's", p.display()))?;
+            for (k, v) in obj {
+                let name = v.as_str().with_context(|| format!("--rig-map: {}: \"{k}\" maps to {v}; must be a joint name (a string)", p.display()))?;
+                rig_map.push((k.clone(), name.to_string()));
+            }
+        }
+        Ok(ImportOptions { metres_per_unit, up, rig_map })
+    }
+}
+
+fn read_bvh(path: &std::path::Path, skel: &Skeleton, bvh: &ImportOptions) -> Result<rep::Joints> {
     let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let j = diffkfc_data::bvh::read(skel, &text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let j = rig::read(skel, &text, bvh).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     if j.len() < MIN_MOTION_FRAMES {
         anyhow::bail!("{}: has {} frame(s); at least {MIN_MOTION_FRAMES} needed", path.display(), j.len());
     }
@@ -145,10 +214,10 @@ fn read_bvh(path: &std::path::Path, skel: &Skeleton) -> Result<rep::Joints> {
 pub const MIN_MOTION_FRAMES: usize = 2;
 
 /// Joint positions from a motion file: features (T, D) are recovered, joints (T, J, 3) taken
-/// as they are, a BVH written by diffkfc read back.
-pub fn load_motion(path: &std::path::Path, skel: &Skeleton) -> Result<rep::Joints> {
+/// as they are, a BVH read through the rig import.
+pub fn load_motion(path: &std::path::Path, skel: &Skeleton, bvh: &ImportOptions) -> Result<rep::Joints> {
     if is_bvh(path) {
-        return read_bvh(path, skel);
+        return read_bvh(path, skel, bvh);
     }
     let a = npy::read_f64(path)?;
     if a.ndim() == 2 {
@@ -161,9 +230,9 @@ pub fn load_motion(path: &std::path::Path, skel: &Skeleton) -> Result<rep::Joint
 
 /// Features (T, D) of a motion file: features as they are, joints or BVH through
 /// `process_file` (one frame fewer).
-pub fn load_motion_features(path: &std::path::Path, skel: &Skeleton) -> Result<Vec<f32>> {
+pub fn load_motion_features(path: &std::path::Path, skel: &Skeleton, bvh: &ImportOptions) -> Result<Vec<f32>> {
     let joints = if is_bvh(path) {
-        read_bvh(path, skel)?
+        read_bvh(path, skel, bvh)?
     } else if npy::read_f64(path)?.ndim() == 2 {
         return Ok(load_features(path, skel, MIN_MOTION_FRAMES)?.data);
     } else {
@@ -176,6 +245,7 @@ pub fn run(args: DataArgs) -> Result<()> {
     match args.command {
         DataCommand::Features(a) => features(a),
         DataCommand::Joints(a) => joints(a),
+        DataCommand::Bvh(a) => bvh(a),
         DataCommand::Check(a) => check(a),
         DataCommand::Synth(a) => synth(a),
         DataCommand::BenchLoader(a) => bench_loader(a),
@@ -304,11 +374,24 @@ fn features(a: FeaturesArgs) -> Result<()> {
 
 fn joints(a: JointsArgs) -> Result<()> {
     let skel = a.skeleton.skeleton();
-    let feats = load_features(&a.input, skel, MIN_MOTION_FRAMES)?;
-    let data: Vec<f64> = feats.data.iter().map(|&v| v as f64).collect();
-    let joints = rep::recover_from_ric(skel, &data);
+    let joints = if is_bvh(&a.input) {
+        read_bvh(&a.input, skel, &a.bvh.options()?)?
+    } else {
+        let feats = load_features(&a.input, skel, MIN_MOTION_FRAMES)?;
+        rep::recover_from_ric(skel, &feats.data.iter().map(|&v| v as f64).collect::<Vec<_>>())
+    };
     let jn = skel.num_joints();
     npy::write(&a.output, &[joints.len(), jn, 3], &rep::joints_to_f32(&joints)).with_context(|| format!("writing {}", a.output.display()))?;
     println!("{}: ({}, {jn}, 3) joint positions", a.output.display(), joints.len());
+    Ok(())
+}
+
+fn bvh(a: BvhArgs) -> Result<()> {
+    let skel = a.skeleton.skeleton();
+    let joints = load_motion(&a.input, skel, &a.bvh.options()?)?;
+    let b = rig::export(skel, &joints);
+    diffkfc_data::write_atomic(&a.output, b.to_text().as_bytes())?;
+    let (mean, max) = rig::export_error(skel, &joints, &b);
+    println!("{}: {} frames at {} fps; joints within {:.2} mm of the input on average, {:.2} mm at most", a.output.display(), joints.len(), skel.fps, mean * 1e3, max * 1e3);
     Ok(())
 }

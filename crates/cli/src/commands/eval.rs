@@ -56,16 +56,21 @@ struct RunArgs {
     /// Dataset root (HumanML3D layout).
     #[arg(long, required = true)]
     data: Option<PathBuf>,
+    /// Split whose items are generated and compared (test, val, train).
     #[arg(long, default_value = "test")]
     split: String,
+    /// Replications: each draws its own items, keyframes and seeds; rows give mean +- 95%.
     #[arg(long, default_value_t = 20)]
     replications: usize,
     /// Test items per replication (at least 32: R-precision ranks batches of 32).
     #[arg(long, default_value_t = 1024)]
     num_items: usize,
+    /// Fraction of frames that are keyframes (the paper's main setting: 5%).
     #[arg(long, default_value_t = 0.05)]
     keyframe_rate: f64,
-    #[arg(long, default_value = "random")]
+    /// How keyframes are picked: random, uniform (evenly spaced) or mdo (KeyMotion's
+    /// maximum-distance-optimal).
+    #[arg(long, default_value = "random", value_name = "random|uniform|mdo")]
     keyframe_strategy: String,
     #[arg(long, value_enum, default_value = "diffkfc")]
     keyframe_mode: KeyframeMode,
@@ -78,6 +83,7 @@ struct RunArgs {
     /// Keyframe guidance scale s (1 = the keyframe branch alone; the paper: 2.5).
     #[arg(long, default_value_t = 1.0)]
     kf_guidance: f64,
+    /// ddim (--steps evenly spaced steps) or ddpm (every step of the schedule).
     #[arg(long, value_enum, default_value = "ddim")]
     sampler: SamplerArg,
     /// DDIM steps (DDPM runs every step of the schedule).
@@ -89,6 +95,7 @@ struct RunArgs {
     /// Also measure MultiModality (30 generations for each of --mm-texts texts).
     #[arg(long)]
     multimodality: bool,
+    /// Texts for MultiModality (with --multimodality).
     #[arg(long, default_value_t = 100)]
     mm_texts: usize,
     /// Table 2: also run DiffKFC without transition guidance and the MDM-inp baseline.
@@ -105,11 +112,15 @@ struct RunArgs {
     /// Motions generated per denoiser batch.
     #[arg(long, default_value_t = 32)]
     batch_size: usize,
+    /// Random seed of the first replication (replication i uses seed + i).
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Output folder: report.json, report.md (the tables) and a sheet of generated motions.
     #[arg(long, default_value = "out/eval")]
     out: PathBuf,
-    #[arg(long, default_value = "flex")]
+    /// Compute device: flex (the CPU default), or ndarray, wgpu, cuda in builds with that
+    /// cargo feature.
+    #[arg(long, default_value = "flex", value_name = "flex|ndarray|wgpu|cuda")]
     device: String,
 }
 
@@ -119,21 +130,30 @@ enum EvalCommand {
     /// R-precision on real motions of --split (chance: 1/32, 2/32, 3/32).
     #[command(after_help = "Example:\n  diffkfc eval train-evaluator --data work/synth --out work/evaluator --max-steps 2000")]
     TrainEvaluator {
+        /// Dataset root (HumanML3D layout); trains on its train split.
         #[arg(long)]
         data: PathBuf,
+        /// Output folder: the evaluator's weights, config and report.json.
         #[arg(long)]
         out: PathBuf,
+        /// Training steps.
         #[arg(long, default_value_t = 2000)]
         max_steps: usize,
+        /// Text-motion pairs per step (each batch's other pairs are its negatives).
         #[arg(long, default_value_t = 32)]
         batch_size: usize,
+        /// Adam learning rate.
         #[arg(long, default_value_t = 3e-4)]
         lr: f64,
+        /// Random seed (initialisation and batches).
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// Split whose real motions the report's R-precision is measured on.
         #[arg(long, default_value = "test")]
         split: String,
-        #[arg(long, default_value = "flex")]
+        /// Compute device: flex (the CPU default), or ndarray, wgpu, cuda in builds with that
+        /// cargo feature.
+        #[arg(long, default_value = "flex", value_name = "flex|ndarray|wgpu|cuda")]
         device: String,
     },
 }

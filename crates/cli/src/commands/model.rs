@@ -19,6 +19,7 @@ enum ModelCommand {
     /// Parameters per module and in total.
     #[command(after_help = "Example:\n  diffkfc model summary --config configs/paper-humanml3d.json")]
     Summary {
+        /// A run config (configs/*.json) or a run/model directory's config.json.
         #[arg(long)]
         config: PathBuf,
     },

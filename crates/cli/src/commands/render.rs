@@ -6,11 +6,11 @@ use anyhow::{bail, Result};
 use clap::Args;
 use diffkfc_data::{render, T2M};
 
-use super::data::load_motion;
+use super::data::{load_motion, BvhInputArgs};
 
 #[derive(Args)]
 pub struct RenderArgs {
-    /// Motion files: features (T,263) or joint positions (T,22,3) .npy.
+    /// Motion files: features (T,263) or joint positions (T,22,3) .npy, or BVH files.
     #[arg(required = true)]
     inputs: Vec<PathBuf>,
     /// Output .gif (one input) or .png (with --sheet).
@@ -25,10 +25,13 @@ pub struct RenderArgs {
     /// Cells per row of the contact sheet.
     #[arg(long, default_value_t = 4)]
     columns: usize,
+    #[command(flatten)]
+    bvh: BvhInputArgs,
 }
 
 pub fn run(a: RenderArgs) -> Result<()> {
-    let motions = a.inputs.iter().map(|p| load_motion(p, &T2M)).collect::<Result<Vec<_>>>()?;
+    let bvh = a.bvh.options()?;
+    let motions = a.inputs.iter().map(|p| load_motion(p, &T2M, &bvh)).collect::<Result<Vec<_>>>()?;
     if a.sheet {
         let clips: Vec<_> = motions.into_iter().map(|j| (j, a.keyframes.clone())).collect();
         render::sheet(&T2M, &clips, a.columns, 240, &a.output)?;

@@ -88,10 +88,12 @@ pub struct SampleArgs {
     /// Many prompts: one per line, optionally `text#length`; outputs go to <out>/promptNNN.
     #[arg(long, conflicts_with = "text")]
     prompts: Option<PathBuf>,
-    /// Keyframes from a motion: features (T,263) or joints (T,22,3) .npy, or a BVH written by
-    /// diffkfc.
+    /// Keyframes from a motion: features (T,263) or joints (T,22,3) .npy, or a BVH (ours,
+    /// Mixamo, LaFAN1, CMU names, or any rig with --rig-map).
     #[arg(long, conflicts_with = "keyframes")]
     from: Option<PathBuf>,
+    #[command(flatten)]
+    pub(crate) bvh: super::data::BvhInputArgs,
     /// Frames of --from that become keyframes: a list (0,40,80) or `all`.
     #[arg(long, requires = "from")]
     frames: Option<String>,
@@ -215,7 +217,7 @@ fn joint_set(spec: Option<&str>, flag: &str) -> Result<Vec<usize>> {
 }
 
 fn keys_from_motion(a: &SampleArgs, path: &Path, length: Option<usize>, joints: Vec<usize>) -> Result<Keys> {
-    let feats = super::data::load_motion_features(path, &T2M)?;
+    let feats = super::data::load_motion_features(path, &T2M, &a.bvh.options()?)?;
     let d = T2M.feature_dim();
     let t = feats.len() / d;
     let length = length.unwrap_or(t.min(diffkfc_data::dataset::MAX_FRAMES));
@@ -537,12 +539,16 @@ fn run_one(a: SampleArgs) -> Result<()> {
         npy::write(stem.with_extension("npy"), &[n, d], &f)?;
         npy::write(a.out.join(format!("{name}_joints.npy")), &[n, 22, 3], &rep::joints_to_f32(&j))?;
         render::gif(&T2M, &j, &keys.frames, &stem.with_extension("gif"))?;
-        diffkfc_data::write_atomic(&stem.with_extension("bvh"), diffkfc_data::bvh::write(&T2M, &j).as_bytes())?;
+        let rig = diffkfc_data::rig::export(&T2M, &j);
+        diffkfc_data::write_atomic(&stem.with_extension("bvh"), rig.to_text().as_bytes())?;
+        // The BVH is a rigid rig; generated bones stretch a little from frame to frame.
+        let (bvh_mean, bvh_max) = diffkfc_data::rig::export_error(&T2M, &j, &rig);
         samples.push(json!({
             "features": format!("{name}.npy"),
             "joints": format!("{name}_joints.npy"),
             "gif": format!("{name}.gif"),
             "bvh": format!("{name}.bvh"),
+            "bvh_error_m": {"mean": bvh_mean, "max": bvh_max},
             "k_err_m": keys.source.as_ref().and_then(|s| k_err_global(&j, s, &keys.frames, &keys.joints)),
             "k_err_root_relative_m": k_err_local(&T2M, &f, &keys.values, &keys.frames, &keys.joints),
             "k_trans": k_trans(&j, &keys.frames, 2),

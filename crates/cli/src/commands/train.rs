@@ -35,7 +35,9 @@ pub struct TrainArgs {
     /// Stop cleanly (with a checkpoint) after this long: 90s, 10m, 2h.
     #[arg(long, value_parser = parse_duration)]
     time_budget: Option<Duration>,
-    #[arg(long, default_value = "flex")]
+    /// Compute device: flex (the CPU default), or ndarray, wgpu, cuda in builds with that
+    /// cargo feature.
+    #[arg(long, default_value = "flex", value_name = "flex|ndarray|wgpu|cuda")]
     device: String,
     /// Overrides training.seed.
     #[arg(long)]
