@@ -22,6 +22,7 @@ pub mod rng;
 pub mod skeleton;
 pub mod synth;
 pub mod texts;
+pub mod viewer;
 pub mod warp;
 
 pub use atomic::write_atomic;

@@ -7,6 +7,7 @@ use burn::prelude::*;
 use clap::{Args, ValueEnum};
 use diffkfc_data::keyframes::{self, Strategy};
 use diffkfc_data::rng::Rng;
+use diffkfc_data::viewer::{self, escape, ViewMotion};
 use diffkfc_data::warp::{self, RootKey, ROOT_CHANNELS};
 use diffkfc_data::{npy, pose, render, representation as rep, T2M};
 use diffkfc_eval::keyframe_metrics::{k_err_global, k_err_local, k_trans};
@@ -174,190 +175,8 @@ pub struct SampleArgs {
     device: String,
 }
 
-/// Keyframes in the raw (de-normalised) feature space.
-struct Keys {
-    length: usize,
-    frames: Vec<usize>,
-    /// [length, D]
-    values: Vec<f32>,
-    mask: Vec<f32>,
-    /// Source motion joints (for global K-Err and the real K-TranS), when there is one.
-    source: Option<rep::Joints>,
-    /// Joints the keyframes observe.
-    joints: Vec<usize>,
-    /// [length] keyed place and heading (unobserved: default).
-    root: Vec<RootKey>,
-}
-
-fn parse_frames(spec: &str, len: usize) -> Result<Vec<usize>> {
-    if spec.trim() == "all" {
-        return Ok((0..len).collect());
-    }
-    if spec.trim().is_empty() {
-        bail!("--frames: empty; give frame numbers (0,40,80) or `all`");
-    }
-    let mut v = Vec::new();
-    for p in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
-        let f: usize = p.parse().map_err(|_| anyhow::anyhow!("--frames: '{p}' is not a frame number"))?;
-        if f >= len {
-            bail!("--frames: frame {f} is beyond the motion ({len} frames)");
-        }
-        v.push(f);
-    }
-    v.sort_unstable();
-    v.dedup();
-    Ok(v)
-}
-
-fn joint_set(spec: Option<&str>, flag: &str) -> Result<Vec<usize>> {
-    match spec {
-        None => Ok((0..T2M.num_joints()).collect()),
-        Some(s) => T2M.resolve_joints(s).map_err(|e| anyhow::anyhow!("{flag}: {e}")),
-    }
-}
-
-fn keys_from_motion(a: &SampleArgs, path: &Path, length: Option<usize>, joints: Vec<usize>) -> Result<Keys> {
-    let feats = super::data::load_motion_features(path, &T2M, &a.bvh.options()?)?;
-    let d = T2M.feature_dim();
-    let t = feats.len() / d;
-    let length = length.unwrap_or(t.min(diffkfc_data::dataset::MAX_FRAMES));
-    if length > t {
-        bail!("--length {length} is longer than {} ({t} frames)", path.display());
-    }
-    let frames = if let Some(rate) = a.keyframe_rate {
-        if !(0.0..=1.0).contains(&rate) {
-            bail!("--keyframe-rate: {rate} is not in [0, 1]");
-        }
-        let strategy: Strategy = a.keyframe_strategy.parse().map_err(|e: String| anyhow::anyhow!("--keyframe-strategy: {e}"))?;
-        keyframes::select(strategy, length, rate, &feats, d, &mut Rng::new(a.seed))
-    } else {
-        parse_frames(a.frames.as_deref().context("--from needs --frames or --keyframe-rate")?, length)?
-    };
-    let dims = keyframes::dim_mask(&T2M, Some(&joints));
-    let mask = keyframes::frame_mask(length, &frames, &dims);
-    let values = feats[..length * d].iter().zip(&mask).map(|(v, m)| v * m).collect();
-    let source = rep::recover_from_ric(&T2M, &feats[..length * d].iter().map(|&v| v as f64).collect::<Vec<_>>());
-    let mut root = vec![RootKey::default(); length];
-    if !a.no_root_keys {
-        let traj = warp::root_trajectory(&feats[..length * d], d);
-        for &f in &frames {
-            root[f] = traj[f];
-        }
-    }
-    Ok(Keys { length, frames, values, mask, source: Some(source), joints, root })
-}
-
-fn keys_from_json(path: &Path, length: Option<usize>, joints_flag: Option<&str>) -> Result<Keys> {
-    let err = |m: String| anyhow::anyhow!("{}: {m}", path.display());
-    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(path).with_context(|| format!("reading {}", path.display()))?).map_err(|e| err(format!("not valid JSON: {e}")))?;
-    let max = diffkfc_data::dataset::MAX_FRAMES;
-    let length = match (length, v.get("length")) {
-        (Some(l), _) => l,
-        (None, None) => return Err(err("no \"length\" (or pass --length)".into())),
-        (None, Some(l)) => match l.as_u64().filter(|&l| l >= 1 && l <= max as u64) {
-            Some(l) => l as usize,
-            None => return Err(err(format!("\"length\" is {l}; must be a whole number of frames from 1 to {max}"))),
-        },
-    };
-    let spec = match (joints_flag, v.get("joints")) {
-        (Some(f), _) => Some(f.to_string()),
-        (None, None) => None,
-        (None, Some(j)) => match j.as_str().map(str::trim).filter(|s| !s.is_empty()) {
-            Some(s) => Some(s.to_string()),
-            None => return Err(err(format!("\"joints\" is {j}; must name body parts or joints, e.g. \"lower_body\" or \"left_arm,head\""))),
-        },
-    };
-    let joints = joint_set(spec.as_deref(), "joints")?;
-    let d = T2M.feature_dim();
-    let dims = keyframes::dim_mask(&T2M, Some(&joints));
-    let (mut values, mut mask) = (vec![0f32; length * d], vec![0f32; length * d]);
-    let mut root = vec![RootKey::default(); length];
-    let mut frames = Vec::new();
-    for (i, k) in v["keyframes"].as_array().ok_or_else(|| err("no \"keyframes\" array".into()))?.iter().enumerate() {
-        let f = match k.get("frame") {
-            None => return Err(err(format!("keyframe {i}: no \"frame\""))),
-            Some(x) => x.as_u64().ok_or_else(|| err(format!("keyframe {i}: \"frame\" is {x}; must be a whole frame number from 0")))? as usize,
-        };
-        if f >= length {
-            return Err(err(format!("keyframe {i}: frame {f} is beyond the length {length}")));
-        }
-        let (vals, obs): (Vec<f32>, Vec<bool>) = if let Some(j) = k["joints"].as_array() {
-            let pose: Vec<[f64; 3]> = j
-                .iter()
-                .map(|p| {
-                    let a = p.as_array().filter(|a| a.len() == 3).ok_or_else(|| err(format!("keyframe {i}: each joint must be [x, y, z]")))?;
-                    let c: Vec<f64> = a.iter().map(|x| x.as_f64().unwrap_or(f64::NAN)).collect();
-                    Ok([c[0], c[1], c[2]])
-                })
-                .collect::<Result<_>>()?;
-            let (vals, obs) = pose::pose_features(&T2M, &pose).map_err(|e| err(format!("keyframe {i}: {e}")))?;
-            if vals.iter().zip(&obs).any(|(v, &o)| o && !v.is_finite()) {
-                return Err(err(format!("keyframe {i}: the pose gives non-finite features (joints too far apart or coinciding)")));
-            }
-            (vals, obs)
-        } else if let Some(fe) = k["features"].as_array() {
-            if fe.len() != d {
-                return Err(err(format!("keyframe {i}: {} features, expected {d}", fe.len())));
-            }
-            let vals: Vec<f32> = fe.iter().map(|x| x.as_f64().unwrap_or(f64::NAN) as f32).collect();
-            if vals.iter().any(|x| !x.is_finite()) {
-                return Err(err(format!("keyframe {i}: NaN or non-numeric feature")));
-            }
-            (vals, vec![true; d])
-        } else if k.get("root").is_some() || k.get("heading").is_some() {
-            (vec![0.0; d], vec![false; d])
-        } else {
-            return Err(err(format!("keyframe {i}: needs \"joints\" (22 x [x,y,z]), \"features\" ({d} numbers), \"root\" or \"heading\"")));
-        };
-        for c in 0..d {
-            if obs[c] && dims[c] {
-                values[f * d + c] = vals[c];
-                mask[f * d + c] = 1.0;
-            }
-        }
-        let number = |x: &serde_json::Value, what: &str| -> Result<f64> {
-            x.as_f64().filter(|v| v.is_finite() && v.abs() < 1e4).ok_or_else(|| err(format!("keyframe {i}: \"{what}\" must hold finite numbers (metres or degrees), got {x}")))
-        };
-        if let Some(r) = k.get("root") {
-            let a = r.as_array().filter(|a| a.len() == 3).ok_or_else(|| err(format!("keyframe {i}: \"root\" must be [x, y, z] in metres, got {r}")))?;
-            let p: Vec<f64> = a.iter().map(|x| number(x, "root")).collect::<Result<_>>()?;
-            root[f].place = Some([p[0], p[2]]);
-            // The root's height is the pelvis height feature.
-            if dims[3] {
-                values[f * d + 3] = p[1] as f32;
-                mask[f * d + 3] = 1.0;
-            }
-        }
-        if let Some(h) = k.get("heading") {
-            root[f].heading = Some(number(h, "heading")?.to_radians());
-        }
-        frames.push(f);
-    }
-    frames.sort_unstable();
-    frames.dedup();
-    relative_to_first_frame(&mut root);
-    Ok(Keys { length, frames, values, mask, source: None, joints, root })
-}
-
-/// Keyed places and headings are in the output motion's frame, where frame 0 stands at the
-/// origin facing +Z. A keyframe at frame 0 with its own place or heading moves that frame:
-/// every key is re-expressed relative to it.
-fn relative_to_first_frame(root: &mut [RootKey]) {
-    let Some(first) = root.first().copied() else {
-        return;
-    };
-    let [ox, oz] = first.place.unwrap_or([0.0, 0.0]);
-    let h0 = first.heading.unwrap_or(0.0);
-    let (s, c) = (-h0).sin_cos();
-    for k in root.iter_mut() {
-        // Rotate by -h0 about +Y (heading h turns +Z towards +X): x' = x cos + z sin.
-        k.place = k.place.map(|[x, z]| {
-            let (x, z) = (x - ox, z - oz);
-            [x * c + z * s, -x * s + z * c]
-        });
-        k.heading = k.heading.map(|h| h - h0);
-    }
-}
+mod keys;
+use keys::*;
 
 pub fn run(a: SampleArgs) -> Result<()> {
     let Some(file) = a.prompts.clone() else {
@@ -531,6 +350,20 @@ fn run_one(a: SampleArgs) -> Result<()> {
     }
     remove_stale_samples(&a.out, b)?;
     let mut samples = Vec::new();
+    let mut views = Vec::new();
+    let key_joints = (keys.joints.len() < T2M.num_joints()).then(|| keys.joints.clone());
+    if let Some(src) = &keys.source {
+        npy::write(a.out.join("source_joints.npy"), &[src.len(), 22, 3], &rep::joints_to_f32(src))?;
+        views.push(ViewMotion {
+            label: "source".into(),
+            joints: src.clone(),
+            keyframes: keys.frames.clone(),
+            key_joints: key_joints.clone(),
+            numbers: format!("K-TranS {}, foot skating {:.4}", k_trans(src, &keys.frames, 2).map_or("-".into(), |v| format!("{v:.4}")), diffkfc_data::plausibility::foot_skating_ratio(&T2M, src)),
+            links: vec![("joints".into(), "source_joints.npy".into())],
+            ..Default::default()
+        });
+    }
     for (i, done) in fitted.into_iter().enumerate() {
         let (f, corrections) = (done.features, done.corrections);
         let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
@@ -556,6 +389,18 @@ fn run_one(a: SampleArgs) -> Result<()> {
             "corrections": corrections,
             "foot_lock": fit.foot_lock.then_some(&done.feet),
         }));
+        let s = samples.last().expect("pushed");
+        // The keyed pose: the source's where there is one, else the (fitted) sample's own.
+        let key_poses = keys.frames.iter().filter(|&&k| k < j.len()).map(|&k| (k, keys.source.as_ref().and_then(|src| src.get(k)).unwrap_or(&j[k]).clone())).collect();
+        views.push(ViewMotion {
+            label: name.clone(),
+            keyframes: keys.frames.clone(),
+            key_joints: key_joints.clone(),
+            key_poses,
+            numbers: format!("{}, K-TranS {}, foot skating {}", k_err_text(s), fmt(&s["k_trans"]), fmt(&s["foot_skating"])),
+            links: ["gif", "bvh", "features", "joints"].iter().map(|k| (k.to_string(), s[*k].as_str().unwrap_or("").to_string())).collect(),
+            joints: j,
+        });
     }
     let report = json!({
         "text": a.text,
@@ -582,7 +427,7 @@ fn run_one(a: SampleArgs) -> Result<()> {
         "samples": samples,
     });
     diffkfc_data::write_atomic(&a.out.join("results.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
-    diffkfc_data::write_atomic(&a.out.join("index.html"), index_html(&report).as_bytes())?;
+    diffkfc_data::write_atomic(&a.out.join("index.html"), index_html(&report, &views).as_bytes())?;
     println!("{}: {b} sample(s) of {n} frames in {secs:.1} s ({:?}); see results.json and index.html", a.out.display(), opts.sampler);
     for (i, s) in report["samples"].as_array().unwrap().iter().enumerate() {
         let most = |k: &str| s["corrections"].as_array().into_iter().flatten().filter_map(|c| c[k].as_f64()).map(f64::abs).fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))));
@@ -605,24 +450,29 @@ fn run_one(a: SampleArgs) -> Result<()> {
     Ok(())
 }
 
-fn html_escape(s: &str) -> String {
-    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+/// The folder's page: the 3D view of the source and every sample, the settings above it.
+fn index_html(r: &serde_json::Value, views: &[ViewMotion]) -> String {
+    let intro = format!(
+        "<p>{} frames &middot; {} &middot; {} &middot; keyframe guidance {} &middot; transition guidance {} &middot; fit {} &middot; <a href=results.json>results.json</a>{}</p>",
+        r["length"],
+        keyframe_list(&r["keyframes"]),
+        escape(r["sampler"].as_str().unwrap_or("")),
+        r["kf_guidance"],
+        r["transition_guidance"],
+        escape(&r["keyframe_fit"].to_string()),
+        r["source"].as_str().map(|s| format!(" &middot; source {}", escape(s))).unwrap_or_default()
+    );
+    viewer::page(&T2M, r["text"].as_str().unwrap_or("diffkfc"), &intro, views)
 }
 
-/// A page with every GIF, its prompt and its keyframe metrics.
-fn index_html(r: &serde_json::Value) -> String {
-    let mut h = format!(
-        "<!doctype html><meta charset=utf-8><title>diffkfc samples</title><style>body{{font-family:sans-serif}} figure{{display:inline-block;margin:8px}}</style><h1>{}</h1><p>keyframes at frames {} &middot; {} &middot; keyframe guidance {} &middot; transition guidance {}</p>",
-        html_escape(r["text"].as_str().unwrap_or("")),
-        r["keyframes"],
-        html_escape(r["sampler"].as_str().unwrap_or("")),
-        r["kf_guidance"],
-        r["transition_guidance"]
-    );
-    for s in r["samples"].as_array().into_iter().flatten() {
-        h += &format!("<figure><img src=\"{}\" width=320><figcaption>{} &middot; K-TranS {}</figcaption></figure>", html_escape(s["gif"].as_str().unwrap_or("")), k_err_text(s), fmt(&s["k_trans"]));
+/// "keyframes at frames 0, 40, 80", or a count and range where there are many.
+fn keyframe_list(k: &serde_json::Value) -> String {
+    let f: Vec<u64> = k.as_array().into_iter().flatten().filter_map(|v| v.as_u64()).collect();
+    match (f.first(), f.last()) {
+        (Some(a), Some(b)) if f.len() > 12 => format!("{} keyframes (frames {a} to {b})", f.len()),
+        (Some(_), _) => format!("keyframes at frames {}", f.iter().map(u64::to_string).collect::<Vec<_>>().join(", ")),
+        _ => "no keyframes".into(),
     }
-    h + "\n"
 }
 
 /// K-Err as a sentence: global only where there is a source motion to compare with.

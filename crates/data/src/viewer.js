@@ -1,0 +1,216 @@
+// diffkfc's motion viewer: stick figures in 3D on a 2D canvas, no libraries, no network.
+// Reads the JSON in #motion-data (written by viewer.rs). Drag to orbit, wheel to zoom, space to
+// play/pause. `#frame=N` in the address opens paused at frame N (used by the page test).
+(function () {
+  "use strict";
+  const D = JSON.parse(document.getElementById("motion-data").textContent);
+  const cv = document.getElementById("view");
+  const ctx = cv.getContext("2d");
+  const slider = document.getElementById("frame");
+  const playBtn = document.getElementById("play");
+  const followBox = document.getElementById("follow");
+  const frameLabel = document.getElementById("frame-label");
+  const timeline = document.getElementById("timeline");
+  const tctx = timeline.getContext("2d");
+  const status = document.getElementById("status");
+  const J = D.parents.length;
+  const T = Math.max(...D.motions.map((m) => m.frames));
+  const LANE = 1.3;
+  const COLORS = { left: "#2563eb", right: "#dc2626", centre: "#374151", key: "#f97316" };
+  const side = D.parents.map((_, j) => (D.left.includes(j) ? "left" : D.right.includes(j) ? "right" : "centre"));
+  D.motions.forEach((m, i) => { m.dx = (i - (D.motions.length - 1) / 2) * LANE; });
+  const cam = { yaw: 0.6, pitch: 0.25, dist: 2.2 + 0.8 * D.motions.length, target: [0, 0.9, 0] };
+  let frame = 0, playing = true, last = null, acc = 0;
+  slider.max = String(T - 1);
+
+  const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+  const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+  const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+  const norm = (a) => { const l = Math.hypot(a[0], a[1], a[2]) || 1; return [a[0] / l, a[1] / l, a[2] / l]; };
+
+  function joint(m, flat, f, j) {
+    const o = (Math.min(f, m.frames - 1) * J + j) * 3;
+    return [flat[o] + m.dx, flat[o + 1], flat[o + 2]];
+  }
+
+  function camera(w, h) {
+    const c = Math.cos(cam.pitch);
+    const eye = [cam.target[0] + cam.dist * c * Math.sin(cam.yaw), cam.target[1] + cam.dist * Math.sin(cam.pitch), cam.target[2] + cam.dist * c * Math.cos(cam.yaw)];
+    const f = norm(sub(cam.target, eye));
+    const r = norm(cross(f, [0, 1, 0]));
+    const u = cross(r, f);
+    const focal = 0.5 * h / Math.tan(0.45);
+    return (p) => {
+      const d = sub(p, eye);
+      const z = dot(d, f);
+      return z < 0.05 ? null : [w / 2 + focal * dot(d, r) / z, h / 2 - focal * dot(d, u) / z, z, focal];
+    };
+  }
+
+  function draw() {
+    const dpr = window.devicePixelRatio || 1;
+    const w = cv.clientWidth, h = cv.clientHeight;
+    if (cv.width !== Math.round(w * dpr)) { cv.width = Math.round(w * dpr); cv.height = Math.round(h * dpr); }
+    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+    ctx.fillStyle = "#f8fafc";
+    ctx.fillRect(0, 0, w, h);
+    if (followBox.checked) {
+      let x = 0, z = 0;
+      D.motions.forEach((m) => { const p = joint(m, m.joints, frame, 0); x += p[0]; z += p[2]; });
+      cam.target = [x / D.motions.length, 0.9, z / D.motions.length];
+    }
+    const proj = camera(w, h);
+    // Ground grid (0.5 m) around the target.
+    ctx.strokeStyle = "#e2e8f0";
+    ctx.lineWidth = 1;
+    const gx = Math.round(cam.target[0] * 2) / 2, gz = Math.round(cam.target[2] * 2) / 2, R = 6;
+    for (let k = -R; k <= R; k += 0.5) {
+      line(proj([gx + k, 0, gz - R]), proj([gx + k, 0, gz + R]));
+      line(proj([gx - R, 0, gz + k]), proj([gx + R, 0, gz + k]));
+    }
+    const segs = [];
+    D.motions.forEach((m) => {
+      // The root's path on the ground, up to this frame.
+      ctx.strokeStyle = "#cbd5e1";
+      ctx.beginPath();
+      for (let f = 0; f <= Math.min(frame, m.frames - 1); f++) {
+        const p = joint(m, m.joints, f, 0);
+        const s = proj([p[0], 0, p[2]]);
+        if (s) { f === 0 ? ctx.moveTo(s[0], s[1]) : ctx.lineTo(s[0], s[1]); }
+      }
+      ctx.stroke();
+      // The nearest keyed pose, drawn in orange at and near its frame (fading over 4 frames):
+      // one ghost at a time, also where every frame is keyed.
+      const near = (m.key_poses || []).reduce((b, k) => (!b || Math.abs(k[0] - frame) < Math.abs(b[0] - frame) ? k : b), null);
+      if (near) {
+        const [kf, pose] = near;
+        const a = 1 - Math.abs(kf - frame) / 4;
+        const flat = { frames: 1, dx: m.dx };
+        for (let j = 1; j < J; j++) {
+          if (m.key_joints && !(m.key_joints.includes(j) && m.key_joints.includes(D.parents[j]))) continue;
+          if (a > 0) segs.push({ a: joint(flat, pose, 0, D.parents[j]), b: joint(flat, pose, 0, j), color: COLORS.key, alpha: 0.55 * a, width: 0.06 });
+        }
+      }
+      for (let j = 1; j < J; j++) {
+        segs.push({ a: joint(m, m.joints, frame, D.parents[j]), b: joint(m, m.joints, frame, j), color: COLORS[side[j]], alpha: frame < m.frames ? 1 : 0.35, width: 0.045 });
+      }
+      segs.push({ head: joint(m, m.joints, frame, D.head), color: COLORS.centre, alpha: frame < m.frames ? 1 : 0.35 });
+    });
+    const pr = segs.map((s) => (s.head ? { s, p: proj(s.head) } : { s, p: proj(s.a), q: proj(s.b) })).filter((x) => x.p && (x.s.head || x.q));
+    pr.sort((x, y) => (y.p[2] + (y.q ? y.q[2] : y.p[2])) - (x.p[2] + (x.q ? x.q[2] : x.p[2])));
+    ctx.lineCap = "round";
+    for (const { s, p, q } of pr) {
+      ctx.globalAlpha = s.alpha;
+      if (s.head) {
+        ctx.fillStyle = s.color;
+        ctx.beginPath();
+        ctx.arc(p[0], p[1], Math.max(2, 0.09 * p[3] / p[2]), 0, 2 * Math.PI);
+        ctx.fill();
+      } else {
+        ctx.strokeStyle = s.color;
+        ctx.lineWidth = Math.max(1, s.width * p[3] / ((p[2] + q[2]) / 2));
+        ctx.beginPath();
+        ctx.moveTo(p[0], p[1]);
+        ctx.lineTo(q[0], q[1]);
+        ctx.stroke();
+      }
+    }
+    ctx.globalAlpha = 1;
+    ctx.fillStyle = "#0f172a";
+    ctx.font = "13px sans-serif";
+    ctx.textAlign = "center";
+    D.motions.forEach((m) => {
+      const p = proj(sub(joint(m, m.joints, frame, 0), [0, -1.0, 0]));
+      if (p) ctx.fillText(m.label + (m.keyframes.includes(frame) ? "  \u25c6 key" : ""), p[0], p[1]);
+    });
+    slider.value = String(frame);
+    frameLabel.textContent = `frame ${frame} / ${T - 1} (${(frame / D.fps).toFixed(2)} s)`;
+    drawTimeline();
+    if (!playing) report(w, h, dpr);
+  }
+
+  function line(a, b) {
+    if (!a || !b) return;
+    ctx.beginPath();
+    ctx.moveTo(a[0], a[1]);
+    ctx.lineTo(b[0], b[1]);
+    ctx.stroke();
+  }
+
+  function drawTimeline() {
+    const dpr = window.devicePixelRatio || 1;
+    const w = timeline.clientWidth, h = timeline.clientHeight;
+    if (timeline.width !== Math.round(w * dpr)) { timeline.width = Math.round(w * dpr); timeline.height = Math.round(h * dpr); }
+    tctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+    tctx.clearRect(0, 0, w, h);
+    const x = (f) => 6 + (w - 12) * f / Math.max(1, T - 1);
+    const rowH = (h - 4) / D.motions.length;
+    D.motions.forEach((m, i) => {
+      const y = 2 + i * rowH;
+      tctx.fillStyle = "#e2e8f0";
+      tctx.fillRect(x(0), y + rowH / 2 - 1, x(m.frames - 1) - x(0), 2);
+      tctx.fillStyle = COLORS.key;
+      m.keyframes.forEach((k) => tctx.fillRect(x(k) - 1.5, y + 2, 3, rowH - 4));
+    });
+    tctx.fillStyle = "#0f172a";
+    tctx.fillRect(x(frame) - 1, 0, 2, h);
+  }
+
+  // What the page test reads: the frame shown and how many pixels the figures cover.
+  function report(w, h, dpr) {
+    const img = ctx.getImageData(0, 0, Math.round(w * dpr), Math.round(h * dpr)).data;
+    let n = 0;
+    for (let i = 0; i < img.length; i += 4) if (img[i + 2] > 150 && img[i] < 120) n++; // blue: left limbs
+    status.textContent = `frame ${frame}; left-limb pixels ${n}`;
+  }
+
+  function setFrame(f) { frame = Math.max(0, Math.min(T - 1, f | 0)); draw(); }
+  function setPlaying(p) { playing = p; playBtn.textContent = p ? "\u275a\u275a pause" : "\u25b6 play"; last = null; }
+  function tick(ts) {
+    if (playing) {
+      if (last !== null) {
+        acc += (ts - last) / 1000;
+        const n = Math.floor(acc * D.fps);
+        if (n > 0) { acc -= n / D.fps; frame = (frame + n) % T; }
+      }
+      last = ts;
+      draw();
+    }
+    requestAnimationFrame(tick);
+  }
+
+  slider.addEventListener("input", () => { const v = Number(slider.value); playing = false; setPlaying(false); setFrame(v); });
+  playBtn.addEventListener("click", () => { setPlaying(!playing); draw(); });
+  followBox.addEventListener("change", draw);
+  timeline.addEventListener("pointerdown", (e) => {
+    const r = timeline.getBoundingClientRect();
+    setPlaying(false);
+    setFrame(Math.round((e.clientX - r.left - 6) / (r.width - 12) * (T - 1)));
+  });
+  let drag = null;
+  cv.addEventListener("pointerdown", (e) => { drag = [e.clientX, e.clientY]; cv.setPointerCapture(e.pointerId); });
+  cv.addEventListener("pointerup", () => { drag = null; });
+  cv.addEventListener("pointermove", (e) => {
+    if (!drag) return;
+    cam.yaw -= (e.clientX - drag[0]) * 0.01;
+    cam.pitch = Math.max(-0.1, Math.min(1.45, cam.pitch + (e.clientY - drag[1]) * 0.01));
+    drag = [e.clientX, e.clientY];
+    draw();
+  });
+  cv.addEventListener("wheel", (e) => { e.preventDefault(); cam.dist = Math.max(1.2, Math.min(40, cam.dist * Math.exp(e.deltaY * 0.001))); draw(); }, { passive: false });
+  document.addEventListener("keydown", (e) => {
+    if (e.code === "Space") { e.preventDefault(); setPlaying(!playing); draw(); }
+    if (e.code === "ArrowRight") { setPlaying(false); setFrame(frame + 1); }
+    if (e.code === "ArrowLeft") { setPlaying(false); setFrame(frame - 1); }
+  });
+  window.addEventListener("resize", draw);
+
+  const m = /frame=(\d+)/.exec(location.hash);
+  if (m) {
+    slider.value = m[1];
+    slider.dispatchEvent(new Event("input"));
+  } else {
+    draw();
+  }
+  requestAnimationFrame(tick);
+})();

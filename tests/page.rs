@@ -1,0 +1,116 @@
+//! The 3D page in headless Chromium (Debian's package): it loads from disk without console
+//! messages, the canvas draws the figures, and moving the frame slider changes the picture.
+//! Without Chromium the test skips with a notice, unless DIFFKFC_REQUIRE_CHROMIUM=1 (set by
+//! .ci/run, which installs it) makes that a failure.
+
+mod common;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use common::*;
+use diffkfc_data::fixtures;
+
+fn chromium() -> Option<PathBuf> {
+    let path = std::env::var_os("PATH")?;
+    let found = std::env::split_paths(&path).flat_map(|d| ["chromium", "chromium-browser", "google-chrome"].map(|n| d.join(n))).find(|b| b.is_file());
+    if found.is_none() {
+        if std::env::var("DIFFKFC_REQUIRE_CHROMIUM").is_ok_and(|v| v == "1") {
+            panic!("chromium is not on PATH (apt-get install chromium)");
+        }
+        eprintln!("SKIPPED: chromium is not on PATH; the 3D page is not checked in a browser");
+    }
+    found
+}
+
+fn headless(chromium: &Path, extra: &[&str], url: &str) -> Output {
+    let profile = std::env::temp_dir().join(format!("diffkfc-chromium-{}", std::process::id()));
+    Command::new(chromium)
+        .args(["--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--enable-logging=stderr", "--v=0", "--window-size=1280,800", "--virtual-time-budget=4000"])
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .args(extra)
+        .arg(url)
+        .output()
+        .expect("run chromium")
+}
+
+/// RGB pixels of the view (the canvas's rows of the screenshot).
+fn pixels(png_path: &Path) -> (usize, usize, Vec<u8>) {
+    let dec = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(png_path).unwrap()));
+    let mut r = dec.read_info().unwrap();
+    let mut buf = vec![0; r.output_buffer_size().unwrap()];
+    let info = r.next_frame(&mut buf).unwrap();
+    let ch = info.color_type.samples();
+    let rgb: Vec<u8> = buf[..info.buffer_size()].chunks(ch).flat_map(|p| [p[0], p[1], p[2]]).collect();
+    (info.width as usize, info.height as usize, rgb)
+}
+
+#[test]
+fn page_draws_and_the_slider_moves_the_figures() {
+    let Some(chromium) = chromium() else {
+        return;
+    };
+    let Some(src) = fixtures::require("humanml3d/new_joint_vecs/012314.npy") else {
+        return;
+    };
+    if !have_text_encoder() {
+        return;
+    }
+    let d = scratch("page");
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/tiny-synth");
+    let out = d.join("walk");
+    let o = diffkfc(&[
+        "sample",
+        "--checkpoint",
+        s(&model),
+        "--text",
+        "a person walks forward.",
+        "--from",
+        s(&src),
+        "--frames",
+        "0,40,80",
+        "--length",
+        "100",
+        "--num-samples",
+        "2",
+        "--steps",
+        "4",
+        "--out",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let url = |frame: usize| format!("file://{}#frame={frame}", out.join("index.html").display());
+
+    let dom = headless(&chromium, &["--dump-dom"], &url(40));
+    let (html, log) = (stdout(&dom), stderr(&dom));
+    assert!(dom.status.success(), "{log}");
+    let console: Vec<&str> = log.lines().filter(|l| l.contains(":CONSOLE")).collect();
+    assert!(console.is_empty(), "console messages: {console:?}");
+    // The page reports what it drew: the frame the slider set and the left limbs' pixels.
+    let status = html.split("<output id=\"status\">").nth(1).and_then(|s| s.split('<').next()).unwrap_or("");
+    eprintln!("page at #frame=40: {status}");
+    assert!(status.starts_with("frame 40;"), "{status}");
+    let drawn: usize = status.rsplit(' ').next().unwrap().parse().unwrap();
+    assert!(drawn > 300, "figures cover {drawn} px");
+    for label in ["source", "sample_00", "sample_01", "sample_00.bvh"] {
+        assert!(html.contains(label), "{label} missing from the page");
+    }
+
+    let shots: Vec<_> = [0usize, 70]
+        .iter()
+        .map(|&f| {
+            let png = d.join(format!("frame{f}.png"));
+            let o = headless(&chromium, &[&format!("--screenshot={}", png.display())], &url(f));
+            assert!(o.status.success() && png.exists(), "{}", stderr(&o));
+            pixels(&png)
+        })
+        .collect();
+    let (w, h, a) = &shots[0];
+    let b = &shots[1].2;
+    // The view is the canvas below the title; count changed pixels in the rows it covers.
+    let rows = (h / 6)..(h * 3 / 4);
+    let changed = rows.clone().flat_map(|y| (0..*w).map(move |x| (y * w + x) * 3)).filter(|&i| (0..3).any(|c| a[i + c].abs_diff(b[i + c]) > 40)).count();
+    let blue = |p: &[u8]| rows.clone().flat_map(|y| (0..*w).map(move |x| (y * w + x) * 3)).filter(|&i| p[i + 2] > 150 && p[i] < 120).count();
+    eprintln!("screenshots at frames 0 and 70: {changed} pixels differ in the view; left-limb blue pixels {} and {}", blue(a), blue(b));
+    assert!(blue(a) > 300 && blue(b) > 300, "figures not drawn");
+    assert!(changed > 500, "the slider did not move the figures ({changed} px changed)");
+}
