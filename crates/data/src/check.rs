@@ -99,7 +99,7 @@ pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport
     // Per id: (frames, captions) when usable; checked once even if listed in several splits.
     let mut seen: BTreeMap<String, Option<(usize, Vec<texts::Caption>)>> = BTreeMap::new();
     let mut words = BTreeSet::new();
-    let mut hist = vec![0usize; 11];
+    let mut hist = [0usize; 11];
     let mut stats = Vec::new();
     let mut done = 0;
     for (split, ids) in &splits {

@@ -347,7 +347,7 @@ mod tests {
         assert_eq!(o[8], [0.0; 3]);
         assert!((toe[5][2] + o[5][2] - toe[8][2]).abs() < 1e-12);
         // A foot dragged 25 cm over the span is not a planted step: left alone.
-        let (o, dragged) = offsets(&toe, &planted, &vec![false; 20], 4, 0.1);
+        let (o, dragged) = offsets(&toe, &planted, &[false; 20], 4, 0.1);
         assert_eq!((dragged, o), (1, vec![[0.0; 3]; 20]));
     }
 }

@@ -22,6 +22,7 @@ pub mod rng;
 pub mod skeleton;
 pub mod synth;
 pub mod texts;
+pub mod timeline;
 pub mod viewer;
 pub mod warp;
 

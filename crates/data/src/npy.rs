@@ -162,7 +162,7 @@ pub fn encode<T: NpyElem>(shape: &[usize], data: &[T]) -> Vec<u8> {
         total = (prefix + dict.len() + 1).div_ceil(64) * 64;
     }
     let hlen = total - prefix;
-    let mut out = Vec::with_capacity(total + data.len() * std::mem::size_of::<T>());
+    let mut out = Vec::with_capacity(total + std::mem::size_of_val(data));
     out.extend_from_slice(MAGIC);
     out.push(major);
     out.push(0);

@@ -19,7 +19,7 @@
   const COLORS = { left: "#2563eb", right: "#dc2626", centre: "#374151", key: "#f97316" };
   const side = D.parents.map((_, j) => (D.left.includes(j) ? "left" : D.right.includes(j) ? "right" : "centre"));
   D.motions.forEach((m, i) => { m.dx = (i - (D.motions.length - 1) / 2) * LANE; });
-  const cam = { yaw: 0.6, pitch: 0.25, dist: 2.2 + 0.8 * D.motions.length, target: [0, 0.9, 0] };
+  const cam = { yaw: 0.6, pitch: 0.25, dist: 2.2 + 0.8 * D.motions.length, zoom: 1, target: [0, 0.9, 0] };
   let frame = 0, playing = true, last = null, acc = 0;
   slider.max = String(T - 1);
 
@@ -55,15 +55,18 @@
     ctx.fillStyle = "#f8fafc";
     ctx.fillRect(0, 0, w, h);
     if (followBox.checked) {
-      let x = 0, z = 0;
-      D.motions.forEach((m) => { const p = joint(m, m.joints, frame, 0); x += p[0]; z += p[2]; });
-      cam.target = [x / D.motions.length, 0.9, z / D.motions.length];
+      // Look at the middle of the figures, from far enough to keep them all in view (motions
+      // that travel apart, as long ones do, zoom the view out).
+      const ps = D.motions.map((m) => joint(m, m.joints, frame, 0));
+      const lo = [0, 2].map((k) => Math.min(...ps.map((p) => p[k]))), hi = [0, 2].map((k) => Math.max(...ps.map((p) => p[k])));
+      cam.target = [(lo[0] + hi[0]) / 2, 0.9, (lo[1] + hi[1]) / 2];
+      cam.dist = Math.max(2.2 + 0.8 * D.motions.length, 1.3 * Math.max(hi[0] - lo[0], hi[1] - lo[1]) + 2) * cam.zoom;
     }
     const proj = camera(w, h);
     // Ground grid (0.5 m) around the target.
     ctx.strokeStyle = "#e2e8f0";
     ctx.lineWidth = 1;
-    const gx = Math.round(cam.target[0] * 2) / 2, gz = Math.round(cam.target[2] * 2) / 2, R = 6;
+    const gx = Math.round(cam.target[0] * 2) / 2, gz = Math.round(cam.target[2] * 2) / 2, R = Math.max(6, Math.ceil(cam.dist));
     for (let k = -R; k <= R; k += 0.5) {
       line(proj([gx + k, 0, gz - R]), proj([gx + k, 0, gz + R]));
       line(proj([gx - R, 0, gz + k]), proj([gx + R, 0, gz + k]));
@@ -123,6 +126,12 @@
       const p = proj(sub(joint(m, m.joints, frame, 0), [0, -1.0, 0]));
       if (p) ctx.fillText(m.label + (m.keyframes.includes(frame) ? "  \u25c6 key" : ""), p[0], p[1]);
     });
+    const seg = (D.segments || []).filter(([s]) => s <= frame).pop();
+    if (seg) {
+      ctx.textAlign = "left";
+      ctx.font = "15px sans-serif";
+      ctx.fillText(`\u25b8 ${seg[1]}`, 12, 22);
+    }
     slider.value = String(frame);
     frameLabel.textContent = `frame ${frame} / ${T - 1} (${(frame / D.fps).toFixed(2)} s)`;
     drawTimeline();
@@ -152,6 +161,7 @@
       tctx.fillStyle = COLORS.key;
       m.keyframes.forEach((k) => tctx.fillRect(x(k) - 1.5, y + 2, 3, rowH - 4));
     });
+    (D.segments || []).forEach(([s]) => { tctx.fillStyle = "#64748b"; if (s > 0) tctx.fillRect(x(s) - 1, 0, 2, h); });
     tctx.fillStyle = "#0f172a";
     tctx.fillRect(x(frame) - 1, 0, 2, h);
   }
@@ -197,7 +207,13 @@
     drag = [e.clientX, e.clientY];
     draw();
   });
-  cv.addEventListener("wheel", (e) => { e.preventDefault(); cam.dist = Math.max(1.2, Math.min(40, cam.dist * Math.exp(e.deltaY * 0.001))); draw(); }, { passive: false });
+  cv.addEventListener("wheel", (e) => {
+    e.preventDefault();
+    const f = Math.exp(e.deltaY * 0.001);
+    cam.zoom = Math.max(0.2, Math.min(5, cam.zoom * f));
+    cam.dist = Math.max(1.2, Math.min(60, cam.dist * f));
+    draw();
+  }, { passive: false });
   document.addEventListener("keydown", (e) => {
     if (e.code === "Space") { e.preventDefault(); setPlaying(!playing); draw(); }
     if (e.code === "ArrowRight") { setPlaying(false); setFrame(frame + 1); }

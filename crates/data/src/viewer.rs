@@ -35,8 +35,9 @@ fn flat(frames: &[Vec<[f64; 3]>]) -> Vec<f64> {
     frames.iter().flatten().flatten().map(|v| (v * 1000.0).round() / 1000.0).collect()
 }
 
-/// A whole HTML page: `title`, an HTML `intro` (already escaped), the view and a card per motion.
-pub fn page(skel: &Skeleton, title: &str, intro: &str, motions: &[ViewMotion]) -> String {
+/// A whole HTML page: `title`, an HTML `intro` (already escaped), the view and a card per motion;
+/// `segments` (start frame, text) of a timeline are marked on the timeline and named in the view.
+pub fn page(skel: &Skeleton, title: &str, intro: &str, motions: &[ViewMotion], segments: &[(usize, String)]) -> String {
     let side = |p: &str| -> Vec<usize> { (0..skel.num_joints()).filter(|&j| skel.joint_names[j].starts_with(p)).collect() };
     let head = skel.joint_names.iter().position(|n| *n == "head").unwrap_or(skel.num_joints() - 1);
     let data = json!({
@@ -45,6 +46,7 @@ pub fn page(skel: &Skeleton, title: &str, intro: &str, motions: &[ViewMotion]) -
         "left": side("l_"),
         "right": side("r_"),
         "head": head,
+        "segments": segments,
         "motions": motions.iter().map(|m| json!({
             "label": m.label,
             "frames": m.joints.len(),
@@ -91,4 +93,26 @@ body{{font-family:system-ui,sans-serif;margin:16px;color:#0f172a;max-width:1200p
         tl = 8 + 10 * motions.len(),
         data = data.to_string().replace("</", "<\\/"),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::T2M;
+
+    /// Text from users (prompts, labels) cannot end the data script or inject markup, and the
+    /// embedded data parses back to the motion.
+    #[test]
+    fn page_embeds_the_motion_and_escapes_text() {
+        let pose = vec![[0.1234567, 0.9, -0.5]; 22];
+        let m = ViewMotion { label: "</script><b>x".into(), joints: vec![pose.clone(), pose], keyframes: vec![1], ..Default::default() };
+        let html = page(&T2M, "a <walk>", "", &[m], &[(0, "</script>".into())]);
+        assert!(!html.contains("</script><b>") && html.contains("&lt;/script&gt;&lt;b&gt;x") && html.contains("<h1>a &lt;walk&gt;</h1>"));
+        let data = html.split("id=\"motion-data\">").nth(1).unwrap().split("</script>").next().unwrap().replace("<\\/", "</");
+        let v: serde_json::Value = serde_json::from_str(&data).unwrap();
+        assert_eq!(v["motions"][0]["frames"], 2);
+        assert_eq!(v["motions"][0]["joints"].as_array().unwrap().len(), 2 * 22 * 3);
+        assert_eq!(v["motions"][0]["joints"][0], 0.123);
+        assert_eq!(v["parents"].as_array().unwrap().len(), 22);
+    }
 }

@@ -63,7 +63,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
                 ..Default::default()
             })
             .collect();
-        diffkfc_data::write_atomic(&a.output, viewer::page(&T2M, &a.title, "", &views).as_bytes())?;
+        diffkfc_data::write_atomic(&a.output, viewer::page(&T2M, &a.title, "", &views, &[]).as_bytes())?;
         println!("{}: 3D page of {} motion(s)", a.output.display(), views.len());
     } else if a.sheet {
         let clips: Vec<_> = motions.into_iter().map(|j| (j, a.keyframes.clone())).collect();

@@ -8,11 +8,12 @@ use clap::{Args, ValueEnum};
 use diffkfc_data::keyframes::{self, Strategy};
 use diffkfc_data::rng::Rng;
 use diffkfc_data::viewer::{self, escape, ViewMotion};
-use diffkfc_data::warp::{self, RootKey, ROOT_CHANNELS};
+use diffkfc_data::warp::{self, RootKey};
 use diffkfc_data::{npy, pose, render, representation as rep, T2M};
 use diffkfc_eval::keyframe_metrics::{k_err_global, k_err_local, k_trans};
+use diffkfc_model::denoiser::Denoiser;
 use diffkfc_model::diffusion::Schedule;
-use diffkfc_model::fit::{finish, Fit, KeyframeFit};
+use diffkfc_model::fit::{finish, Fit, Fitted, KeyframeFit};
 use diffkfc_model::place::PlaceGuidance;
 use diffkfc_model::sampler::{self, Options, Request, Sampler};
 use diffkfc_model::text::{self, minilm::MiniLm, TextEncoder};
@@ -83,9 +84,17 @@ pub struct SampleArgs {
     /// files; EMA weights when present.
     #[arg(long)]
     checkpoint: PathBuf,
-    /// The prompt (required unless --prompts).
-    #[arg(long, required_unless_present = "prompts", default_value = "", hide_default_value = true)]
+    /// The prompt (required unless --prompts or --timeline).
+    #[arg(long, required_unless_present_any = ["prompts", "timeline"], default_value = "", hide_default_value = true)]
     text: String,
+    /// A motion of any length from a timeline of prompts: "0-4s: a person walks forward |
+    /// 4-6.5s: a person jumps | 6.5-12s: a person sits down", or a file with one segment per
+    /// line. Segments start at 0, follow one another and last at least 1 s. Each is generated
+    /// in windows of at most 196 frames that start from the last 0.5 s of the motion so far
+    /// (given as keyframes: pose, place and heading), so the joins have no seam; --keyframes
+    /// JSON frames count on the whole timeline.
+    #[arg(long, conflicts_with_all = ["text", "prompts", "from", "length", "seconds"], value_name = "SEGMENTS|FILE")]
+    timeline: Option<String>,
     /// Many prompts: one per line, optionally `text#length`; outputs go to <out>/promptNNN.
     #[arg(long, conflicts_with = "text")]
     prompts: Option<PathBuf>,
@@ -176,9 +185,13 @@ pub struct SampleArgs {
 }
 
 mod keys;
+mod timeline;
 use keys::*;
 
 pub fn run(a: SampleArgs) -> Result<()> {
+    if let Some(spec) = a.timeline.clone() {
+        return timeline::run(a, &spec);
+    }
     let Some(file) = a.prompts.clone() else {
         return run_one(a);
     };
@@ -245,6 +258,9 @@ fn check_flags(a: &SampleArgs) -> Result<()> {
     if a.steps == 0 || a.steps > 1000 {
         bail!("--steps: {} must be 1 to 1000 (the schedule's length)", a.steps);
     }
+    if a.tg_bases == 0 {
+        bail!("--tg-bases: must be at least 1");
+    }
     if a.num_samples == 0 || a.num_samples > 256 {
         bail!("--num-samples: {} must be 1 to 256", a.num_samples);
     }
@@ -261,17 +277,6 @@ fn run_one(a: SampleArgs) -> Result<()> {
         bail!("--text: empty prompt");
     }
     check_flags(&a)?;
-    if a.num_samples == 0 {
-        bail!("--num-samples: must be at least 1");
-    }
-    if a.tg_bases == 0 {
-        bail!("--tg-bases: must be at least 1");
-    }
-    let device = crate::device::parse(&a.device)?;
-    // Exact transition guidance differentiates through the denoiser.
-    let device = if matches!(a.tg_mode, TgModeArg::Exact) { device.autodiff() } else { device };
-    let (cfg, model, step) = load_for_inference(&a.checkpoint, &device).map_err(anyhow::Error::msg)?;
-    let (mean, std) = normalisation(&a.checkpoint, &cfg)?;
     let max = diffkfc_data::dataset::MAX_FRAMES;
     // Checked before anything is allocated for the motion.
     if let Some(s) = a.seconds {
@@ -302,52 +307,103 @@ fn run_one(a: SampleArgs) -> Result<()> {
     if keys.length == 0 || keys.length > max {
         bail!("--length: {} frames; must be 1 to {max}", keys.length);
     }
-    let enc = MiniLm::load(&text::default_dir(), &Device::flex())?;
-    let emb = enc.embed(&[a.text.as_str()]).context("--text")?.remove(0);
-    let (b, n, d) = (a.num_samples, keys.length, T2M.feature_dim());
-    let norm = |v: &[f32], m: &[f32]| -> Vec<f32> { v.iter().zip(m).enumerate().map(|(k, (x, mk))| if *mk > 0.0 { (x - mean[k % d]) / std[k % d] } else { 0.0 }).collect() };
-    let kf_n = norm(&keys.values, &keys.mask);
-    let (root, root_mask): (Vec<[f32; ROOT_CHANNELS]>, Vec<[f32; ROOT_CHANNELS]>) = keys.root.iter().map(RootKey::channels).unzip();
-    let req = Request {
-        kf: kf_n.iter().copied().cycle().take(b * n * d).collect(),
-        mask: keys.mask.iter().copied().cycle().take(b * n * d).collect(),
-        root: root.concat().iter().copied().cycle().take(b * n * ROOT_CHANNELS).collect(),
-        root_mask: root_mask.concat().iter().copied().cycle().take(b * n * ROOT_CHANNELS).collect(),
-        ..Request::text_only(n, d, emb.iter().copied().cycle().take(b * emb.len()).collect(), emb.len(), vec![n; b])
-    };
-    let schedule = Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps)
-        .with_context(|| format!("{}: unknown diffusion schedule '{}' in the checkpoint's config (cosine, linear)", a.checkpoint.display(), cfg.diffusion.schedule))?;
-    if a.steps > schedule.steps {
-        bail!("--steps: {} is more than the checkpoint's {} diffusion steps", a.steps, schedule.steps);
-    }
-    let opts = Options {
-        sampler: a.sampler.sampler(a.steps),
-        kf_guidance: a.kf_guidance,
-        transition: a.transition_guidance,
-        seed: a.seed,
-        window: a.tg_window,
-        dct_bases: a.tg_bases,
-        tg_mode: match a.tg_mode {
-            TgModeArg::X0 => sampler::TgMode::X0,
-            TgModeArg::Exact => sampler::TgMode::Exact,
-        },
-        inpaint: matches!(a.keyframe_mode, KeyframeMode::Inpaint),
-        place: (a.place_guidance > 0.0).then(|| PlaceGuidance::new(a.place_guidance, &mean, &std)),
-    };
-    let t0 = std::time::Instant::now();
-    let x = sampler::sample(&model, &schedule, &req, &opts, crate::progress::bar("denoising"));
-    let secs = t0.elapsed().as_secs_f64();
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    let fit = a.fit.fit();
-    // Every sample is checked before any file is written: a diverged sampler (extreme guidance)
-    // gives an error, not NaN files with exit 0.
-    let fitted: Vec<_> = (0..b).map(|i| finish(&x, &req, i, &mean, &std, &T2M, fit)).collect();
-    for (i, f) in fitted.iter().map(|s| &s.features).enumerate() {
-        let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
-        if let Err(e) = render::check_drawable(&j).map_err(|e| e.to_string()).and(f.iter().all(|v| v.is_finite()).then_some(()).ok_or_else(|| "features not finite".to_string())) {
-            bail!("sample {i} diverged ({e}); lower --kf-guidance ({}) or --transition-guidance ({})", a.kf_guidance, a.transition_guidance);
+    let gen = Generator::load(&a)?;
+    let emb = gen.embed(&a.text, "--text")?;
+    let req = gen.request(&emb, keys.length, a.num_samples, &[(&keys.values, &keys.mask, &keys.root)]);
+    let (fitted, secs) = gen.generate(&req, &a)?;
+    write_outputs(&a, &gen, &keys, fitted, secs, json!({}), &[])
+}
+
+/// The model and the settings one `sample` command generates with.
+pub(super) struct Generator {
+    model: Denoiser,
+    schedule: Schedule,
+    mean: Vec<f32>,
+    std: Vec<f32>,
+    enc: MiniLm,
+    opts: Options,
+    fit: Fit,
+    step: usize,
+}
+
+impl Generator {
+    fn load(a: &SampleArgs) -> Result<Generator> {
+        let device = crate::device::parse(&a.device)?;
+        // Exact transition guidance differentiates through the denoiser.
+        let device = if matches!(a.tg_mode, TgModeArg::Exact) { device.autodiff() } else { device };
+        let (cfg, model, step) = load_for_inference(&a.checkpoint, &device).map_err(anyhow::Error::msg)?;
+        let (mean, std) = normalisation(&a.checkpoint, &cfg)?;
+        let schedule = Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps)
+            .with_context(|| format!("{}: unknown diffusion schedule '{}' in the checkpoint's config (cosine, linear)", a.checkpoint.display(), cfg.diffusion.schedule))?;
+        if a.steps > schedule.steps {
+            bail!("--steps: {} is more than the checkpoint's {} diffusion steps", a.steps, schedule.steps);
         }
+        let opts = Options {
+            sampler: a.sampler.sampler(a.steps),
+            kf_guidance: a.kf_guidance,
+            transition: a.transition_guidance,
+            seed: a.seed,
+            window: a.tg_window,
+            dct_bases: a.tg_bases,
+            tg_mode: match a.tg_mode {
+                TgModeArg::X0 => sampler::TgMode::X0,
+                TgModeArg::Exact => sampler::TgMode::Exact,
+            },
+            inpaint: matches!(a.keyframe_mode, KeyframeMode::Inpaint),
+            place: (a.place_guidance > 0.0).then(|| PlaceGuidance::new(a.place_guidance, &mean, &std)),
+        };
+        let enc = MiniLm::load(&text::default_dir(), &Device::flex())?;
+        Ok(Generator { model, schedule, mean, std, enc, opts, fit: a.fit.fit(), step })
     }
+
+    fn embed(&self, text: &str, flag: &str) -> Result<Vec<f32>> {
+        Ok(self.enc.embed(&[text]).context(flag.to_string())?.remove(0))
+    }
+
+    /// A request for `b` motions of `n` frames of the text `emb`; item i observes `keys[i]`
+    /// (raw features [n, D], their mask, root keys [n]), or `keys[0]` when one is given.
+    fn request(&self, emb: &[f32], n: usize, b: usize, keys: &[(&[f32], &[f32], &[RootKey])]) -> Request {
+        let d = T2M.feature_dim();
+        let (mean, std) = (&self.mean, &self.std);
+        let norm = |v: &[f32], m: &[f32]| -> Vec<f32> { v.iter().zip(m).enumerate().map(|(k, (x, mk))| if *mk > 0.0 { (x - mean[k % d]) / std[k % d] } else { 0.0 }).collect() };
+        let item = |i: usize| keys[i.min(keys.len() - 1)];
+        let (mut kf, mut mask, mut root, mut root_mask) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for i in 0..b {
+            let (v, m, r) = item(i);
+            kf.extend(norm(v, m));
+            mask.extend_from_slice(m);
+            for k in r {
+                let (c, cm) = k.channels();
+                root.extend(c);
+                root_mask.extend(cm);
+            }
+        }
+        Request { kf, mask, root, root_mask, ..Request::text_only(n, d, emb.iter().copied().cycle().take(b * emb.len()).collect(), emb.len(), vec![n; b]) }
+    }
+
+    /// Sample, fit and check every motion of `req`; also the seconds the sampler took. A
+    /// diverged sampler (extreme guidance) gives an error, not NaN files with exit 0.
+    fn generate(&self, req: &Request, a: &SampleArgs) -> Result<(Vec<Fitted>, f64)> {
+        let t0 = std::time::Instant::now();
+        let x = sampler::sample(&self.model, &self.schedule, req, &self.opts, crate::progress::bar("denoising"));
+        let secs = t0.elapsed().as_secs_f64();
+        let fitted: Vec<_> = (0..req.batch).map(|i| finish(&x, req, i, &self.mean, &self.std, &T2M, self.fit)).collect();
+        for (i, f) in fitted.iter().map(|s| &s.features).enumerate() {
+            let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
+            if let Err(e) = render::check_drawable(&j).map_err(|e| e.to_string()).and(f.iter().all(|v| v.is_finite()).then_some(()).ok_or_else(|| "features not finite".to_string())) {
+                bail!("sample {i} diverged ({e}); lower --kf-guidance ({}) or --transition-guidance ({})", a.kf_guidance, a.transition_guidance);
+            }
+        }
+        Ok((fitted, secs))
+    }
+}
+
+/// Every file of a `sample` folder: per-sample features, joints, GIF, BVH; the source; results.json
+/// (with `extra` merged in) and the 3D page (with timeline `segments`: start frame and text).
+fn write_outputs(a: &SampleArgs, gen: &Generator, keys: &Keys, fitted: Vec<Fitted>, secs: f64, extra: serde_json::Value, segments: &[(usize, String)]) -> Result<()> {
+    let (b, n, d) = (fitted.len(), keys.length, T2M.feature_dim());
+    let (opts, fit, step) = (&gen.opts, gen.fit, gen.step);
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     remove_stale_samples(&a.out, b)?;
     let mut samples = Vec::new();
     let mut views = Vec::new();
@@ -402,7 +458,7 @@ fn run_one(a: SampleArgs) -> Result<()> {
             joints: j,
         });
     }
-    let report = json!({
+    let mut report = json!({
         "text": a.text,
         "checkpoint": a.checkpoint.display().to_string(),
         "checkpoint_step": step,
@@ -426,8 +482,11 @@ fn run_one(a: SampleArgs) -> Result<()> {
         "real_foot_skating": keys.source.as_ref().map(|s| diffkfc_data::plausibility::foot_skating_ratio(&T2M, s)),
         "samples": samples,
     });
+    if let (Some(r), Some(e)) = (report.as_object_mut(), extra.as_object()) {
+        r.extend(e.clone());
+    }
     diffkfc_data::write_atomic(&a.out.join("results.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
-    diffkfc_data::write_atomic(&a.out.join("index.html"), index_html(&report, &views).as_bytes())?;
+    diffkfc_data::write_atomic(&a.out.join("index.html"), index_html(&report, &views, segments).as_bytes())?;
     println!("{}: {b} sample(s) of {n} frames in {secs:.1} s ({:?}); see results.json and index.html", a.out.display(), opts.sampler);
     for (i, s) in report["samples"].as_array().unwrap().iter().enumerate() {
         let most = |k: &str| s["corrections"].as_array().into_iter().flatten().filter_map(|c| c[k].as_f64()).map(f64::abs).fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))));
@@ -451,7 +510,7 @@ fn run_one(a: SampleArgs) -> Result<()> {
 }
 
 /// The folder's page: the 3D view of the source and every sample, the settings above it.
-fn index_html(r: &serde_json::Value, views: &[ViewMotion]) -> String {
+fn index_html(r: &serde_json::Value, views: &[ViewMotion], segments: &[(usize, String)]) -> String {
     let intro = format!(
         "<p>{} frames &middot; {} &middot; {} &middot; keyframe guidance {} &middot; transition guidance {} &middot; fit {} &middot; <a href=results.json>results.json</a>{}</p>",
         r["length"],
@@ -462,7 +521,7 @@ fn index_html(r: &serde_json::Value, views: &[ViewMotion]) -> String {
         escape(&r["keyframe_fit"].to_string()),
         r["source"].as_str().map(|s| format!(" &middot; source {}", escape(s))).unwrap_or_default()
     );
-    viewer::page(&T2M, r["text"].as_str().unwrap_or("diffkfc"), &intro, views)
+    viewer::page(&T2M, r["text"].as_str().unwrap_or("diffkfc"), &intro, views, segments)
 }
 
 /// "keyframes at frames 0, 40, 80", or a count and range where there are many.

@@ -50,7 +50,7 @@ fn state(p: &Pose) -> RootState {
 
 /// Locomotion along a path; the shared body of walk, jog, run, side steps, circles, turns.
 fn locomotion(start: &Pose, n: usize, speed: f64, heading: f64, yaw_rate: f64, g: Gait, bounce: f64) -> Vec<Pose> {
-    let traj = gait::trajectory(state(start), n, FPS, speed, heading, yaw_rate, bounce, g.step_rate);
+    let traj = gait::trajectory(state(start), n, FPS, gait::Travel { speed, heading, yaw_rate, bounce, step_rate: g.step_rate });
     gait::locomote(&traj, &g, start.feet, FPS)
 }
 

@@ -123,10 +123,22 @@ pub fn locomote(traj: &[RootState], gait: &Gait, start_feet: [Vec3; 2], fps: f64
     poses
 }
 
-/// A root trajectory of `n` frames from `start`, moving with `speed` (m/s) in direction
-/// `heading` relative to the facing (0 forward, pi/2 to the left), turning at `yaw_rate`
-/// (rad/s), with eased start and stop and a vertical bounce per step.
-pub fn trajectory(start: RootState, n: usize, fps: f64, speed: f64, heading: f64, yaw_rate: f64, bounce: f64, step_rate: f64) -> Vec<RootState> {
+/// How a root travels: `speed` (m/s) in direction `heading` relative to the facing (0 forward,
+/// pi/2 to the left), turning at `yaw_rate` (rad/s), bouncing `bounce` metres `step_rate` times
+/// a second.
+#[derive(Clone, Copy, Debug)]
+pub struct Travel {
+    pub speed: f64,
+    pub heading: f64,
+    pub yaw_rate: f64,
+    pub bounce: f64,
+    pub step_rate: f64,
+}
+
+/// A root trajectory of `n` frames from `start`, travelling as `tr` says, with eased start and
+/// stop.
+pub fn trajectory(start: RootState, n: usize, fps: f64, tr: Travel) -> Vec<RootState> {
+    let Travel { speed, heading, yaw_rate, bounce, step_rate } = tr;
     let mut out = Vec::with_capacity(n);
     let mut s = start;
     let ease_frames = (0.6 * fps).min(n as f64 / 3.0);

@@ -119,8 +119,8 @@ fn overlay(r: &mut Rng, base: Segment, upper: &str) -> Segment {
             // The upper action was computed on the base's first pose; take only its arms.
             let mut p = *b;
             let rest = base.poses[0].arms;
-            for k in 0..2 {
-                let changed = (u.arms[k].flex - rest[k].flex).abs() + (u.arms[k].abd - rest[k].abd).abs() + (u.arms[k].elbow - rest[k].elbow).abs();
+            for (k, rest) in rest.iter().enumerate() {
+                let changed = (u.arms[k].flex - rest.flex).abs() + (u.arms[k].abd - rest.abd).abs() + (u.arms[k].elbow - rest.elbow).abs();
                 let w = (changed * 4.0).min(1.0);
                 p.arms[k] = body::Arm::lerp(b.arms[k], u.arms[k], w);
             }
@@ -181,6 +181,8 @@ fn representable(input: &rep::Joints, rec: &rep::Joints) -> bool {
 
 fn clip_attempt(seed: u64, index: usize, attempt: u64) -> Clip {
     let mut r = Rng::derive(seed, 7 + (attempt << 8), index as u64);
+    // 3.14, not PI: the synthetic set's bytes are fixed by its seed, and PI would change them.
+    #[allow(clippy::approx_constant)]
     let start = Pose::standing(r.range(-1.0, 1.0), r.range(-1.0, 1.0), r.range(-3.14, 3.14));
     let pattern = PATTERNS[[0, 0, 0, 1, 1, 2, 2, 3][r.below(8)]];
     let max = 195; // +1 position frame -> at most 195 feature frames (< 196)

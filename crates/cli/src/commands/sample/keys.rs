@@ -175,15 +175,23 @@ pub(super) fn relative_to_first_frame(root: &mut [RootKey]) {
     let Some(first) = root.first().copied() else {
         return;
     };
-    let [ox, oz] = first.place.unwrap_or([0.0, 0.0]);
-    let h0 = first.heading.unwrap_or(0.0);
-    let (s, c) = (-h0).sin_cos();
     for k in root.iter_mut() {
-        // Rotate by -h0 about +Y (heading h turns +Z towards +X): x' = x cos + z sin.
-        k.place = k.place.map(|[x, z]| {
+        *k = relative_to(*k, first);
+    }
+}
+
+/// A keyed place and heading re-expressed in the frame that stands at `origin`'s place facing
+/// its heading (a missing place or heading of the origin: the origin, facing +Z).
+pub(super) fn relative_to(k: RootKey, origin: RootKey) -> RootKey {
+    let [ox, oz] = origin.place.unwrap_or([0.0, 0.0]);
+    let h0 = origin.heading.unwrap_or(0.0);
+    let (s, c) = (-h0).sin_cos();
+    // Rotate by -h0 about +Y (heading h turns +Z towards +X): x' = x cos + z sin.
+    RootKey {
+        place: k.place.map(|[x, z]| {
             let (x, z) = (x - ox, z - oz);
             [x * c + z * s, -x * s + z * c]
-        });
-        k.heading = k.heading.map(|h| h - h0);
+        }),
+        heading: k.heading.map(|h| h - h0),
     }
 }
