@@ -246,3 +246,32 @@ fn sample_outputs_errors_and_determinism() {
     let v: Vec<String> = ["sample", "--checkpoint", s(&d.join("norun")), "--text", "walk"].iter().map(|x| x.to_string()).collect();
     assert_one_line_error(&diffkfc(&v.iter().map(String::as_str).collect::<Vec<_>>()), &["norun", "no checkpoint"]);
 }
+
+/// Body-part prompts: the lower body is exactly that of the plain lower-body prompt with the
+/// same seed, and the upper body follows its own text (raised arms here, not the walk's swing).
+#[test]
+fn body_part_prompts_keep_the_lower_body_and_follow_the_upper_text() {
+    if !have_text_encoder() {
+        return;
+    }
+    let d = scratch("parts");
+    let model = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/tiny-synth");
+    let run = |args: &[&str], out: &str| {
+        let o = diffkfc(&[&["sample", "--checkpoint", s(&model), "--seed", "3", "--num-samples", "2", "--steps", "6", "--out", s(&d.join(out))], args].concat());
+        assert!(o.status.success(), "{}", stderr(&o));
+        (0..2).map(|i| npy::read_f32(d.join(out).join(format!("sample_{i:02}_joints.npy"))).unwrap().data).collect::<Vec<_>>()
+    };
+    let walk = run(&["--text", "a person walks forward."], "walk");
+    let parts = run(&["--text-lower", "a person walks forward.", "--text-upper", "a person raises both arms."], "parts");
+    let lower = [0, 1, 2, 4, 5, 7, 8, 10, 11];
+    for (w, p) in walk.iter().zip(&parts) {
+        let frames = w.len() / 66;
+        let lower_diff = (0..frames).flat_map(|f| lower.map(|j| (f, j))).flat_map(|(f, j)| (0..3).map(move |c| (f * 66 + j * 3 + c))).map(|k| (w[k] - p[k]).abs()).fold(0.0, f32::max);
+        assert!(lower_diff < 1e-3, "lower body moved by {lower_diff} m");
+        let wrists_up = |m: &[f32]| (0..frames).map(|f| (m[f * 66 + 20 * 3 + 1] + m[f * 66 + 21 * 3 + 1]) / 2.0 - m[f * 66 + 1]).fold(f32::MIN, f32::max);
+        eprintln!("wrists above the pelvis at most: walk {:.2} m, with raised arms {:.2} m", wrists_up(w), wrists_up(p));
+        assert!(wrists_up(p) > wrists_up(w) + 0.2);
+    }
+    let o = diffkfc(&["sample", "--checkpoint", s(&model), "--text-lower", "walk", "--out", s(&d.join("x"))]);
+    assert!(!o.status.success() && stderr(&o).contains("--text-upper"), "{}", stderr(&o));
+}

@@ -85,8 +85,22 @@ pub struct SampleArgs {
     #[arg(long)]
     checkpoint: PathBuf,
     /// The prompt (required unless --prompts or --timeline).
-    #[arg(long, required_unless_present_any = ["prompts", "timeline"], default_value = "", hide_default_value = true)]
+    #[arg(long, required_unless_present_any = ["prompts", "timeline", "text_lower"], default_value = "", hide_default_value = true)]
     text: String,
+    /// Body-part prompts (with --text-upper): the lower body (legs, pelvis, the path) is
+    /// generated from this text first, then the upper body from --text-upper with the lower
+    /// body kept as keyframes on every frame.
+    #[arg(long, requires = "text_upper", conflicts_with_all = ["text", "prompts", "timeline"], value_name = "TEXT")]
+    text_lower: Option<String>,
+    /// Body-part prompts: the upper body's text (with --text-lower).
+    #[arg(long, requires = "text_lower", value_name = "TEXT")]
+    text_upper: Option<String>,
+    /// Body-part prompts: keyframe guidance scale of the upper-body pass. With the lower body
+    /// keyed on every frame the keyframe branch would bring back the first motion's own arms
+    /// (at 1, a walk's swing); 0 takes the arms from the text alone and the fit joins them to
+    /// the kept lower body (see README).
+    #[arg(long, default_value_t = 0.0)]
+    part_guidance: f64,
     /// A motion of any length from a timeline of prompts: "0-4s: a person walks forward |
     /// 4-6.5s: a person jumps | 6.5-12s: a person sits down", or a file with one segment per
     /// line. Segments start at 0, follow one another and last at least 1 s. Each is generated
@@ -185,12 +199,16 @@ pub struct SampleArgs {
 }
 
 mod keys;
+mod parts;
 mod timeline;
 use keys::*;
 
 pub fn run(a: SampleArgs) -> Result<()> {
     if let Some(spec) = a.timeline.clone() {
         return timeline::run(a, &spec);
+    }
+    if a.text_lower.is_some() {
+        return parts::run(a);
     }
     let Some(file) = a.prompts.clone() else {
         return run_one(a);
@@ -277,6 +295,16 @@ fn run_one(a: SampleArgs) -> Result<()> {
         bail!("--text: empty prompt");
     }
     check_flags(&a)?;
+    let keys = request_keys(&a)?;
+    let gen = Generator::load(&a)?;
+    let emb = gen.embed(&a.text, "--text")?;
+    let req = gen.request(&emb, keys.length, a.num_samples, &[(&keys.values, &keys.mask, &keys.root)]);
+    let (fitted, secs) = gen.generate(&req, &a)?;
+    write_outputs(&a, &gen, &keys, fitted, secs, json!({}), &[])
+}
+
+/// The keyframes the flags ask for (none: a motion of --length, --seconds or 120 frames).
+fn request_keys(a: &SampleArgs) -> Result<Keys> {
     let max = diffkfc_data::dataset::MAX_FRAMES;
     // Checked before anything is allocated for the motion.
     if let Some(s) = a.seconds {
@@ -289,7 +317,7 @@ fn run_one(a: SampleArgs) -> Result<()> {
         bail!("--length: {l} frames; must be 1 to {max}");
     }
     let keys = match (&a.from, &a.keyframes) {
-        (Some(p), _) => keys_from_motion(&a, p, length, joint_set(a.joints.as_deref(), "--joints")?)?,
+        (Some(p), _) => keys_from_motion(a, p, length, joint_set(a.joints.as_deref(), "--joints")?)?,
         (None, Some(p)) => keys_from_json(p, length, a.joints.as_deref())?,
         (None, None) => {
             let length = length.unwrap_or(120);
@@ -307,11 +335,7 @@ fn run_one(a: SampleArgs) -> Result<()> {
     if keys.length == 0 || keys.length > max {
         bail!("--length: {} frames; must be 1 to {max}", keys.length);
     }
-    let gen = Generator::load(&a)?;
-    let emb = gen.embed(&a.text, "--text")?;
-    let req = gen.request(&emb, keys.length, a.num_samples, &[(&keys.values, &keys.mask, &keys.root)]);
-    let (fitted, secs) = gen.generate(&req, &a)?;
-    write_outputs(&a, &gen, &keys, fitted, secs, json!({}), &[])
+    Ok(keys)
 }
 
 /// The model and the settings one `sample` command generates with.
