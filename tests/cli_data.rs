@@ -182,6 +182,8 @@ fn version_and_help_with_examples() {
         vec!["render", "--help"],
         vec!["train", "--help"],
         vec!["sample", "--help"],
+        vec!["keyframes", "--help"],
+        vec!["keyframes", "suggest", "--help"],
         vec!["model", "--help"],
         vec!["model", "summary", "--help"],
         vec!["model", "export", "--help"],

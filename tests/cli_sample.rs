@@ -275,3 +275,44 @@ fn body_part_prompts_keep_the_lower_body_and_follow_the_upper_text() {
     let o = diffkfc(&["sample", "--checkpoint", s(&model), "--text-lower", "walk", "--out", s(&d.join("x"))]);
     assert!(!o.status.success() && stderr(&o).contains("--text-upper"), "{}", stderr(&o));
 }
+
+/// `keyframes suggest` writes a keyframe file that `sample --keyframes` reads back and hits:
+/// the keyed places exactly, the poses to within the facing the file's pose implies.
+#[test]
+fn suggested_keyframes_read_back_and_are_hit() {
+    if !have_text_encoder() {
+        return;
+    }
+    let d = scratch("suggest");
+    let model = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/tiny-synth");
+    let keys = d.join("keys.json");
+    let o = diffkfc(&["keyframes", "suggest", "--checkpoint", s(&model), "--text", "a person jumps forward.", "--count", "4", "--length", "80", "--steps", "4", "-o", s(&keys)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let k: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&keys).unwrap()).unwrap();
+    let kf = k["keyframes"].as_array().unwrap();
+    assert_eq!((k["length"].as_u64(), kf.len()), (Some(80), 4));
+    let out = d.join("out");
+    let o = diffkfc(&["sample", "--checkpoint", s(&model), "--text", "a person jumps forward.", "--keyframes", s(&keys), "--steps", "4", "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let j = npy::read_f32(out.join("sample_00_joints.npy")).unwrap().data;
+    for key in kf {
+        let f = key["frame"].as_u64().unwrap() as usize;
+        let root: Vec<f32> = key["root"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap() as f32).collect();
+        let p = &j[f * 66..f * 66 + 66];
+        let miss = ((p[0] - root[0]).powi(2) + (p[2] - root[2]).powi(2)).sqrt();
+        let pose: Vec<f32> = key["joints"].as_array().unwrap().iter().flat_map(|q| q.as_array().unwrap().iter().map(|v| v.as_f64().unwrap() as f32).collect::<Vec<_>>()).collect();
+        let rel = (0..66).map(|c| ((p[c] - p[c % 3]) - (pose[c] - pose[c % 3])).abs()).fold(0.0, f32::max);
+        eprintln!("suggested key at frame {f}: place missed by {miss:.4} m, root-relative pose by {rel:.4} m");
+        assert!(miss < 1e-3 && rel < 0.05, "frame {f}: {miss} {rel}");
+    }
+    // From a motion, evenly spaced; bad counts and rates.
+    let Some(src) = diffkfc_data::fixtures::require("humanml3d/new_joint_vecs/012314.npy") else {
+        return;
+    };
+    let o = diffkfc(&["keyframes", "suggest", "--from", s(&src), "--count", "3", "--strategy", "uniform", "-o", s(&keys)]);
+    assert!(o.status.success() && stdout(&o).contains("[0, 85, 169]"), "{}{}", stdout(&o), stderr(&o));
+    for (flag, v, needle) in [("--count", "0", "at least 1"), ("--rate", "2", "(0, 1]"), ("--count", "500", "has 170 frames")] {
+        let o = diffkfc(&["keyframes", "suggest", "--from", s(&src), flag, v, "-o", s(&keys)]);
+        assert_one_line_error(&o, &[flag, needle]);
+    }
+}

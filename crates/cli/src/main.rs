@@ -24,7 +24,7 @@ enum Command {
     /// Datasets and motion files: convert between joint positions and HumanML3D features.
     #[command(after_help = "Examples:\n  diffkfc data features joints.npy -o features.npy\n  diffkfc data joints features.npy -o joints.npy")]
     Data(commands::data::DataArgs),
-    /// Draw motions: an animated GIF of one motion, or a PNG contact sheet of several.
+    /// Draw motions: an animated GIF of one motion, a PNG contact sheet of several, or a 3D page.
     #[command(after_help = "Examples:\n  diffkfc render work/synth/new_joint_vecs/000000.npy -o walk.gif --keyframes 0,40,80\n  diffkfc render a.npy b.npy c.npy --sheet -o sheet.png")]
     Render(commands::render::RenderArgs),
     /// Train DiffKFC: diffusion with keyframe masking, checkpoints, exact resume.
@@ -37,6 +37,9 @@ enum Command {
         after_help = "Examples (after scripts/quickstart.sh, which writes work/synth):\n  diffkfc sample --checkpoint models/tiny-synth --text \"a person walks forward and waves\" --num-samples 2\n  diffkfc sample --checkpoint models/tiny-synth --text \"a person walks forward\" --from work/synth/new_joint_vecs/000001.npy --frames 0,40,80\n  diffkfc sample --checkpoint models/tiny-synth --text \"a person dances\" --from mixamo_dance.bvh --frames all --joints lower_body\n  diffkfc sample --checkpoint models/tiny-synth --text \"a person squats\" --keyframes keys.json --out out/squat\n\nkeys.json (poses in metres, places and headings in the output's frame: frame 0 at the origin facing +Z):\n  {\"length\": 120, \"keyframes\": [\n    {\"frame\": 0, \"joints\": [[x, y, z], ... 22 joints]},\n    {\"frame\": 60, \"joints\": [[x, y, z], ...], \"root\": [0.0, 0.9, 2.0], \"heading\": 90},\n    {\"frame\": 119, \"root\": [1.5, 0.9, 3.0]}]}"
     )]
     Sample(commands::sample::SampleArgs),
+    /// Keyframe files: suggest keyframes from a text (or a motion) to edit and in-fill.
+    #[command(after_help = "Example:\n  diffkfc keyframes suggest --checkpoint models/tiny-synth --text \"a person jumps forward.\" --count 4 -o keys.json")]
+    Keyframes(commands::keyframes::KeyframesArgs),
     /// Evaluate a checkpoint: FID, R-precision, Diversity, ADE, K-Err, K-TranS (Tables 2 and 4);
     /// `eval train-evaluator` trains the text-motion evaluator first.
     #[command(after_help = commands::eval::AFTER_HELP)]
@@ -94,6 +97,7 @@ fn main() {
         Command::Bench(args) => commands::bench::run(args),
         Command::Train(args) => commands::train::run(args),
         Command::Sample(args) => commands::sample::run(args),
+        Command::Keyframes(args) => commands::keyframes::run(args),
         Command::Eval(args) => commands::eval::run(args),
         Command::TextEmbed(args) => commands::model::text_embed(args),
     };

@@ -303,6 +303,15 @@ fn run_one(a: SampleArgs) -> Result<()> {
     write_outputs(&a, &gen, &keys, fitted, secs, json!({}), &[])
 }
 
+/// One motion from `a`'s text and keyframes (the first sample): de-normalised, fitted features.
+pub(crate) fn text_only_motion(a: &SampleArgs) -> Result<Vec<f32>> {
+    check_flags(a)?;
+    let keys = request_keys(a)?;
+    let gen = Generator::load(a)?;
+    let req = gen.request(&gen.embed(&a.text, "--text")?, keys.length, 1, &[(&keys.values, &keys.mask, &keys.root)]);
+    Ok(gen.generate(&req, a)?.0.remove(0).features)
+}
+
 /// The keyframes the flags ask for (none: a motion of --length, --seconds or 120 frames).
 fn request_keys(a: &SampleArgs) -> Result<Keys> {
     let max = diffkfc_data::dataset::MAX_FRAMES;
