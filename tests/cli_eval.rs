@@ -44,7 +44,23 @@ fn evaluate_tiny_checkpoint(d: &std::path::Path, data: &std::path::Path, evaluat
     let common = ["eval", "--checkpoint", s(&run), "--evaluator", s(evaluator), "--data", s(data), "--replications", "2", "--steps", "3", "--samples-for-ade", "2"];
     let mut args: Vec<&str> = common.to_vec();
     // The paper's guidance (the defaults are s = 1, r = 0), so the sweep rows carry TG too.
-    args.extend(["--num-items", "32", "--compare", "--sweep-rates", "0,0.1", "--multimodality", "--mm-texts", "2", "--transition-guidance", "100", "--kf-guidance", "2.5", "--out", s(&rep)]);
+    args.extend([
+        "--num-items",
+        "32",
+        "--compare",
+        "--two-stage",
+        "--sweep-rates",
+        "0,0.1",
+        "--multimodality",
+        "--mm-texts",
+        "2",
+        "--transition-guidance",
+        "100",
+        "--kf-guidance",
+        "2.5",
+        "--out",
+        s(&rep),
+    ]);
     let o = diffkfc(&args);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stdout(&o).contains("estimate"), "{}", stdout(&o));
@@ -67,6 +83,9 @@ fn evaluate_tiny_checkpoint(d: &std::path::Path, data: &std::path::Path, evaluat
     for k in ["ade", "k_err", "k_trans", "k_trans_real", "foot_skate", "diversity", "multimodality", "mm_dist"] {
         assert!(metric(kfc, k).is_finite(), "{k}");
     }
+    // Two stages: keyframes from a text-only proposal, met exactly (K-Err against the proposal).
+    let staged = find("DiffKFC, suggested keys", 0.05);
+    assert!(metric(staged, "k_err_local") < 1e-5 && metric(staged, "fid").is_finite(), "{staged}");
     // Without keyframes there is nothing to measure at keyframes.
     assert!(zero["metrics"].get("k_err").is_none() && zero["metrics"].get("ade").is_some(), "{zero}");
     let mut few: Vec<&str> = common.to_vec();

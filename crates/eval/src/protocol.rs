@@ -41,6 +41,9 @@ pub struct Setting {
     pub inpaint: bool,
     /// Transition guidance strength r (0 = off).
     pub transition: f64,
+    /// Two stages (KeyMotion; `diffkfc keyframes suggest`): the keyframes are the MDO frames
+    /// of a text-only motion of the same caption, which is also what ADE and K-Err compare with.
+    pub suggested: bool,
 }
 
 #[derive(Clone, Debug)]
@@ -140,7 +143,8 @@ impl Protocol<'_> {
     pub fn planned_steps(&self, settings: &[Setting]) -> usize {
         let n = self.opts.num_items.min(self.split.items.len());
         let mm = if self.opts.multimodality > 0 { self.steps_for(self.opts.multimodality.min(n) * MM_GENERATIONS) } else { 0 };
-        self.opts.replications * settings.len() * (self.steps_for(n * self.opts.samples_for_ade.max(1)) + mm)
+        let proposals = settings.iter().filter(|s| s.suggested).count() * self.steps_for(n);
+        self.opts.replications * (settings.len() * (self.steps_for(n * self.opts.samples_for_ade.max(1)) + mm) + proposals)
     }
 
     /// Whether generating `s` runs both keyframe-guidance branches (a doubled batch).
@@ -168,7 +172,7 @@ impl Protocol<'_> {
     pub fn estimate_seconds(&self, settings: &[Setting]) -> f64 {
         let probe = Protocol { opts: Options { sampler: Sampler::Ddim(2), num_items: self.opts.batch, ..self.opts.clone() }, ..*self };
         let items = probe.items(0);
-        let s = Setting { name: String::new(), rate: settings.iter().map(|s| s.rate).fold(0.05, f64::max), inpaint: false, transition: 0.0 };
+        let s = Setting { name: String::new(), rate: settings.iter().map(|s| s.rate).fold(0.05, f64::max), inpaint: false, transition: 0.0, suggested: false };
         let keys = probe.keys(0, &items, s.rate);
         let t0 = std::time::Instant::now();
         probe.generate(&items, &keys, &s, 1, 0, &mut || {});
@@ -176,7 +180,9 @@ impl Protocol<'_> {
         let items = self.items(0);
         let steps = sampler::timesteps(self.schedule, self.opts.sampler).len() as f64;
         let mm = self.opts.multimodality.min(items.len());
-        let work: f64 = settings.iter().map(|s| self.units(&items, self.opts.samples_for_ade.max(1), s) + if mm > 0 { self.units(&items[..mm], MM_GENERATIONS, s) } else { 0.0 }).sum();
+        let text_only = Setting { rate: 0.0, ..s.clone() };
+        let proposal = |s: &Setting| if s.suggested { self.units(&items, 1, &text_only) } else { 0.0 };
+        let work: f64 = settings.iter().map(|s| proposal(s) + self.units(&items, self.opts.samples_for_ade.max(1), s) + if mm > 0 { self.units(&items[..mm], MM_GENERATIONS, s) } else { 0.0 }).sum();
         work * steps * per_unit * self.opts.replications as f64
     }
 
@@ -270,11 +276,26 @@ impl Protocol<'_> {
             }
             for row in rows.iter_mut() {
                 let s = row.setting.clone().expect("generated row");
-                let keys = self.keys(rep, &items, s.rate);
+                // Two stages: a text-only proposal per item, whose MDO frames are the keys.
+                let proposals: Vec<Vec<f32>> = if s.suggested {
+                    let none: Vec<Vec<usize>> = vec![Vec::new(); items.len()];
+                    let text_only = Setting { rate: 0.0, suggested: false, ..s.clone() };
+                    self.generate(&items, &none, &text_only, 1, rep_seed ^ 0x5347, tick).into_iter().map(|mut g| g.swap_remove(0)).collect()
+                } else {
+                    Vec::new()
+                };
+                let staged: Vec<Item> = items.iter().zip(&proposals).map(|(it, f)| Item { len: it.len, caption: it.caption.clone(), feats: f, joints: joints_of(self.ds, f) }).collect();
+                let targets = if s.suggested { &staged } else { &items };
+                let keys = if s.suggested {
+                    let d = self.ds.dim();
+                    targets.iter().map(|t| keyframes::select(Strategy::Mdo, t.len, s.rate, t.feats, d, &mut Rng::new(0))).collect()
+                } else {
+                    self.keys(rep, &items, s.rate)
+                };
                 let k = self.opts.samples_for_ade.max(1);
-                let gens = self.generate(&items, &keys, &s, k, rep_seed, tick);
+                let gens = self.generate(targets, &keys, &s, k, rep_seed, tick);
                 let mut per: BTreeMap<&'static str, Vec<f64>> = BTreeMap::new();
-                for ((it, key), samples) in items.iter().zip(&keys).zip(&gens) {
+                for ((it, key), samples) in targets.iter().zip(&keys).zip(&gens) {
                     let joints: Vec<Joints> = samples.iter().map(|f| joints_of(self.ds, f)).collect();
                     let ade = joints.iter().filter_map(|j| displacement_error(j, &it.joints, key)).fold(f64::INFINITY, f64::min);
                     let avg = |f: &dyn Fn(usize) -> Option<f64>| mean(&(0..k).filter_map(f).collect::<Vec<_>>());
@@ -300,7 +321,7 @@ impl Protocol<'_> {
                 self.text_motion(reference, &texts, &motions, rep_seed, &mut row.values);
                 if self.opts.multimodality > 0 {
                     let m = self.opts.multimodality.min(items.len());
-                    let groups = self.generate(&items[..m], &keys[..m], &s, MM_GENERATIONS, rep_seed ^ 0x4d4d, tick);
+                    let groups = self.generate(&targets[..m], &keys[..m], &s, MM_GENERATIONS, rep_seed ^ 0x4d4d, tick);
                     let emb: Vec<Vec<Vec<f64>>> = groups.iter().map(|g| self.evaluator.embed_motions(&g.iter().map(Vec::as_slice).collect::<Vec<_>>())).collect();
                     row.values.entry("multimodality").or_default().push(multimodality(&emb, MM_PAIRS, rep_seed));
                 }

@@ -130,7 +130,7 @@ mod tests {
     fn row(name: Option<&str>, rate: f64, fid: &[f64]) -> RowResult {
         let mut values = Values::new();
         values.insert("fid", fid.to_vec());
-        RowResult { setting: name.map(|n| Setting { name: n.into(), rate, inpaint: false, transition: 100.0 }), rate, values }
+        RowResult { setting: name.map(|n| Setting { name: n.into(), rate, inpaint: false, transition: 100.0, suggested: false }), rate, values }
     }
 
     #[test]

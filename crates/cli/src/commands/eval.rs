@@ -101,6 +101,11 @@ struct RunArgs {
     /// Table 2: also run DiffKFC without transition guidance and the MDM-inp baseline.
     #[arg(long)]
     compare: bool,
+    /// Also the two-stage row (`keyframes suggest` then `sample --keyframes`): keyframes at the
+    /// MDO frames of a text-only motion of each caption, in-filled; its ADE and K-Err compare
+    /// with that proposal.
+    #[arg(long)]
+    two_stage: bool,
     /// Table 4: run the main setting at each of these keyframe rates (e.g. 0,0.02,0.05,0.1).
     #[arg(long)]
     sweep_rates: Option<String>,
@@ -220,8 +225,11 @@ fn settings(a: &RunArgs) -> Result<Vec<Setting>> {
         bail!("--transition-guidance: must be >= 0");
     }
     let inpaint = matches!(a.keyframe_mode, KeyframeMode::Inpaint);
-    let make = |inpaint: bool, transition: f64, rate: f64| Setting { name: setting_name(inpaint, transition), rate, inpaint, transition };
+    let make = |inpaint: bool, transition: f64, rate: f64| Setting { name: setting_name(inpaint, transition), rate, inpaint, transition, suggested: false };
     let mut v = vec![make(inpaint, a.transition_guidance, rate)];
+    if a.two_stage {
+        v.push(Setting { name: "DiffKFC, suggested keys".into(), suggested: true, ..make(false, a.transition_guidance, rate) });
+    }
     if a.compare {
         let r = if a.transition_guidance > 0.0 { a.transition_guidance } else { 100.0 };
         v.extend([make(false, r, rate), make(false, 0.0, rate), make(true, 0.0, rate)]);
