@@ -97,7 +97,7 @@ fn patch(bytes: &[u8], from: &str, to: &str) -> Vec<u8> {
 /// A valid .npy header claiming (2^61, 22, 3) float32 elements, followed by 64 bytes.
 fn huge_header() -> Vec<u8> {
     let mut dict = "{'descr': '<f4', 'fortran_order': False, 'shape': (2305843009213693952, 22, 3), }".to_string();
-    while (10 + dict.len() + 1) % 64 != 0 {
+    while !(10 + dict.len() + 1).is_multiple_of(64) {
         dict.push(' ');
     }
     dict.push('\n');

@@ -266,7 +266,7 @@ fn body_part_prompts_keep_the_lower_body_and_follow_the_upper_text() {
     let lower = [0, 1, 2, 4, 5, 7, 8, 10, 11];
     for (w, p) in walk.iter().zip(&parts) {
         let frames = w.len() / 66;
-        let lower_diff = (0..frames).flat_map(|f| lower.map(|j| (f, j))).flat_map(|(f, j)| (0..3).map(move |c| (f * 66 + j * 3 + c))).map(|k| (w[k] - p[k]).abs()).fold(0.0, f32::max);
+        let lower_diff = (0..frames).flat_map(|f| lower.map(|j| (f, j))).flat_map(|(f, j)| (0..3).map(move |c| f * 66 + j * 3 + c)).map(|k| (w[k] - p[k]).abs()).fold(0.0, f32::max);
         assert!(lower_diff < 1e-3, "lower body moved by {lower_diff} m");
         let wrists_up = |m: &[f32]| (0..frames).map(|f| (m[f * 66 + 20 * 3 + 1] + m[f * 66 + 21 * 3 + 1]) / 2.0 - m[f * 66 + 1]).fold(f32::MIN, f32::max);
         eprintln!("wrists above the pelvis at most: walk {:.2} m, with raised arms {:.2} m", wrists_up(w), wrists_up(p));

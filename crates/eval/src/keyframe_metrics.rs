@@ -59,8 +59,8 @@ pub fn k_trans(j: &Joints, frames: &[usize], l: usize) -> Option<f64> {
             if f == 0 || f + 1 >= t {
                 continue;
             }
-            for jj in 0..j[f].len() {
-                let a = quat::add(quat::sub(j[f + 1][jj], quat::scale(j[f][jj], 2.0)), j[f - 1][jj]);
+            for ((next, here), prev) in j[f + 1].iter().zip(&j[f]).zip(&j[f - 1]) {
+                let a = quat::add(quat::sub(*next, quat::scale(*here, 2.0)), *prev);
                 sum += quat::norm(a);
                 n += 1;
             }

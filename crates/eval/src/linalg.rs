@@ -60,7 +60,7 @@ fn tridiagonalise(t: &mut [f64], n: usize) -> Vec<f64> {
 
 /// Rotation acting on indices (p, p+1) of `t` (entries within `lo..=hi`) and on columns of `q`:
 /// T <- G^T T G, Q <- Q G with G = [[c, s], [-s, c]] in that plane.
-fn rotate(t: &mut [f64], q: &mut [f64], n: usize, p: usize, lo: usize, hi: usize, c: f64, s: f64) {
+fn rotate(t: &mut [f64], q: &mut [f64], n: usize, p: usize, (lo, hi): (usize, usize), (c, s): (f64, f64)) {
     let (a, b) = (p.saturating_sub(1).max(lo), (p + 2).min(hi));
     for j in a..=b {
         let (x, y) = (t[p * n + j], t[(p + 1) * n + j]);
@@ -117,7 +117,7 @@ pub fn sym_eigen(a: &[f64], n: usize) -> (Vec<f64>, Vec<f64>) {
         let (mut x, mut z) = (t[lo * n + lo] - mu, off(&t, lo + 1));
         for p in lo..hi {
             let (c, s) = givens(x, z);
-            rotate(&mut t, &mut q, n, p, lo, hi, c, s);
+            rotate(&mut t, &mut q, n, p, (lo, hi), (c, s));
             if p + 1 < hi {
                 x = t[(p + 1) * n + p];
                 z = t[(p + 2) * n + p];

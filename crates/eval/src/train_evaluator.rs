@@ -36,7 +36,10 @@ fn same_caption(b: &Batch) -> Vec<bool> {
 
 /// Embeddings of every item of a split with its first caption, whole clip (first 196 frames,
 /// length rounded down to a multiple of 4), in item order: (text rows, motion rows).
-pub fn embed_split(ev: &dyn TextMotionEvaluator, ds: &Dataset, split: &PackedSplit) -> Result<(Vec<Vec<f64>>, Vec<Vec<f64>>), String> {
+/// Embeddings, one vector per item.
+pub type Embeddings = Vec<Vec<f64>>;
+
+pub fn embed_split(ev: &dyn TextMotionEvaluator, ds: &Dataset, split: &PackedSplit) -> Result<(Embeddings, Embeddings), String> {
     let d = ds.dim();
     let motions: Vec<&[f32]> = (0..split.items.len()).map(|i| &split.item_frames(i)[..eval_length(split.items[i].len) * d]).collect();
     let captions: Vec<&str> = split.items.iter().map(|it| it.captions[0].as_str()).collect();

@@ -222,9 +222,9 @@ mod tests {
         for (k, &s) in sizes.iter().enumerate() {
             total += if s == 0 { n } else { s };
             let want = dilate(&keys, real, total);
-            for i in 0..n {
+            for (i, &w) in want.iter().enumerate().take(n) {
                 let got = plan.valid_after(k)[1 + i];
-                assert_eq!(got, i < real && want[i], "block {k} frame {i}");
+                assert_eq!(got, i < real && w, "block {k} frame {i}");
             }
             assert!(plan.valid_after(k)[0], "text token always valid");
         }

@@ -1,6 +1,9 @@
 //! Adam with gradient-norm clipping, a warm-up / cosine learning-rate schedule and an EMA of the
 //! weights, on host-side flat parameters (see `params`).
 
+/// One chunk of Adam's work: parameters, gradients, first and second moments.
+type AdamChunk<'a> = (&'a mut [f32], &'a [f32], &'a mut [f32], &'a mut [f32]);
+
 #[derive(Clone, Debug)]
 pub struct Adam {
     pub beta1: f64,
@@ -26,7 +29,7 @@ impl Adam {
         let step = (lr * c2.sqrt() / c1) as f32;
         let eps = (self.eps * c2.sqrt()) as f32;
         // Every element is independent: chunks across threads give the same bits as one loop.
-        let chunks: Vec<(&mut [f32], &[f32], &mut [f32], &mut [f32])> = params
+        let chunks: Vec<AdamChunk> = params
             .iter_mut()
             .zip(grads)
             .zip(self.m.iter_mut())
@@ -79,25 +82,6 @@ pub fn ema_update(ema: &mut [Vec<f32>], params: &[Vec<f32>], decay: f64) {
     chunks.into_par_iter().for_each(|(e, p)| e.iter_mut().zip(p).for_each(|(x, y)| *x = d * *x + (1.0 - d) * y));
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Adam's first step moves every parameter by lr against the gradient's sign.
-    #[test]
-    fn adam_first_step_and_clipping() {
-        let mut p = vec![vec![1.0f32, -2.0]];
-        let mut a = Adam::new(&[2]);
-        a.update(&mut p, &[vec![0.5, -3.0]], 0.1);
-        assert!((p[0][0] - 0.9).abs() < 1e-6 && (p[0][1] + 1.9).abs() < 1e-6, "{p:?}");
-        let mut g = vec![vec![3.0f32, 4.0]];
-        assert_eq!(clip_grad_norm(&mut g, 1.0), 5.0);
-        assert!((g[0][0] - 0.6).abs() < 1e-6 && (g[0][1] - 0.8).abs() < 1e-6);
-        assert_eq!(learning_rate(1.0, 0, 10, false, 100), 0.1);
-        assert!((learning_rate(1.0, 55, 10, true, 100) - 0.5).abs() < 1e-9);
-    }
-}
-
 /// One optimiser step as the trainers take it: backward of `loss`, gradients to the host,
 /// global-norm clipping, Adam on the flat host values, the new values loaded into `model`.
 /// Returns the updated model and the gradient norm before clipping.
@@ -118,4 +102,23 @@ pub fn descend_timed<M: burn::module::Module>(model: M, loss: burn::tensor::Tens
     adam.update(vals, &g, lr);
     let model = crate::params::load(model, vals);
     (model, norm, [(t1 - t0).as_secs_f64(), t1.elapsed().as_secs_f64()])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Adam's first step moves every parameter by lr against the gradient's sign.
+    #[test]
+    fn adam_first_step_and_clipping() {
+        let mut p = vec![vec![1.0f32, -2.0]];
+        let mut a = Adam::new(&[2]);
+        a.update(&mut p, &[vec![0.5, -3.0]], 0.1);
+        assert!((p[0][0] - 0.9).abs() < 1e-6 && (p[0][1] + 1.9).abs() < 1e-6, "{p:?}");
+        let mut g = vec![vec![3.0f32, 4.0]];
+        assert_eq!(clip_grad_norm(&mut g, 1.0), 5.0);
+        assert!((g[0][0] - 0.6).abs() < 1e-6 && (g[0][1] - 0.8).abs() < 1e-6);
+        assert_eq!(learning_rate(1.0, 0, 10, false, 100), 0.1);
+        assert!((learning_rate(1.0, 55, 10, true, 100) - 0.5).abs() < 1e-9);
+    }
 }

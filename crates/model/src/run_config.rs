@@ -212,7 +212,7 @@ impl RunConfig {
         if crate::diffusion::Schedule::by_name(&self.diffusion.schedule, 2).is_none() {
             return Err(format!("diffusion.schedule: unknown '{}' (cosine, linear)", self.diffusion.schedule));
         }
-        if m.d_model % m.heads != 0 {
+        if !m.d_model.is_multiple_of(m.heads) {
             return Err(format!("model.heads: {} does not divide model.d_model ({})", m.heads, m.d_model));
         }
         // Sizes whose products would not fit in memory on any machine this runs on.
@@ -240,7 +240,7 @@ impl RunConfig {
         if m.root_channels != 0 && m.root_channels != diffkfc_data::warp::ROOT_CHANNELS {
             return bad("model.root_channels", &m.root_channels, &format!("must be 0 or {}", diffkfc_data::warp::ROOT_CHANNELS));
         }
-        if (m.temporal_kernel % 2 == 0 && m.temporal_kernel != 0) || m.temporal_kernel > 31 {
+        if (m.temporal_kernel.is_multiple_of(2) && m.temporal_kernel != 0) || m.temporal_kernel > 31 {
             return bad("model.temporal_kernel", &m.temporal_kernel, "must be 0 (none) or an odd number up to 31");
         }
         let unit = [("keyframes.rate", k.rate), ("keyframes.drop_prob", k.drop_prob), ("keyframes.root_drop_prob", k.root_drop_prob), ("training.ema_decay", t.ema_decay)];

@@ -183,9 +183,9 @@ pub fn sample(model: &Denoiser, schedule: &Schedule, req: &Request, opts: &Optio
         let mut shift = vec![0f32; x.len()];
         if opts.transition > 0.0 && var > 0.0 {
             let mut grad = vec![0f32; x.len()];
-            for i in 0..b {
+            for (i, key) in keys.iter().enumerate() {
                 let r = i * n * d..(i + 1) * n * d;
-                let (_, g) = transition::loss_and_grad(&x0[r.clone()], &req.kf[r.clone()], &req.mask[r.clone()], &keys[i], req.lengths[i], d, opts.window, opts.dct_bases);
+                let (_, g) = transition::loss_and_grad(&x0[r.clone()], &req.kf[r.clone()], &req.mask[r.clone()], key, req.lengths[i], d, opts.window, opts.dct_bases);
                 grad[r].copy_from_slice(&g);
             }
             if exact {

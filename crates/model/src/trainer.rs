@@ -99,7 +99,7 @@ impl Trainer<'_> {
     }
 
     /// Timesteps and noise of a step, from (seed, stream, index) only.
-    fn draw(&self, stream: u64, index: u64, b: usize, n: usize, d: usize, steps: usize, device: &Device) -> (Vec<usize>, Tensor<3>) {
+    fn draw(&self, stream: u64, index: u64, [b, n, d]: [usize; 3], steps: usize, device: &Device) -> (Vec<usize>, Tensor<3>) {
         let mut r = Rng::derive(self.cfg.training.seed, stream, index);
         let t: Vec<usize> = (0..b).map(|_| r.below(steps)).collect();
         let noise: Vec<f32> = (0..b * n * d).map(|_| r.normal() as f32).collect();
@@ -129,7 +129,7 @@ impl Trainer<'_> {
         let mut total = 0.0;
         for k in 0..n {
             let b = loader.batch(0, k);
-            let (t, noise) = self.draw(0xFA11, k as u64, b.batch_size, b.frames, b.dim, schedule.steps, &dev);
+            let (t, noise) = self.draw(0xFA11, k as u64, [b.batch_size, b.frames, b.dim], schedule.steps, &dev);
             let l = self.batch_loss(&model, schedule, &b, &t, noise, &dev);
             total += scalar(l.total(&self.kinematic()));
         }
@@ -228,7 +228,7 @@ impl Trainer<'_> {
             device.seed(step_seed);
             crate::dropout::seed(step_seed);
             let b = loader.batch((step / per_epoch) as u64, step % per_epoch);
-            let (t, noise) = self.draw(0x7EA1, step as u64, b.batch_size, b.frames, b.dim, schedule.steps, &device);
+            let (t, noise) = self.draw(0x7EA1, step as u64, [b.batch_size, b.frames, b.dim], schedule.steps, &device);
             let l = self.batch_loss(&model, &schedule, &b, &t, noise, &device);
             let total = l.total(&kin);
             let lr = learning_rate(tc.lr, step, tc.warmup_steps, tc.cosine_decay, tc.max_steps);

@@ -32,6 +32,7 @@ pub fn projection(n: usize, m: usize) -> Vec<f64> {
 /// frames `keys` with their observed values in `kf` [N, D] and per-dim mask `mask` [N, D]
 /// (observed dims of a keyframe frame take the keyframe's value inside the window; the rest the
 /// prediction's). Frames >= `len` are padding and stay outside windows. Returns (loss, grad [N, D]).
+#[allow(clippy::too_many_arguments)] // the paper's symbols (Eq. 4-5): window l, bases m
 pub fn loss_and_grad(x: &[f32], kf: &[f32], mask: &[f32], keys: &[usize], len: usize, dim: usize, l: usize, m: usize) -> (f64, Vec<f32>) {
     let mut grad = vec![0f32; x.len()];
     if keys.is_empty() || len == 0 {
@@ -90,7 +91,7 @@ mod tests {
             assert!((pg - 0.7).abs() < 1e-12);
         }
         let x = vec![0.3f32; 10 * 2];
-        let (loss, grad) = loss_and_grad(&x, &x, &vec![0.0; 20], &[4], 10, 2, 2, 1);
+        let (loss, grad) = loss_and_grad(&x, &x, &[0.0; 20], &[4], 10, 2, 2, 1);
         assert!(loss.abs() < 1e-12 && grad.iter().all(|g| g.abs() < 1e-7));
     }
 

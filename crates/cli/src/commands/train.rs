@@ -119,7 +119,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
     cfg.training.check_stop(max_steps).map_err(anyhow::Error::msg)?;
     let stem = a.config.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "run".into());
     let run_dir = a.out.clone().unwrap_or_else(|| PathBuf::from("runs").join(stem));
-    if !a.resume && diffkfc_model::checkpoint::Checkpoint::list(&run_dir).first().is_some() {
+    if !a.resume && !diffkfc_model::checkpoint::Checkpoint::list(&run_dir).is_empty() {
         bail!("--out: {} already holds checkpoints; pass --resume to continue it or choose another --out", run_dir.display());
     }
     let device = crate::device::parse(&a.device)?;

@@ -108,11 +108,7 @@ pub fn fused(device: &Device) -> bool {
     if *COMPOSED.get_or_init(|| std::env::var("DIFFKFC_KERNELS").is_ok_and(|v| v == "burn")) {
         return false;
     }
-    match device.as_dispatch().clone().inner() {
-        DispatchDevice::Flex(_) => true,
-        #[allow(unreachable_patterns)]
-        _ => false,
-    }
+    matches!(device.as_dispatch().clone().inner(), DispatchDevice::Flex(_))
 }
 
 /// A LayerNorm's scale and shift for the fused ops (zeros for a LayerNorm without shift).
