@@ -1,5 +1,6 @@
 //! `diffkfc`: train, sample and evaluate DiffKFC (text + keyframes -> human motion).
 
+mod args;
 mod commands;
 mod device;
 mod plot;
@@ -39,7 +40,7 @@ enum Command {
     Sample(commands::sample::SampleArgs),
     /// Keyframe files: suggest keyframes from a text (or a motion) to edit and in-fill.
     #[command(after_help = "Example:\n  diffkfc keyframes suggest --checkpoint models/tiny-synth --text \"a person jumps forward.\" --count 4 -o keys.json")]
-    Keyframes(commands::keyframes::KeyframesArgs),
+    Keyframes(commands::sample::suggest::KeyframesArgs),
     /// Evaluate a checkpoint: FID, R-precision, Diversity, ADE, K-Err, K-TranS (Tables 2 and 4);
     /// `eval train-evaluator` trains the text-motion evaluator first.
     #[command(after_help = commands::eval::AFTER_HELP)]
@@ -97,7 +98,7 @@ fn main() {
         Command::Bench(args) => commands::bench::run(args),
         Command::Train(args) => commands::train::run(args),
         Command::Sample(args) => commands::sample::run(args),
-        Command::Keyframes(args) => commands::keyframes::run(args),
+        Command::Keyframes(args) => commands::sample::suggest::run(args),
         Command::Eval(args) => commands::eval::run(args),
         Command::TextEmbed(args) => commands::model::text_embed(args),
     };

@@ -10,6 +10,7 @@ pub mod fixtures;
 pub mod footlock;
 pub mod fuzz;
 pub mod keyframes;
+pub mod loader_bench;
 pub mod motion_file;
 pub mod npy;
 pub mod plausibility;

@@ -5,6 +5,7 @@ use std::path::Path;
 
 use crate::npy::{self, Array};
 use crate::representation::{self as rep, Joints};
+use crate::rig::{self, ImportOptions};
 use crate::skeleton::Skeleton;
 use crate::DataError;
 
@@ -54,6 +55,50 @@ pub fn load_joints(path: &Path, skel: &Skeleton, min_frames: usize) -> Result<Jo
         }
     }
     Ok(rep::joints_from_array(&arr.data, arr.shape[0], arr.shape[1], jn))
+}
+
+/// A motion has at least two frames (one pose has no velocity, no path, nothing to animate).
+pub const MIN_MOTION_FRAMES: usize = 2;
+
+pub fn is_bvh(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("bvh"))
+}
+
+/// The joints of a BVH file of any common rig ([`crate::rig::import`]).
+pub fn load_bvh(path: &Path, skel: &Skeleton, opts: &ImportOptions) -> Result<Joints, DataError> {
+    let text = std::fs::read_to_string(path).map_err(|err| DataError::Io { path: path.to_path_buf(), err })?;
+    let j = rig::read(skel, &text, opts).map_err(|e| e.in_file(path))?;
+    if j.len() < MIN_MOTION_FRAMES {
+        return Err(invalid(path, format!("has {} frame(s); at least {MIN_MOTION_FRAMES} needed", j.len())));
+    }
+    Ok(j)
+}
+
+/// Joint positions from a motion file: features (T, D) are recovered, joints (T, J, 3) taken
+/// as they are, a BVH read through the rig import.
+pub fn load_motion(path: &Path, skel: &Skeleton, bvh: &ImportOptions) -> Result<Joints, DataError> {
+    if is_bvh(path) {
+        return load_bvh(path, skel, bvh);
+    }
+    if npy::read_f64(path)?.ndim() == 2 {
+        let f = load_features(path, skel, MIN_MOTION_FRAMES)?;
+        Ok(rep::recover_from_ric(skel, &f.data.iter().map(|&v| v as f64).collect::<Vec<_>>()))
+    } else {
+        load_joints(path, skel, MIN_MOTION_FRAMES)
+    }
+}
+
+/// Features (T, D) of a motion file: features as they are, joints or BVH through
+/// `process_file` (one frame fewer).
+pub fn load_motion_features(path: &Path, skel: &Skeleton, bvh: &ImportOptions) -> Result<Vec<f32>, DataError> {
+    let joints = if is_bvh(path) {
+        load_bvh(path, skel, bvh)?
+    } else if npy::read_f64(path)?.ndim() == 2 {
+        return Ok(load_features(path, skel, MIN_MOTION_FRAMES)?.data);
+    } else {
+        load_joints(path, skel, MIN_MOTION_FRAMES)?
+    };
+    rep::features_from_joints(skel, &joints, rep::FOOT_CONTACT_THRESHOLD).map_err(|e| e.in_file(path))
 }
 
 #[cfg(test)]

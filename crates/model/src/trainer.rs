@@ -300,6 +300,18 @@ fn truncate_metrics(path: &Path, step: usize) -> std::io::Result<()> {
     diffkfc_data::write_atomic(path, out.as_bytes()).map_err(std::io::Error::other)
 }
 
+/// Mean/Std the model was trained with: copied into the run directory at training time, or
+/// read from the dataset the config names (`run` may be a checkpoint file of the run).
+pub fn normalisation(run: &Path, cfg: &RunConfig) -> Result<(Vec<f32>, Vec<f32>), String> {
+    let run = if run.is_file() { run.parent().unwrap_or(Path::new(".")) } else { run };
+    let dir = if run.join("Mean.npy").exists() {
+        run.to_path_buf()
+    } else {
+        PathBuf::from(cfg.data.dir.clone().ok_or_else(|| format!("{}: no Mean.npy/Std.npy and no data.dir in its config", run.display()))?)
+    };
+    diffkfc_data::dataset::read_normalisation(&dir, Some(cfg.model.feat_dim)).map_err(|e| e.to_string())
+}
+
 /// Load the weights of a run for inference: the EMA when present, else the raw model. `run_dir`
 /// is a run directory (its newest checkpoint) or one checkpoint file of it.
 pub fn load_for_inference(run_dir: &Path, device: &Device) -> Result<(RunConfig, Denoiser, usize), String> {

@@ -226,8 +226,7 @@ fn loader_case(a: &BenchArgs) -> Result<()> {
             tmp.clone()
         }
     };
-    let la = super::data::BenchLoaderArgs { dir, split: "train".into(), batches: if a.quick { 20 } else { 200 }, batch_size: 64, threads: 1 };
-    let v = super::data::loader_case(&la);
+    let v = diffkfc_data::loader_bench::run(&dir, "train", if a.quick { 20 } else { 200 }, 64, 1, crate::progress::bar("caching"));
     let _ = std::fs::remove_dir_all(&tmp);
     emit(v?);
     Ok(())

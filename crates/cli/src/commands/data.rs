@@ -4,9 +4,11 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
-use diffkfc_data::motion_file::{load_features, load_joints};
+use diffkfc_data::motion_file::{is_bvh, load_bvh, load_features, load_joints, load_motion, MIN_MOTION_FRAMES};
 use diffkfc_data::representation::{self as rep, FOOT_CONTACT_THRESHOLD};
-use diffkfc_data::rig::{self, ImportOptions};
+
+use crate::args::BvhInputArgs;
+use diffkfc_data::{loader_bench, rig};
 use diffkfc_data::{npy, Skeleton};
 
 #[derive(Args)]
@@ -156,91 +158,6 @@ struct BvhArgs {
     bvh: BvhInputArgs,
 }
 
-fn is_bvh(path: &std::path::Path) -> bool {
-    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("bvh"))
-}
-
-/// How a BVH input is read: its joint names, units and up axis.
-#[derive(Args, Clone, Debug, Default)]
-pub struct BvhInputArgs {
-    /// BVH input whose joint names follow no known convention (ours, Mixamo, LaFAN1, CMU):
-    /// a JSON object from joint (ours, e.g. "l_wrist" or "LeftHand") to the file's joint name,
-    /// e.g. {"pelvis": "root", "l_wrist": "lHand"}; joints it leaves out use the closest
-    /// known naming.
-    #[arg(long, value_name = "MAP.json")]
-    pub rig_map: Option<PathBuf>,
-    /// Units of a BVH input; auto picks the one that makes the leg (hip to ankle) nearest 0.8 m.
-    #[arg(long, default_value = "auto", value_name = "auto|m|cm|mm|in")]
-    pub bvh_units: String,
-    /// Up axis of a BVH input; auto takes the axis from the ankles to the head.
-    #[arg(long, default_value = "auto", value_name = "auto|y|z|-y|-z|x|-x")]
-    pub bvh_up: String,
-}
-
-impl BvhInputArgs {
-    pub fn options(&self) -> Result<ImportOptions> {
-        let metres_per_unit = match self.bvh_units.as_str() {
-            "auto" => None,
-            u => Some(rig::UNITS.iter().find(|(n, _)| *n == u).map(|x| x.1).with_context(|| format!("--bvh-units: '{u}' is not one of auto, m, cm, mm, in"))?),
-        };
-        let up = match self.bvh_up.as_str() {
-            "auto" => None,
-            u => Some(rig::Up::parse(u).with_context(|| format!("--bvh-up: '{u}' is not one of auto, y, z, -y, -z, x, -x"))?),
-        };
-        let mut rig_map = Vec::new();
-        if let Some(p) = &self.rig_map {
-            let text = std::fs::read_to_string(p).with_context(|| format!("--rig-map: reading {}", p.display()))?;
-            let v: serde_json::Value = serde_json::from_str(&text).with_context(|| format!("--rig-map: {} is not JSON", p.display()))?;
-            let obj = v.as_object().with_context(|| format!("--rig-map: {} must hold a JSON object from our joint names to the file's", p.display()))?;
-            for (k, v) in obj {
-                let name = v.as_str().with_context(|| format!("--rig-map: {}: \"{k}\" maps to {v}; must be a joint name (a string)", p.display()))?;
-                rig_map.push((k.clone(), name.to_string()));
-            }
-        }
-        Ok(ImportOptions { metres_per_unit, up, rig_map })
-    }
-}
-
-fn read_bvh(path: &std::path::Path, skel: &Skeleton, bvh: &ImportOptions) -> Result<rep::Joints> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let j = rig::read(skel, &text, bvh).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    if j.len() < MIN_MOTION_FRAMES {
-        anyhow::bail!("{}: has {} frame(s); at least {MIN_MOTION_FRAMES} needed", path.display(), j.len());
-    }
-    Ok(j)
-}
-
-/// A motion has at least two frames (one pose has no velocity, no path, nothing to animate).
-pub const MIN_MOTION_FRAMES: usize = 2;
-
-/// Joint positions from a motion file: features (T, D) are recovered, joints (T, J, 3) taken
-/// as they are, a BVH read through the rig import.
-pub fn load_motion(path: &std::path::Path, skel: &Skeleton, bvh: &ImportOptions) -> Result<rep::Joints> {
-    if is_bvh(path) {
-        return read_bvh(path, skel, bvh);
-    }
-    let a = npy::read_f64(path)?;
-    if a.ndim() == 2 {
-        let f = load_features(path, skel, MIN_MOTION_FRAMES)?;
-        Ok(rep::recover_from_ric(skel, &f.data.iter().map(|&v| v as f64).collect::<Vec<_>>()))
-    } else {
-        Ok(load_joints(path, skel, MIN_MOTION_FRAMES)?)
-    }
-}
-
-/// Features (T, D) of a motion file: features as they are, joints or BVH through
-/// `process_file` (one frame fewer).
-pub fn load_motion_features(path: &std::path::Path, skel: &Skeleton, bvh: &ImportOptions) -> Result<Vec<f32>> {
-    let joints = if is_bvh(path) {
-        read_bvh(path, skel, bvh)?
-    } else if npy::read_f64(path)?.ndim() == 2 {
-        return Ok(load_features(path, skel, MIN_MOTION_FRAMES)?.data);
-    } else {
-        load_joints(path, skel, 2)?
-    };
-    Ok(rep::features_from_joints(skel, &joints, FOOT_CONTACT_THRESHOLD).map_err(|e| e.in_file(path))?)
-}
-
 pub fn run(args: DataArgs) -> Result<()> {
     match args.command {
         DataCommand::Features(a) => features(a),
@@ -252,70 +169,13 @@ pub fn run(args: DataArgs) -> Result<()> {
     }
 }
 
-/// Resident memory of this process in MiB (Linux): (total, anonymous). Memory-mapped cache
-/// pages count in the total but are clean file pages the kernel can drop; the anonymous part is
-/// what the process itself holds.
-pub fn rss_mib() -> (f64, f64) {
-    let s = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
-    let field = |name: &str| -> f64 { s.lines().find(|l| l.starts_with(name)).and_then(|l| l.split_whitespace().nth(1)).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0) / 1024.0 };
-    (field("VmRSS:"), field("RssAnon:"))
-}
-
 fn bench_loader(a: BenchLoaderArgs) -> Result<()> {
-    println!("{}", loader_case(&a)?);
-    Ok(())
-}
-
-/// Packed-cache loading throughput (also a case of `diffkfc bench`).
-pub fn loader_case(a: &BenchLoaderArgs) -> Result<serde_json::Value> {
-    use diffkfc_data::batch::{KeyframeConfig, Loader};
-    use diffkfc_data::cache::{default_cache_dir, PackedSplit};
     if a.batch_size == 0 || a.batches == 0 {
         bail!("--batch-size and --batches: must be at least 1 (got {} and {})", a.batch_size, a.batches);
     }
-    let ds = diffkfc_data::dataset::Dataset::open(&a.dir)?;
-    let rss0 = rss_mib();
-    let t0 = std::time::Instant::now();
-    let split = PackedSplit::open(&ds, &a.split, &default_cache_dir(&ds), crate::progress::bar("caching"))?;
-    let open_s = t0.elapsed().as_secs_f64();
-    if split.items.is_empty() {
-        bail!("{}: split '{}' has no usable items", a.dir.display(), a.split);
-    }
-    let mut loader = Loader::new(&ds, &split, a.batch_size, 0, KeyframeConfig::default());
-    loader.threads = a.threads;
-    let per_epoch = loader.batches_per_epoch();
-    let t1 = std::time::Instant::now();
-    let (mut peak, mut peak_anon) = rss0;
-    let mut checksum = 0.0f64;
-    for b in 0..a.batches {
-        let batch = loader.batch((b / per_epoch) as u64, b % per_epoch);
-        checksum += batch.x0[0] as f64;
-        if b % 10 == 0 {
-            let (r, an) = rss_mib();
-            peak = peak.max(r);
-            peak_anon = peak_anon.max(an);
-        }
-    }
-    let secs = t1.elapsed().as_secs_f64();
-    let line = serde_json::json!({
-        "case": "loader",
-        "split": a.split,
-        "frames_in_split": split.total_frames(),
-        "cache_bytes": split.total_frames() * ds.dim() * 4,
-        "cache_built": split.built,
-        "open_s": open_s,
-        "batches": a.batches,
-        "batch_size": a.batch_size,
-        "threads": a.threads,
-        "items_per_s": (a.batches * a.batch_size) as f64 / secs,
-        "ms_per_batch": secs * 1000.0 / a.batches as f64,
-        "rss_mib_before": rss0.0,
-        "rss_mib_peak": peak,
-        "rss_anon_mib_before": rss0.1,
-        "rss_anon_mib_peak": peak_anon,
-        "checksum": checksum,
-    });
-    Ok(line)
+    let r = loader_bench::run(&a.dir, &a.split, a.batches, a.batch_size, a.threads, crate::progress::bar("caching"))?;
+    println!("{}", r);
+    Ok(())
 }
 
 fn synth(a: SynthArgs) -> Result<()> {
@@ -375,7 +235,7 @@ fn features(a: FeaturesArgs) -> Result<()> {
 fn joints(a: JointsArgs) -> Result<()> {
     let skel = a.skeleton.skeleton();
     let joints = if is_bvh(&a.input) {
-        read_bvh(&a.input, skel, &a.bvh.options()?)?
+        load_bvh(&a.input, skel, &a.bvh.options()?)?
     } else {
         let feats = load_features(&a.input, skel, MIN_MOTION_FRAMES)?;
         rep::recover_from_ric(skel, &feats.data.iter().map(|&v| v as f64).collect::<Vec<_>>())

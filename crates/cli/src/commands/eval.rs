@@ -15,10 +15,11 @@ use diffkfc_eval::text_motion::Gaussian;
 use diffkfc_eval::train_evaluator::{embed_split, EvaluatorTraining};
 use diffkfc_model::diffusion::Schedule;
 use diffkfc_model::sampler;
+use diffkfc_model::text::cache::embed_captions;
 use diffkfc_model::trainer::load_for_inference;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use super::sample::{FitArgs, KeyframeMode, SamplerArg};
+use crate::args::{FitArgs, KeyframeMode, SamplerArg};
 
 pub const AFTER_HELP: &str = "\
 Examples:
@@ -175,7 +176,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
             if train.items.is_empty() || test.items.len() < 32 {
                 anyhow::bail!("{}: needs training items and at least 32 items in split '{split}' (has {})", data.display(), test.items.len());
             }
-            let text = super::train::embed_captions(&ds, &[&train, &test])?;
+            let text = embed_captions(&ds, &[&train, &test], crate::progress::bar("embedding"))?;
             let cfg = EvaluatorConfig::new().with_motion_dim(ds.dim() - 4).with_text_dim(text.dim);
             let pb = ProgressBar::new(max_steps as u64);
             pb.set_style(ProgressStyle::with_template("{msg} [{bar:30}] step {pos}/{len} {per_sec} ETA {eta}").expect("template").progress_chars("=> "));
@@ -260,7 +261,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
     let strategy: Strategy = a.keyframe_strategy.parse().map_err(|e: String| anyhow::anyhow!("--keyframe-strategy: {e}"))?;
     let device = crate::device::parse(&a.device)?;
     let (cfg, model, step) = load_for_inference(&run_dir, &device).map_err(anyhow::Error::msg)?;
-    let (mean, std) = super::sample::normalisation(&run_dir, &cfg)?;
+    let (mean, std) = diffkfc_model::trainer::normalisation(&run_dir, &cfg).map_err(anyhow::Error::msg)?;
     let ds = Dataset::open(&data)?;
     if ds.dim() != cfg.model.feat_dim {
         bail!("--data: {} has {}-d features, the checkpoint {} expects {}", data.display(), ds.dim(), run_dir.display(), cfg.model.feat_dim);
@@ -270,7 +271,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
     if num_items < protocol::R_BATCH {
         bail!("--num-items: {num_items} items (split '{}' of {} has {}); R-precision needs at least {}", a.split, data.display(), split.items.len(), protocol::R_BATCH);
     }
-    let text = super::train::embed_captions(&ds, &[&split])?;
+    let text = embed_captions(&ds, &[&split], crate::progress::bar("embedding"))?;
     let ev = ContrastiveEvaluator::load(&eval_dir, &text, &device).map_err(anyhow::Error::msg)?;
     if ev.mean.len() != ds.dim() {
         bail!("--evaluator: {} was trained on {}-d features, {} has {}", eval_dir.display(), ev.mean.len(), data.display(), ds.dim());

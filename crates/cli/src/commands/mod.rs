@@ -1,7 +1,6 @@
 pub mod bench;
 pub mod data;
 pub mod eval;
-pub mod keyframes;
 pub mod model;
 pub mod render;
 pub mod sample;

@@ -7,7 +7,9 @@ use clap::Args;
 use diffkfc_data::viewer::{self, ViewMotion};
 use diffkfc_data::{render, T2M};
 
-use super::data::{load_motion, BvhInputArgs};
+use diffkfc_data::motion_file::load_motion;
+
+use crate::args::BvhInputArgs;
 
 #[derive(Args)]
 pub struct RenderArgs {
@@ -40,7 +42,7 @@ pub struct RenderArgs {
 
 pub fn run(a: RenderArgs) -> Result<()> {
     let bvh = a.bvh.options()?;
-    let motions = a.inputs.iter().map(|p| load_motion(p, &T2M, &bvh)).collect::<Result<Vec<_>>>()?;
+    let motions = a.inputs.iter().map(|p| load_motion(p, &T2M, &bvh)).collect::<Result<Vec<_>, _>>()?;
     if !a.labels.is_empty() && a.labels.len() != a.inputs.len() {
         bail!("--label: {} label(s) for {} input(s); give one per input", a.labels.len(), a.inputs.len());
     }

@@ -13,38 +13,14 @@ use diffkfc_data::{npy, pose, render, representation as rep, T2M};
 use diffkfc_eval::keyframe_metrics::{k_err_global, k_err_local, k_trans};
 use diffkfc_model::denoiser::Denoiser;
 use diffkfc_model::diffusion::Schedule;
-use diffkfc_model::fit::{finish, Fit, Fitted, KeyframeFit};
+use diffkfc_model::fit::{finish, Fit, Fitted};
 use diffkfc_model::place::PlaceGuidance;
-use diffkfc_model::sampler::{self, Options, Request, Sampler};
+use diffkfc_model::sampler::{self, Options, Request};
 use diffkfc_model::text::{self, minilm::MiniLm, TextEncoder};
-use diffkfc_model::trainer::load_for_inference;
+use diffkfc_model::trainer::{load_for_inference, normalisation};
 use serde_json::json;
 
-/// What follows the last denoising step (shared by `sample` and `eval`).
-#[derive(Args, Clone, Debug)]
-pub(crate) struct FitArgs {
-    /// How the motion meets its keyframes after the last step: warp (the residual at each key
-    /// spread smoothly over its neighbours and the root re-integrated to the keyed places and
-    /// headings: exact, no seam), paste (observed features written into the key frames alone:
-    /// the pose jumps there), none (the network's output as it is).
-    #[arg(long, default_value = "warp", value_name = "warp|paste|none")]
-    keyframe_fit: KeyframeFit,
-    /// Same as --keyframe-fit none (kept for older scripts).
-    #[arg(long, hide = true)]
-    no_snap: bool,
-    /// Leave planted feet where the network put them. By default a foot whose toe the motion
-    /// labels as in contact is held still on the ground (its leg re-solved by two-bone IK,
-    /// fading in and out over 4 frames; pose keyframes and the root untouched): generated walks
-    /// otherwise slide their feet.
-    #[arg(long)]
-    no_foot_lock: bool,
-}
-
-impl FitArgs {
-    pub(crate) fn fit(&self) -> Fit {
-        Fit { keyframes: if self.no_snap { KeyframeFit::None } else { self.keyframe_fit }, foot_lock: !self.no_foot_lock }
-    }
-}
+use crate::args::{BvhInputArgs, FitArgs, KeyframeMode, SamplerArg};
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 enum TgModeArg {
@@ -52,30 +28,6 @@ enum TgModeArg {
     X0,
     /// Gradient through the denoiser with respect to x_t (paper Eq. 5).
     Exact,
-}
-
-#[derive(Clone, Copy, Debug, ValueEnum)]
-pub(crate) enum KeyframeMode {
-    /// The trained keyframe branch with keyframe guidance.
-    Diffkfc,
-    /// MDM-inp baseline: keyframes pasted into x0 at every step, no keyframe branch.
-    Inpaint,
-}
-
-#[derive(Clone, Copy, Debug, ValueEnum)]
-pub(crate) enum SamplerArg {
-    Ddpm,
-    Ddim,
-}
-
-impl SamplerArg {
-    /// The sampler; `steps` counts DDIM steps (DDPM runs every step of the schedule).
-    pub(crate) fn sampler(self, steps: usize) -> Sampler {
-        match self {
-            SamplerArg::Ddpm => Sampler::Ddpm,
-            SamplerArg::Ddim => Sampler::Ddim(steps),
-        }
-    }
 }
 
 #[derive(Args, Clone, Debug)]
@@ -117,7 +69,7 @@ pub struct SampleArgs {
     #[arg(long, conflicts_with = "keyframes")]
     from: Option<PathBuf>,
     #[command(flatten)]
-    pub(crate) bvh: super::data::BvhInputArgs,
+    pub(crate) bvh: BvhInputArgs,
     /// Frames of --from that become keyframes: a list (0,40,80) or `all`.
     #[arg(long, requires = "from")]
     frames: Option<String>,
@@ -200,6 +152,7 @@ pub struct SampleArgs {
 
 mod keys;
 mod parts;
+pub mod suggest;
 mod timeline;
 use keys::*;
 
@@ -304,7 +257,7 @@ fn run_one(a: SampleArgs) -> Result<()> {
 }
 
 /// One motion from `a`'s text and keyframes (the first sample): de-normalised, fitted features.
-pub(crate) fn text_only_motion(a: &SampleArgs) -> Result<Vec<f32>> {
+fn text_only_motion(a: &SampleArgs) -> Result<Vec<f32>> {
     check_flags(a)?;
     let keys = request_keys(a)?;
     let gen = Generator::load(a)?;
@@ -365,7 +318,7 @@ impl Generator {
         // Exact transition guidance differentiates through the denoiser.
         let device = if matches!(a.tg_mode, TgModeArg::Exact) { device.autodiff() } else { device };
         let (cfg, model, step) = load_for_inference(&a.checkpoint, &device).map_err(anyhow::Error::msg)?;
-        let (mean, std) = normalisation(&a.checkpoint, &cfg)?;
+        let (mean, std) = normalisation(&a.checkpoint, &cfg).map_err(anyhow::Error::msg)?;
         let schedule = Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps)
             .with_context(|| format!("{}: unknown diffusion schedule '{}' in the checkpoint's config (cosine, linear)", a.checkpoint.display(), cfg.diffusion.schedule))?;
         if a.steps > schedule.steps {
@@ -579,19 +532,6 @@ fn k_err_text(s: &serde_json::Value) -> String {
 
 fn fmt(v: &serde_json::Value) -> String {
     v.as_f64().map(|x| format!("{x:.4}")).unwrap_or_else(|| "-".into())
-}
-
-/// Mean/Std the model was trained with: copied into the run directory at training time, or
-/// read from the dataset the config names.
-pub fn normalisation(run: &Path, cfg: &diffkfc_model::run_config::RunConfig) -> Result<(Vec<f32>, Vec<f32>)> {
-    // A checkpoint file: its run directory holds the normalisation.
-    let run = if run.is_file() { run.parent().unwrap_or(Path::new(".")) } else { run };
-    let dir = if run.join("Mean.npy").exists() {
-        run.to_path_buf()
-    } else {
-        PathBuf::from(cfg.data.dir.clone().with_context(|| format!("{}: no Mean.npy/Std.npy and no data.dir in its config", run.display()))?)
-    };
-    Ok(diffkfc_data::dataset::read_normalisation(&dir, Some(cfg.model.feat_dim))?)
 }
 
 #[cfg(test)]

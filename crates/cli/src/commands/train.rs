@@ -6,12 +6,11 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
-use burn::prelude::*;
 use clap::Args;
 use diffkfc_data::cache::{default_cache_dir, PackedSplit};
 use diffkfc_data::dataset::Dataset;
 use diffkfc_model::run_config::RunConfig;
-use diffkfc_model::text::{self, cache::EmbeddingCache, minilm::MiniLm, TextEncoder};
+use diffkfc_model::text::cache::embed_captions;
 use diffkfc_model::trainer::{Event, Trainer};
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -46,13 +45,6 @@ pub struct TrainArgs {
 
 /// Caption embeddings of the given splits with the frozen text encoder, computed once and cached
 /// beside the dataset's packed features.
-pub fn embed_captions(ds: &Dataset, splits: &[&PackedSplit]) -> Result<EmbeddingCache> {
-    let encoder = MiniLm::load(&text::default_dir(), &Device::flex())?;
-    let captions: Vec<String> = splits.iter().flat_map(|s| s.items.iter().flat_map(|i| i.captions.clone())).collect();
-    let path = default_cache_dir(ds).join(format!("text-{}.safetensors", encoder.name()));
-    Ok(EmbeddingCache::build(&path, &encoder, &captions, crate::progress::bar("embedding"))?)
-}
-
 pub fn parse_duration(s: &str) -> Result<Duration, String> {
     let (num, unit) = s.trim().split_at(s.trim().find(|c: char| c.is_alphabetic()).unwrap_or(s.trim().len()));
     let v: f64 = num.parse().map_err(|_| format!("'{s}' is not a duration like 90s, 10m or 2h"))?;
@@ -139,7 +131,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
     }
     let mut splits = vec![&train];
     splits.extend(val.as_ref());
-    let text = embed_captions(&ds, &splits)?;
+    let text = embed_captions(&ds, &splits, crate::progress::bar("embedding"))?;
     if text.dim != cfg.model.text_dim {
         bail!("model.text_dim is {} but the text encoder gives {}", cfg.model.text_dim, text.dim);
     }

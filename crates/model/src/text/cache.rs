@@ -56,3 +56,12 @@ impl EmbeddingCache {
         Ok(EmbeddingCache { dim: encoder.dim(), map })
     }
 }
+
+/// The caption embeddings of a dataset's splits with the default text encoder, cached next to
+/// the dataset's packed splits (`text-<encoder>.safetensors`).
+pub fn embed_captions(ds: &diffkfc_data::dataset::Dataset, splits: &[&diffkfc_data::cache::PackedSplit], progress: impl FnMut(usize, usize)) -> Result<EmbeddingCache, TextError> {
+    let encoder = super::minilm::MiniLm::load(&super::default_dir(), &burn::prelude::Device::flex())?;
+    let captions: Vec<String> = splits.iter().flat_map(|s| s.items.iter().flat_map(|i| i.captions.clone())).collect();
+    let path = diffkfc_data::cache::default_cache_dir(ds).join(format!("text-{}.safetensors", encoder.name()));
+    EmbeddingCache::build(&path, &encoder, &captions, progress)
+}

@@ -46,7 +46,7 @@ pub(super) fn joint_set(spec: Option<&str>, flag: &str) -> Result<Vec<usize>> {
 }
 
 pub(super) fn keys_from_motion(a: &SampleArgs, path: &Path, length: Option<usize>, joints: Vec<usize>) -> Result<Keys> {
-    let feats = crate::commands::data::load_motion_features(path, &T2M, &a.bvh.options()?)?;
+    let feats = diffkfc_data::motion_file::load_motion_features(path, &T2M, &a.bvh.options()?)?;
     let d = T2M.feature_dim();
     let t = feats.len() / d;
     let length = length.unwrap_or(t.min(diffkfc_data::dataset::MAX_FRAMES));

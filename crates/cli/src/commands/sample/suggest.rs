@@ -2,17 +2,10 @@
 //! from the text alone (or read with --from), its most telling poses are picked, and written as
 //! a keyframe file that `sample --keyframes` reads: edit a few, then in-fill.
 
-use std::path::PathBuf;
+use clap::{FromArgMatches, Subcommand};
+use diffkfc_data::motion_file::load_motion_features;
 
-use anyhow::{bail, Context, Result};
-use clap::{Args, FromArgMatches, Subcommand};
-use diffkfc_data::keyframes::{self, Strategy};
-use diffkfc_data::rng::Rng;
-use diffkfc_data::{representation as rep, warp, T2M};
-use serde_json::json;
-
-use super::data::{load_motion_features, BvhInputArgs};
-use super::sample::{text_only_motion, SampleArgs};
+use super::*;
 
 #[derive(Args)]
 pub struct KeyframesArgs {

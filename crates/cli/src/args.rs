@@ -1,0 +1,101 @@
+//! Command-line argument groups more than one command takes: how a BVH input is read, what
+//! follows the last denoising step, which sampler and which keyframe method.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use clap::{Args, ValueEnum};
+use diffkfc_data::rig::{self, ImportOptions};
+use diffkfc_model::fit::{Fit, KeyframeFit};
+use diffkfc_model::sampler::Sampler;
+
+/// How a BVH input is read: its joint names, units and up axis.
+#[derive(Args, Clone, Debug, Default)]
+pub(crate) struct BvhInputArgs {
+    /// BVH input whose joint names follow no known convention (ours, Mixamo, LaFAN1, CMU):
+    /// a JSON object from joint (ours, e.g. "l_wrist" or "LeftHand") to the file's joint name,
+    /// e.g. {"pelvis": "root", "l_wrist": "lHand"}; joints it leaves out use the closest
+    /// known naming.
+    #[arg(long, value_name = "MAP.json")]
+    pub rig_map: Option<PathBuf>,
+    /// Units of a BVH input; auto picks the one that makes the leg (hip to ankle) nearest 0.8 m.
+    #[arg(long, default_value = "auto", value_name = "auto|m|cm|mm|in")]
+    pub bvh_units: String,
+    /// Up axis of a BVH input; auto takes the axis from the ankles to the head.
+    #[arg(long, default_value = "auto", value_name = "auto|y|z|-y|-z|x|-x")]
+    pub bvh_up: String,
+}
+
+impl BvhInputArgs {
+    pub(crate) fn options(&self) -> Result<ImportOptions> {
+        let metres_per_unit = match self.bvh_units.as_str() {
+            "auto" => None,
+            u => Some(rig::UNITS.iter().find(|(n, _)| *n == u).map(|x| x.1).with_context(|| format!("--bvh-units: '{u}' is not one of auto, m, cm, mm, in"))?),
+        };
+        let up = match self.bvh_up.as_str() {
+            "auto" => None,
+            u => Some(rig::Up::parse(u).with_context(|| format!("--bvh-up: '{u}' is not one of auto, y, z, -y, -z, x, -x"))?),
+        };
+        let mut rig_map = Vec::new();
+        if let Some(p) = &self.rig_map {
+            let text = std::fs::read_to_string(p).with_context(|| format!("--rig-map: reading {}", p.display()))?;
+            let v: serde_json::Value = serde_json::from_str(&text).with_context(|| format!("--rig-map: {} is not JSON", p.display()))?;
+            let obj = v.as_object().with_context(|| format!("--rig-map: {} must hold a JSON object from our joint names to the file's", p.display()))?;
+            for (k, v) in obj {
+                let name = v.as_str().with_context(|| format!("--rig-map: {}: \"{k}\" maps to {v}; must be a joint name (a string)", p.display()))?;
+                rig_map.push((k.clone(), name.to_string()));
+            }
+        }
+        Ok(ImportOptions { metres_per_unit, up, rig_map })
+    }
+}
+
+/// What follows the last denoising step (shared by `sample` and `eval`).
+#[derive(Args, Clone, Debug)]
+pub(crate) struct FitArgs {
+    /// How the motion meets its keyframes after the last step: warp (the residual at each key
+    /// spread smoothly over its neighbours and the root re-integrated to the keyed places and
+    /// headings: exact, no seam), paste (observed features written into the key frames alone:
+    /// the pose jumps there), none (the network's output as it is).
+    #[arg(long, default_value = "warp", value_name = "warp|paste|none")]
+    keyframe_fit: KeyframeFit,
+    /// Same as --keyframe-fit none (kept for older scripts).
+    #[arg(long, hide = true)]
+    no_snap: bool,
+    /// Leave planted feet where the network put them. By default a foot whose toe the motion
+    /// labels as in contact is held still on the ground (its leg re-solved by two-bone IK,
+    /// fading in and out over 4 frames; pose keyframes and the root untouched): generated walks
+    /// otherwise slide their feet.
+    #[arg(long)]
+    no_foot_lock: bool,
+}
+
+impl FitArgs {
+    pub(crate) fn fit(&self) -> Fit {
+        Fit { keyframes: if self.no_snap { KeyframeFit::None } else { self.keyframe_fit }, foot_lock: !self.no_foot_lock }
+    }
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub(crate) enum KeyframeMode {
+    /// The trained keyframe branch with keyframe guidance.
+    Diffkfc,
+    /// MDM-inp baseline: keyframes pasted into x0 at every step, no keyframe branch.
+    Inpaint,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub(crate) enum SamplerArg {
+    Ddpm,
+    Ddim,
+}
+
+impl SamplerArg {
+    /// The sampler; `steps` counts DDIM steps (DDPM runs every step of the schedule).
+    pub(crate) fn sampler(self, steps: usize) -> Sampler {
+        match self {
+            SamplerArg::Ddpm => Sampler::Ddpm,
+            SamplerArg::Ddim => Sampler::Ddim(steps),
+        }
+    }
+}
