@@ -83,64 +83,22 @@ const T2M_TPOSE: [Vec3; 22] = [
     [-1.0, 0.0, 0.0],
 ];
 
-/// Known naming conventions for the 22 joints (a file matches one when it has all 22).
-const T2M_CONVENTIONS: [(&str, [&str; 22]); 3] = [
-    ("diffkfc / LaFAN1", T2M_NAMES),
-    (
-        "Mixamo",
-        [
-            "Hips",
-            "LeftUpLeg",
-            "RightUpLeg",
-            "Spine",
-            "LeftLeg",
-            "RightLeg",
-            "Spine1",
-            "LeftFoot",
-            "RightFoot",
-            "Spine2",
-            "LeftToeBase",
-            "RightToeBase",
-            "Neck",
-            "LeftShoulder",
-            "RightShoulder",
-            "Head",
-            "LeftArm",
-            "RightArm",
-            "LeftForeArm",
-            "RightForeArm",
-            "LeftHand",
-            "RightHand",
-        ],
-    ),
-    (
-        "CMU",
-        [
-            "Hips",
-            "LeftUpLeg",
-            "RightUpLeg",
-            "LowerBack",
-            "LeftLeg",
-            "RightLeg",
-            "Spine",
-            "LeftFoot",
-            "RightFoot",
-            "Spine1",
-            "LeftToeBase",
-            "RightToeBase",
-            "Neck1",
-            "LeftShoulder",
-            "RightShoulder",
-            "Head",
-            "LeftArm",
-            "RightArm",
-            "LeftForeArm",
-            "RightForeArm",
-            "LeftHand",
-            "RightHand",
-        ],
-    ),
+/// Known naming conventions for the 22 joints, as the joints where they differ from
+/// [`T2M_NAMES`] (a file matches one when it has all 22).
+const T2M_CONVENTIONS: [(&str, &[(usize, &str)]); 3] = [
+    ("diffkfc / LaFAN1", &[]),
+    ("Mixamo", &[(10, "LeftToeBase"), (11, "RightToeBase")]),
+    ("CMU", &[(3, "LowerBack"), (6, "Spine"), (9, "Spine1"), (10, "LeftToeBase"), (11, "RightToeBase"), (12, "Neck1")]),
 ];
+
+/// The 22 names of a convention.
+fn convention_names(changes: &[(usize, &'static str)]) -> Vec<&'static str> {
+    let mut names = T2M_NAMES.to_vec();
+    for &(j, n) in changes {
+        names[j] = n;
+    }
+    names
+}
 
 fn rig(skel: &Skeleton) -> Rig {
     if skel.name == "t2m" {
@@ -439,7 +397,7 @@ fn map_joints(skel: &Skeleton, b: &Bvh, map: &[(String, String)]) -> Result<Vec<
     }
     let mut conventions: Vec<(&str, Vec<&str>)> = vec![("diffkfc", rig.names.clone()), ("snake_case", skel.joint_names.to_vec())];
     if skel.name == "t2m" {
-        conventions.extend(T2M_CONVENTIONS.iter().map(|(n, names)| (*n, names.to_vec())));
+        conventions.extend(T2M_CONVENTIONS.iter().map(|(n, changes)| (*n, convention_names(changes))));
     }
     let resolved: Vec<(&str, Vec<Option<usize>>)> = conventions.iter().map(|(n, names)| (*n, names.iter().zip(&fixed).map(|(name, f)| f.or_else(|| find(name))).collect())).collect();
     let best = resolved.iter().max_by_key(|(_, r)| r.iter().filter(|x| x.is_some()).count()).expect("conventions");

@@ -94,7 +94,8 @@ fn common_rigs_units_axes_and_rates_import() {
         return;
     };
     let base = export(&T2M, &j);
-    for (ci, (_, names)) in T2M_CONVENTIONS.iter().enumerate() {
+    for (ci, (_, changes)) in T2M_CONVENTIONS.iter().enumerate() {
+        let names = convention_names(changes);
         let mut b = base.clone();
         for bj in &mut b.joints {
             let k = T2M_NAMES.iter().position(|n| *n == bj.name).unwrap();
