@@ -86,8 +86,12 @@ pub(crate) enum KeyframeMode {
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub(crate) enum SamplerArg {
+    /// Ancestral DDPM over every step of the schedule (the paper's 1000).
     Ddpm,
+    /// Deterministic DDIM over --steps evenly spaced steps.
     Ddim,
+    /// DPM-Solver++(2M): second-order multistep over --steps evenly spaced steps.
+    Dpm,
 }
 
 impl SamplerArg {
@@ -96,6 +100,7 @@ impl SamplerArg {
         match self {
             SamplerArg::Ddpm => Sampler::Ddpm,
             SamplerArg::Ddim => Sampler::Ddim(steps),
+            SamplerArg::Dpm => Sampler::DpmSolver(steps),
         }
     }
 }

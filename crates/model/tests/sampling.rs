@@ -93,3 +93,17 @@ fn ddpm_runs_and_ddim_steps_are_spaced() {
     let out = sample(&model, &s20, &request(), &Options { sampler: Sampler::Ddpm, ..Default::default() }, |_, _| {});
     assert!(out.iter().all(|v| v.is_finite()));
 }
+
+/// DPM-Solver++(2M) takes DDIM's steps; its first step is DDIM's, so over two steps the two
+/// agree (to rounding), and from the third step on its second-order correction makes them differ.
+#[test]
+fn dpm_solver_starts_as_ddim_then_corrects() {
+    let s = Schedule::cosine(1000);
+    assert_eq!(timesteps(&s, Sampler::DpmSolver(5)), timesteps(&s, Sampler::Ddim(5)));
+    let model = DiffKfcConfig::tiny().init(&Device::flex());
+    let run = |sampler| sample(&model, &s, &request(), &Options { sampler, transition: 0.0, ..Default::default() }, |_, _| {});
+    let e = max_diff(&run(Sampler::DpmSolver(2)), &run(Sampler::Ddim(2)));
+    assert!(e < 1e-4, "first-order DPM-Solver differs from DDIM by {e}");
+    let (a, b) = (run(Sampler::DpmSolver(6)), run(Sampler::Ddim(6)));
+    assert!(a.iter().all(|v| v.is_finite()) && max_diff(&a, &b) > 1e-4);
+}

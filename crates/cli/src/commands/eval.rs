@@ -84,7 +84,8 @@ struct RunArgs {
     /// Keyframe guidance scale s (1 = the keyframe branch alone; the paper: 2.5).
     #[arg(long, default_value_t = 1.0)]
     kf_guidance: f64,
-    /// ddim (--steps evenly spaced steps) or ddpm (every step of the schedule).
+    /// ddim or dpm (DPM-Solver++(2M)) over --steps evenly spaced steps, or ddpm (every step of
+    /// the schedule).
     #[arg(long, value_enum, default_value = "ddim")]
     sampler: SamplerArg,
     /// DDIM steps (DDPM runs every step of the schedule).

@@ -103,8 +103,9 @@ pub struct SampleArgs {
     /// Random seed: the same seed and inputs give the same bytes.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// ddim: deterministic, --steps evenly spaced steps; ddpm: ancestral over every step of the
-    /// schedule (the paper's 1000).
+    /// ddim: deterministic, --steps evenly spaced steps; dpm: DPM-Solver++(2M), second-order
+    /// multistep over --steps steps; ddpm: ancestral over every step of the schedule (the
+    /// paper's 1000).
     #[arg(long, value_enum, default_value = "ddim")]
     sampler: SamplerArg,
     /// DDIM steps (DDPM always runs every step of the schedule).
