@@ -243,6 +243,11 @@ pub const GIF_SIZE: usize = 320;
 
 /// An animated GIF of a motion; frames listed in `keyframes` are drawn highlighted and their
 /// poses stay visible as ghosts.
+/// Keyframes drawn as lasting ghosts only up to this many: denser keys (a body-part edit keys
+/// every frame) would pile their ghosts into a wall; the figure itself still turns orange on
+/// its keyed frames.
+pub const MAX_GHOSTS: usize = 12;
+
 pub fn gif(skel: &Skeleton, j: &Joints, keyframes: &[usize], path: &Path) -> Result<(), DataError> {
     check_drawable(j).map_err(|e| e.in_file(path))?;
     let (w, h) = (GIF_SIZE, GIF_SIZE);
@@ -261,7 +266,7 @@ pub fn gif(skel: &Skeleton, j: &Joints, keyframes: &[usize], path: &Path) -> Res
                 let col = if k < t { C::PathDone } else { C::Path };
                 c.line(cam.project([pair[0][0][0], 0.0, pair[0][0][2]]), cam.project([pair[1][0][0], 0.0, pair[1][0][2]]), 1.0, col);
             }
-            for &k in keyframes.iter().filter(|&&k| k < j.len() && k != t) {
+            for &k in keyframes.iter().filter(|&&k| k < j.len() && k != t && keyframes.len() <= MAX_GHOSTS) {
                 draw_figure(&mut c, &cam, skel, &j[k], Some(C::KeyGhost), 1.0);
             }
             let is_key = keyframes.contains(&t);
@@ -299,7 +304,7 @@ pub fn sheet(skel: &Skeleton, clips: &[(Joints, Vec<usize>)], cols: usize, cell:
                 let t = if n == 1 { 0 } else { s * (j.len() - 1) / (n - 1) };
                 draw_figure(&mut c, &cam, skel, &j[t], Some(fades[s * fades.len() / n]), 1.2);
             }
-            for &k in keys.iter().filter(|&&k| k < j.len()) {
+            for &k in keys.iter().filter(|&&k| k < j.len() && keys.len() <= MAX_GHOSTS) {
                 draw_figure(&mut c, &cam, skel, &j[k], Some(C::Key), 1.4);
             }
             c.text(6, 6, 2, &format!("{}", i));
