@@ -122,3 +122,31 @@ impl<'a> Sampling<'a> {
         sampler::sample(self.model, &schedule, &self.req, &opts, |_, _| {})
     }
 }
+
+/// The machine a timing ran on: CPU model, the vector extensions that set the matrix-product
+/// peak (AVX2/FMA vs AVX-512 differ about 4x), threads, and the single-precision matrix-product
+/// rate measured through the same gemm the fused kernels use (best of `reps` n x n products on
+/// all threads), so timings from different machines compare as fractions of their peak.
+pub fn machine(n: usize, reps: usize) -> serde_json::Value {
+    let info = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
+    let field = |k: &str| info.lines().find(|l| l.starts_with(k)).and_then(|l| l.split_once(':')).map(|(_, v)| v.trim().to_string()).unwrap_or_default();
+    let flags = field("flags");
+    let has = |f: &str| flags.split_whitespace().any(|x| x == f);
+    let (x, w, b) = (vec![0.5f32; n * n], vec![0.25f32; n * n], vec![0f32; n]);
+    let mut best = f64::INFINITY;
+    for _ in 0..reps.max(1) {
+        let t0 = std::time::Instant::now();
+        std::hint::black_box(crate::kernels::host::linear_forward(&x, &w, &b));
+        best = best.min(t0.elapsed().as_secs_f64());
+    }
+    serde_json::json!({
+        "case": "machine",
+        "cpu": field("model name"),
+        "avx2": has("avx2"),
+        "fma": has("fma"),
+        "avx512f": has("avx512f"),
+        "threads": rayon::current_num_threads(),
+        "matmul_n": n,
+        "matmul_peak_gflops": 2.0 * (n * n * n) as f64 / best / 1e9,
+    })
+}

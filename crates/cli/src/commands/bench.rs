@@ -93,8 +93,12 @@ fn time_ms<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, Vec<f64>) {
     (ms[ms.len() / 2], runs)
 }
 
+/// This run's measured matrix-product peak (GFLOP/s), for each line's fraction of it.
+static PEAK: std::sync::OnceLock<f64> = std::sync::OnceLock::new();
+
 fn line(case: &str, ms: f64, runs: &[f64], gflop: f64, extra: Value) -> Value {
-    let mut v = json!({"case": case, "impl": "diffkfc", "ms": ms, "runs_ms": runs, "gflop": gflop, "gflops": gflop / (ms / 1e3)});
+    let rate = gflop / (ms / 1e3);
+    let mut v = json!({"case": case, "impl": "diffkfc", "ms": ms, "runs_ms": runs, "gflop": gflop, "gflops": rate, "fraction_of_peak": rate / PEAK.get().copied().unwrap_or(f64::NAN)});
     if let (Some(o), Value::Object(e)) = (v.as_object_mut(), extra) {
         o.extend(e);
     }
@@ -138,6 +142,12 @@ pub fn run(a: BenchArgs) -> Result<()> {
             bail!("--torch: the reference has the paper and its own tiny network, not '{other}'")
         }
     };
+    // Every run records the machine: CPU, vector extensions, threads, matrix-product peak; each
+    // model case's GFLOP/s then reads as a fraction of it.
+    let machine = diffkfc_model::bench::machine(if a.quick { 256 } else { 2048 }, if a.quick { 2 } else { 4 });
+    let peak = machine["matmul_peak_gflops"].as_f64().unwrap_or(f64::NAN);
+    emit(machine);
+    let _ = PEAK.set(peak);
     let rounds = if a.torch.is_some() { a.rounds } else { 1 };
     let mut ratios: Vec<BTreeMap<&str, f64>> = Vec::new();
     for round in 1..=rounds {
