@@ -9,6 +9,7 @@ pub mod dataset;
 pub mod fixtures;
 pub mod footlock;
 pub mod fuzz;
+pub mod keyframe_file;
 pub mod keyframes;
 pub mod loader_bench;
 pub mod motion_file;

@@ -9,7 +9,7 @@ use diffkfc_data::keyframes::{self, Strategy};
 use diffkfc_data::rng::Rng;
 use diffkfc_data::viewer::{self, escape, ViewMotion};
 use diffkfc_data::warp::{self, RootKey};
-use diffkfc_data::{npy, pose, render, representation as rep, T2M};
+use diffkfc_data::{npy, render, representation as rep, T2M};
 use diffkfc_eval::keyframe_metrics::{k_err_global, k_err_local, k_trans};
 use diffkfc_model::denoiser::Denoiser;
 use diffkfc_model::diffusion::Schedule;

@@ -92,7 +92,7 @@ fn window_keys(so_far: &[f32], keys: &Keys, w: &Window, d: usize) -> (Vec<f32>, 
         let f = g - w.start;
         v[f * d..(f + 1) * d].copy_from_slice(&keys.values[g * d..(g + 1) * d]);
         m[f * d..(f + 1) * d].copy_from_slice(&keys.mask[g * d..(g + 1) * d]);
-        root[f] = relative_to(keys.root[g], origin);
+        root[f] = diffkfc_data::keyframe_file::relative_to(keys.root[g], origin);
     }
     (v, m, root)
 }
