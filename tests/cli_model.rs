@@ -24,7 +24,12 @@ fn bench_suite_smoke() {
     assert!(o.status.success(), "{}", stderr(&o));
     let lines: Vec<serde_json::Value> = stdout(&o).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
     let cases: Vec<&str> = lines.iter().map(|v| v["case"].as_str().unwrap()).collect();
-    assert_eq!(cases, ["train_step", "sampling_call", "sampling_call_cached", "ddim", "loader"]);
+    assert_eq!(cases, ["machine", "train_step", "sampling_call", "sampling_call_cached", "ddim", "loader"]);
+    // The machine first: its vector flags and measured matrix-product peak; each case's rate
+    // as a fraction of it.
+    assert!(lines[0]["matmul_peak_gflops"].as_f64().unwrap() > 0.0 && lines[0]["avx2"].is_boolean(), "{}", lines[0]);
+    let lines = &lines[1..];
+    assert!(lines[0]["fraction_of_peak"].as_f64().unwrap() > 0.0);
     for v in &lines[..4] {
         assert!(v["ms"].as_f64().unwrap() > 0.0 && v["gflops"].as_f64().unwrap() > 0.0, "{v}");
     }
@@ -40,7 +45,7 @@ fn bench_suite_smoke() {
     std::fs::write(&script, "import json\nprint('warming up')\nprint(json.dumps({'train_step_ms': 1e9, 'cfg_call_ms': 1e9}))\n").unwrap();
     let o = diffkfc(&["bench", "--config", "tiny", "--frames", "40", "--batch", "2", "--quick", "--cases", "train,call", "--torch", "python3", "--reference", s(&script)]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let lines: Vec<serde_json::Value> = stdout(&o).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let lines: Vec<serde_json::Value> = stdout(&o).lines().skip(1).map(|l| serde_json::from_str(l).unwrap()).collect();
     assert_eq!(lines[2]["case"], "pytorch");
     let ratio = &lines[3];
     let want = lines[0]["ms"].as_f64().unwrap() / 1e9;
@@ -48,7 +53,7 @@ fn bench_suite_smoke() {
     // --rounds alternates both sides: a ratio line per round, then their median, min and max.
     let o = diffkfc(&["bench", "--config", "tiny", "--frames", "40", "--batch", "2", "--quick", "--cases", "train,call", "--torch", "python3", "--reference", s(&script), "--rounds", "2"]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let lines: Vec<serde_json::Value> = stdout(&o).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let lines: Vec<serde_json::Value> = stdout(&o).lines().skip(1).map(|l| serde_json::from_str(l).unwrap()).collect();
     let cases: Vec<&str> = lines.iter().map(|l| l["case"].as_str().unwrap()).collect();
     assert_eq!(cases, ["train_step", "sampling_call", "pytorch", "ratio", "train_step", "sampling_call", "pytorch", "ratio", "ratio_summary"]);
     let (r1, r2) = (lines[3]["train_step"].as_f64().unwrap(), lines[7]["train_step"].as_f64().unwrap());
@@ -64,7 +69,7 @@ fn bench_suite_smoke() {
     assert!(diffkfc(&["data", "synth", "--out", s(&data), "--clips", "30"]).status.success());
     let o = diffkfc(&["bench", "--config", "tiny", "--quick", "--cases", "loader", "--data", s(&data)]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let v: serde_json::Value = serde_json::from_str(stdout(&o).trim()).unwrap();
+    let v: serde_json::Value = serde_json::from_str(stdout(&o).lines().last().unwrap()).unwrap();
     assert_eq!((v["case"].as_str(), v["batches"].as_u64()), (Some("loader"), Some(20)));
     assert_one_line_error(&diffkfc(&["bench", "--config", "huge"]), &["--config", "huge"]);
 }

@@ -3,7 +3,6 @@
 mod args;
 mod commands;
 mod device;
-mod plot;
 mod progress;
 
 use clap::{Parser, Subcommand};

@@ -23,6 +23,7 @@ pub mod optim;
 pub mod params;
 pub mod place;
 pub mod run_config;
+pub mod run_dir;
 pub mod sampler;
 pub mod temporal;
 pub mod text;

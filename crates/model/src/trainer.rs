@@ -173,8 +173,9 @@ impl Trainer<'_> {
             }
         }
         model = params::load(model, &vals);
-        let metrics_path = self.run_dir.join("metrics.jsonl");
-        truncate_metrics(&metrics_path, start).map_err(|e| format!("{}: {e}", metrics_path.display()))?;
+        let run = crate::run_dir::RunDir::new(&self.run_dir);
+        let metrics_path = run.metrics_path();
+        run.truncate_metrics(start)?;
         let mut metrics = std::fs::OpenOptions::new().create(true).append(true).open(&metrics_path).map_err(|e| format!("{}: {e}", metrics_path.display()))?;
         let loader = Loader::new(self.ds, self.train, tc.batch_size, tc.seed, self.cfg.keyframes.clone());
         let per_epoch = loader.batches_per_epoch().max(1);
@@ -285,31 +286,6 @@ impl Trainer<'_> {
 fn non_finite(step: usize, what: &str, value: f64, run_dir: &Path) -> String {
     let kept = Checkpoint::list(run_dir).last().map(|(s, _)| format!("the newest checkpoint (step {s}) is kept")).unwrap_or_else(|| "no checkpoint was written".into());
     format!("{}: step {step}: {what} is {value} (not finite): training stopped; {kept}. Lower training.lr, check the data with `diffkfc data check`, or resume from the checkpoint", run_dir.display())
-}
-
-/// Keep only the metrics lines of steps <= `step` (a resumed run rewrites what follows).
-fn truncate_metrics(path: &Path, step: usize) -> std::io::Result<()> {
-    let Ok(text) = std::fs::read_to_string(path) else {
-        return Ok(());
-    };
-    let kept: Vec<&str> = text.lines().filter(|l| serde_json::from_str::<serde_json::Value>(l).ok().and_then(|v| v["step"].as_u64()).is_some_and(|s| s as usize <= step)).collect();
-    let mut out = kept.join("\n");
-    if !out.is_empty() {
-        out.push('\n');
-    }
-    diffkfc_data::write_atomic(path, out.as_bytes()).map_err(std::io::Error::other)
-}
-
-/// Mean/Std the model was trained with: copied into the run directory at training time, or
-/// read from the dataset the config names (`run` may be a checkpoint file of the run).
-pub fn normalisation(run: &Path, cfg: &RunConfig) -> Result<(Vec<f32>, Vec<f32>), String> {
-    let run = if run.is_file() { run.parent().unwrap_or(Path::new(".")) } else { run };
-    let dir = if run.join("Mean.npy").exists() {
-        run.to_path_buf()
-    } else {
-        PathBuf::from(cfg.data.dir.clone().ok_or_else(|| format!("{}: no Mean.npy/Std.npy and no data.dir in its config", run.display()))?)
-    };
-    diffkfc_data::dataset::read_normalisation(&dir, Some(cfg.model.feat_dim)).map_err(|e| e.to_string())
 }
 
 /// Load the weights of a run for inference: the EMA when present, else the raw model. `run_dir`

@@ -262,7 +262,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
     let strategy: Strategy = a.keyframe_strategy.parse().map_err(|e: String| anyhow::anyhow!("--keyframe-strategy: {e}"))?;
     let device = crate::device::parse(&a.device)?;
     let (cfg, model, step) = load_for_inference(&run_dir, &device).map_err(anyhow::Error::msg)?;
-    let (mean, std) = diffkfc_model::trainer::normalisation(&run_dir, &cfg).map_err(anyhow::Error::msg)?;
+    let (mean, std) = diffkfc_model::run_dir::RunDir::of(&run_dir).normalisation(&cfg).map_err(anyhow::Error::msg)?;
     let ds = Dataset::open(&data)?;
     if ds.dim() != cfg.model.feat_dim {
         bail!("--data: {} has {}-d features, the checkpoint {} expects {}", data.display(), ds.dim(), run_dir.display(), cfg.model.feat_dim);

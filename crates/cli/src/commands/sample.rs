@@ -15,9 +15,10 @@ use diffkfc_model::denoiser::Denoiser;
 use diffkfc_model::diffusion::Schedule;
 use diffkfc_model::fit::{finish, Fit, Fitted};
 use diffkfc_model::place::PlaceGuidance;
+use diffkfc_model::run_dir::RunDir;
 use diffkfc_model::sampler::{self, Options, Request};
 use diffkfc_model::text::{self, minilm::MiniLm, TextEncoder};
-use diffkfc_model::trainer::{load_for_inference, normalisation};
+use diffkfc_model::trainer::load_for_inference;
 use serde_json::json;
 
 use crate::args::{BvhInputArgs, FitArgs, KeyframeMode, SamplerArg};
@@ -319,7 +320,7 @@ impl Generator {
         // Exact transition guidance differentiates through the denoiser.
         let device = if matches!(a.tg_mode, TgModeArg::Exact) { device.autodiff() } else { device };
         let (cfg, model, step) = load_for_inference(&a.checkpoint, &device).map_err(anyhow::Error::msg)?;
-        let (mean, std) = normalisation(&a.checkpoint, &cfg).map_err(anyhow::Error::msg)?;
+        let (mean, std) = RunDir::of(&a.checkpoint).normalisation(&cfg).map_err(anyhow::Error::msg)?;
         let schedule = Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps)
             .with_context(|| format!("{}: unknown diffusion schedule '{}' in the checkpoint's config (cosine, linear)", a.checkpoint.display(), cfg.diffusion.schedule))?;
         if a.steps > schedule.steps {

@@ -10,6 +10,7 @@ use clap::Args;
 use diffkfc_data::cache::{default_cache_dir, PackedSplit};
 use diffkfc_data::dataset::Dataset;
 use diffkfc_model::run_config::RunConfig;
+use diffkfc_model::run_dir::RunDir;
 use diffkfc_model::text::cache::embed_captions;
 use diffkfc_model::trainer::{Event, Trainer};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -80,24 +81,6 @@ fn check_memory(cfg: &RunConfig, device: &str) -> Result<()> {
 /// Exit status of a run stopped by SIGINT or SIGTERM after writing its checkpoint (128 + SIGINT).
 pub const INTERRUPTED_EXIT: i32 = 130;
 
-/// A resumed run must keep its model and its normalisation: checked before any run file is
-/// rewritten, so a refused resume leaves the run as it was.
-fn check_resumable(run_dir: &std::path::Path, cfg: &RunConfig, ds: &Dataset) -> Result<()> {
-    let stored = run_dir.join("config.json");
-    if let Ok(old) = RunConfig::load(&stored) {
-        if old.model != cfg.model {
-            bail!("--resume: {} describes another model than --config (model section differs); pass the run's own config or choose another --out", stored.display());
-        }
-    }
-    let mean = run_dir.join("Mean.npy");
-    if let Ok(m) = diffkfc_data::npy::read_f32(&mean) {
-        if m.data != ds.mean {
-            bail!("--resume: {} differs from the dataset's Mean.npy: the run was trained on another normalisation; resume on its own dataset or choose another --out", mean.display());
-        }
-    }
-    Ok(())
-}
-
 pub fn run(a: TrainArgs) -> Result<()> {
     let mut cfg = RunConfig::load(&a.config).map_err(anyhow::Error::msg)?;
     if let Some(s) = a.seed {
@@ -110,8 +93,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let max_steps = a.max_steps.unwrap_or(cfg.training.max_steps);
     cfg.training.check_stop(max_steps).map_err(anyhow::Error::msg)?;
     let stem = a.config.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "run".into());
-    let run_dir = a.out.clone().unwrap_or_else(|| PathBuf::from("runs").join(stem));
-    if !a.resume && !diffkfc_model::checkpoint::Checkpoint::list(&run_dir).is_empty() {
+    let run = RunDir::new(a.out.clone().unwrap_or_else(|| PathBuf::from("runs").join(stem)));
+    let run_dir = run.path.clone();
+    if !a.resume && run.has_checkpoints() {
         bail!("--out: {} already holds checkpoints; pass --resume to continue it or choose another --out", run_dir.display());
     }
     let device = crate::device::parse(&a.device)?;
@@ -136,14 +120,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
         bail!("model.text_dim is {} but the text encoder gives {}", cfg.model.text_dim, text.dim);
     }
     if a.resume {
-        check_resumable(&run_dir, &cfg, &ds)?;
+        run.check_resumable(&cfg, &ds.mean).map_err(anyhow::Error::msg)?;
     }
-    std::fs::create_dir_all(&run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
-    diffkfc_data::write_atomic(&run_dir.join("config.json"), cfg.to_json().as_bytes())?;
-    // Sampling needs the normalisation the model was trained with.
-    let dims = [ds.dim()];
-    diffkfc_data::npy::write(run_dir.join("Mean.npy"), &dims, &ds.mean)?;
-    diffkfc_data::npy::write(run_dir.join("Std.npy"), &dims, &ds.std)?;
+    run.prepare(&cfg, &ds.mean, &ds.std).map_err(anyhow::Error::msg)?;
 
     let interrupted = Arc::new(AtomicBool::new(false));
     {
@@ -168,9 +147,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
         })
         .map_err(anyhow::Error::msg)?;
     pb.finish_and_clear();
-    let metrics = std::fs::read_to_string(run_dir.join("metrics.jsonl")).unwrap_or_default();
-    let vals: Vec<(u64, f64)> = metrics.lines().filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok()).filter_map(|v| Some((v["step"].as_u64()?, v["val_loss"].as_f64()?))).collect();
-    diffkfc_data::write_atomic(&run_dir.join("loss.svg"), crate::plot::loss_svg(&metrics).as_bytes())?;
+    let vals: Vec<(usize, f64)> = run.metrics().iter().filter_map(|m| Some((m.step, m.val_loss?))).collect();
+    run.write_loss_plot().map_err(anyhow::Error::msg)?;
     let secs = started.elapsed().as_secs_f64();
     let steps = outcome.end_step - outcome.start_step;
     let why = if interrupted.load(Ordering::SeqCst) {
