@@ -204,15 +204,6 @@ pub fn run(a: EvalArgs) -> Result<()> {
     }
 }
 
-fn setting_name(inpaint: bool, transition: f64) -> String {
-    match (inpaint, transition > 0.0) {
-        (false, true) => "DiffKFC".into(),
-        (false, false) => "DiffKFC w/o TG".into(),
-        (true, false) => "MDM-inp".into(),
-        (true, true) => "MDM-inp + TG".into(),
-    }
-}
-
 fn parse_rate(v: f64, flag: &str) -> Result<f64> {
     if !(0.0..=1.0).contains(&v) {
         bail!("{flag}: {v} is not a keyframe rate in [0, 1]");
@@ -220,35 +211,21 @@ fn parse_rate(v: f64, flag: &str) -> Result<f64> {
     Ok(v)
 }
 
-/// The rows to run: the main setting, the Table 2 comparison, the Table 4 sweep (no duplicates).
+/// The rows to run (`protocol::Rows`), from the flags.
 fn settings(a: &RunArgs) -> Result<Vec<Setting>> {
     let rate = parse_rate(a.keyframe_rate, "--keyframe-rate")?;
     if a.transition_guidance < 0.0 {
         bail!("--transition-guidance: must be >= 0");
     }
-    let inpaint = matches!(a.keyframe_mode, KeyframeMode::Inpaint);
-    let make = |inpaint: bool, transition: f64, rate: f64| Setting { name: setting_name(inpaint, transition), rate, inpaint, transition, suggested: false };
-    let mut v = vec![make(inpaint, a.transition_guidance, rate)];
-    if a.two_stage {
-        v.push(Setting { name: "DiffKFC, suggested keys".into(), suggested: true, ..make(false, a.transition_guidance, rate) });
-    }
-    if a.compare {
-        let r = if a.transition_guidance > 0.0 { a.transition_guidance } else { 100.0 };
-        v.extend([make(false, r, rate), make(false, 0.0, rate), make(true, 0.0, rate)]);
-    }
+    let mut sweep = Vec::new();
     if let Some(spec) = &a.sweep_rates {
         for p in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
             let r: f64 = p.parse().map_err(|_| anyhow::anyhow!("--sweep-rates: '{p}' is not a number"))?;
-            v.push(make(inpaint, a.transition_guidance, parse_rate(r, "--sweep-rates")?));
+            sweep.push(parse_rate(r, "--sweep-rates")?);
         }
     }
-    let mut out: Vec<Setting> = Vec::new();
-    for s in v {
-        if !out.iter().any(|o| o.name == s.name && o.rate == s.rate) {
-            out.push(s);
-        }
-    }
-    Ok(out)
+    let rows = protocol::Rows { rate, inpaint: matches!(a.keyframe_mode, KeyframeMode::Inpaint), transition: a.transition_guidance, compare: a.compare, two_stage: a.two_stage, sweep };
+    Ok(rows.settings())
 }
 
 fn evaluate(a: RunArgs) -> Result<()> {
