@@ -2,7 +2,7 @@
 
 mod atomic;
 pub mod batch;
-pub mod bvh;
+pub(crate) mod bvh;
 pub mod cache;
 pub mod check;
 pub mod dataset;
@@ -15,7 +15,7 @@ pub mod loader_bench;
 pub mod motion_file;
 pub mod npy;
 pub mod plausibility;
-pub mod pose;
+pub(crate) mod pose;
 pub mod quat;
 pub mod render;
 pub mod representation;

@@ -9,7 +9,7 @@
 
 pub mod evaluator;
 pub mod keyframe_metrics;
-pub mod linalg;
+pub(crate) mod linalg;
 pub mod protocol;
 pub mod report;
 pub mod text_motion;

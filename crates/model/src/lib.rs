@@ -2,22 +2,22 @@
 //! encoder, transformer decoder) and its diffusion, guidance and losses.
 
 pub mod attention;
-pub mod batch;
+pub(crate) mod batch;
 pub mod bench;
 pub mod checkpoint;
-pub mod config;
-pub mod decoder;
+pub(crate) mod config;
+pub(crate) mod decoder;
 pub mod denoiser;
 pub mod diffusion;
 pub mod dma;
 pub mod dropout;
-pub mod embed;
+pub(crate) mod embed;
 pub mod fit;
 pub mod flops;
 pub mod guidance;
 pub mod kernels;
-pub mod kinematics;
-pub mod losses;
+pub(crate) mod kinematics;
+pub(crate) mod losses;
 pub mod memory;
 pub mod optim;
 pub mod params;
@@ -25,10 +25,10 @@ pub mod place;
 pub mod run_config;
 pub mod run_dir;
 pub mod sampler;
-pub mod temporal;
+pub(crate) mod temporal;
 pub mod text;
 pub mod trainer;
-pub mod transition;
+pub(crate) mod transition;
 
 pub use config::DiffKfcConfig;
 pub use denoiser::{Condition, Denoiser, Encoded};
