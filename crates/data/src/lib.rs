@@ -2,7 +2,7 @@
 
 mod atomic;
 pub mod batch;
-pub(crate) mod bvh;
+pub mod bvh;
 pub mod cache;
 pub mod check;
 pub mod dataset;
