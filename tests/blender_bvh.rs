@@ -12,7 +12,8 @@ use common::*;
 use diffkfc_data::{fixtures, npy, rig::T2M_NAMES};
 
 fn blender() -> Option<PathBuf> {
-    let found = std::env::var_os("PATH").and_then(|p| std::env::split_paths(&p).map(|d| d.join("blender")).find(|b| b.is_file()));
+    let found = std::env::var_os("PATH")
+        .and_then(|p| std::env::split_paths(&p).map(|d| d.join("blender")).find(|b| b.is_file()));
     if found.is_none() {
         if std::env::var("DIFFKFC_REQUIRE_BLENDER").is_ok_and(|v| v == "1") {
             panic!("blender is not on PATH (apt-get install blender)");
@@ -29,9 +30,22 @@ fn blender_positions(blender: &Path, bvh: &Path, frames: &[usize], dir: &Path) -
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scripts/blender_positions.py");
     let out = dir.join(format!("{}.json", bvh.file_stem().unwrap().to_str().unwrap()));
     let list: Vec<String> = frames.iter().map(|f| f.to_string()).collect();
-    let o = Command::new(blender).args(["-b", "--factory-startup", "--python", s(&script), "--", s(bvh), &list.join(","), s(&out)]).output().expect("run blender");
+    let o = Command::new(blender)
+        .args([
+            "-b",
+            "--factory-startup",
+            "--python",
+            s(&script),
+            "--",
+            s(bvh),
+            &list.join(","),
+            s(&out),
+        ])
+        .output()
+        .expect("run blender");
     assert!(o.status.success() && out.exists(), "blender failed: {}{}", stdout(&o), stderr(&o));
-    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
     eprintln!("Blender {}", v["blender"]);
     serde_json::from_value(v["frames"].clone()).unwrap()
 }
@@ -67,7 +81,10 @@ fn blender_reads_our_bvh_as_we_do() {
         let o = diffkfc(&["data", "bvh", s(&real), "-o", s(&bvh)]);
         assert!(o.status.success(), "{}", stderr(&o));
         let text = std::fs::read_to_string(&bvh).unwrap();
-        assert!(text.contains("ROOT Hips") && text.contains("JOINT LeftToe") && !text.contains("_to_"), "names");
+        assert!(
+            text.contains("ROOT Hips") && text.contains("JOINT LeftToe") && !text.contains("_to_"),
+            "names"
+        );
         let b = blender_positions(&blender, &bvh, &[0, 57, 113, 169], &d);
         let (mean, max) = compare(&b, &joints(&real));
         eprintln!("real clip 012314, Blender vs the clip's joints: mean {:.4} mm, max {:.4} mm (4 frames x 22 joints)", mean * 1e3, max * 1e3);
@@ -80,7 +97,21 @@ fn blender_reads_our_bvh_as_we_do() {
         return;
     }
     let out = d.join("sample");
-    let o = diffkfc(&["sample", "--checkpoint", s(&model), "--text", "a person walks forward and waves the left hand.", "--length", "120", "--num-samples", "1", "--steps", "4", "--out", s(&out)]);
+    let o = diffkfc(&[
+        "sample",
+        "--checkpoint",
+        s(&model),
+        "--text",
+        "a person walks forward and waves the left hand.",
+        "--length",
+        "120",
+        "--num-samples",
+        "1",
+        "--steps",
+        "4",
+        "--out",
+        s(&out),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let bvh = out.join("sample_00.bvh");
     let back = d.join("back.npy");
@@ -88,11 +119,19 @@ fn blender_reads_our_bvh_as_we_do() {
     assert!(o.status.success(), "{}", stderr(&o));
     let b = blender_positions(&blender, &bvh, &[0, 30, 77, 119], &d);
     let (mean, max) = compare(&b, &joints(&back));
-    eprintln!("generated sample, Blender vs our reading of its BVH: mean {:.4} mm, max {:.4} mm", mean * 1e3, max * 1e3);
+    eprintln!(
+        "generated sample, Blender vs our reading of its BVH: mean {:.4} mm, max {:.4} mm",
+        mean * 1e3,
+        max * 1e3
+    );
     assert!(max < 1e-3, "{max} m");
     let (mean, max) = compare(&b, &joints(&out.join("sample_00_joints.npy")));
     eprintln!("generated sample, Blender vs the sample's own (stretching) joints: mean {:.2} mm, max {:.2} mm", mean * 1e3, max * 1e3);
-    let r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
     let reported = r["samples"][0]["bvh_error_m"]["max"].as_f64().unwrap();
-    assert!(max <= reported + 1e-3, "results.json says the BVH is within {reported} m of the joints; Blender finds {max} m");
+    assert!(
+        max <= reported + 1e-3,
+        "results.json says the BVH is within {reported} m of the joints; Blender finds {max} m"
+    );
 }

@@ -11,7 +11,10 @@ fn max_abs(a: &[f32], b: &[f32]) -> f32 {
 
 #[test]
 fn features_of_raw_mocap_reproduce_reference() {
-    let (Some(raw), Some(reference)) = (fixtures::require("humanml3d/000021.npy"), fixtures::require("humanml3d/000021_features_reference.npy")) else {
+    let (Some(raw), Some(reference)) = (
+        fixtures::require("humanml3d/000021.npy"),
+        fixtures::require("humanml3d/000021_features_reference.npy"),
+    ) else {
         return;
     };
     let d = scratch("features");
@@ -30,7 +33,8 @@ fn features_of_raw_mocap_reproduce_reference() {
     let joints = d.join("j.npy");
     let o = diffkfc(&["data", "joints", s(&out), "-o", s(&joints)]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let refj = npy::read_f32(fixtures::require("humanml3d/000021_joints_reference.npy").unwrap()).unwrap();
+    let refj =
+        npy::read_f32(fixtures::require("humanml3d/000021_joints_reference.npy").unwrap()).unwrap();
     let got = npy::read_f32(&joints).unwrap();
     assert_eq!(got.shape, vec![179, 22, 3]);
     assert!(max_abs(&got.data, &refj.data) < 1e-4);
@@ -38,7 +42,10 @@ fn features_of_raw_mocap_reproduce_reference() {
 
 #[test]
 fn joints_of_released_features_match_released_joints() {
-    let (Some(feats), Some(joints)) = (fixtures::require("humanml3d/new_joint_vecs/012314.npy"), fixtures::require("humanml3d/new_joints/012314.npy")) else {
+    let (Some(feats), Some(joints)) = (
+        fixtures::require("humanml3d/new_joint_vecs/012314.npy"),
+        fixtures::require("humanml3d/new_joints/012314.npy"),
+    ) else {
         return;
     };
     let d = scratch("joints");
@@ -53,7 +60,10 @@ fn joints_of_released_features_match_released_joints() {
 /// `--up z --fps 40`.
 #[test]
 fn z_up_and_frame_rate_options() {
-    let (Some(raw), Some(reference)) = (fixtures::require("humanml3d/000021.npy"), fixtures::require("humanml3d/000021_features_reference.npy")) else {
+    let (Some(raw), Some(reference)) = (
+        fixtures::require("humanml3d/000021.npy"),
+        fixtures::require("humanml3d/000021_features_reference.npy"),
+    ) else {
         return;
     };
     let a = npy::read_f64(&raw).unwrap();
@@ -96,7 +106,9 @@ fn patch(bytes: &[u8], from: &str, to: &str) -> Vec<u8> {
 
 /// A valid .npy header claiming (2^61, 22, 3) float32 elements, followed by 64 bytes.
 fn huge_header() -> Vec<u8> {
-    let mut dict = "{'descr': '<f4', 'fortran_order': False, 'shape': (2305843009213693952, 22, 3), }".to_string();
+    let mut dict =
+        "{'descr': '<f4', 'fortran_order': False, 'shape': (2305843009213693952, 22, 3), }"
+            .to_string();
     while !(10 + dict.len() + 1).is_multiple_of(64) {
         dict.push(' ');
     }
@@ -113,18 +125,63 @@ fn bad_inputs_give_one_line_errors() {
     let d = scratch("bad");
     let good = npy::encode(&[3, 22, 3], &[0.5f32; 198]);
     let cases: Vec<(&str, Vec<u8>, &str, Vec<&str>)> = vec![
-        ("truncated.npy", good[..good.len() - 7].to_vec(), "features", vec!["truncated.npy", "truncated data"]),
-        ("garbage.npy", b"not an array".to_vec(), "features", vec!["garbage.npy", "not a .npy file"]),
-        ("ints.npy", patch(&good, "<f4", "<i4"), "features", vec!["ints.npy", "'<i4' is not supported"]),
-        ("width.npy", npy::encode(&[10, 200], &[0f32; 2000]), "joints", vec!["width.npy", "(T, 263)", "[10, 200]"]),
-        ("shape.npy", npy::encode(&[10, 20, 3], &[0f32; 600]), "features", vec!["shape.npy", "(T, 22, 3)", "[10, 20, 3]"]),
-        ("one_frame.npy", npy::encode(&[1, 22, 3], &[0.1f32; 66]), "features", vec!["one_frame.npy", "at least 2"]),
-        ("empty.npy", npy::encode(&[0, 263], &[0f32; 0]), "joints", vec!["empty.npy", "at least 2"]),
-        ("one_row.npy", npy::encode(&[1, 263], &[0f32; 263]), "joints", vec!["one_row.npy", "at least 2"]),
+        (
+            "truncated.npy",
+            good[..good.len() - 7].to_vec(),
+            "features",
+            vec!["truncated.npy", "truncated data"],
+        ),
+        (
+            "garbage.npy",
+            b"not an array".to_vec(),
+            "features",
+            vec!["garbage.npy", "not a .npy file"],
+        ),
+        (
+            "ints.npy",
+            patch(&good, "<f4", "<i4"),
+            "features",
+            vec!["ints.npy", "'<i4' is not supported"],
+        ),
+        (
+            "width.npy",
+            npy::encode(&[10, 200], &[0f32; 2000]),
+            "joints",
+            vec!["width.npy", "(T, 263)", "[10, 200]"],
+        ),
+        (
+            "shape.npy",
+            npy::encode(&[10, 20, 3], &[0f32; 600]),
+            "features",
+            vec!["shape.npy", "(T, 22, 3)", "[10, 20, 3]"],
+        ),
+        (
+            "one_frame.npy",
+            npy::encode(&[1, 22, 3], &[0.1f32; 66]),
+            "features",
+            vec!["one_frame.npy", "at least 2"],
+        ),
+        (
+            "empty.npy",
+            npy::encode(&[0, 263], &[0f32; 0]),
+            "joints",
+            vec!["empty.npy", "at least 2"],
+        ),
+        (
+            "one_row.npy",
+            npy::encode(&[1, 263], &[0f32; 263]),
+            "joints",
+            vec!["one_row.npy", "at least 2"],
+        ),
         // A header whose shape product overflows (it used to wrap and index out of range).
         ("huge.npy", huge_header(), "features", vec!["huge.npy", "truncated data"]),
         // Every joint at one point: rotations are undefined, an error rather than NaN features.
-        ("collapsed.npy", npy::encode(&[3, 22, 3], &[0.5f32; 198]), "features", vec!["collapsed.npy", "coincide"]),
+        (
+            "collapsed.npy",
+            npy::encode(&[3, 22, 3], &[0.5f32; 198]),
+            "features",
+            vec!["collapsed.npy", "coincide"],
+        ),
     ];
     for (name, bytes, cmd, needles) in cases {
         let p = d.join(name);
@@ -137,21 +194,36 @@ fn bad_inputs_give_one_line_errors() {
     j[2 * 66 + 5 * 3 + 1] = f32::NAN;
     let p = d.join("nan_joints.npy");
     npy::write(&p, &[4, 22, 3], &j).unwrap();
-    assert_one_line_error(&diffkfc(&["data", "features", s(&p), "-o", s(&d.join("o.npy"))]), &["nan_joints.npy", "frame 2, joint 5"]);
+    assert_one_line_error(
+        &diffkfc(&["data", "features", s(&p), "-o", s(&d.join("o.npy"))]),
+        &["nan_joints.npy", "frame 2, joint 5"],
+    );
     let mut f = vec![0.0f32; 3 * 263];
     f[263 + 7] = f32::INFINITY;
     let p = d.join("nan_feats.npy");
     npy::write(&p, &[3, 263], &f).unwrap();
-    assert_one_line_error(&diffkfc(&["data", "joints", s(&p), "-o", s(&d.join("o.npy"))]), &["nan_feats.npy", "frame 1, feature 7"]);
+    assert_one_line_error(
+        &diffkfc(&["data", "joints", s(&p), "-o", s(&d.join("o.npy"))]),
+        &["nan_feats.npy", "frame 1, feature 7"],
+    );
     // A missing file and a bad flag value.
     let o = diffkfc(&["data", "joints", s(&d.join("missing.npy")), "-o", "x.npy"]);
     assert_one_line_error(&o, &["missing.npy", "No such file"]);
     assert_eq!(stderr(&o).matches("No such file").count(), 1, "cause repeated: {}", stderr(&o));
     let p = d.join("ok.npy");
     npy::write(&p, &[5, 22, 3], &(0..330).map(|i| i as f32 * 0.01).collect::<Vec<_>>()).unwrap();
-    assert_one_line_error(&diffkfc(&["data", "features", s(&p), "--fps=-3", "-o", "o.npy"]), &["--fps"]);
-    assert_one_line_error(&diffkfc(&["data", "features", s(&p), "--fps", "1e-9", "-o", "o.npy"]), &["--fps", "1 to 1000"]);
-    assert_one_line_error(&diffkfc(&["data", "features", s(&p), "--feet-threshold", "nan", "-o", "o.npy"]), &["--feet-threshold", "NaN"]);
+    assert_one_line_error(
+        &diffkfc(&["data", "features", s(&p), "--fps=-3", "-o", "o.npy"]),
+        &["--fps"],
+    );
+    assert_one_line_error(
+        &diffkfc(&["data", "features", s(&p), "--fps", "1e-9", "-o", "o.npy"]),
+        &["--fps", "1 to 1000"],
+    );
+    assert_one_line_error(
+        &diffkfc(&["data", "features", s(&p), "--feet-threshold", "nan", "-o", "o.npy"]),
+        &["--feet-threshold", "NaN"],
+    );
     assert_one_line_error(&diffkfc(&["data", "features", s(&p), "--bogus"]), &["--bogus"]);
     // A motion that runs off to 1e38 m is refused at once (drawing its ground grid never ended).
     let mut f = vec![0.0f32; 4 * 263];
@@ -159,7 +231,10 @@ fn bad_inputs_give_one_line_errors() {
     let p = d.join("far.npy");
     npy::write(&p, &[4, 263], &f).unwrap();
     let t0 = std::time::Instant::now();
-    assert_one_line_error(&diffkfc(&["render", s(&p), "-o", s(&d.join("far.gif"))]), &["far.gif", "cannot draw"]);
+    assert_one_line_error(
+        &diffkfc(&["render", s(&p), "-o", s(&d.join("far.gif"))]),
+        &["far.gif", "cannot draw"],
+    );
     assert!(t0.elapsed().as_secs() < 10);
     // Nothing half-written is left behind by failures.
     assert!(!d.join("out.npy").exists() && !d.join("o.npy").exists());
@@ -202,13 +277,22 @@ fn version_and_help_with_examples() {
         let lines: Vec<&str> = out.lines().collect();
         for (i, l) in lines.iter().enumerate() {
             let t = l.trim_start();
-            if l.starts_with("  ") && (t.starts_with("--") || (t.starts_with('-') && t.chars().nth(2) == Some(','))) {
-                if t.split_once("  ").is_some_and(|(_, rest)| !rest.trim().is_empty() && !rest.trim().starts_with('[')) {
+            if l.starts_with("  ")
+                && (t.starts_with("--") || (t.starts_with('-') && t.chars().nth(2) == Some(',')))
+            {
+                if t.split_once("  ").is_some_and(|(_, rest)| {
+                    !rest.trim().is_empty() && !rest.trim().starts_with('[')
+                }) {
                     continue; // short help: the text on the same line
                 }
                 let next = lines.get(i + 1).copied().unwrap_or("");
                 let indent = |x: &str| x.len() - x.trim_start().len();
-                assert!(!next.trim().is_empty() && indent(next) > indent(l) && !next.trim_start().starts_with('['), "{cmd:?}: {t} has no description");
+                assert!(
+                    !next.trim().is_empty()
+                        && indent(next) > indent(l)
+                        && !next.trim_start().starts_with('['),
+                    "{cmd:?}: {t} has no description"
+                );
             }
         }
     }
@@ -233,7 +317,11 @@ fn bvh_rig_round_trip_and_rig_map() {
     assert!(max_abs(&a.data, &b.data) < 1e-4);
 
     let renamed = d.join("renamed.bvh");
-    std::fs::write(&renamed, std::fs::read_to_string(&bvh).unwrap().replace("JOINT LeftHand", "JOINT hand_L")).unwrap();
+    std::fs::write(
+        &renamed,
+        std::fs::read_to_string(&bvh).unwrap().replace("JOINT LeftHand", "JOINT hand_L"),
+    )
+    .unwrap();
     let o = diffkfc(&["data", "joints", s(&renamed), "-o", s(&d.join("x.npy"))]);
     assert_one_line_error(&o, &["renamed.bvh", "l_wrist (LeftHand)", "--rig-map"]);
     let map = d.join("map.json");

@@ -6,12 +6,18 @@ use diffkfc_data::{fixtures, npy};
 use std::path::Path;
 
 fn clip(root: &Path, id: &str, data: &[f32], frames: usize, caption: &str) {
-    npy::write(root.join(format!("new_joint_vecs/{id}.npy")), &[frames, data.len() / frames.max(1)], data).unwrap();
+    npy::write(
+        root.join(format!("new_joint_vecs/{id}.npy")),
+        &[frames, data.len() / frames.max(1)],
+        data,
+    )
+    .unwrap();
     std::fs::write(root.join(format!("texts/{id}.txt")), caption).unwrap();
 }
 
 fn base(name: &str) -> Option<(std::path::PathBuf, Vec<f32>)> {
-    let feats = npy::read_f32(fixtures::require("humanml3d/new_joint_vecs/012314.npy")?).unwrap().data;
+    let feats =
+        npy::read_f32(fixtures::require("humanml3d/new_joint_vecs/012314.npy")?).unwrap().data;
     let d = scratch(name);
     std::fs::create_dir_all(d.join("new_joint_vecs")).unwrap();
     std::fs::create_dir_all(d.join("texts")).unwrap();
@@ -67,7 +73,11 @@ fn every_problem_is_listed() {
     let bytes = std::fs::read(d.join("new_joint_vecs/good.npy")).unwrap();
     std::fs::write(d.join("new_joint_vecs/trunc.npy"), &bytes[..1000]).unwrap();
     std::fs::write(d.join("texts/trunc.txt"), CAP).unwrap();
-    std::fs::write(d.join("train.txt"), "good\nnan\nwidth\nshort\nbadcap\nnotext\nnomotion\ntrunc\n").unwrap();
+    std::fs::write(
+        d.join("train.txt"),
+        "good\nnan\nwidth\nshort\nbadcap\nnotext\nnomotion\ntrunc\n",
+    )
+    .unwrap();
     std::fs::write(d.join("test.txt"), "good\n").unwrap();
     // val.txt missing
     let o = diffkfc(&["data", "check", s(&d)]);
@@ -84,7 +94,10 @@ fn every_problem_is_listed() {
         ("trunc.npy", "truncated data"),
     ];
     for (file, problem) in expect {
-        assert!(out.lines().any(|l| l.contains(file) && l.contains(problem)), "{file}: {problem} missing in\n{out}");
+        assert!(
+            out.lines().any(|l| l.contains(file) && l.contains(problem)),
+            "{file}: {problem} missing in\n{out}"
+        );
     }
     assert!(out.contains("8 problem(s) found"), "{out}");
     let o = diffkfc(&["data", "check", s(&d), "--json"]);

@@ -11,11 +11,23 @@ fn evaluator_beats_chance() {
     }
     let d = scratch("eval");
     let data = d.join("synth");
-    assert!(diffkfc(&["data", "synth", "--out", s(&data), "--clips", "400", "--seed", "5"]).status.success());
+    assert!(diffkfc(&["data", "synth", "--out", s(&data), "--clips", "400", "--seed", "5"])
+        .status
+        .success());
     let out = d.join("evaluator");
-    let o = diffkfc(&["eval", "train-evaluator", "--data", s(&data), "--out", s(&out), "--max-steps", "80"]);
+    let o = diffkfc(&[
+        "eval",
+        "train-evaluator",
+        "--data",
+        s(&data),
+        "--out",
+        s(&out),
+        "--max-steps",
+        "80",
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    let r: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
     let top3 = r["r_precision_top3"].as_f64().unwrap();
     let top1 = r["r_precision_top1"].as_f64().unwrap();
     eprintln!("evaluator after 80 steps: top-1 {top1:.3}, top-3 {top3:.3}");
@@ -28,20 +40,49 @@ fn evaluator_beats_chance() {
     // Too few items to form a batch of 32.
     let small = d.join("small");
     assert!(diffkfc(&["data", "synth", "--out", s(&small), "--clips", "20"]).status.success());
-    assert_one_line_error(&diffkfc(&["eval", "train-evaluator", "--data", s(&small), "--out", s(&d.join("e2"))]), &["at least 32 items"]);
+    assert_one_line_error(
+        &diffkfc(&["eval", "train-evaluator", "--data", s(&small), "--out", s(&d.join("e2"))]),
+        &["at least 32 items"],
+    );
 }
 
 fn metric(row: &serde_json::Value, k: &str) -> f64 {
     row["metrics"][k]["mean"].as_f64().unwrap_or_else(|| panic!("{k} missing in {row}"))
 }
 
-fn evaluate_tiny_checkpoint(d: &std::path::Path, data: &std::path::Path, evaluator: &std::path::Path) {
+fn evaluate_tiny_checkpoint(
+    d: &std::path::Path,
+    data: &std::path::Path,
+    evaluator: &std::path::Path,
+) {
     std::fs::write(d.join("cfg.json"), TWO_STEP_RUN).unwrap();
     let run = d.join("run");
-    let o = diffkfc(&["train", "--config", s(&d.join("cfg.json")), "--data", s(data), "--out", s(&run)]);
+    let o = diffkfc(&[
+        "train",
+        "--config",
+        s(&d.join("cfg.json")),
+        "--data",
+        s(data),
+        "--out",
+        s(&run),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let rep = d.join("report");
-    let common = ["eval", "--checkpoint", s(&run), "--evaluator", s(evaluator), "--data", s(data), "--replications", "2", "--steps", "3", "--samples-for-ade", "2"];
+    let common = [
+        "eval",
+        "--checkpoint",
+        s(&run),
+        "--evaluator",
+        s(evaluator),
+        "--data",
+        s(data),
+        "--replications",
+        "2",
+        "--steps",
+        "3",
+        "--samples-for-ade",
+        "2",
+    ];
     let mut args: Vec<&str> = common.to_vec();
     // The paper's guidance (the defaults are s = 1, r = 0), so the sweep rows carry TG too.
     args.extend([
@@ -65,13 +106,33 @@ fn evaluate_tiny_checkpoint(d: &std::path::Path, data: &std::path::Path, evaluat
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stdout(&o).contains("estimate"), "{}", stdout(&o));
     let md = std::fs::read_to_string(rep.join("report.md")).unwrap();
-    for needle in ["Table 2 layout", "Table 4 layout", "| Real motion |", "| DiffKFC |", "| DiffKFC w/o TG |", "| MDM-inp |", "| 0% |", "| 10% |", "K-TranS"] {
+    for needle in [
+        "Table 2 layout",
+        "Table 4 layout",
+        "| Real motion |",
+        "| DiffKFC |",
+        "| DiffKFC w/o TG |",
+        "| MDM-inp |",
+        "| 0% |",
+        "| 10% |",
+        "K-TranS",
+    ] {
         assert!(md.contains(needle), "{needle} not in\n{md}");
     }
-    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(rep.join("report.json")).unwrap()).unwrap();
+    let r: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(rep.join("report.json")).unwrap()).unwrap();
     let rows = r["rows"].as_array().unwrap();
-    let find = |name: &str, rate: f64| rows.iter().find(|x| x["name"] == name && x["keyframe_rate"].as_f64() == Some(rate)).unwrap_or_else(|| panic!("{name} {rate}"));
-    let (real, kfc, inp, zero) = (find("Real motion", 0.05), find("DiffKFC", 0.05), find("MDM-inp", 0.05), find("DiffKFC", 0.0));
+    let find = |name: &str, rate: f64| {
+        rows.iter()
+            .find(|x| x["name"] == name && x["keyframe_rate"].as_f64() == Some(rate))
+            .unwrap_or_else(|| panic!("{name} {rate}"))
+    };
+    let (real, kfc, inp, zero) = (
+        find("Real motion", 0.05),
+        find("DiffKFC", 0.05),
+        find("MDM-inp", 0.05),
+        find("DiffKFC", 0.0),
+    );
     assert_eq!(real["metrics"]["fid"]["replications"].as_array().unwrap().len(), 2);
     // A 2-step model is far from the real motions the evaluator embeds; real test items are not.
     assert!(metric(kfc, "fid") > metric(real, "fid"), "{kfc} {real}");
@@ -80,14 +141,26 @@ fn evaluate_tiny_checkpoint(d: &std::path::Path, data: &std::path::Path, evaluat
     // and global, for both methods.
     assert!(metric(kfc, "k_err_local") < 1e-5 && metric(inp, "k_err_local") < 1e-5, "{kfc}");
     assert!(metric(kfc, "k_err") < 1e-3 && metric(inp, "k_err") < 1e-3, "{kfc} {inp}");
-    for k in ["ade", "k_err", "k_trans", "k_trans_real", "foot_skate", "diversity", "multimodality", "mm_dist"] {
+    for k in [
+        "ade",
+        "k_err",
+        "k_trans",
+        "k_trans_real",
+        "foot_skate",
+        "diversity",
+        "multimodality",
+        "mm_dist",
+    ] {
         assert!(metric(kfc, k).is_finite(), "{k}");
     }
     // Two stages: keyframes from a text-only proposal, met exactly (K-Err against the proposal).
     let staged = find("DiffKFC, suggested keys", 0.05);
     assert!(metric(staged, "k_err_local") < 1e-5 && metric(staged, "fid").is_finite(), "{staged}");
     // Without keyframes there is nothing to measure at keyframes.
-    assert!(zero["metrics"].get("k_err").is_none() && zero["metrics"].get("ade").is_some(), "{zero}");
+    assert!(
+        zero["metrics"].get("k_err").is_none() && zero["metrics"].get("ade").is_some(),
+        "{zero}"
+    );
     let mut few: Vec<&str> = common.to_vec();
     few.extend(["--num-items", "8", "--out", s(&rep)]);
     assert_one_line_error(&diffkfc(&few), &["--num-items", "at least 32"]);
@@ -120,13 +193,32 @@ fn evaluate_tiny_checkpoint(d: &std::path::Path, data: &std::path::Path, evaluat
         s(&raw),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(raw.join("report.json")).unwrap()).unwrap();
-    assert_eq!((r["meta"]["keyframe_fit"].as_str() == Some("none"), r["meta"]["keyframe_strategy"].as_str(), r["meta"]["kf_guidance"].as_f64()), (true, Some("uniform"), Some(1.0)));
-    let row = r["rows"].as_array().unwrap().iter().find(|x| x["name"] == "DiffKFC w/o TG").expect("row");
+    let r: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(raw.join("report.json")).unwrap()).unwrap();
+    assert_eq!(
+        (
+            r["meta"]["keyframe_fit"].as_str() == Some("none"),
+            r["meta"]["keyframe_strategy"].as_str(),
+            r["meta"]["kf_guidance"].as_f64()
+        ),
+        (true, Some("uniform"), Some(1.0))
+    );
+    let row =
+        r["rows"].as_array().unwrap().iter().find(|x| x["name"] == "DiffKFC w/o TG").expect("row");
     assert!(metric(row, "k_err_local") > 1e-3, "{row}");
     let none = d.join("none");
     let bad = |evaluator: &std::path::Path, extra: &[&str], needles: &[&str]| {
-        let mut a = vec!["eval", "--checkpoint", s(&run), "--evaluator", s(evaluator), "--data", s(data), "--out", s(&raw)];
+        let mut a = vec![
+            "eval",
+            "--checkpoint",
+            s(&run),
+            "--evaluator",
+            s(evaluator),
+            "--data",
+            s(data),
+            "--out",
+            s(&raw),
+        ];
         a.extend(extra);
         assert_one_line_error(&diffkfc(&a), needles);
     };

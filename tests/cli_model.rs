@@ -13,7 +13,15 @@ fn summary_counts_parameters() {
     let o = diffkfc(&["model", "summary", "--config", &config("paper-humanml3d")]);
     assert!(o.status.success(), "{}", stderr(&o));
     let out = stdout(&o);
-    let total: usize = out.lines().find(|l| l.trim_start().starts_with("total")).unwrap().split_whitespace().nth(1).unwrap().parse().unwrap();
+    let total: usize = out
+        .lines()
+        .find(|l| l.trim_start().starts_with("total"))
+        .unwrap()
+        .split_whitespace()
+        .nth(1)
+        .unwrap()
+        .parse()
+        .unwrap();
     assert!((total as f64 - 47e6).abs() < 4.7e6, "{out}");
 }
 
@@ -22,12 +30,20 @@ fn summary_counts_parameters() {
 fn bench_suite_smoke() {
     let o = diffkfc(&["bench", "--config", "tiny", "--frames", "40", "--batch", "2", "--quick"]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let lines: Vec<serde_json::Value> = stdout(&o).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let lines: Vec<serde_json::Value> =
+        stdout(&o).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
     let cases: Vec<&str> = lines.iter().map(|v| v["case"].as_str().unwrap()).collect();
-    assert_eq!(cases, ["machine", "train_step", "sampling_call", "sampling_call_cached", "ddim", "loader"]);
+    assert_eq!(
+        cases,
+        ["machine", "train_step", "sampling_call", "sampling_call_cached", "ddim", "loader"]
+    );
     // The machine first: its vector flags and measured matrix-product peak; each case's rate
     // as a fraction of it.
-    assert!(lines[0]["matmul_peak_gflops"].as_f64().unwrap() > 0.0 && lines[0]["avx2"].is_boolean(), "{}", lines[0]);
+    assert!(
+        lines[0]["matmul_peak_gflops"].as_f64().unwrap() > 0.0 && lines[0]["avx2"].is_boolean(),
+        "{}",
+        lines[0]
+    );
     let lines = &lines[1..];
     assert!(lines[0]["fraction_of_peak"].as_f64().unwrap() > 0.0);
     for v in &lines[..4] {
@@ -37,37 +53,127 @@ fn bench_suite_smoke() {
     // The cached call skips the encoder: fewer FLOPs than the full call.
     assert!(lines[2]["gflop"].as_f64() < lines[1]["gflop"].as_f64());
     assert!(lines[4]["items_per_s"].as_f64().unwrap() > 0.0);
-    assert_one_line_error(&diffkfc(&["bench", "--config", "tiny", "--cases", "train,fly"]), &["--cases", "fly"]);
+    assert_one_line_error(
+        &diffkfc(&["bench", "--config", "tiny", "--cases", "train,fly"]),
+        &["--cases", "fly"],
+    );
     // --torch/--reference: a stand-in for the PyTorch script (prints the reference's JSON line
     // with known times) checks the side-by-side plumbing and the ratios without torch.
     let d = scratch("bench");
     let script = d.join("reference.py");
     std::fs::write(&script, "import json\nprint('warming up')\nprint(json.dumps({'train_step_ms': 1e9, 'cfg_call_ms': 1e9}))\n").unwrap();
-    let o = diffkfc(&["bench", "--config", "tiny", "--frames", "40", "--batch", "2", "--quick", "--cases", "train,call", "--torch", "python3", "--reference", s(&script)]);
+    let o = diffkfc(&[
+        "bench",
+        "--config",
+        "tiny",
+        "--frames",
+        "40",
+        "--batch",
+        "2",
+        "--quick",
+        "--cases",
+        "train,call",
+        "--torch",
+        "python3",
+        "--reference",
+        s(&script),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let lines: Vec<serde_json::Value> = stdout(&o).lines().skip(1).map(|l| serde_json::from_str(l).unwrap()).collect();
+    let lines: Vec<serde_json::Value> =
+        stdout(&o).lines().skip(1).map(|l| serde_json::from_str(l).unwrap()).collect();
     assert_eq!(lines[2]["case"], "pytorch");
     let ratio = &lines[3];
     let want = lines[0]["ms"].as_f64().unwrap() / 1e9;
-    assert!((ratio["train_step"].as_f64().unwrap() - want).abs() < 1e-12 && ratio["sampling_call"].as_f64().unwrap() > 0.0, "{ratio}");
+    assert!(
+        (ratio["train_step"].as_f64().unwrap() - want).abs() < 1e-12
+            && ratio["sampling_call"].as_f64().unwrap() > 0.0,
+        "{ratio}"
+    );
     // --rounds alternates both sides: a ratio line per round, then their median, min and max.
-    let o = diffkfc(&["bench", "--config", "tiny", "--frames", "40", "--batch", "2", "--quick", "--cases", "train,call", "--torch", "python3", "--reference", s(&script), "--rounds", "2"]);
+    let o = diffkfc(&[
+        "bench",
+        "--config",
+        "tiny",
+        "--frames",
+        "40",
+        "--batch",
+        "2",
+        "--quick",
+        "--cases",
+        "train,call",
+        "--torch",
+        "python3",
+        "--reference",
+        s(&script),
+        "--rounds",
+        "2",
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let lines: Vec<serde_json::Value> = stdout(&o).lines().skip(1).map(|l| serde_json::from_str(l).unwrap()).collect();
+    let lines: Vec<serde_json::Value> =
+        stdout(&o).lines().skip(1).map(|l| serde_json::from_str(l).unwrap()).collect();
     let cases: Vec<&str> = lines.iter().map(|l| l["case"].as_str().unwrap()).collect();
-    assert_eq!(cases, ["train_step", "sampling_call", "pytorch", "ratio", "train_step", "sampling_call", "pytorch", "ratio", "ratio_summary"]);
-    let (r1, r2) = (lines[3]["train_step"].as_f64().unwrap(), lines[7]["train_step"].as_f64().unwrap());
+    assert_eq!(
+        cases,
+        [
+            "train_step",
+            "sampling_call",
+            "pytorch",
+            "ratio",
+            "train_step",
+            "sampling_call",
+            "pytorch",
+            "ratio",
+            "ratio_summary"
+        ]
+    );
+    let (r1, r2) =
+        (lines[3]["train_step"].as_f64().unwrap(), lines[7]["train_step"].as_f64().unwrap());
     let sum = &lines[8]["train_step"];
     assert_eq!(lines[7]["round"], 2);
-    assert!((sum["median"].as_f64().unwrap() - (r1 + r2) / 2.0).abs() < 1e-15 && sum["min"].as_f64().unwrap() == r1.min(r2), "{sum}");
-    assert_one_line_error(&diffkfc(&["bench", "--config", "tiny", "--cases", "call", "--rounds", "0"]), &["--rounds"]);
-    assert_one_line_error(&diffkfc(&["bench", "--config", "tiny", "--cases", "call", "--torch", "python3", "--reference", s(&d.join("none.py"))]), &["--reference", "none.py"]);
+    assert!(
+        (sum["median"].as_f64().unwrap() - (r1 + r2) / 2.0).abs() < 1e-15
+            && sum["min"].as_f64().unwrap() == r1.min(r2),
+        "{sum}"
+    );
+    assert_one_line_error(
+        &diffkfc(&["bench", "--config", "tiny", "--cases", "call", "--rounds", "0"]),
+        &["--rounds"],
+    );
+    assert_one_line_error(
+        &diffkfc(&[
+            "bench",
+            "--config",
+            "tiny",
+            "--cases",
+            "call",
+            "--torch",
+            "python3",
+            "--reference",
+            s(&d.join("none.py")),
+        ]),
+        &["--reference", "none.py"],
+    );
     std::fs::write(&script, "import sys\nsys.exit('no torch here')\n").unwrap();
-    assert_one_line_error(&diffkfc(&["bench", "--config", "tiny", "--quick", "--cases", "call", "--torch", "python3", "--reference", s(&script)]), &["--torch", "no torch here"]);
+    assert_one_line_error(
+        &diffkfc(&[
+            "bench",
+            "--config",
+            "tiny",
+            "--quick",
+            "--cases",
+            "call",
+            "--torch",
+            "python3",
+            "--reference",
+            s(&script),
+        ]),
+        &["--torch", "no torch here"],
+    );
     // --data: the loader case on a given dataset.
     let data = d.join("synth");
     assert!(diffkfc(&["data", "synth", "--out", s(&data), "--clips", "30"]).status.success());
-    let o = diffkfc(&["bench", "--config", "tiny", "--quick", "--cases", "loader", "--data", s(&data)]);
+    let o =
+        diffkfc(&["bench", "--config", "tiny", "--quick", "--cases", "loader", "--data", s(&data)]);
     assert!(o.status.success(), "{}", stderr(&o));
     let v: serde_json::Value = serde_json::from_str(stdout(&o).lines().last().unwrap()).unwrap();
     assert_eq!((v["case"].as_str(), v["batches"].as_u64()), (Some("loader"), Some(20)));
@@ -79,16 +185,29 @@ fn bad_configs_name_the_key() {
     let d = scratch("cfg");
     let p = d.join("bad.json");
     std::fs::write(&p, r#"{"model": "tiny", "training": {"batchsize": 3}}"#).unwrap();
-    assert_one_line_error(&diffkfc(&["model", "summary", "--config", s(&p)]), &["bad.json", "training.batchsize"]);
+    assert_one_line_error(
+        &diffkfc(&["model", "summary", "--config", s(&p)]),
+        &["bad.json", "training.batchsize"],
+    );
     std::fs::write(&p, "{not json").unwrap();
-    assert_one_line_error(&diffkfc(&["model", "summary", "--config", s(&p)]), &["bad.json", "not valid JSON"]);
-    assert_one_line_error(&diffkfc(&["model", "summary", "--config", s(&d.join("none.json"))]), &["none.json"]);
-    assert_one_line_error(&diffkfc(&["bench", "--config", &config("tiny"), "--device", "quantum"]), &["--device", "quantum"]);
+    assert_one_line_error(
+        &diffkfc(&["model", "summary", "--config", s(&p)]),
+        &["bad.json", "not valid JSON"],
+    );
+    assert_one_line_error(
+        &diffkfc(&["model", "summary", "--config", s(&d.join("none.json"))]),
+        &["none.json"],
+    );
+    assert_one_line_error(
+        &diffkfc(&["bench", "--config", &config("tiny"), "--device", "quantum"]),
+        &["--device", "quantum"],
+    );
 }
 
 #[test]
 fn text_embed_prints_ids_and_embedding() {
-    let Some(reference) = diffkfc_data::fixtures::require("minilm/reference_embeddings.json") else {
+    let Some(reference) = diffkfc_data::fixtures::require("minilm/reference_embeddings.json")
+    else {
         return;
     };
     let r: serde_json::Value = serde_json::from_slice(&std::fs::read(reference).unwrap()).unwrap();
@@ -105,10 +224,16 @@ fn text_embed_prints_ids_and_embedding() {
     }
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(v["token_ids"], item["token_ids"]);
-    let e: Vec<f64> = v["embedding"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
-    let re: Vec<f64> = item["embedding"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
-    let cos: f64 = e.iter().zip(&re).map(|(a, b)| a * b).sum::<f64>() / re.iter().map(|b| b * b).sum::<f64>().sqrt();
+    let e: Vec<f64> =
+        v["embedding"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+    let re: Vec<f64> =
+        item["embedding"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+    let cos: f64 = e.iter().zip(&re).map(|(a, b)| a * b).sum::<f64>()
+        / re.iter().map(|b| b * b).sum::<f64>().sqrt();
     assert!(cos > 0.9999, "{cos}");
     assert_one_line_error(&diffkfc(&["text-embed", "--text", "   "]), &["--text", "empty"]);
-    assert_one_line_error(&diffkfc(&["text-embed", "--text", "x", "--encoder-dir", "/nonexistent"]), &["fetch-text-encoder.sh"]);
+    assert_one_line_error(
+        &diffkfc(&["text-embed", "--text", "x", "--encoder-dir", "/nonexistent"]),
+        &["fetch-text-encoder.sh"],
+    );
 }

@@ -12,23 +12,59 @@ fn sample_outputs_errors_and_determinism() {
     }
     let d = scratch("sample");
     let data = d.join("synth");
-    assert!(diffkfc(&["data", "synth", "--out", s(&data), "--clips", "12", "--seed", "3"]).status.success());
+    assert!(diffkfc(&["data", "synth", "--out", s(&data), "--clips", "12", "--seed", "3"])
+        .status
+        .success());
     std::fs::write(d.join("cfg.json"), TWO_STEP_RUN).unwrap();
     let run = d.join("run");
-    let o = diffkfc(&["train", "--config", s(&d.join("cfg.json")), "--data", s(&data), "--out", s(&run)]);
+    let o = diffkfc(&[
+        "train",
+        "--config",
+        s(&d.join("cfg.json")),
+        "--data",
+        s(&data),
+        "--out",
+        s(&run),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let src = data.join("new_joint_vecs/000000.npy");
     let out = d.join("out");
     let args = |out: &std::path::Path| -> Vec<String> {
-        ["sample", "--checkpoint", s(&run), "--text", "a person walks forward.", "--from", s(&src), "--frames", "0,20,39", "--length", "40", "--steps", "5", "--num-samples", "2", "--out", s(out)]
-            .iter()
-            .map(|x| x.to_string())
-            .collect()
+        [
+            "sample",
+            "--checkpoint",
+            s(&run),
+            "--text",
+            "a person walks forward.",
+            "--from",
+            s(&src),
+            "--frames",
+            "0,20,39",
+            "--length",
+            "40",
+            "--steps",
+            "5",
+            "--num-samples",
+            "2",
+            "--out",
+            s(out),
+        ]
+        .iter()
+        .map(|x| x.to_string())
+        .collect()
     };
     let a: Vec<String> = args(&out);
     let o = diffkfc(&a.iter().map(String::as_str).collect::<Vec<_>>());
     assert!(o.status.success(), "{}", stderr(&o));
-    for f in ["results.json", "index.html", "sample_00.npy", "sample_00_joints.npy", "sample_00.gif", "sample_01.gif", "sample_00.bvh"] {
+    for f in [
+        "results.json",
+        "index.html",
+        "sample_00.npy",
+        "sample_00_joints.npy",
+        "sample_00.gif",
+        "sample_01.gif",
+        "sample_00.bvh",
+    ] {
         assert!(out.join(f).exists(), "{f}");
     }
     let gen = npy::read_f32(out.join("sample_00.npy")).unwrap();
@@ -42,7 +78,8 @@ fn sample_outputs_errors_and_determinism() {
             assert!((g - s).abs() <= 1e-4 * (1.0 + s.abs()), "frame {f} dim {c}: {g} vs {s}");
         }
     }
-    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("results.json")).unwrap()).unwrap();
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("results.json")).unwrap()).unwrap();
     assert_eq!(report["keyframes"], serde_json::json!([0, 20, 39]));
     assert_eq!(report["keyframe_fit"], "warp");
     assert!(report["samples"][0]["k_err_root_relative_m"].as_f64().unwrap() < 1e-4);
@@ -51,14 +88,23 @@ fn sample_outputs_errors_and_determinism() {
     assert_eq!(report["samples"][0]["corrections"].as_array().unwrap().len(), 3);
     // Foot locking is on by default and says what it moved; --no-foot-lock turns it off.
     assert_eq!(report["foot_lock"], true);
-    assert!(report["samples"][0]["foot_lock"]["frames"].is_u64() && report["samples"][0]["foot_lock"]["dragged"].is_u64(), "{}", report["samples"][0]);
+    assert!(
+        report["samples"][0]["foot_lock"]["frames"].is_u64()
+            && report["samples"][0]["foot_lock"]["dragged"].is_u64(),
+        "{}",
+        report["samples"][0]
+    );
     // The paste writes every observed feature into the key frames.
     let outp = d.join("outp");
     let mut ap = args(&outp);
     ap.extend(["--keyframe-fit".to_string(), "paste".to_string(), "--no-foot-lock".to_string()]);
     assert!(diffkfc(&ap.iter().map(String::as_str).collect::<Vec<_>>()).status.success());
-    let rp: serde_json::Value = serde_json::from_slice(&std::fs::read(outp.join("results.json")).unwrap()).unwrap();
-    assert_eq!((rp["foot_lock"].as_bool(), rp["samples"][0]["foot_lock"].is_null()), (Some(false), true));
+    let rp: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(outp.join("results.json")).unwrap()).unwrap();
+    assert_eq!(
+        (rp["foot_lock"].as_bool(), rp["samples"][0]["foot_lock"].is_null()),
+        (Some(false), true)
+    );
     let pasted = npy::read_f32(outp.join("sample_00.npy")).unwrap();
     for f in [0usize, 20, 39] {
         for c in 0..263 {
@@ -71,14 +117,28 @@ fn sample_outputs_errors_and_determinism() {
     let out2 = d.join("out2");
     let a2 = args(&out2);
     assert!(diffkfc(&a2.iter().map(String::as_str).collect::<Vec<_>>()).status.success());
-    assert_eq!(std::fs::read(out.join("sample_00.npy")).unwrap(), std::fs::read(out2.join("sample_00.npy")).unwrap());
+    assert_eq!(
+        std::fs::read(out.join("sample_00.npy")).unwrap(),
+        std::fs::read(out2.join("sample_00.npy")).unwrap()
+    );
     // An exported model directory samples like its run: the same bytes in f32, within f16
     // rounding in f16, and its weights file holds no optimiser state.
     for (dtype, tol) in [("f32", 0.0f32), ("f16", 0.05)] {
         let model = d.join(format!("model-{dtype}"));
-        let o = diffkfc(&["model", "export", "--checkpoint", s(&run), "--out", s(&model), "--dtype", dtype]);
+        let o = diffkfc(&[
+            "model",
+            "export",
+            "--checkpoint",
+            s(&run),
+            "--out",
+            s(&model),
+            "--dtype",
+            dtype,
+        ]);
         assert!(o.status.success(), "{}", stderr(&o));
-        for f in ["model.safetensors", "config.json", "Mean.npy", "Std.npy", "metrics.jsonl", "loss.svg"] {
+        for f in
+            ["model.safetensors", "config.json", "Mean.npy", "Std.npy", "metrics.jsonl", "loss.svg"]
+        {
             assert!(model.join(f).is_file(), "{dtype}: {f} missing");
         }
         let mut am = args(&d.join(format!("out-{dtype}")));
@@ -90,24 +150,64 @@ fn sample_outputs_errors_and_determinism() {
         let worst = m.data.iter().zip(&gen.data).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
         assert!(worst <= tol, "{dtype}: largest difference {worst}");
     }
-    let ckpt_bytes = std::fs::metadata(std::fs::read_dir(&run).unwrap().flatten().find(|e| e.file_name().to_string_lossy().starts_with("ckpt-")).unwrap().path()).unwrap().len();
+    let ckpt_bytes = std::fs::metadata(
+        std::fs::read_dir(&run)
+            .unwrap()
+            .flatten()
+            .find(|e| e.file_name().to_string_lossy().starts_with("ckpt-"))
+            .unwrap()
+            .path(),
+    )
+    .unwrap()
+    .len();
     let f16_bytes = std::fs::metadata(d.join("model-f16/model.safetensors")).unwrap().len();
     assert!(f16_bytes * 6 < ckpt_bytes, "f16 weights {f16_bytes} bytes vs checkpoint {ckpt_bytes}");
-    assert_one_line_error(&diffkfc(&["model", "export", "--checkpoint", s(&d.join("nothing")), "--out", s(&d.join("m"))]), &["nothing"]);
+    assert_one_line_error(
+        &diffkfc(&[
+            "model",
+            "export",
+            "--checkpoint",
+            s(&d.join("nothing")),
+            "--out",
+            s(&d.join("m")),
+        ]),
+        &["nothing"],
+    );
     // Exporting into the run itself (spelled differently) would mix the two: refused.
     let run_slash = format!("{}/", s(&run));
-    assert_one_line_error(&diffkfc(&["model", "export", "--checkpoint", s(&run), "--out", &run_slash]), &["run directory itself"]);
+    assert_one_line_error(
+        &diffkfc(&["model", "export", "--checkpoint", s(&run), "--out", &run_slash]),
+        &["run directory itself"],
+    );
     // Reusing the folder with fewer samples leaves no stale sample_01 files of the first run.
     let mut one = args(&out2);
     let at = one.iter().position(|x| x == "--num-samples").unwrap() + 1;
     one[at] = "1".into();
     assert!(diffkfc(&one.iter().map(String::as_str).collect::<Vec<_>>()).status.success());
-    assert!(out2.join("sample_00.gif").exists() && !out2.join("sample_01.gif").exists() && !out2.join("sample_01.npy").exists());
+    assert!(
+        out2.join("sample_00.gif").exists()
+            && !out2.join("sample_01.gif").exists()
+            && !out2.join("sample_01.npy").exists()
+    );
 
     // The BVH reads back as keyframe source and as a picture.
     let bvh = out.join("sample_00.bvh");
     let out4 = d.join("out4");
-    let o = diffkfc(&["sample", "--checkpoint", s(&run), "--text", "walk", "--from", s(&bvh), "--frames", "0,10", "--steps", "2", "--out", s(&out4)]);
+    let o = diffkfc(&[
+        "sample",
+        "--checkpoint",
+        s(&run),
+        "--text",
+        "walk",
+        "--from",
+        s(&bvh),
+        "--frames",
+        "0,10",
+        "--steps",
+        "2",
+        "--out",
+        s(&out4),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(diffkfc(&["render", s(&bvh), "-o", s(&d.join("bvh.gif"))]).status.success());
     // A JSON keyframe file: one pose, one feature vector, the lower body only.
@@ -117,9 +217,22 @@ fn sample_outputs_errors_and_determinism() {
     let kjson = d.join("keys.json");
     std::fs::write(&kjson, serde_json::json!({"length": 30, "joints": "lower_body", "keyframes": [{"frame": 0, "joints": pose}, {"frame": 10, "features": feats}]}).to_string()).unwrap();
     let out3 = d.join("out3");
-    let o = diffkfc(&["sample", "--checkpoint", s(&run), "--text", "a person squats.", "--keyframes", s(&kjson), "--steps", "3", "--out", s(&out3)]);
+    let o = diffkfc(&[
+        "sample",
+        "--checkpoint",
+        s(&run),
+        "--text",
+        "a person squats.",
+        "--keyframes",
+        s(&kjson),
+        "--steps",
+        "3",
+        "--out",
+        s(&out3),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(out3.join("results.json")).unwrap()).unwrap();
+    let r: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out3.join("results.json")).unwrap()).unwrap();
     assert_eq!(r["length"], 30);
     assert_eq!(r["keyframe_joints"], serde_json::json!([0, 1, 2, 4, 5, 7, 8, 10, 11]));
     // Keyed places and headings: the pelvis stands where it was put, facing where it was turned.
@@ -127,12 +240,27 @@ fn sample_outputs_errors_and_determinism() {
         {"frame": 15, "joints": pose, "root": [1.0, 0.95, 2.0], "heading": 90},
         {"frame": 35, "root": [-0.5, 0.9, 3.5]}]});
     std::fs::write(&kjson, placed.to_string()).unwrap();
-    let o = diffkfc(&["sample", "--checkpoint", s(&run), "--text", "a person walks.", "--keyframes", s(&kjson), "--steps", "3", "--out", s(&out3)]);
+    let o = diffkfc(&[
+        "sample",
+        "--checkpoint",
+        s(&run),
+        "--text",
+        "a person walks.",
+        "--keyframes",
+        s(&kjson),
+        "--steps",
+        "3",
+        "--out",
+        s(&out3),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let j = npy::read_f32(out3.join("sample_00_joints.npy")).unwrap();
     for (f, x, y, z) in [(15usize, 1.0f32, 0.95f32, 2.0f32), (35, -0.5, 0.9, 3.5)] {
         let p = &j.data[f * 66..f * 66 + 3];
-        assert!((p[0] - x).abs() < 1e-3 && (p[1] - y).abs() < 1e-3 && (p[2] - z).abs() < 1e-3, "frame {f}: {p:?}");
+        assert!(
+            (p[0] - x).abs() < 1e-3 && (p[1] - y).abs() < 1e-3 && (p[2] - z).abs() < 1e-3,
+            "frame {f}: {p:?}"
+        );
     }
     // Heading 90 faces +X: forward = up x (r_hip - l_hip), as HumanML3D finds the facing.
     let (l, r) = (&j.data[15 * 66 + 3..15 * 66 + 6], &j.data[15 * 66 + 6..15 * 66 + 9]);
@@ -142,12 +270,37 @@ fn sample_outputs_errors_and_determinism() {
     assert!((ang - 90.0).abs() < 20.0, "facing {ang} degrees");
     for (bad_key, needle) in [
         (serde_json::json!({"frame": 3, "root": [1, 2]}), "root: invalid length 2"),
-        (serde_json::json!({"frame": 3, "root": [1, "up", 2]}), "root[1]: invalid type: string \"up\""),
-        (serde_json::json!({"frame": 3, "heading": "north"}), "heading: invalid type: string \"north\""),
-        (serde_json::json!({"frame": 3, "heading": 1e300}), "heading 1e300: must be finite degrees"),
+        (
+            serde_json::json!({"frame": 3, "root": [1, "up", 2]}),
+            "root[1]: invalid type: string \"up\"",
+        ),
+        (
+            serde_json::json!({"frame": 3, "heading": "north"}),
+            "heading: invalid type: string \"north\"",
+        ),
+        (
+            serde_json::json!({"frame": 3, "heading": 1e300}),
+            "heading 1e300: must be finite degrees",
+        ),
     ] {
-        std::fs::write(&kjson, serde_json::json!({"length": 20, "keyframes": [bad_key]}).to_string()).unwrap();
-        let o = diffkfc(&["sample", "--checkpoint", s(&run), "--text", "walk", "--keyframes", s(&kjson), "--steps", "2", "--out", s(&out3)]);
+        std::fs::write(
+            &kjson,
+            serde_json::json!({"length": 20, "keyframes": [bad_key]}).to_string(),
+        )
+        .unwrap();
+        let o = diffkfc(&[
+            "sample",
+            "--checkpoint",
+            s(&run),
+            "--text",
+            "walk",
+            "--keyframes",
+            s(&kjson),
+            "--steps",
+            "2",
+            "--out",
+            s(&out3),
+        ]);
         assert_one_line_error(&o, &["keys.json", "keyframes[0]", needle]);
     }
 
@@ -155,29 +308,68 @@ fn sample_outputs_errors_and_determinism() {
     let prompts = d.join("prompts.txt");
     std::fs::write(&prompts, "a person jumps.#24\na person waves.\n").unwrap();
     let out5 = d.join("out5");
-    let o = diffkfc(&["sample", "--checkpoint", s(&run), "--prompts", s(&prompts), "--length", "16", "--steps", "2", "--out", s(&out5)]);
+    let o = diffkfc(&[
+        "sample",
+        "--checkpoint",
+        s(&run),
+        "--prompts",
+        s(&prompts),
+        "--length",
+        "16",
+        "--steps",
+        "2",
+        "--out",
+        s(&out5),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert_eq!(npy::read_f32(out5.join("prompt000/sample_00.npy")).unwrap().shape, vec![24, 263]);
     assert_eq!(npy::read_f32(out5.join("prompt001/sample_00.npy")).unwrap().shape, vec![16, 263]);
     std::fs::write(&prompts, "a person jumps.#soon\n").unwrap();
-    assert_one_line_error(&diffkfc(&["sample", "--checkpoint", s(&run), "--prompts", s(&prompts)]), &["prompts.txt", "line 1", "soon"]);
+    assert_one_line_error(
+        &diffkfc(&["sample", "--checkpoint", s(&run), "--prompts", s(&prompts)]),
+        &["prompts.txt", "line 1", "soon"],
+    );
 
     // Exact transition guidance, the inpainting baseline and no snapping all run.
-    for extra in [vec!["--tg-mode", "exact"], vec!["--keyframe-mode", "inpaint"], vec!["--no-snap", "--tg-window", "3", "--tg-bases", "2"]] {
+    for extra in [
+        vec!["--tg-mode", "exact"],
+        vec!["--keyframe-mode", "inpaint"],
+        vec!["--no-snap", "--tg-window", "3", "--tg-bases", "2"],
+    ] {
         let o6 = d.join("out6");
-        let mut v = vec!["sample", "--checkpoint", s(&run), "--text", "walk", "--from", s(&src), "--frames", "0,20", "--length", "30", "--steps", "3", "--out", s(&o6)];
+        let mut v = vec![
+            "sample",
+            "--checkpoint",
+            s(&run),
+            "--text",
+            "walk",
+            "--from",
+            s(&src),
+            "--frames",
+            "0,20",
+            "--length",
+            "30",
+            "--steps",
+            "3",
+            "--out",
+            s(&o6),
+        ];
         v.extend(extra.iter().copied());
         let o = diffkfc(&v);
         assert!(o.status.success(), "{extra:?}: {}", stderr(&o));
-        let r: serde_json::Value = serde_json::from_slice(&std::fs::read(o6.join("results.json")).unwrap()).unwrap();
+        let r: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(o6.join("results.json")).unwrap()).unwrap();
         assert!(r["samples"][0]["k_err_m"].as_f64().unwrap().is_finite(), "{extra:?}");
     }
     let html = std::fs::read_to_string(out.join("index.html")).unwrap();
     assert!(html.contains("sample_00.gif") && html.contains("a person walks forward."));
 
     // Errors.
-    let base = ["sample", "--checkpoint", s(&run), "--text", "walk", "--steps", "2", "--out", s(&out3)];
-    let with = |extra: &[&str]| -> Vec<String> { base.iter().chain(extra).map(|x| x.to_string()).collect() };
+    let base =
+        ["sample", "--checkpoint", s(&run), "--text", "walk", "--steps", "2", "--out", s(&out3)];
+    let with = |extra: &[&str]| -> Vec<String> {
+        base.iter().chain(extra).map(|x| x.to_string()).collect()
+    };
     let run_err = |extra: &[&str], needles: &[&str]| {
         let v = with(extra);
         assert_one_line_error(&diffkfc(&v.iter().map(String::as_str).collect::<Vec<_>>()), needles);
@@ -189,17 +381,48 @@ fn sample_outputs_errors_and_determinism() {
     run_err(&["--length", "10000000000"], &["--length", "10000000000", "196"]);
     run_err(&["--seconds", "1e9"], &["--seconds", "1000000000"]);
     run_err(&["--seconds", "0"], &["--seconds", "0"]);
-    for (bad_len, needle) in [("1e9", "length: invalid type: floating point `1000000000.0`"), ("-5", "length: invalid value: integer `-5`"), ("\"60\"", "length: invalid type: string \"60\"")] {
-        std::fs::write(d.join("bad.json"), format!(r#"{{"length": {bad_len}, "keyframes": []}}"#)).unwrap();
+    for (bad_len, needle) in [
+        ("1e9", "length: invalid type: floating point `1000000000.0`"),
+        ("-5", "length: invalid value: integer `-5`"),
+        ("\"60\"", "length: invalid type: string \"60\""),
+    ] {
+        std::fs::write(d.join("bad.json"), format!(r#"{{"length": {bad_len}, "keyframes": []}}"#))
+            .unwrap();
         run_err(&["--keyframes", s(&d.join("bad.json"))], &["bad.json", needle]);
     }
-    for (bad_frame, needle) in [("-1", "frame: invalid value: integer `-1`"), ("1.5", "frame: invalid type: floating point `1.5`"), ("\"3\"", "frame: invalid type: string \"3\"")] {
-        std::fs::write(d.join("bad.json"), format!(r#"{{"length": 20, "keyframes": [{{"frame": {bad_frame}, "root": [0, 1, 0]}}]}}"#)).unwrap();
+    for (bad_frame, needle) in [
+        ("-1", "frame: invalid value: integer `-1`"),
+        ("1.5", "frame: invalid type: floating point `1.5`"),
+        ("\"3\"", "frame: invalid type: string \"3\""),
+    ] {
+        std::fs::write(
+            d.join("bad.json"),
+            format!(
+                r#"{{"length": 20, "keyframes": [{{"frame": {bad_frame}, "root": [0, 1, 0]}}]}}"#
+            ),
+        )
+        .unwrap();
         run_err(&["--keyframes", s(&d.join("bad.json"))], &["bad.json", "keyframes[0]", needle]);
     }
     // --checkpoint takes one checkpoint file as well as a run directory.
-    let ckpt = std::fs::read_dir(&run).unwrap().map(|e| e.unwrap().path()).find(|p| p.extension().is_some_and(|x| x == "safetensors")).unwrap();
-    let o = diffkfc(&["sample", "--checkpoint", s(&ckpt), "--text", "walk", "--length", "12", "--steps", "2", "--out", s(&d.join("outc"))]);
+    let ckpt = std::fs::read_dir(&run)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|x| x == "safetensors"))
+        .unwrap();
+    let o = diffkfc(&[
+        "sample",
+        "--checkpoint",
+        s(&ckpt),
+        "--text",
+        "walk",
+        "--length",
+        "12",
+        "--steps",
+        "2",
+        "--out",
+        s(&d.join("outc")),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     // A run whose normalisation does not fit its model: one line naming the file.
     let broken = d.join("broken");
@@ -209,10 +432,36 @@ fn sample_outputs_errors_and_determinism() {
         std::fs::copy(&p, broken.join(p.file_name().unwrap())).unwrap();
     }
     npy::write(broken.join("Mean.npy"), &[10], &[0f32; 10]).unwrap();
-    assert_one_line_error(&diffkfc(&["sample", "--checkpoint", s(&broken), "--text", "walk", "--steps", "2", "--out", s(&out3)]), &["Mean.npy", "10 values", "263"]);
+    assert_one_line_error(
+        &diffkfc(&[
+            "sample",
+            "--checkpoint",
+            s(&broken),
+            "--text",
+            "walk",
+            "--steps",
+            "2",
+            "--out",
+            s(&out3),
+        ]),
+        &["Mean.npy", "10 values", "263"],
+    );
     npy::write(broken.join("Mean.npy"), &[263], &[0f32; 263]).unwrap();
     npy::write(broken.join("Std.npy"), &[263], &[0f32; 263]).unwrap();
-    assert_one_line_error(&diffkfc(&["sample", "--checkpoint", s(&broken), "--text", "walk", "--steps", "2", "--out", s(&out3)]), &["Std.npy", "entry 0", "> 0"]);
+    assert_one_line_error(
+        &diffkfc(&[
+            "sample",
+            "--checkpoint",
+            s(&broken),
+            "--text",
+            "walk",
+            "--steps",
+            "2",
+            "--out",
+            s(&out3),
+        ]),
+        &["Std.npy", "entry 0", "> 0"],
+    );
     // Flag ranges, and a sampler driven past any useful guidance fails instead of writing NaN.
     run_err(&["--kf-guidance", "-1"], &["--kf-guidance", "-1"]);
     run_err(&["--kf-guidance", "inf"], &["--kf-guidance", "inf"]);
@@ -221,7 +470,20 @@ fn sample_outputs_errors_and_determinism() {
     run_err(&["--place-guidance", "1e30"], &["--place-guidance"]);
     run_err(&["--place-guidance", "-2"], &["--place-guidance", "-2"]);
     for steps in ["0", "100000"] {
-        assert_one_line_error(&diffkfc(&["sample", "--checkpoint", s(&run), "--text", "walk", "--steps", steps, "--out", s(&out3)]), &["--steps", steps]);
+        assert_one_line_error(
+            &diffkfc(&[
+                "sample",
+                "--checkpoint",
+                s(&run),
+                "--text",
+                "walk",
+                "--steps",
+                steps,
+                "--out",
+                s(&out3),
+            ]),
+            &["--steps", steps],
+        );
     }
     // Body parts must be named; an empty frame list is an error, not zero keyframes.
     for bad_joints in ["\"\"", "5"] {
@@ -232,87 +494,36 @@ fn sample_outputs_errors_and_determinism() {
     // Prompt files: real line numbers (blank and comment lines counted), lengths checked.
     std::fs::write(&prompts, "a person jumps.\n\n// comment\nwalk#99999999999\n").unwrap();
     let out7 = d.join("out7");
-    assert_one_line_error(&diffkfc(&["sample", "--checkpoint", s(&run), "--prompts", s(&prompts), "--out", s(&out7)]), &["prompts.txt", "line 4", "99999999999"]);
+    assert_one_line_error(
+        &diffkfc(&["sample", "--checkpoint", s(&run), "--prompts", s(&prompts), "--out", s(&out7)]),
+        &["prompts.txt", "line 4", "99999999999"],
+    );
     assert!(!out7.exists(), "a bad line must stop the file before any prompt is sampled");
     let bad = d.join("bad.json");
-    std::fs::write(&bad, r#"{"length": 20, "keyframes": [{"frame": 25, "features": []}]}"#).unwrap();
+    std::fs::write(&bad, r#"{"length": 20, "keyframes": [{"frame": 25, "features": []}]}"#)
+        .unwrap();
     run_err(&["--keyframes", s(&bad)], &["bad.json", "beyond the length"]);
-    std::fs::write(&bad, r#"{"length": 20, "keyframes": [{"frame": 2, "features": [1, 2]}]}"#).unwrap();
+    std::fs::write(&bad, r#"{"length": 20, "keyframes": [{"frame": 2, "features": [1, 2]}]}"#)
+        .unwrap();
     run_err(&["--keyframes", s(&bad)], &["bad.json", "2 features, expected 263"]);
-    std::fs::write(&bad, r#"{"length": 20, "keyframes": [{"frame": 2, "joints": [[0, "x", 0]]}]}"#).unwrap();
-    run_err(&["--keyframes", s(&bad)], &["bad.json", "keyframes[0].joints[0][1]: invalid type: string \"x\""]);
-    let v: Vec<String> = ["sample", "--checkpoint", s(&run), "--text", "  "].iter().map(|x| x.to_string()).collect();
-    assert_one_line_error(&diffkfc(&v.iter().map(String::as_str).collect::<Vec<_>>()), &["--text", "empty"]);
-    let v: Vec<String> = ["sample", "--checkpoint", s(&d.join("norun")), "--text", "walk"].iter().map(|x| x.to_string()).collect();
-    assert_one_line_error(&diffkfc(&v.iter().map(String::as_str).collect::<Vec<_>>()), &["norun", "no checkpoint"]);
-}
-
-/// Body-part prompts: the lower body is exactly that of the plain lower-body prompt with the
-/// same seed, and the upper body follows its own text (raised arms here, not the walk's swing).
-#[test]
-fn body_part_prompts_keep_the_lower_body_and_follow_the_upper_text() {
-    if !have_text_encoder() {
-        return;
-    }
-    let d = scratch("parts");
-    let model = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/tiny-synth");
-    let run = |args: &[&str], out: &str| {
-        let o = diffkfc(&[&["sample", "--checkpoint", s(&model), "--seed", "3", "--num-samples", "2", "--steps", "6", "--out", s(&d.join(out))], args].concat());
-        assert!(o.status.success(), "{}", stderr(&o));
-        (0..2).map(|i| npy::read_f32(d.join(out).join(format!("sample_{i:02}_joints.npy"))).unwrap().data).collect::<Vec<_>>()
-    };
-    let walk = run(&["--text", "a person walks forward."], "walk");
-    let parts = run(&["--text-lower", "a person walks forward.", "--text-upper", "a person raises both arms."], "parts");
-    let lower = [0, 1, 2, 4, 5, 7, 8, 10, 11];
-    for (w, p) in walk.iter().zip(&parts) {
-        let frames = w.len() / 66;
-        let lower_diff = (0..frames).flat_map(|f| lower.map(|j| (f, j))).flat_map(|(f, j)| (0..3).map(move |c| f * 66 + j * 3 + c)).map(|k| (w[k] - p[k]).abs()).fold(0.0, f32::max);
-        assert!(lower_diff < 1e-3, "lower body moved by {lower_diff} m");
-        let wrists_up = |m: &[f32]| (0..frames).map(|f| (m[f * 66 + 20 * 3 + 1] + m[f * 66 + 21 * 3 + 1]) / 2.0 - m[f * 66 + 1]).fold(f32::MIN, f32::max);
-        eprintln!("wrists above the pelvis at most: walk {:.2} m, with raised arms {:.2} m", wrists_up(w), wrists_up(p));
-        assert!(wrists_up(p) > wrists_up(w) + 0.2);
-    }
-    let o = diffkfc(&["sample", "--checkpoint", s(&model), "--text-lower", "walk", "--out", s(&d.join("x"))]);
-    assert!(!o.status.success() && stderr(&o).contains("--text-upper"), "{}", stderr(&o));
-}
-
-/// `keyframes suggest` writes a keyframe file that `sample --keyframes` reads back and hits:
-/// the keyed places exactly, the poses to within the facing the file's pose implies.
-#[test]
-fn suggested_keyframes_read_back_and_are_hit() {
-    if !have_text_encoder() {
-        return;
-    }
-    let d = scratch("suggest");
-    let model = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/tiny-synth");
-    let keys = d.join("keys.json");
-    let o = diffkfc(&["keyframes", "suggest", "--checkpoint", s(&model), "--text", "a person jumps forward.", "--count", "4", "--length", "80", "--steps", "4", "-o", s(&keys)]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let k: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&keys).unwrap()).unwrap();
-    let kf = k["keyframes"].as_array().unwrap();
-    assert_eq!((k["length"].as_u64(), kf.len()), (Some(80), 4));
-    let out = d.join("out");
-    let o = diffkfc(&["sample", "--checkpoint", s(&model), "--text", "a person jumps forward.", "--keyframes", s(&keys), "--steps", "4", "--out", s(&out)]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let j = npy::read_f32(out.join("sample_00_joints.npy")).unwrap().data;
-    for key in kf {
-        let f = key["frame"].as_u64().unwrap() as usize;
-        let root: Vec<f32> = key["root"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap() as f32).collect();
-        let p = &j[f * 66..f * 66 + 66];
-        let miss = ((p[0] - root[0]).powi(2) + (p[2] - root[2]).powi(2)).sqrt();
-        let pose: Vec<f32> = key["joints"].as_array().unwrap().iter().flat_map(|q| q.as_array().unwrap().iter().map(|v| v.as_f64().unwrap() as f32).collect::<Vec<_>>()).collect();
-        let rel = (0..66).map(|c| ((p[c] - p[c % 3]) - (pose[c] - pose[c % 3])).abs()).fold(0.0, f32::max);
-        eprintln!("suggested key at frame {f}: place missed by {miss:.4} m, root-relative pose by {rel:.4} m");
-        assert!(miss < 1e-3 && rel < 0.05, "frame {f}: {miss} {rel}");
-    }
-    // From a motion, evenly spaced; bad counts and rates.
-    let Some(src) = diffkfc_data::fixtures::require("humanml3d/new_joint_vecs/012314.npy") else {
-        return;
-    };
-    let o = diffkfc(&["keyframes", "suggest", "--from", s(&src), "--count", "3", "--strategy", "uniform", "-o", s(&keys)]);
-    assert!(o.status.success() && stdout(&o).contains("[0, 85, 169]"), "{}{}", stdout(&o), stderr(&o));
-    for (flag, v, needle) in [("--count", "0", "at least 1"), ("--rate", "2", "(0, 1]"), ("--count", "500", "has 170 frames")] {
-        let o = diffkfc(&["keyframes", "suggest", "--from", s(&src), flag, v, "-o", s(&keys)]);
-        assert_one_line_error(&o, &[flag, needle]);
-    }
+    std::fs::write(&bad, r#"{"length": 20, "keyframes": [{"frame": 2, "joints": [[0, "x", 0]]}]}"#)
+        .unwrap();
+    run_err(
+        &["--keyframes", s(&bad)],
+        &["bad.json", "keyframes[0].joints[0][1]: invalid type: string \"x\""],
+    );
+    let v: Vec<String> =
+        ["sample", "--checkpoint", s(&run), "--text", "  "].iter().map(|x| x.to_string()).collect();
+    assert_one_line_error(
+        &diffkfc(&v.iter().map(String::as_str).collect::<Vec<_>>()),
+        &["--text", "empty"],
+    );
+    let v: Vec<String> = ["sample", "--checkpoint", s(&d.join("norun")), "--text", "walk"]
+        .iter()
+        .map(|x| x.to_string())
+        .collect();
+    assert_one_line_error(
+        &diffkfc(&v.iter().map(String::as_str).collect::<Vec<_>>()),
+        &["norun", "no checkpoint"],
+    );
 }

@@ -13,7 +13,10 @@ fn synth_check_and_render() {
     let o = diffkfc(&["data", "check", s(&out)]);
     assert!(o.status.success(), "{}", stdout(&o));
     // Refuses to overwrite.
-    assert_one_line_error(&diffkfc(&["data", "synth", "--out", s(&out), "--clips", "3"]), &["already exists"]);
+    assert_one_line_error(
+        &diffkfc(&["data", "synth", "--out", s(&out), "--clips", "3"]),
+        &["already exists"],
+    );
 
     // GIF: one frame per motion frame; keyframe frames use the highlight colour.
     let clip = out.join("new_joint_vecs/000000.npy");
@@ -37,15 +40,23 @@ fn synth_check_and_render() {
 
     // Contact sheet of three clips in two columns: 2x2 cells of 240 px.
     let sheet = d.join("sheet.png");
-    let clips: Vec<String> = (0..3).map(|i| s(&out.join(format!("new_joints/{i:06}.npy"))).to_string()).collect();
+    let clips: Vec<String> =
+        (0..3).map(|i| s(&out.join(format!("new_joints/{i:06}.npy"))).to_string()).collect();
     let mut args = vec!["render", "--sheet", "--columns", "2", "-o", s(&sheet)];
     args.extend(clips.iter().map(String::as_str));
     let o = diffkfc(&args);
     assert!(o.status.success(), "{}", stderr(&o));
-    let info = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&sheet).unwrap())).read_info().unwrap().info().clone();
+    let info = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&sheet).unwrap()))
+        .read_info()
+        .unwrap()
+        .info()
+        .clone();
     assert_eq!((info.width, info.height), (480, 480));
 
-    assert_one_line_error(&diffkfc(&["render", s(&clip), "-o", s(&gif_path), "--keyframes", "9999"]), &["--keyframes", "9999"]);
+    assert_one_line_error(
+        &diffkfc(&["render", s(&clip), "-o", s(&gif_path), "--keyframes", "9999"]),
+        &["--keyframes", "9999"],
+    );
 
     // The loader benchmark builds the cache once, then reuses it.
     for built in [true, false] {

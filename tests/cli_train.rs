@@ -13,7 +13,9 @@ const CFG: &str = r#"{"model": {"preset": "tiny", "dec_layers": 1, "dma_sizes": 
 fn setup(name: &str) -> (std::path::PathBuf, std::path::PathBuf) {
     let d = scratch(name);
     let data = d.join("synth");
-    assert!(diffkfc(&["data", "synth", "--out", s(&data), "--clips", "20", "--seed", "9"]).status.success());
+    assert!(diffkfc(&["data", "synth", "--out", s(&data), "--clips", "20", "--seed", "9"])
+        .status
+        .success());
     std::fs::write(d.join("cfg.json"), CFG).unwrap();
     (d, data)
 }
@@ -37,26 +39,61 @@ fn train_resume_and_outputs() {
     let (d, data) = setup("train");
     let run = d.join("run");
     let cfg = d.join("cfg.json");
-    let o = diffkfc(&["train", "--config", s(&cfg), "--data", s(&data), "--out", s(&run), "--max-steps", "4"]);
+    let o = diffkfc(&[
+        "train",
+        "--config",
+        s(&cfg),
+        "--data",
+        s(&data),
+        "--out",
+        s(&run),
+        "--max-steps",
+        "4",
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stdout(&o).contains("steps 0..4"), "{}", stdout(&o));
-    for f in ["config.json", "metrics.jsonl", "loss.svg", "ckpt-00000004.safetensors", "ckpt-00000002.safetensors"] {
+    for f in [
+        "config.json",
+        "metrics.jsonl",
+        "loss.svg",
+        "ckpt-00000004.safetensors",
+        "ckpt-00000002.safetensors",
+    ] {
         assert!(run.join(f).exists(), "{f} missing");
     }
     assert_eq!(steps(&run), vec![1, 2, 3, 4]);
     let svg = std::fs::read_to_string(run.join("loss.svg")).unwrap();
     assert!(svg.starts_with("<svg") && svg.contains("<path"));
     // Without --resume an existing run is refused; with it, training continues.
-    assert_one_line_error(&diffkfc(&["train", "--config", s(&cfg), "--data", s(&data), "--out", s(&run)]), &["--resume"]);
-    let o = diffkfc(&["train", "--config", s(&cfg), "--data", s(&data), "--out", s(&run), "--resume"]);
+    assert_one_line_error(
+        &diffkfc(&["train", "--config", s(&cfg), "--data", s(&data), "--out", s(&run)]),
+        &["--resume"],
+    );
+    let o =
+        diffkfc(&["train", "--config", s(&cfg), "--data", s(&data), "--out", s(&run), "--resume"]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stdout(&o).contains("steps 4..6"), "{}", stdout(&o));
     assert_eq!(steps(&run), vec![1, 2, 3, 4, 5, 6]);
     // Two checkpoints kept.
-    assert!(!run.join("ckpt-00000002.safetensors").exists() && run.join("ckpt-00000006.safetensors").exists());
+    assert!(
+        !run.join("ckpt-00000002.safetensors").exists()
+            && run.join("ckpt-00000006.safetensors").exists()
+    );
     // A time budget stops cleanly with a checkpoint.
     let run2 = d.join("budget");
-    let o = diffkfc(&["train", "--config", s(&cfg), "--data", s(&data), "--out", s(&run2), "--max-steps", "100000", "--time-budget", "3s"]);
+    let o = diffkfc(&[
+        "train",
+        "--config",
+        s(&cfg),
+        "--data",
+        s(&data),
+        "--out",
+        s(&run2),
+        "--max-steps",
+        "100000",
+        "--time-budget",
+        "3s",
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stdout(&o).contains("time budget reached"), "{}", stdout(&o));
     let last = *steps(&run2).last().unwrap();
@@ -71,9 +108,20 @@ fn sigkill_then_resume() {
     let (d, data) = setup("kill");
     let run = d.join("run");
     let cfg = d.join("cfg.json");
-    std::fs::write(&cfg, CFG.replace("\"checkpoint_every\": 2", "\"checkpoint_every\": 1")).unwrap();
+    std::fs::write(&cfg, CFG.replace("\"checkpoint_every\": 2", "\"checkpoint_every\": 1"))
+        .unwrap();
     let mut child = Command::new(env!("CARGO_BIN_EXE_diffkfc"))
-        .args(["train", "--config", s(&cfg), "--data", s(&data), "--out", s(&run), "--max-steps", "100000"])
+        .args([
+            "train",
+            "--config",
+            s(&cfg),
+            "--data",
+            s(&data),
+            "--out",
+            s(&run),
+            "--max-steps",
+            "100000",
+        ])
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())
         .spawn()
@@ -84,7 +132,18 @@ fn sigkill_then_resume() {
     }
     child.kill().unwrap(); // SIGKILL
     child.wait().unwrap();
-    let o = diffkfc(&["train", "--config", s(&cfg), "--data", s(&data), "--out", s(&run), "--resume", "--max-steps", "12"]);
+    let o = diffkfc(&[
+        "train",
+        "--config",
+        s(&cfg),
+        "--data",
+        s(&data),
+        "--out",
+        s(&run),
+        "--resume",
+        "--max-steps",
+        "12",
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let st = steps(&run);
     assert_eq!(*st.last().unwrap(), 12);
@@ -98,12 +157,25 @@ fn bad_train_arguments() {
     let cfg = d.join("cfg.json");
     std::fs::write(&cfg, CFG).unwrap();
     assert_one_line_error(&diffkfc(&["train", "--config", s(&cfg)]), &["--data"]);
-    assert_one_line_error(&diffkfc(&["train", "--config", s(&cfg), "--data", s(&d.join("nothing"))]), &["nothing", "not found"]);
-    assert_one_line_error(&diffkfc(&["train", "--config", s(&cfg), "--time-budget", "soon"]), &["soon"]);
+    assert_one_line_error(
+        &diffkfc(&["train", "--config", s(&cfg), "--data", s(&d.join("nothing"))]),
+        &["nothing", "not found"],
+    );
+    assert_one_line_error(
+        &diffkfc(&["train", "--config", s(&cfg), "--time-budget", "soon"]),
+        &["soon"],
+    );
     // Past max_steps a cosine schedule is at lr 0: refused rather than trained for nothing.
     let cos = d.join("cos.json");
-    std::fs::write(&cos, CFG.replace("\"max_steps\": 6", "\"max_steps\": 6, \"cosine_decay\": true")).unwrap();
-    assert_one_line_error(&diffkfc(&["train", "--config", s(&cos), "--data", s(&d), "--max-steps", "7"]), &["--max-steps", "7", "training.max_steps 6"]);
+    std::fs::write(
+        &cos,
+        CFG.replace("\"max_steps\": 6", "\"max_steps\": 6, \"cosine_decay\": true"),
+    )
+    .unwrap();
+    assert_one_line_error(
+        &diffkfc(&["train", "--config", s(&cos), "--data", s(&d), "--max-steps", "7"]),
+        &["--max-steps", "7", "training.max_steps 6"],
+    );
     // A batch the machine cannot hold is refused before anything is loaded (it used to grow
     // until the kernel killed it).
     if diffkfc_model::memory::available_bytes().is_some_and(|b| b > 50e9) {
@@ -112,7 +184,10 @@ fn bad_train_arguments() {
     }
     let big = d.join("big.json");
     std::fs::write(&big, CFG.replace("\"batch_size\": 4", "\"batch_size\": 16000")).unwrap();
-    assert_one_line_error(&diffkfc(&["train", "--config", s(&big), "--data", s(&d)]), &["training.batch_size", "16000", "GB", "fits"]);
+    assert_one_line_error(
+        &diffkfc(&["train", "--config", s(&big), "--data", s(&d)]),
+        &["training.batch_size", "16000", "GB", "fits"],
+    );
 }
 
 /// SIGTERM (what schedulers and `timeout` send) stops like Ctrl-C: a checkpoint at the step
@@ -126,9 +201,20 @@ fn sigterm_mismatched_resume_and_nan_guard() {
     let (d, data) = setup("term");
     let run = d.join("run");
     let cfg = d.join("cfg.json");
-    std::fs::write(&cfg, CFG.replace("\"checkpoint_every\": 2", "\"checkpoint_every\": 1000")).unwrap();
+    std::fs::write(&cfg, CFG.replace("\"checkpoint_every\": 2", "\"checkpoint_every\": 1000"))
+        .unwrap();
     let child = Command::new(env!("CARGO_BIN_EXE_diffkfc"))
-        .args(["train", "--config", s(&cfg), "--data", s(&data), "--out", s(&run), "--max-steps", "100000"])
+        .args([
+            "train",
+            "--config",
+            s(&cfg),
+            "--data",
+            s(&data),
+            "--out",
+            s(&run),
+            "--max-steps",
+            "100000",
+        ])
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::piped())
         .spawn()
@@ -137,24 +223,67 @@ fn sigterm_mismatched_resume_and_nan_guard() {
     while steps_or_none(&run).is_none_or(|s| s.len() < 3) && t0.elapsed().as_secs() < 120 {
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
-    assert!(Command::new("kill").args(["-TERM", &child.id().to_string()]).status().unwrap().success());
+    assert!(Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap()
+        .success());
     let out = child.wait_with_output().unwrap();
     assert_eq!(out.status.code(), Some(130), "{}", String::from_utf8_lossy(&out.stderr));
     let last = *steps(&run).last().unwrap();
-    assert!(run.join(format!("ckpt-{last:08}.safetensors")).exists(), "no checkpoint at step {last}");
+    assert!(
+        run.join(format!("ckpt-{last:08}.safetensors")).exists(),
+        "no checkpoint at step {last}"
+    );
 
     // Another model: refused, and config.json / Mean.npy stay the run's own.
-    let before = (std::fs::read(run.join("config.json")).unwrap(), std::fs::read(run.join("Mean.npy")).unwrap());
+    let before = (
+        std::fs::read(run.join("config.json")).unwrap(),
+        std::fs::read(run.join("Mean.npy")).unwrap(),
+    );
     let other = d.join("other.json");
     std::fs::write(&other, CFG.replace("\"dec_layers\": 1", "\"dec_layers\": 2")).unwrap();
-    assert_one_line_error(&diffkfc(&["train", "--config", s(&other), "--data", s(&data), "--out", s(&run), "--resume"]), &["--resume", "another model"]);
-    assert_eq!(before, (std::fs::read(run.join("config.json")).unwrap(), std::fs::read(run.join("Mean.npy")).unwrap()));
+    assert_one_line_error(
+        &diffkfc(&[
+            "train",
+            "--config",
+            s(&other),
+            "--data",
+            s(&data),
+            "--out",
+            s(&run),
+            "--resume",
+        ]),
+        &["--resume", "another model"],
+    );
+    assert_eq!(
+        before,
+        (
+            std::fs::read(run.join("config.json")).unwrap(),
+            std::fs::read(run.join("Mean.npy")).unwrap()
+        )
+    );
 
     // An absurd learning rate: an error naming the step, exit non-zero, finite checkpoints kept.
     let nan = d.join("nan.json");
-    std::fs::write(&nan, CFG.replace("\"batch_size\": 4", "\"batch_size\": 4, \"lr\": 1e30, \"grad_clip\": 0").replace("\"checkpoint_every\": 2", "\"checkpoint_every\": 1")).unwrap();
+    std::fs::write(
+        &nan,
+        CFG.replace("\"batch_size\": 4", "\"batch_size\": 4, \"lr\": 1e30, \"grad_clip\": 0")
+            .replace("\"checkpoint_every\": 2", "\"checkpoint_every\": 1"),
+    )
+    .unwrap();
     let run3 = d.join("nan");
-    let o = diffkfc(&["train", "--config", s(&nan), "--data", s(&data), "--out", s(&run3), "--max-steps", "50"]);
+    let o = diffkfc(&[
+        "train",
+        "--config",
+        s(&nan),
+        "--data",
+        s(&data),
+        "--out",
+        s(&run3),
+        "--max-steps",
+        "50",
+    ]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("not finite"), "{}", stderr(&o));
     for e in std::fs::read_dir(&run3).unwrap() {
@@ -163,7 +292,13 @@ fn sigterm_mismatched_resume_and_nan_guard() {
             let bytes = std::fs::read(&p).unwrap();
             let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
             for (name, t) in st.tensors() {
-                assert!(t.data().chunks_exact(4).all(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]).is_finite()), "{}: {name}", p.display());
+                assert!(
+                    t.data()
+                        .chunks_exact(4)
+                        .all(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]).is_finite()),
+                    "{}: {name}",
+                    p.display()
+                );
             }
         }
     }
@@ -171,5 +306,11 @@ fn sigterm_mismatched_resume_and_nan_guard() {
 
 fn steps_or_none(run: &Path) -> Option<Vec<u64>> {
     let text = std::fs::read_to_string(run.join("metrics.jsonl")).ok()?;
-    Some(text.lines().filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok()).filter(|v| v.get("loss").is_some()).filter_map(|v| v["step"].as_u64()).collect())
+    Some(
+        text.lines()
+            .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+            .filter(|v| v.get("loss").is_some())
+            .filter_map(|v| v["step"].as_u64())
+            .collect(),
+    )
 }

@@ -12,7 +12,9 @@ use diffkfc_data::fixtures;
 
 fn chromium() -> Option<PathBuf> {
     let path = std::env::var_os("PATH")?;
-    let found = std::env::split_paths(&path).flat_map(|d| ["chromium", "chromium-browser", "google-chrome"].map(|n| d.join(n))).find(|b| b.is_file());
+    let found = std::env::split_paths(&path)
+        .flat_map(|d| ["chromium", "chromium-browser", "google-chrome"].map(|n| d.join(n)))
+        .find(|b| b.is_file());
     if found.is_none() {
         if std::env::var("DIFFKFC_REQUIRE_CHROMIUM").is_ok_and(|v| v == "1") {
             panic!("chromium is not on PATH (apt-get install chromium)");
@@ -25,7 +27,16 @@ fn chromium() -> Option<PathBuf> {
 fn headless(chromium: &Path, extra: &[&str], url: &str) -> Output {
     let profile = std::env::temp_dir().join(format!("diffkfc-chromium-{}", std::process::id()));
     Command::new(chromium)
-        .args(["--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--enable-logging=stderr", "--v=0", "--window-size=1280,800", "--virtual-time-budget=4000"])
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--hide-scrollbars",
+            "--enable-logging=stderr",
+            "--v=0",
+            "--window-size=1280,800",
+            "--virtual-time-budget=4000",
+        ])
         .arg(format!("--user-data-dir={}", profile.display()))
         .args(extra)
         .arg(url)
@@ -40,7 +51,8 @@ fn pixels(png_path: &Path) -> (usize, usize, Vec<u8>) {
     let mut buf = vec![0; r.output_buffer_size().unwrap()];
     let info = r.next_frame(&mut buf).unwrap();
     let ch = info.color_type.samples();
-    let rgb: Vec<u8> = buf[..info.buffer_size()].chunks(ch).flat_map(|p| [p[0], p[1], p[2]]).collect();
+    let rgb: Vec<u8> =
+        buf[..info.buffer_size()].chunks(ch).flat_map(|p| [p[0], p[1], p[2]]).collect();
     (info.width as usize, info.height as usize, rgb)
 }
 
@@ -86,7 +98,8 @@ fn page_draws_and_the_slider_moves_the_figures() {
     let console: Vec<&str> = log.lines().filter(|l| l.contains(":CONSOLE")).collect();
     assert!(console.is_empty(), "console messages: {console:?}");
     // The page reports what it drew: the frame the slider set and the left limbs' pixels.
-    let status = html.split("<output id=\"status\">").nth(1).and_then(|s| s.split('<').next()).unwrap_or("");
+    let status =
+        html.split("<output id=\"status\">").nth(1).and_then(|s| s.split('<').next()).unwrap_or("");
     eprintln!("page at #frame=40: {status}");
     assert!(status.starts_with("frame 40;"), "{status}");
     let drawn: usize = status.rsplit(' ').next().unwrap().parse().unwrap();
@@ -108,8 +121,17 @@ fn page_draws_and_the_slider_moves_the_figures() {
     let b = &shots[1].2;
     // The view is the canvas below the title; count changed pixels in the rows it covers.
     let rows = (h / 6)..(h * 3 / 4);
-    let changed = rows.clone().flat_map(|y| (0..*w).map(move |x| (y * w + x) * 3)).filter(|&i| (0..3).any(|c| a[i + c].abs_diff(b[i + c]) > 40)).count();
-    let blue = |p: &[u8]| rows.clone().flat_map(|y| (0..*w).map(move |x| (y * w + x) * 3)).filter(|&i| p[i + 2] > 150 && p[i] < 120).count();
+    let changed = rows
+        .clone()
+        .flat_map(|y| (0..*w).map(move |x| (y * w + x) * 3))
+        .filter(|&i| (0..3).any(|c| a[i + c].abs_diff(b[i + c]) > 40))
+        .count();
+    let blue = |p: &[u8]| {
+        rows.clone()
+            .flat_map(|y| (0..*w).map(move |x| (y * w + x) * 3))
+            .filter(|&i| p[i + 2] > 150 && p[i] < 120)
+            .count()
+    };
     eprintln!("screenshots at frames 0 and 70: {changed} pixels differ in the view; left-limb blue pixels {} and {}", blue(a), blue(b));
     assert!(blue(a) > 300 && blue(b) > 300, "figures not drawn");
     assert!(changed > 500, "the slider did not move the figures ({changed} px changed)");

@@ -28,21 +28,38 @@ pub(crate) struct BvhInputArgs {
 
 impl BvhInputArgs {
     pub(crate) fn options(&self) -> Result<ImportOptions> {
-        let metres_per_unit = match self.bvh_units.as_str() {
-            "auto" => None,
-            u => Some(rig::UNITS.iter().find(|(n, _)| *n == u).map(|x| x.1).with_context(|| format!("--bvh-units: '{u}' is not one of auto, m, cm, mm, in"))?),
-        };
+        let metres_per_unit =
+            match self.bvh_units.as_str() {
+                "auto" => None,
+                u => Some(rig::UNITS.iter().find(|(n, _)| *n == u).map(|x| x.1).with_context(
+                    || format!("--bvh-units: '{u}' is not one of auto, m, cm, mm, in"),
+                )?),
+            };
         let up = match self.bvh_up.as_str() {
             "auto" => None,
-            u => Some(rig::Up::parse(u).with_context(|| format!("--bvh-up: '{u}' is not one of auto, y, z, -y, -z, x, -x"))?),
+            u => Some(rig::Up::parse(u).with_context(|| {
+                format!("--bvh-up: '{u}' is not one of auto, y, z, -y, -z, x, -x")
+            })?),
         };
         let mut rig_map = Vec::new();
         if let Some(p) = &self.rig_map {
-            let text = std::fs::read_to_string(p).with_context(|| format!("--rig-map: reading {}", p.display()))?;
-            let v: serde_json::Value = serde_json::from_str(&text).with_context(|| format!("--rig-map: {} is not JSON", p.display()))?;
-            let obj = v.as_object().with_context(|| format!("--rig-map: {} must hold a JSON object from our joint names to the file's", p.display()))?;
+            let text = std::fs::read_to_string(p)
+                .with_context(|| format!("--rig-map: reading {}", p.display()))?;
+            let v: serde_json::Value = serde_json::from_str(&text)
+                .with_context(|| format!("--rig-map: {} is not JSON", p.display()))?;
+            let obj = v.as_object().with_context(|| {
+                format!(
+                    "--rig-map: {} must hold a JSON object from our joint names to the file's",
+                    p.display()
+                )
+            })?;
             for (k, v) in obj {
-                let name = v.as_str().with_context(|| format!("--rig-map: {}: \"{k}\" maps to {v}; must be a joint name (a string)", p.display()))?;
+                let name = v.as_str().with_context(|| {
+                    format!(
+                        "--rig-map: {}: \"{k}\" maps to {v}; must be a joint name (a string)",
+                        p.display()
+                    )
+                })?;
                 rig_map.push((k.clone(), name.to_string()));
             }
         }
@@ -72,7 +89,10 @@ pub(crate) struct FitArgs {
 
 impl FitArgs {
     pub(crate) fn fit(&self) -> Fit {
-        Fit { keyframes: if self.no_snap { KeyframeFit::None } else { self.keyframe_fit }, foot_lock: !self.no_foot_lock }
+        Fit {
+            keyframes: if self.no_snap { KeyframeFit::None } else { self.keyframe_fit },
+            foot_lock: !self.no_foot_lock,
+        }
     }
 }
 

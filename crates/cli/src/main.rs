@@ -22,10 +22,14 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Datasets and motion files: convert between joint positions and HumanML3D features.
-    #[command(after_help = "Examples:\n  diffkfc data features joints.npy -o features.npy\n  diffkfc data joints features.npy -o joints.npy")]
+    #[command(
+        after_help = "Examples:\n  diffkfc data features joints.npy -o features.npy\n  diffkfc data joints features.npy -o joints.npy"
+    )]
     Data(commands::data::DataArgs),
     /// Draw motions: an animated GIF of one motion, a PNG contact sheet of several, or a 3D page.
-    #[command(after_help = "Examples:\n  diffkfc render work/synth/new_joint_vecs/000000.npy -o walk.gif --keyframes 0,40,80\n  diffkfc render a.npy b.npy c.npy --sheet -o sheet.png")]
+    #[command(
+        after_help = "Examples:\n  diffkfc render work/synth/new_joint_vecs/000000.npy -o walk.gif --keyframes 0,40,80\n  diffkfc render a.npy b.npy c.npy --sheet -o sheet.png"
+    )]
     Render(commands::render::RenderArgs),
     /// Train DiffKFC: diffusion with keyframe masking, checkpoints, exact resume.
     #[command(
@@ -38,21 +42,27 @@ enum Command {
     )]
     Sample(commands::sample::SampleArgs),
     /// Keyframe files: suggest keyframes from a text (or a motion) to edit and in-fill.
-    #[command(after_help = "Example:\n  diffkfc keyframes suggest --checkpoint models/tiny-synth --text \"a person jumps forward.\" --count 4 -o keys.json")]
+    #[command(
+        after_help = "Example:\n  diffkfc keyframes suggest --checkpoint models/tiny-synth --text \"a person jumps forward.\" --count 4 -o keys.json"
+    )]
     Keyframes(commands::sample::suggest::KeyframesArgs),
     /// Evaluate a checkpoint: FID, R-precision, Diversity, ADE, K-Err, K-TranS (Tables 2 and 4);
     /// `eval train-evaluator` trains the text-motion evaluator first.
     #[command(after_help = commands::eval::AFTER_HELP)]
     Eval(commands::eval::EvalArgs),
     /// The network: parameter counts; a trained run exported as a model directory.
-    #[command(after_help = "Example:\n  diffkfc model summary --config configs/paper-humanml3d.json")]
+    #[command(
+        after_help = "Example:\n  diffkfc model summary --config configs/paper-humanml3d.json"
+    )]
     Model(commands::model::ModelArgs),
     /// Benchmarks: training step, sampling call, DDIM sample, data loading (JSON lines), and
     /// side by side with the PyTorch reference.
     #[command(after_help = commands::bench::AFTER_HELP)]
     Bench(commands::bench::BenchArgs),
     /// Print a sentence's token ids and text embedding as JSON (checks the text encoder).
-    #[command(after_help = "Example:\n  diffkfc text-embed --text \"a person walks forward and waves his left hand.\"")]
+    #[command(
+        after_help = "Example:\n  diffkfc text-embed --text \"a person walks forward and waves his left hand.\""
+    )]
     TextEmbed(commands::model::TextEmbedArgs),
 }
 
@@ -80,10 +90,15 @@ fn main() {
             // Usage errors in one line, like every other error of the tool.
             let text = e.to_string();
             let mut lines = text.lines();
-            let mut first = lines.next().unwrap_or("invalid arguments").trim_start_matches("error: ").to_string();
+            let mut first = lines
+                .next()
+                .unwrap_or("invalid arguments")
+                .trim_start_matches("error: ")
+                .to_string();
             // "required arguments were not provided:" lists them on the following indented lines.
             if first.ends_with(':') {
-                let items: Vec<&str> = lines.take_while(|l| l.starts_with("  ")).map(str::trim).collect();
+                let items: Vec<&str> =
+                    lines.take_while(|l| l.starts_with("  ")).map(str::trim).collect();
                 first = format!("{first} {}", items.join(", "));
             }
             eprintln!("error: {first} (see --help)");

@@ -20,7 +20,10 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DataError> {
             } else {
                 "a device, FIFO or socket"
             };
-            return Err(DataError::Invalid(format!("{}: is {kind}, not a regular file: refusing to replace it", path.display())));
+            return Err(DataError::Invalid(format!(
+                "{}: is {kind}, not a regular file: refusing to replace it",
+                path.display()
+            )));
         }
     }
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
@@ -49,7 +52,11 @@ pub fn remove_stale_temps(dir: &Path, prefix: &str) {
     let me = std::process::id();
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
-        let Some(pid) = name.strip_prefix(prefix).and_then(|r| r.strip_prefix(".tmp")).and_then(|p| p.parse::<u32>().ok()) else {
+        let Some(pid) = name
+            .strip_prefix(prefix)
+            .and_then(|r| r.strip_prefix(".tmp"))
+            .and_then(|p| p.parse::<u32>().ok())
+        else {
             continue;
         };
         if pid != me && !Path::new(&format!("/proc/{pid}")).exists() {

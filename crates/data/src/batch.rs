@@ -25,7 +25,12 @@ pub struct KeyframeConfig {
 
 impl Default for KeyframeConfig {
     fn default() -> Self {
-        KeyframeConfig { strategy: Strategy::Random, rate: 0.05, drop_prob: 0.1, root_drop_prob: 0.5 }
+        KeyframeConfig {
+            strategy: Strategy::Random,
+            rate: 0.05,
+            drop_prob: 0.1,
+            root_drop_prob: 0.5,
+        }
     }
 }
 
@@ -73,7 +78,13 @@ pub struct Loader<'a> {
 }
 
 impl<'a> Loader<'a> {
-    pub fn new(ds: &'a Dataset, split: &'a PackedSplit, batch_size: usize, seed: u64, keyframes: KeyframeConfig) -> Self {
+    pub fn new(
+        ds: &'a Dataset,
+        split: &'a PackedSplit,
+        batch_size: usize,
+        seed: u64,
+        keyframes: KeyframeConfig,
+    ) -> Self {
         Loader { ds, split, batch_size, seed, keyframes, threads: 1 }
     }
 
@@ -104,7 +115,16 @@ impl<'a> Loader<'a> {
         } else {
             let chunk = picks.len().div_ceil(self.threads);
             std::thread::scope(|s| {
-                let handles: Vec<_> = picks.chunks(chunk).map(|c| s.spawn(move || c.iter().map(|&(pos, item)| self.sample(epoch, pos, item)).collect::<Vec<_>>())).collect();
+                let handles: Vec<_> = picks
+                    .chunks(chunk)
+                    .map(|c| {
+                        s.spawn(move || {
+                            c.iter()
+                                .map(|&(pos, item)| self.sample(epoch, pos, item))
+                                .collect::<Vec<_>>()
+                        })
+                    })
+                    .collect();
                 handles.into_iter().flat_map(|h| h.join().expect("loader thread")).collect()
             })
         };
@@ -121,7 +141,11 @@ impl<'a> Loader<'a> {
         let root = warp::root_channels(&x0, dim);
         self.ds.normalise(&mut x0);
         let kc = &self.keyframes;
-        let kf = if rng.chance(kc.drop_prob) { vec![] } else { keyframes::select(kc.strategy, len, kc.rate, &x0, dim, &mut rng) };
+        let kf = if rng.chance(kc.drop_prob) {
+            vec![]
+        } else {
+            keyframes::select(kc.strategy, len, kc.rate, &x0, dim, &mut rng)
+        };
         let mut root_mask = vec![0f32; len * ROOT_CHANNELS];
         for &f in &kf {
             for pair in [0..2, 2..4] {
@@ -147,12 +171,25 @@ impl<'a> Loader<'a> {
         for (i, s) in samples.into_iter().enumerate() {
             x0[i * n * d..i * n * d + s.len * d].copy_from_slice(&s.x0);
             valid[i * n..i * n + s.len].iter_mut().for_each(|v| *v = 1.0);
-            kf_mask[i * n * d..(i + 1) * n * d].copy_from_slice(&keyframes::frame_mask(n, &s.kf, &all_dims));
+            kf_mask[i * n * d..(i + 1) * n * d]
+                .copy_from_slice(&keyframes::frame_mask(n, &s.kf, &all_dims));
             root[i * n * r..i * n * r + s.len * r].copy_from_slice(&s.root);
             root_mask[i * n * r..i * n * r + s.len * r].copy_from_slice(&s.root_mask);
             lengths.push(s.len);
             captions.push(s.caption);
         }
-        Batch { batch_size: bsz, frames: n, dim: d, x0, valid, kf_mask, root, root_mask, lengths, captions, items }
+        Batch {
+            batch_size: bsz,
+            frames: n,
+            dim: d,
+            x0,
+            valid,
+            kf_mask,
+            root,
+            root_mask,
+            lengths,
+            captions,
+            items,
+        }
     }
 }

@@ -80,13 +80,19 @@ pub fn euler_to_quat(axes: [usize; 3], deg: [f64; 3]) -> Quat {
 pub fn zyx_degrees(q: Quat, prev: Option<[f64; 3]>) -> [f64; 3] {
     let m = quat::to_matrix(q);
     let b = (-m[2][0]).clamp(-1.0, 1.0).asin();
-    let (a, c) = if m[2][0].abs() < 1.0 - 1e-9 { (m[1][0].atan2(m[0][0]), m[2][1].atan2(m[2][2])) } else { ((-m[0][1]).atan2(m[1][1]), 0.0) };
+    let (a, c) = if m[2][0].abs() < 1.0 - 1e-9 {
+        (m[1][0].atan2(m[0][0]), m[2][1].atan2(m[2][2]))
+    } else {
+        ((-m[0][1]).atan2(m[1][1]), 0.0)
+    };
     let first = [a.to_degrees(), b.to_degrees(), c.to_degrees()];
     let Some(p) = prev else {
         return first;
     };
     let second = [first[0] + 180.0, 180.0 - first[1], first[2] + 180.0];
-    let near = |v: [f64; 3]| v.iter().zip(p).map(|(x, p)| x + 360.0 * ((p - x) / 360.0).round()).collect::<Vec<_>>();
+    let near = |v: [f64; 3]| {
+        v.iter().zip(p).map(|(x, p)| x + 360.0 * ((p - x) / 360.0).round()).collect::<Vec<_>>()
+    };
     let (u, w) = (near(first), near(second));
     let dist = |v: &[f64]| v.iter().zip(p).map(|(x, p)| (x - p).abs()).sum::<f64>();
     let best = if dist(&u) <= dist(&w) { u } else { w };
@@ -114,7 +120,13 @@ impl Bvh {
                     if name.is_empty() {
                         return Err(bad("joint without a name"));
                     }
-                    joints.push(BvhJoint { name, parent, offset: [0.0; 3], channels: Vec::new(), end_site: None });
+                    joints.push(BvhJoint {
+                        name,
+                        parent,
+                        offset: [0.0; 3],
+                        channels: Vec::new(),
+                        end_site: None,
+                    });
                     pending = Some(joints.len() - 1);
                 }
                 Some("End") => in_end = true,
@@ -122,32 +134,64 @@ impl Bvh {
                 Some("}") => match stack.pop() {
                     Some(None) => {
                         in_end = false;
-                        let k = stack.last().copied().flatten().ok_or_else(|| bad("End Site outside a joint"))?;
+                        let k = stack
+                            .last()
+                            .copied()
+                            .flatten()
+                            .ok_or_else(|| bad("End Site outside a joint"))?;
                         joints[k].end_site = Some(end_offset);
                     }
                     Some(Some(_)) => {}
                     None => return Err(bad("unbalanced '}'")),
                 },
                 Some("OFFSET") => {
-                    let v: Vec<f64> = it.map(|x| x.parse().map_err(|_| bad(format!("OFFSET value '{x}' is not a number")))).collect::<Result<_, _>>()?;
+                    let v: Vec<f64> = it
+                        .map(|x| {
+                            x.parse()
+                                .map_err(|_| bad(format!("OFFSET value '{x}' is not a number")))
+                        })
+                        .collect::<Result<_, _>>()?;
                     if v.len() != 3 || v.iter().any(|x| !x.is_finite()) {
                         return Err(bad("OFFSET needs three finite numbers"));
                     }
                     if in_end {
                         end_offset = [v[0], v[1], v[2]];
                     } else {
-                        let k = stack.last().copied().flatten().ok_or_else(|| bad("OFFSET outside a joint"))?;
+                        let k = stack
+                            .last()
+                            .copied()
+                            .flatten()
+                            .ok_or_else(|| bad("OFFSET outside a joint"))?;
                         joints[k].offset = [v[0], v[1], v[2]];
                     }
                 }
                 Some("CHANNELS") => {
-                    let k = stack.last().copied().flatten().ok_or_else(|| bad("CHANNELS outside a joint"))?;
-                    let n: usize = it.next().and_then(|n| n.parse().ok()).ok_or_else(|| bad("CHANNELS needs a count"))?;
-                    let ch: Vec<Channel> = it.map(|c| Channel::parse(c).ok_or_else(|| bad(format!("joint '{}': unknown channel '{c}'", joints[k].name)))).collect::<Result<_, _>>()?;
+                    let k = stack
+                        .last()
+                        .copied()
+                        .flatten()
+                        .ok_or_else(|| bad("CHANNELS outside a joint"))?;
+                    let n: usize = it
+                        .next()
+                        .and_then(|n| n.parse().ok())
+                        .ok_or_else(|| bad("CHANNELS needs a count"))?;
+                    let ch: Vec<Channel> = it
+                        .map(|c| {
+                            Channel::parse(c).ok_or_else(|| {
+                                bad(format!("joint '{}': unknown channel '{c}'", joints[k].name))
+                            })
+                        })
+                        .collect::<Result<_, _>>()?;
                     if ch.len() != n {
-                        return Err(bad(format!("joint '{}': CHANNELS says {n} but lists {}", joints[k].name, ch.len())));
+                        return Err(bad(format!(
+                            "joint '{}': CHANNELS says {n} but lists {}",
+                            joints[k].name,
+                            ch.len()
+                        )));
                     }
-                    if ch.iter().filter(|c| matches!(c, Channel::Rotation(_))).count() % 3 != 0 || ch.len() > 6 {
+                    if ch.iter().filter(|c| matches!(c, Channel::Rotation(_))).count() % 3 != 0
+                        || ch.len() > 6
+                    {
                         return Err(bad(format!("joint '{}': channels must be 3 rotations, optionally after 3 positions", joints[k].name)));
                     }
                     joints[k].channels = ch;
@@ -166,9 +210,14 @@ impl Bvh {
         let per_frame: usize = joints.iter().map(|j| j.channels.len()).sum();
         for line in motion.lines().map(str::trim).filter(|l| !l.is_empty()) {
             if let Some(ft) = line.strip_prefix("Frame Time:") {
-                let ft: f64 = ft.trim().parse().map_err(|_| bad(format!("Frame Time '{}' is not a number", ft.trim())))?;
+                let ft: f64 = ft
+                    .trim()
+                    .parse()
+                    .map_err(|_| bad(format!("Frame Time '{}' is not a number", ft.trim())))?;
                 if !(ft.is_finite() && ft > 0.0) {
-                    return Err(bad(format!("Frame Time {ft} must be a positive number of seconds")));
+                    return Err(bad(format!(
+                        "Frame Time {ft} must be a positive number of seconds"
+                    )));
                 }
                 frame_time = Some(ft);
                 continue;
@@ -176,9 +225,19 @@ impl Bvh {
             if line.starts_with("Frames") {
                 continue;
             }
-            let v: Vec<f64> = line.split_whitespace().map(|x| x.parse().map_err(|_| bad(format!("frame {}: '{x}' is not a number", frames.len())))).collect::<Result<_, _>>()?;
+            let v: Vec<f64> = line
+                .split_whitespace()
+                .map(|x| {
+                    x.parse()
+                        .map_err(|_| bad(format!("frame {}: '{x}' is not a number", frames.len())))
+                })
+                .collect::<Result<_, _>>()?;
             if v.len() != per_frame {
-                return Err(bad(format!("frame {} has {} values, the hierarchy's channels need {per_frame}", frames.len(), v.len())));
+                return Err(bad(format!(
+                    "frame {} has {} values, the hierarchy's channels need {per_frame}",
+                    frames.len(),
+                    v.len()
+                )));
             }
             if v.iter().any(|x| !x.is_finite()) {
                 return Err(bad(format!("frame {} has a value that is not finite", frames.len())));
@@ -193,7 +252,12 @@ impl Bvh {
     pub fn to_text(&self) -> String {
         let mut s = String::from("HIERARCHY\n");
         self.write_joint(0, 0, &mut s);
-        let _ = writeln!(s, "MOTION\nFrames: {}\nFrame Time: {:.6}", self.frames.len(), self.frame_time);
+        let _ = writeln!(
+            s,
+            "MOTION\nFrames: {}\nFrame Time: {:.6}",
+            self.frames.len(),
+            self.frame_time
+        );
         for f in &self.frames {
             let line: Vec<String> = f.iter().map(|v| format!("{v:.6}")).collect();
             let _ = writeln!(s, "{}", line.join(" "));
@@ -206,14 +270,22 @@ impl Bvh {
         let j = &self.joints[i];
         let kw = if j.parent.is_none() { "ROOT" } else { "JOINT" };
         let o = j.offset;
-        let _ = writeln!(s, "{ind}{kw} {}\n{ind}{{\n{ind}  OFFSET {:.6} {:.6} {:.6}", j.name, o[0], o[1], o[2]);
+        let _ = writeln!(
+            s,
+            "{ind}{kw} {}\n{ind}{{\n{ind}  OFFSET {:.6} {:.6} {:.6}",
+            j.name, o[0], o[1], o[2]
+        );
         let ch: Vec<String> = j.channels.iter().map(|c| c.name()).collect();
         let _ = writeln!(s, "{ind}  CHANNELS {} {}", ch.len(), ch.join(" "));
         for k in (0..self.joints.len()).filter(|&k| self.joints[k].parent == Some(i)) {
             self.write_joint(k, depth + 1, s);
         }
         if let Some(e) = j.end_site {
-            let _ = writeln!(s, "{ind}  End Site\n{ind}  {{\n{ind}    OFFSET {:.6} {:.6} {:.6}\n{ind}  }}", e[0], e[1], e[2]);
+            let _ = writeln!(
+                s,
+                "{ind}  End Site\n{ind}  {{\n{ind}    OFFSET {:.6} {:.6} {:.6}\n{ind}  }}",
+                e[0], e[1], e[2]
+            );
         }
         let _ = writeln!(s, "{ind}}}");
     }
@@ -227,7 +299,8 @@ impl Bvh {
                 let (mut pos, mut g) = (vec![[0.0; 3]; n], vec![quat::IDENTITY; n]);
                 let mut c = 0;
                 for (k, j) in self.joints.iter().enumerate() {
-                    let (pp, pg) = j.parent.map(|p| (pos[p], g[p])).unwrap_or(([0.0; 3], quat::IDENTITY));
+                    let (pp, pg) =
+                        j.parent.map(|p| (pos[p], g[p])).unwrap_or(([0.0; 3], quat::IDENTITY));
                     let mut local = j.offset;
                     let (mut axes, mut deg, mut r) = ([0; 3], [0.0; 3], 0);
                     for ch in &j.channels {

@@ -57,15 +57,25 @@ pub struct PackedSplit {
 }
 
 fn source(path: &Path) -> Result<Source, DataError> {
-    let md = std::fs::metadata(path).map_err(|e| DataError::Io { path: path.to_path_buf(), err: e })?;
-    let mtime_ns = md.modified().ok().and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok()).map(|d| d.as_nanos()).unwrap_or(0);
+    let md =
+        std::fs::metadata(path).map_err(|e| DataError::Io { path: path.to_path_buf(), err: e })?;
+    let mtime_ns = md
+        .modified()
+        .ok()
+        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+        .map(|d| d.as_nanos())
+        .unwrap_or(0);
     Ok(Source { path: path.to_string_lossy().into_owned(), size: md.len(), mtime_ns })
 }
 
 /// Source files a split depends on, in a fixed order (missing files are left out; the build
 /// records them as skipped, and their later appearance changes the list).
 fn sources(ds: &Dataset, split: &str, ids: &[String]) -> Vec<Source> {
-    let mut paths = vec![ds.root.join("Mean.npy"), ds.root.join("Std.npy"), ds.root.join(format!("{split}.txt"))];
+    let mut paths = vec![
+        ds.root.join("Mean.npy"),
+        ds.root.join("Std.npy"),
+        ds.root.join(format!("{split}.txt")),
+    ];
     for id in ids {
         paths.push(ds.motion_path(id));
         paths.push(ds.text_path(id));
@@ -81,29 +91,54 @@ pub fn default_cache_dir(ds: &Dataset) -> PathBuf {
 impl PackedSplit {
     /// Open the cache of `split`, building it first if it is missing or stale.
     /// `progress(done, total)` is called while building.
-    pub fn open(ds: &Dataset, split: &str, cache_dir: &Path, mut progress: impl FnMut(usize, usize)) -> Result<PackedSplit, DataError> {
+    pub fn open(
+        ds: &Dataset,
+        split: &str,
+        cache_dir: &Path,
+        mut progress: impl FnMut(usize, usize),
+    ) -> Result<PackedSplit, DataError> {
         let ids = ds.split_ids(split)?;
         let srcs = sources(ds, split, &ids);
         let index_path = cache_dir.join(format!("{split}.index.json"));
         let data_path = cache_dir.join(format!("{split}.f32"));
         let mut built = false;
         let index = match read_index(&index_path) {
-            Some(ix) if ix.format == FORMAT && ix.dim == ds.dim() && ix.sources == srcs && data_ok(&data_path, &ix) => ix,
+            Some(ix)
+                if ix.format == FORMAT
+                    && ix.dim == ds.dim()
+                    && ix.sources == srcs
+                    && data_ok(&data_path, &ix) =>
+            {
+                ix
+            }
             _ => {
                 built = true;
                 build(ds, &ids, srcs, cache_dir, &index_path, &data_path, &mut progress)?
             }
         };
         let map = if index.total_frames > 0 {
-            let f = std::fs::File::open(&data_path).map_err(|e| DataError::Io { path: data_path.clone(), err: e })?;
+            let f = std::fs::File::open(&data_path)
+                .map_err(|e| DataError::Io { path: data_path.clone(), err: e })?;
             // SAFETY: the file is ours, written once and renamed into place; it is not modified
             // while mapped (a rebuild writes a new file and renames over it).
-            Some(unsafe { Mmap::map(&f) }.map_err(|e| DataError::Io { path: data_path.clone(), err: e })?)
+            Some(
+                unsafe { Mmap::map(&f) }
+                    .map_err(|e| DataError::Io { path: data_path.clone(), err: e })?,
+            )
         } else {
             None
         };
         let clip_of = index.clips.iter().enumerate().map(|(i, c)| (c.id.clone(), i)).collect();
-        Ok(PackedSplit { split: split.to_string(), dim: index.dim, clips: index.clips, items: index.items, skipped: index.skipped, clip_of, map, built })
+        Ok(PackedSplit {
+            split: split.to_string(),
+            dim: index.dim,
+            clips: index.clips,
+            items: index.items,
+            skipped: index.skipped,
+            clip_of,
+            map,
+            built,
+        })
     }
 
     /// Raw (un-normalised) features of frames [start, start+len) of a clip, row-major.
@@ -111,7 +146,8 @@ impl PackedSplit {
         let c = &self.clips[self.clip_of[clip]];
         assert!(start + len <= c.frames, "frames {start}+{len} beyond clip {clip} ({})", c.frames);
         let map = self.map.as_ref().expect("empty cache");
-        let bytes = &map[(c.offset + start) * self.dim * 4..(c.offset + start + len) * self.dim * 4];
+        let bytes =
+            &map[(c.offset + start) * self.dim * 4..(c.offset + start + len) * self.dim * 4];
         // The mapping is page-aligned and every offset a multiple of 4 bytes.
         let (pre, floats, _) = unsafe { bytes.align_to::<f32>() };
         assert!(pre.is_empty());
@@ -138,7 +174,15 @@ fn data_ok(path: &Path, ix: &Index) -> bool {
     std::fs::metadata(path).map(|m| m.len() == want).unwrap_or(want == 0)
 }
 
-fn build(ds: &Dataset, ids: &[String], srcs: Vec<Source>, dir: &Path, index_path: &Path, data_path: &Path, progress: &mut impl FnMut(usize, usize)) -> Result<Index, DataError> {
+fn build(
+    ds: &Dataset,
+    ids: &[String],
+    srcs: Vec<Source>,
+    dir: &Path,
+    index_path: &Path,
+    data_path: &Path,
+    progress: &mut impl FnMut(usize, usize),
+) -> Result<Index, DataError> {
     let io = |p: &Path| {
         let p = p.to_path_buf();
         move |e| DataError::Io { path: p, err: e }
@@ -158,10 +202,16 @@ fn build(ds: &Dataset, ids: &[String], srcs: Vec<Source>, dir: &Path, index_path
             let mp = ds.motion_path(id);
             let a = npy::read_f32(&mp)?;
             if a.ndim() != 2 || a.shape[1] != ds.dim() {
-                return Err(DataError::Npy { path: mp, msg: format!("expected shape (T, {}), got {:?}", ds.dim(), a.shape) });
+                return Err(DataError::Npy {
+                    path: mp,
+                    msg: format!("expected shape (T, {}), got {:?}", ds.dim(), a.shape),
+                });
             }
             if let Some((r, c)) = first_non_finite(&a.data, ds.dim()) {
-                return Err(DataError::Npy { path: mp, msg: format!("NaN or infinite value at frame {r}, feature {c}") });
+                return Err(DataError::Npy {
+                    path: mp,
+                    msg: format!("NaN or infinite value at frame {r}, feature {c}"),
+                });
             }
             Ok((caps, a))
         })();
@@ -177,8 +227,16 @@ fn build(ds: &Dataset, ids: &[String], srcs: Vec<Source>, dir: &Path, index_path
         if its.is_empty() {
             let (min, fps) = (ds.min_frames(), ds.skeleton.fps);
             let spans = caps.iter().filter(|c| !c.whole_clip()).count();
-            let why = if caps.iter().any(|c| c.whole_clip()) { format!("its {frames} frames are outside [{min}, 200)") } else { format!("it has no whole-clip caption ({frames} frames)") };
-            let also = if spans > 0 { format!("; its {spans} sub-clip caption span(s) run past its end or are not {min} to 199 frames long at {fps} fps") } else { String::new() };
+            let why = if caps.iter().any(|c| c.whole_clip()) {
+                format!("its {frames} frames are outside [{min}, 200)")
+            } else {
+                format!("it has no whole-clip caption ({frames} frames)")
+            };
+            let also = if spans > 0 {
+                format!("; its {spans} sub-clip caption span(s) run past its end or are not {min} to 199 frames long at {fps} fps")
+            } else {
+                String::new()
+            };
             skipped.push((id.clone(), format!("no item: {why}{also}")));
             continue;
         }
@@ -192,7 +250,15 @@ fn build(ds: &Dataset, ids: &[String], srcs: Vec<Source>, dir: &Path, index_path
     progress(ids.len(), ids.len());
     out.into_inner().map_err(|e| e.into_error()).and_then(|f| f.sync_all()).map_err(io(&tmp))?;
     std::fs::rename(&tmp, data_path).map_err(io(data_path))?;
-    let index = Index { format: FORMAT, dim: ds.dim(), total_frames: offset, sources: srcs, clips, items, skipped };
+    let index = Index {
+        format: FORMAT,
+        dim: ds.dim(),
+        total_frames: offset,
+        sources: srcs,
+        clips,
+        items,
+        skipped,
+    };
     let bytes = serde_json::to_vec(&index).expect("index serialises");
     crate::write_atomic(index_path, &bytes)?;
     Ok(index)

@@ -54,10 +54,17 @@ impl CheckReport {
         for p in &self.problems {
             s += &format!("{}: {}\n", p.file, p.problem);
         }
-        s += &format!("dataset {} ({} skeleton, {} features)\n", self.root, self.skeleton, self.dim);
-        s += &format!("{:<6} {:>7} {:>7} {:>7} {:>9} {:>7} {:>8}\n", "split", "ids", "clips", "items", "frames", "hours", "captions");
+        s +=
+            &format!("dataset {} ({} skeleton, {} features)\n", self.root, self.skeleton, self.dim);
+        s += &format!(
+            "{:<6} {:>7} {:>7} {:>7} {:>9} {:>7} {:>8}\n",
+            "split", "ids", "clips", "items", "frames", "hours", "captions"
+        );
         for st in &self.splits {
-            s += &format!("{:<6} {:>7} {:>7} {:>7} {:>9} {:>7.2} {:>8}\n", st.split, st.ids, st.clips, st.items, st.frames, st.hours, st.captions);
+            s += &format!(
+                "{:<6} {:>7} {:>7} {:>7} {:>9} {:>7.2} {:>8}\n",
+                st.split, st.ids, st.clips, st.items, st.frames, st.hours, st.captions
+            );
         }
         s += &format!("distinct words: {}\nclip lengths (frames):\n", self.distinct_words);
         let max = self.length_histogram.iter().map(|b| b.2).max().unwrap_or(0).max(1);
@@ -68,7 +75,11 @@ impl CheckReport {
             };
             s += &format!("  {label} {n:>7} {}\n", "#".repeat(n * 40 / max));
         }
-        s += &if self.ok() { "OK: no problems found\n".to_string() } else { format!("{} problem(s) found\n", self.problems.len()) };
+        s += &if self.ok() {
+            "OK: no problems found\n".to_string()
+        } else {
+            format!("{} problem(s) found\n", self.problems.len())
+        };
         s
     }
 }
@@ -76,12 +87,22 @@ impl CheckReport {
 /// Check a dataset directory.
 pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport {
     let mut problems = Vec::new();
-    let mut report = |file: &Path, problem: String| problems.push(Problem { file: file.display().to_string(), problem });
+    let mut report = |file: &Path, problem: String| {
+        problems.push(Problem { file: file.display().to_string(), problem })
+    };
     let ds = match Dataset::open(root) {
         Ok(ds) => ds,
         Err(e) => {
             problems.push(Problem { file: root.display().to_string(), problem: e.to_string() });
-            return CheckReport { root: root.display().to_string(), skeleton: "unknown".into(), dim: 0, problems, splits: vec![], distinct_words: 0, length_histogram: vec![] };
+            return CheckReport {
+                root: root.display().to_string(),
+                skeleton: "unknown".into(),
+                dim: 0,
+                problems,
+                splits: vec![],
+                distinct_words: 0,
+                length_histogram: vec![],
+            };
         }
     };
     let dim = ds.dim();
@@ -90,7 +111,10 @@ pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport
         .filter_map(|s| match ds.split_ids(s) {
             Ok(ids) => Some((s.to_string(), ids)),
             Err(e) => {
-                report(&root.join(format!("{s}.txt")), format!("split list unreadable: {}", short(&e)));
+                report(
+                    &root.join(format!("{s}.txt")),
+                    format!("split list unreadable: {}", short(&e)),
+                );
                 None
             }
         })
@@ -119,7 +143,12 @@ pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport
                 continue;
             };
             for c in caps.iter() {
-                words.extend(c.text.split(|ch: char| !ch.is_alphanumeric()).filter(|w| !w.is_empty()).map(str::to_lowercase));
+                words.extend(
+                    c.text
+                        .split(|ch: char| !ch.is_alphanumeric())
+                        .filter(|w| !w.is_empty())
+                        .map(str::to_lowercase),
+                );
             }
             st.clips += 1;
             st.frames += *frames;
@@ -130,8 +159,20 @@ pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport
         stats.push(st);
     }
     progress(total, total);
-    let length_histogram = hist.iter().enumerate().map(|(i, &n)| (i * 20, (i < 10).then_some(i * 20 + 20), n)).collect();
-    CheckReport { root: root.display().to_string(), skeleton: ds.skeleton.name.to_string(), dim, problems, splits: stats, distinct_words: words.len(), length_histogram }
+    let length_histogram = hist
+        .iter()
+        .enumerate()
+        .map(|(i, &n)| (i * 20, (i < 10).then_some(i * 20 + 20), n))
+        .collect();
+    CheckReport {
+        root: root.display().to_string(),
+        skeleton: ds.skeleton.name.to_string(),
+        dim,
+        problems,
+        splits: stats,
+        distinct_words: words.len(),
+        length_histogram,
+    }
 }
 
 /// An io error without the path (the report line already names the file).

@@ -37,13 +37,21 @@ impl Dataset {
     pub fn open(root: impl AsRef<Path>) -> Result<Dataset, DataError> {
         let root = root.as_ref().to_path_buf();
         if !root.is_dir() {
-            return Err(DataError::Invalid(format!("{}: dataset directory not found", root.display())));
+            return Err(DataError::Invalid(format!(
+                "{}: dataset directory not found",
+                root.display()
+            )));
         }
         let (mean, std) = read_normalisation(&root, None)?;
         let skeleton = match mean.len() {
             263 => &crate::T2M,
             251 => &crate::KIT,
-            n => return Err(DataError::Npy { path: root.join("Mean.npy"), msg: format!("width {n} is neither HumanML3D (263) nor KIT-ML (251)") }),
+            n => {
+                return Err(DataError::Npy {
+                    path: root.join("Mean.npy"),
+                    msg: format!("width {n} is neither HumanML3D (263) nor KIT-ML (251)"),
+                })
+            }
         };
         Ok(Dataset { root, skeleton, mean, std })
     }
@@ -72,7 +80,8 @@ impl Dataset {
     /// Ids listed in `<split>.txt`.
     pub fn split_ids(&self, split: &str) -> Result<Vec<String>, DataError> {
         let p = self.root.join(format!("{split}.txt"));
-        let text = std::fs::read_to_string(&p).map_err(|e| DataError::Io { path: p.clone(), err: e })?;
+        let text =
+            std::fs::read_to_string(&p).map_err(|e| DataError::Io { path: p.clone(), err: e })?;
         Ok(text.lines().map(str::trim).filter(|l| !l.is_empty()).map(String::from).collect())
     }
 
@@ -82,16 +91,25 @@ impl Dataset {
         let fps = self.skeleton.fps;
         let ok = |n: usize| n >= self.min_frames() && n < 200;
         let mut out = Vec::new();
-        let whole: Vec<String> = captions.iter().filter(|c| c.whole_clip()).map(|c| c.text.clone()).collect();
+        let whole: Vec<String> =
+            captions.iter().filter(|c| c.whole_clip()).map(|c| c.text.clone()).collect();
         for c in captions.iter().filter(|c| !c.whole_clip()) {
             let s = (c.start * fps) as usize;
             let e = ((c.end * fps) as usize).min(frames);
             if e > s && ok(e - s) {
-                out.push(ItemSpec { clip: id.to_string(), start: s, len: e - s, captions: vec![c.text.clone()] });
+                out.push(ItemSpec {
+                    clip: id.to_string(),
+                    start: s,
+                    len: e - s,
+                    captions: vec![c.text.clone()],
+                });
             }
         }
         if !whole.is_empty() && ok(frames) {
-            out.insert(0, ItemSpec { clip: id.to_string(), start: 0, len: frames, captions: whole });
+            out.insert(
+                0,
+                ItemSpec { clip: id.to_string(), start: 0, len: frames, captions: whole },
+            );
         }
         out
     }
@@ -109,28 +127,46 @@ impl Dataset {
 
 /// `Mean.npy` and `Std.npy` of `dir` (a dataset root or a run directory): vectors of one width
 /// (`width` when given), the mean finite, every std finite and > 0.
-pub fn read_normalisation(dir: &Path, width: Option<usize>) -> Result<(Vec<f32>, Vec<f32>), DataError> {
+pub fn read_normalisation(
+    dir: &Path,
+    width: Option<usize>,
+) -> Result<(Vec<f32>, Vec<f32>), DataError> {
     let read_vec = |name: &str, want: Option<usize>| -> Result<Vec<f32>, DataError> {
         let p = dir.join(name);
         let a = npy::read_f32(&p)?;
         if a.ndim() != 1 {
-            return Err(DataError::Npy { path: p, msg: format!("expected a vector, got shape {:?}", a.shape) });
+            return Err(DataError::Npy {
+                path: p,
+                msg: format!("expected a vector, got shape {:?}", a.shape),
+            });
         }
         if let Some(w) = want.filter(|&w| w != a.data.len()) {
-            return Err(DataError::Npy { path: p, msg: format!("{} values, expected {w}", a.data.len()) });
+            return Err(DataError::Npy {
+                path: p,
+                msg: format!("{} values, expected {w}", a.data.len()),
+            });
         }
         Ok(a.data)
     };
     let mean = read_vec("Mean.npy", width)?;
     let std = read_vec("Std.npy", width)?;
     if std.len() != mean.len() {
-        return Err(DataError::Npy { path: dir.join("Std.npy"), msg: format!("width {} differs from Mean.npy ({})", std.len(), mean.len()) });
+        return Err(DataError::Npy {
+            path: dir.join("Std.npy"),
+            msg: format!("width {} differs from Mean.npy ({})", std.len(), mean.len()),
+        });
     }
     if let Some(i) = mean.iter().position(|m| !m.is_finite()) {
-        return Err(DataError::Npy { path: dir.join("Mean.npy"), msg: format!("entry {i} is {} (not finite)", mean[i]) });
+        return Err(DataError::Npy {
+            path: dir.join("Mean.npy"),
+            msg: format!("entry {i} is {} (not finite)", mean[i]),
+        });
     }
     if let Some(i) = std.iter().position(|&s| !(s.is_finite() && s > 0.0)) {
-        return Err(DataError::Npy { path: dir.join("Std.npy"), msg: format!("entry {i} is {} (must be > 0)", std[i]) });
+        return Err(DataError::Npy {
+            path: dir.join("Std.npy"),
+            msg: format!("entry {i} is {} (must be > 0)", std[i]),
+        });
     }
     Ok((mean, std))
 }
@@ -155,7 +191,8 @@ pub fn denormalise(x: &mut [f32], mean: &[f32], std: &[f32]) {
 
 /// Read a clip's captions, failing on unreadable files or unparsable lines.
 pub fn read_captions(path: &Path) -> Result<Vec<Caption>, DataError> {
-    let (caps, errs) = texts::parse_file(path).map_err(|e| DataError::Io { path: path.to_path_buf(), err: e })?;
+    let (caps, errs) =
+        texts::parse_file(path).map_err(|e| DataError::Io { path: path.to_path_buf(), err: e })?;
     if let Some(e) = errs.first() {
         return Err(DataError::Npy { path: path.to_path_buf(), msg: e.clone() });
     }
@@ -180,7 +217,12 @@ mod tests {
     use super::*;
 
     fn ds() -> Dataset {
-        Dataset { root: PathBuf::new(), skeleton: &crate::T2M, mean: vec![0.0; 263], std: vec![1.0; 263] }
+        Dataset {
+            root: PathBuf::new(),
+            skeleton: &crate::T2M,
+            mean: vec![0.0; 263],
+            std: vec![1.0; 263],
+        }
     }
 
     fn cap(text: &str, s: f64, e: f64) -> Caption {
@@ -190,12 +232,32 @@ mod tests {
     #[test]
     fn item_rules() {
         let d = ds();
-        let caps = [cap("a", 0.0, 0.0), cap("b", 0.0, 0.0), cap("c", 1.0, 4.0), cap("d", 0.0, 1.0), cap("e", 2.0, 20.0)];
+        let caps = [
+            cap("a", 0.0, 0.0),
+            cap("b", 0.0, 0.0),
+            cap("c", 1.0, 4.0),
+            cap("d", 0.0, 1.0),
+            cap("e", 2.0, 20.0),
+        ];
         let items = d.items_of_clip("x", 150, &caps);
         // whole clip with a and b; c spans frames 20..80; d is 20 frames (too short); e clips to 40..150.
-        assert_eq!(items[0], ItemSpec { clip: "x".into(), start: 0, len: 150, captions: vec!["a".into(), "b".into()] });
-        assert_eq!(items[1], ItemSpec { clip: "x".into(), start: 20, len: 60, captions: vec!["c".into()] });
-        assert_eq!(items[2], ItemSpec { clip: "x".into(), start: 40, len: 110, captions: vec!["e".into()] });
+        assert_eq!(
+            items[0],
+            ItemSpec {
+                clip: "x".into(),
+                start: 0,
+                len: 150,
+                captions: vec!["a".into(), "b".into()]
+            }
+        );
+        assert_eq!(
+            items[1],
+            ItemSpec { clip: "x".into(), start: 20, len: 60, captions: vec!["c".into()] }
+        );
+        assert_eq!(
+            items[2],
+            ItemSpec { clip: "x".into(), start: 40, len: 110, captions: vec!["e".into()] }
+        );
         assert_eq!(items.len(), 3);
         // Too long or too short whole clips are dropped; their sub-clips may stay.
         assert!(d.items_of_clip("y", 200, &caps[..2]).is_empty());

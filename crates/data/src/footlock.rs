@@ -63,7 +63,13 @@ fn smoothstep(x: f64) -> f64 {
 /// anchor (the toe's mean place, or its place at the nearest held frame, so held frames get 0);
 /// outside, the span-end offsets fading over up to `blend` free frames. Spans needing a move
 /// over `max_shift` are skipped; returns the offsets and how many spans were.
-fn offsets(toe: &[Vec3], planted: &[bool], hold: &[bool], blend: usize, max_shift: f64) -> (Vec<Vec3>, usize) {
+fn offsets(
+    toe: &[Vec3],
+    planted: &[bool],
+    hold: &[bool],
+    blend: usize,
+    max_shift: f64,
+) -> (Vec<Vec3>, usize) {
     let t = toe.len();
     let mut o = vec![[0.0; 3]; t];
     let mut dragged = 0;
@@ -82,7 +88,8 @@ fn offsets(toe: &[Vec3], planted: &[bool], hold: &[bool], blend: usize, max_shif
         let mean = quat::scale(mean, 1.0 / (e - s + 1) as f64);
         let span: Vec<Vec3> = (s..=e)
             .map(|f| {
-                let anchor = held.iter().min_by_key(|&&k| k.abs_diff(f)).map(|&k| toe[k]).unwrap_or(mean);
+                let anchor =
+                    held.iter().min_by_key(|&&k| k.abs_diff(f)).map(|&k| toe[k]).unwrap_or(mean);
                 [anchor[0] - toe[f][0], 0.0, anchor[2] - toe[f][2]]
             })
             .collect();
@@ -131,7 +138,14 @@ fn two_bone(h: Vec3, k0: Vec3, a0: Vec3, a: Vec3) -> (Vec3, Vec3) {
 }
 
 fn read6(row: &[f64], at: usize) -> Quat {
-    quat::from_matrix(quat::cont6d_to_matrix([row[at], row[at + 1], row[at + 2], row[at + 3], row[at + 4], row[at + 5]]))
+    quat::from_matrix(quat::cont6d_to_matrix([
+        row[at],
+        row[at + 1],
+        row[at + 2],
+        row[at + 3],
+        row[at + 4],
+        row[at + 5],
+    ]))
 }
 
 /// Lock the planted feet of de-normalised features `feats` [T, D] in place. `hold[f]` marks
@@ -150,7 +164,9 @@ pub fn lock_feet(skel: &Skeleton, feats: &mut [f32], hold: &[bool], blend: usize
     let (rq, _) = recover_root_rot_pos(&f64s, d);
     let unit = skel.metres_per_unit;
     for leg in legs(skel) {
-        let planted: Vec<bool> = (0..t).map(|f| feats[f * d + layout.contacts().start + leg.contact] > CONTACT).collect();
+        let planted: Vec<bool> = (0..t)
+            .map(|f| feats[f * d + layout.contacts().start + leg.contact] > CONTACT)
+            .collect();
         let toe: Vec<Vec3> = joints.iter().map(|j| j[leg.toe]).collect();
         let (o, dragged) = offsets(&toe, &planted, hold, blend, MAX_SHIFT_M / unit);
         report.dragged += dragged;
@@ -163,9 +179,14 @@ pub fn lock_feet(skel: &Skeleton, feats: &mut [f32], hold: &[bool], blend: usize
                 continue;
             }
             let j = &joints[f];
-            let (k, a) = two_bone(j[leg.hip], j[leg.knee], j[leg.ankle], quat::add(j[leg.ankle], o[f]));
+            let (k, a) =
+                two_bone(j[leg.hip], j[leg.knee], j[leg.ankle], quat::add(j[leg.ankle], o[f]));
             let toe_new = quat::add(a, quat::sub(j[leg.toe], j[leg.ankle]));
-            delta[f] = [quat::sub(k, j[leg.knee]), quat::sub(a, j[leg.ankle]), quat::sub(toe_new, j[leg.toe])];
+            delta[f] = [
+                quat::sub(k, j[leg.knee]),
+                quat::sub(a, j[leg.ankle]),
+                quat::sub(toe_new, j[leg.toe]),
+            ];
             moved[f] = true;
             report.frames += 1;
             report.max_shift_m = report.max_shift_m.max(quat::norm(delta[f][1]) * unit);
@@ -184,7 +205,16 @@ pub fn lock_feet(skel: &Skeleton, feats: &mut [f32], hold: &[bool], blend: usize
                 }
             }
             if moved[f] {
-                relocal(skel, &layout, leg, rq[f], &joints[f], &delta[f], &f64s[f * d..(f + 1) * d], row);
+                relocal(
+                    skel,
+                    &layout,
+                    leg,
+                    rq[f],
+                    &joints[f],
+                    &delta[f],
+                    &f64s[f * d..(f + 1) * d],
+                    row,
+                );
             }
         }
     }
@@ -195,7 +225,16 @@ pub fn lock_feet(skel: &Skeleton, feats: &mut [f32], hold: &[bool], blend: usize
 /// rotation of the bone that ends there) after the thigh and shin turned: each bone's global
 /// rotation is turned by the swing from its old to its new direction; the foot keeps its own.
 #[allow(clippy::too_many_arguments)]
-fn relocal(skel: &Skeleton, layout: &Layout, leg: Leg, root: Quat, j: &[Vec3], delta: &[Vec3; 3], old: &[f64], row: &mut [f32]) {
+fn relocal(
+    skel: &Skeleton,
+    layout: &Layout,
+    leg: Leg,
+    root: Quat,
+    j: &[Vec3],
+    delta: &[Vec3; 3],
+    old: &[f64],
+    row: &mut [f32],
+) {
     let chain = skel.kinematic_chain.iter().find(|c| c.contains(&leg.hip)).expect("leg in a chain");
     let rot = |jt: usize| layout.rot().start + (jt - 1) * 6;
     // Global rotations down the chain to the hip slot.
@@ -215,7 +254,11 @@ fn relocal(skel: &Skeleton, layout: &Layout, leg: Leg, root: Quat, j: &[Vec3], d
     let shin = quat::qbetween(quat::sub(j[leg.ankle], j[leg.knee]), quat::sub(a1, k1));
     let g_knee1 = quat::qmul(thigh, g_knee);
     let g_ankle1 = quat::qmul(shin, g_ankle);
-    let locals = [(leg.knee, quat::qmul(quat::qinv(g_hip), g_knee1)), (leg.ankle, quat::qmul(quat::qinv(g_knee1), g_ankle1)), (leg.toe, quat::qmul(quat::qinv(g_ankle1), g_toe))];
+    let locals = [
+        (leg.knee, quat::qmul(quat::qinv(g_hip), g_knee1)),
+        (leg.ankle, quat::qmul(quat::qinv(g_knee1), g_ankle1)),
+        (leg.toe, quat::qmul(quat::qinv(g_ankle1), g_toe)),
+    ];
     for (jt, q) in locals {
         let c6 = quat::to_cont6d(q);
         for k in 0..6 {
@@ -278,12 +321,14 @@ mod tests {
                 frame[k][2] += 0.06 * (std::f64::consts::TAU * f as f64 / 10.0).sin();
             }
         }
-        let mut sliding = features_from_joints(&T2M, &j, crate::representation::FOOT_CONTACT_THRESHOLD).unwrap();
+        let mut sliding =
+            features_from_joints(&T2M, &j, crate::representation::FOOT_CONTACT_THRESHOLD).unwrap();
         // Keep the clean clip's contact labels (the slide would erase them).
         let t1 = sliding.len() / d;
         for r in 0..t1 {
             let c = layout.contacts();
-            sliding[r * d + c.start..r * d + c.end].copy_from_slice(&clean[r * d + c.start..r * d + c.end]);
+            sliding[r * d + c.start..r * d + c.end]
+                .copy_from_slice(&clean[r * d + c.start..r * d + c.end]);
         }
         let hold: Vec<bool> = (0..t1).map(|f| f == t1 / 2).collect();
         let before_j = joints(&T2M, &sliding);
@@ -292,7 +337,10 @@ mod tests {
         let rep = lock_feet(&T2M, &mut locked, &hold, BLEND);
         let after_j = joints(&T2M, &locked);
         let skate1 = foot_skating_ratio(&T2M, &after_j);
-        assert!(rep.frames > 0 && rep.dragged == 0 && skate0 > 0.3 && skate1 < 0.1, "skating {skate0} -> {skate1}, {rep:?}");
+        assert!(
+            rep.frames > 0 && rep.dragged == 0 && skate0 > 0.3 && skate1 < 0.1,
+            "skating {skate0} -> {skate1}, {rep:?}"
+        );
         // The held frame, the root and the upper body are untouched.
         let row = |v: &[f32], f: usize| v[f * d..(f + 1) * d].to_vec();
         assert_eq!(row(&locked, t1 / 2), row(&sliding, t1 / 2));
@@ -311,21 +359,29 @@ mod tests {
             }
             let r = row(&locked, f).iter().map(|&v| v as f64).collect::<Vec<_>>();
             let rot = |jt: usize| read6(&r, layout.rot().start + (jt - 1) * 6);
-            let (rq, _) = recover_root_rot_pos(&locked.iter().map(|&v| v as f64).collect::<Vec<_>>(), d);
+            let (rq, _) =
+                recover_root_rot_pos(&locked.iter().map(|&v| v as f64).collect::<Vec<_>>(), d);
             let g4 = quat::qmul(quat::qmul(rq[f], rot(1)), rot(4));
             let g7 = quat::qmul(g4, rot(7));
             for (g, p, c) in [(g4, 1usize, 4usize), (g7, 4, 7)] {
                 let dir = quat::normalize(quat::sub(a[c], a[p]));
                 let want = quat::qrot(g, T2M.raw_offsets[c]);
-                assert!(quat::norm(quat::sub(dir, want)) < 1e-3, "frame {f} bone {p}-{c}: {dir:?} vs {want:?}");
+                assert!(
+                    quat::norm(quat::sub(dir, want)) < 1e-3,
+                    "frame {f} bone {p}-{c}: {dir:?} vs {want:?}"
+                );
             }
         }
         // Local velocities match the positions they describe (but at the held frame, kept as is).
         for f in (0..t1 - 1).filter(|&f| !hold[f]) {
-            let (rq, _) = recover_root_rot_pos(&locked.iter().map(|&v| v as f64).collect::<Vec<_>>(), d);
+            let (rq, _) =
+                recover_root_rot_pos(&locked.iter().map(|&v| v as f64).collect::<Vec<_>>(), d);
             let v = quat::qrot(rq[f], quat::sub(after_j[f + 1][10], after_j[f][10]));
             for k in 0..3 {
-                assert!((locked[f * d + layout.vel().start + 30 + k] as f64 - v[k]).abs() < 1e-4, "frame {f}");
+                assert!(
+                    (locked[f * d + layout.vel().start + 30 + k] as f64 - v[k]).abs() < 1e-4,
+                    "frame {f}"
+                );
             }
         }
     }
@@ -341,7 +397,12 @@ mod tests {
         for f in 5..=10 {
             assert!((toe[f][2] + o[f][2] - 0.375).abs() < 1e-12);
         }
-        assert!(o[11][2].abs() < o[10][2].abs() && o[14][2].abs() < o[11][2].abs() && o[15] == [0.0; 3] && o[0] == [0.0; 3]);
+        assert!(
+            o[11][2].abs() < o[10][2].abs()
+                && o[14][2].abs() < o[11][2].abs()
+                && o[15] == [0.0; 3]
+                && o[0] == [0.0; 3]
+        );
         hold[8] = true;
         let (o, _) = offsets(&toe, &planted, &hold, 4, 1.0);
         assert_eq!(o[8], [0.0; 3]);

@@ -23,7 +23,10 @@ pub fn mutate(seed: &[u8], r: &mut Rng) -> Vec<u8> {
         let at = r.below(b.len());
         match r.below(7) {
             0 => b[at] ^= 1 << r.below(8),
-            1 => b[at] = [b'0', b'9', b'-', b'.', b'e', b',', b'(', b')', b' ', b'\n', 0, 0xff][r.below(12)],
+            1 => {
+                b[at] = [b'0', b'9', b'-', b'.', b'e', b',', b'(', b')', b' ', b'\n', 0, 0xff]
+                    [r.below(12)]
+            }
             2 => b.truncate(at),
             3 => {
                 let end = (at + 1 + r.below(16)).min(b.len());
@@ -31,7 +34,16 @@ pub fn mutate(seed: &[u8], r: &mut Rng) -> Vec<u8> {
                 b.splice(at..at, piece);
             }
             4 => {
-                let digits = ["18446744073709551615", "4611686018427387904", "99999999999999999999999", "1e308", "-1", "0", "nan", "inf"][r.below(8)];
+                let digits = [
+                    "18446744073709551615",
+                    "4611686018427387904",
+                    "99999999999999999999999",
+                    "1e308",
+                    "-1",
+                    "0",
+                    "nan",
+                    "inf",
+                ][r.below(8)];
                 b.splice(at..at, digits.bytes());
             }
             5 => {
@@ -46,7 +58,12 @@ pub fn mutate(seed: &[u8], r: &mut Rng) -> Vec<u8> {
 
 /// Feed `count` mutations of each seed to `read`; returns (ok, clean errors). Panics and slow
 /// calls fail the test with the input that caused them.
-pub fn fuzz(name: &str, seeds: &[Vec<u8>], count: usize, read: &dyn Fn(&[u8]) -> bool) -> (usize, usize) {
+pub fn fuzz(
+    name: &str,
+    seeds: &[Vec<u8>],
+    count: usize,
+    read: &dyn Fn(&[u8]) -> bool,
+) -> (usize, usize) {
     let mut r = Rng::new(0xF022 ^ name.len() as u64);
     let (mut ok, mut errors) = (0, 0);
     for k in 0..count {
@@ -55,10 +72,15 @@ pub fn fuzz(name: &str, seeds: &[Vec<u8>], count: usize, read: &dyn Fn(&[u8]) ->
         match catch_unwind(AssertUnwindSafe(|| read(&input))) {
             Ok(true) => ok += 1,
             Ok(false) => errors += 1,
-            Err(_) => panic!("{name}: case {k} panicked on input {:?}", String::from_utf8_lossy(&input[..input.len().min(400)])),
+            Err(_) => panic!(
+                "{name}: case {k} panicked on input {:?}",
+                String::from_utf8_lossy(&input[..input.len().min(400)])
+            ),
         }
         assert!(t0.elapsed() < Duration::from_secs(1), "{name}: case {k} took {:?}", t0.elapsed());
     }
-    eprintln!("fuzz {name}: {count} cases, {ok} accepted, {errors} clean errors, 0 panics, 0 hangs");
+    eprintln!(
+        "fuzz {name}: {count} cases, {ok} accepted, {errors} clean errors, 0 panics, 0 hangs"
+    );
     (ok, errors)
 }

@@ -69,12 +69,20 @@ impl KeyframeSpec {
 
     /// The keyframes for `skel`: `length` overrides the file's, `joints` its body parts;
     /// `max_len` bounds a length taken from the file.
-    pub fn resolve(&self, skel: &Skeleton, length: Option<usize>, joints: Option<&str>, max_len: usize) -> Result<KeyframeSet, DataError> {
+    pub fn resolve(
+        &self,
+        skel: &Skeleton,
+        length: Option<usize>,
+        joints: Option<&str>,
+        max_len: usize,
+    ) -> Result<KeyframeSet, DataError> {
         let bad = |m: String| DataError::Invalid(m);
         let length = match (length, self.length) {
             (Some(l), _) => l,
             (None, None) => return Err(bad("no \"length\" (or pass --length)".into())),
-            (None, Some(l)) if l == 0 || l > max_len => return Err(bad(format!("length: {l} frames; must be 1 to {max_len}"))),
+            (None, Some(l)) if l == 0 || l > max_len => {
+                return Err(bad(format!("length: {l} frames; must be 1 to {max_len}")))
+            }
             (None, Some(l)) => l,
         };
         let spec = joints.map(str::to_string).or_else(|| self.joints.clone());
@@ -184,22 +192,48 @@ mod tests {
         assert_eq!(k.values[5 * 263 + 3], 0.9);
         for (text, needle) in [
             (r#"{"length": 1.5, "keyframes": []}"#, "length: invalid type: floating point `1.5`"),
-            (r#"{"length": 20, "keyframes": [{"frame": -1, "root": [0, 1, 0]}]}"#, "keyframes[0].frame: invalid value: integer `-1`"),
-            (r#"{"length": 20, "keyframes": [{"frame": 3, "root": [1, 2]}]}"#, "keyframes[0].root: invalid length 2"),
-            (r#"{"length": 20, "keyframes": [{"frame": 3, "heading": "north"}]}"#, "keyframes[0].heading: invalid type: string \"north\""),
+            (
+                r#"{"length": 20, "keyframes": [{"frame": -1, "root": [0, 1, 0]}]}"#,
+                "keyframes[0].frame: invalid value: integer `-1`",
+            ),
+            (
+                r#"{"length": 20, "keyframes": [{"frame": 3, "root": [1, 2]}]}"#,
+                "keyframes[0].root: invalid length 2",
+            ),
+            (
+                r#"{"length": 20, "keyframes": [{"frame": 3, "heading": "north"}]}"#,
+                "keyframes[0].heading: invalid type: string \"north\"",
+            ),
         ] {
             let e = KeyframeSpec::parse(text).map(|_| ()).unwrap_err().to_string();
             assert!(e.contains(needle), "{text}: {e}");
         }
         for (text, needle) in [
             (r#"{"length": 500, "keyframes": []}"#, "length: 500 frames; must be 1 to 196"),
-            (r#"{"length": 20, "keyframes": [{"frame": 25, "features": []}]}"#, "keyframes[0]: frame 25 is beyond the length 20"),
-            (r#"{"length": 20, "keyframes": [{"frame": 2, "features": [1, 2]}]}"#, "keyframes[0]: 2 features, expected 263"),
-            (r#"{"length": 20, "keyframes": [{"frame": 3, "heading": 1e300}]}"#, "keyframes[0]: heading 1e300: must be finite degrees"),
-            (r#"{"length": 20, "joints": "", "keyframes": [{"frame": 2, "root": [0, 1, 0]}]}"#, "joints: empty"),
+            (
+                r#"{"length": 20, "keyframes": [{"frame": 25, "features": []}]}"#,
+                "keyframes[0]: frame 25 is beyond the length 20",
+            ),
+            (
+                r#"{"length": 20, "keyframes": [{"frame": 2, "features": [1, 2]}]}"#,
+                "keyframes[0]: 2 features, expected 263",
+            ),
+            (
+                r#"{"length": 20, "keyframes": [{"frame": 3, "heading": 1e300}]}"#,
+                "keyframes[0]: heading 1e300: must be finite degrees",
+            ),
+            (
+                r#"{"length": 20, "joints": "", "keyframes": [{"frame": 2, "root": [0, 1, 0]}]}"#,
+                "joints: empty",
+            ),
             (r#"{"length": 20, "keyframes": [{"frame": 2}]}"#, "keyframes[0]: needs \"joints\""),
         ] {
-            let e = KeyframeSpec::parse(text).unwrap().resolve(&T2M, None, None, 196).map(|_| ()).unwrap_err().to_string();
+            let e = KeyframeSpec::parse(text)
+                .unwrap()
+                .resolve(&T2M, None, None, 196)
+                .map(|_| ())
+                .unwrap_err()
+                .to_string();
             assert!(e.contains(needle), "{text}: {e}");
         }
     }

@@ -46,7 +46,9 @@ pub fn uniform(len: usize, k: usize) -> Vec<usize> {
         0 => vec![],
         1 => vec![len / 2],
         _ => {
-            let mut v: Vec<usize> = (0..k).map(|i| ((i * (len - 1)) as f64 / (k - 1) as f64).round() as usize).collect();
+            let mut v: Vec<usize> = (0..k)
+                .map(|i| ((i * (len - 1)) as f64 / (k - 1) as f64).round() as usize)
+                .collect();
             v.dedup();
             v
         }
@@ -62,7 +64,14 @@ pub fn mdo(frames: &[f32], dim: usize, k: usize) -> Vec<usize> {
     if k <= 1 {
         return if k == 1 { vec![0] } else { vec![] };
     }
-    let dist = |i: usize, j: usize| -> f64 { frames[i * dim..(i + 1) * dim].iter().zip(&frames[j * dim..(j + 1) * dim]).map(|(a, b)| ((a - b) as f64).powi(2)).sum::<f64>().sqrt() };
+    let dist = |i: usize, j: usize| -> f64 {
+        frames[i * dim..(i + 1) * dim]
+            .iter()
+            .zip(&frames[j * dim..(j + 1) * dim])
+            .map(|(a, b)| ((a - b) as f64).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    };
     // best[c][j]: best score of a chain of c+1 frames ending at j.
     let mut best = vec![vec![f64::NEG_INFINITY; n]; k];
     let mut from = vec![vec![usize::MAX; n]; k];
@@ -89,7 +98,14 @@ pub fn mdo(frames: &[f32], dim: usize, k: usize) -> Vec<usize> {
 }
 
 /// Choose keyframes of a clip by strategy; `frames` (N, D) is used by MDO only.
-pub fn select(strategy: Strategy, len: usize, rate: f64, frames: &[f32], dim: usize, rng: &mut Rng) -> Vec<usize> {
+pub fn select(
+    strategy: Strategy,
+    len: usize,
+    rate: f64,
+    frames: &[f32],
+    dim: usize,
+    rng: &mut Rng,
+) -> Vec<usize> {
     let k = count(len, rate);
     match strategy {
         Strategy::Random => rng.sample_sorted(len, k),
@@ -169,7 +185,16 @@ mod tests {
         for trial in 0..20 {
             let (n, dim, k) = (6 + trial % 5, 3, 2 + trial % 3);
             let f: Vec<f32> = (0..n * dim).map(|_| rng.normal() as f32).collect();
-            let score = |s: &[usize]| -> f64 { s.windows(2).map(|w| (0..dim).map(|c| ((f[w[0] * dim + c] - f[w[1] * dim + c]) as f64).powi(2)).sum::<f64>().sqrt()).sum() };
+            let score = |s: &[usize]| -> f64 {
+                s.windows(2)
+                    .map(|w| {
+                        (0..dim)
+                            .map(|c| ((f[w[0] * dim + c] - f[w[1] * dim + c]) as f64).powi(2))
+                            .sum::<f64>()
+                            .sqrt()
+                    })
+                    .sum()
+            };
             let mut best = f64::NEG_INFINITY;
             for bits in 0u32..(1 << n) {
                 if bits.count_ones() as usize == k {

@@ -14,20 +14,37 @@ use crate::DataError;
 /// what the process itself holds.
 pub fn rss_mib() -> (f64, f64) {
     let s = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
-    let field = |name: &str| -> f64 { s.lines().find(|l| l.starts_with(name)).and_then(|l| l.split_whitespace().nth(1)).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0) / 1024.0 };
+    let field = |name: &str| -> f64 {
+        s.lines()
+            .find(|l| l.starts_with(name))
+            .and_then(|l| l.split_whitespace().nth(1))
+            .and_then(|v| v.parse::<f64>().ok())
+            .unwrap_or(0.0)
+            / 1024.0
+    };
     (field("VmRSS:"), field("RssAnon:"))
 }
 
 /// `batches` batches of `batch_size` from `split` of the dataset at `dir` with `threads` loader
 /// threads: one JSON line of timings, memory and a checksum.
-pub fn run(dir: &Path, split_name: &str, batches: usize, batch_size: usize, threads: usize, progress: impl FnMut(usize, usize)) -> Result<serde_json::Value, DataError> {
+pub fn run(
+    dir: &Path,
+    split_name: &str,
+    batches: usize,
+    batch_size: usize,
+    threads: usize,
+    progress: impl FnMut(usize, usize),
+) -> Result<serde_json::Value, DataError> {
     let ds = Dataset::open(dir)?;
     let rss0 = rss_mib();
     let t0 = std::time::Instant::now();
     let split = PackedSplit::open(&ds, split_name, &default_cache_dir(&ds), progress)?;
     let open_s = t0.elapsed().as_secs_f64();
     if split.items.is_empty() {
-        return Err(DataError::Invalid(format!("{}: split '{split_name}' has no usable items", dir.display())));
+        return Err(DataError::Invalid(format!(
+            "{}: split '{split_name}' has no usable items",
+            dir.display()
+        )));
     }
     let mut loader = Loader::new(&ds, &split, batch_size, 0, KeyframeConfig::default());
     loader.threads = threads;

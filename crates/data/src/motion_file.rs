@@ -19,14 +19,27 @@ pub fn first_non_finite<T: Into<f64> + Copy>(data: &[T], width: usize) -> Option
 }
 
 /// A features file (T, D) for `skel`, with at least `min_frames` rows and only finite values.
-pub fn load_features(path: &Path, skel: &Skeleton, min_frames: usize) -> Result<Array<f32>, DataError> {
+pub fn load_features(
+    path: &Path,
+    skel: &Skeleton,
+    min_frames: usize,
+) -> Result<Array<f32>, DataError> {
     let arr = npy::read_f32(path)?;
     let dim = skel.feature_dim();
     if arr.ndim() != 2 || arr.shape[1] != dim {
-        return Err(invalid(path, format!("expected features of shape (T, {dim}) for the {} skeleton, got {:?}", skel.name, arr.shape)));
+        return Err(invalid(
+            path,
+            format!(
+                "expected features of shape (T, {dim}) for the {} skeleton, got {:?}",
+                skel.name, arr.shape
+            ),
+        ));
     }
     if arr.shape[0] < min_frames {
-        return Err(invalid(path, format!("has {} frame(s); at least {min_frames} needed", arr.shape[0])));
+        return Err(invalid(
+            path,
+            format!("has {} frame(s); at least {min_frames} needed", arr.shape[0]),
+        ));
     }
     if let Some((r, c)) = first_non_finite(&arr.data, dim) {
         return Err(invalid(path, format!("NaN or infinite value at frame {r}, feature {c}")));
@@ -42,16 +55,27 @@ pub fn load_joints(path: &Path, skel: &Skeleton, min_frames: usize) -> Result<Jo
     let ok_joints = |j: usize| j == jn || (skel.name == "t2m" && (j == 52 || j == 24));
     if arr.ndim() != 3 || arr.shape[2] != 3 || !ok_joints(arr.shape[1]) {
         let extra = if skel.name == "t2m" { ", (T, 24, 3) SMPL or (T, 52, 3) SMPL-H" } else { "" };
-        return Err(invalid(path, format!("expected joint positions of shape (T, {jn}, 3){extra}, got {:?}", arr.shape)));
+        return Err(invalid(
+            path,
+            format!("expected joint positions of shape (T, {jn}, 3){extra}, got {:?}", arr.shape),
+        ));
     }
     if arr.shape[0] < min_frames {
-        return Err(invalid(path, format!("has {} frame(s); at least {min_frames} needed", arr.shape[0])));
+        return Err(invalid(
+            path,
+            format!("has {} frame(s); at least {min_frames} needed", arr.shape[0]),
+        ));
     }
     let per_frame = arr.shape[1] * 3;
     // Only the joints we use must be finite (SMPL-H hands may be padded).
     for f in 0..arr.shape[0] {
-        if let Some((_, c)) = first_non_finite(&arr.data[f * per_frame..f * per_frame + jn * 3], jn * 3) {
-            return Err(invalid(path, format!("NaN or infinite value at frame {f}, joint {}", c / 3)));
+        if let Some((_, c)) =
+            first_non_finite(&arr.data[f * per_frame..f * per_frame + jn * 3], jn * 3)
+        {
+            return Err(invalid(
+                path,
+                format!("NaN or infinite value at frame {f}, joint {}", c / 3),
+            ));
         }
     }
     Ok(rep::joints_from_array(&arr.data, arr.shape[0], arr.shape[1], jn))
@@ -66,10 +90,14 @@ pub fn is_bvh(path: &Path) -> bool {
 
 /// The joints of a BVH file of any common rig ([`crate::rig::import`]).
 pub fn load_bvh(path: &Path, skel: &Skeleton, opts: &ImportOptions) -> Result<Joints, DataError> {
-    let text = std::fs::read_to_string(path).map_err(|err| DataError::Io { path: path.to_path_buf(), err })?;
+    let text = std::fs::read_to_string(path)
+        .map_err(|err| DataError::Io { path: path.to_path_buf(), err })?;
     let j = rig::read(skel, &text, opts).map_err(|e| e.in_file(path))?;
     if j.len() < MIN_MOTION_FRAMES {
-        return Err(invalid(path, format!("has {} frame(s); at least {MIN_MOTION_FRAMES} needed", j.len())));
+        return Err(invalid(
+            path,
+            format!("has {} frame(s); at least {MIN_MOTION_FRAMES} needed", j.len()),
+        ));
     }
     Ok(j)
 }
@@ -90,7 +118,11 @@ pub fn load_motion(path: &Path, skel: &Skeleton, bvh: &ImportOptions) -> Result<
 
 /// Features (T, D) of a motion file: features as they are, joints or BVH through
 /// `process_file` (one frame fewer).
-pub fn load_motion_features(path: &Path, skel: &Skeleton, bvh: &ImportOptions) -> Result<Vec<f32>, DataError> {
+pub fn load_motion_features(
+    path: &Path,
+    skel: &Skeleton,
+    bvh: &ImportOptions,
+) -> Result<Vec<f32>, DataError> {
     let joints = if is_bvh(path) {
         load_bvh(path, skel, bvh)?
     } else if npy::read_f64(path)?.ndim() == 2 {
@@ -98,7 +130,8 @@ pub fn load_motion_features(path: &Path, skel: &Skeleton, bvh: &ImportOptions) -
     } else {
         load_joints(path, skel, MIN_MOTION_FRAMES)?
     };
-    rep::features_from_joints(skel, &joints, rep::FOOT_CONTACT_THRESHOLD).map_err(|e| e.in_file(path))
+    rep::features_from_joints(skel, &joints, rep::FOOT_CONTACT_THRESHOLD)
+        .map_err(|e| e.in_file(path))
 }
 
 #[cfg(test)]

@@ -70,7 +70,8 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header, DataError> {
     if bytes.len() < end {
         return Err(err(path, "truncated header"));
     }
-    let text = std::str::from_utf8(&bytes[start..end]).map_err(|_| err(path, "header is not valid text"))?;
+    let text = std::str::from_utf8(&bytes[start..end])
+        .map_err(|_| err(path, "header is not valid text"))?;
     let descr = dict_value(text, "descr").ok_or_else(|| err(path, "header has no 'descr'"))?;
     let descr = descr.trim().trim_matches(|c| c == '\'' || c == '"');
     let dtype = match descr {
@@ -78,7 +79,8 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header, DataError> {
         "<f8" | "=f8" => DType::F64,
         other => return Err(err(path, format!("dtype '{other}' is not supported (expected little-endian float32 '<f4' or float64 '<f8')"))),
     };
-    let order = dict_value(text, "fortran_order").ok_or_else(|| err(path, "header has no 'fortran_order'"))?;
+    let order = dict_value(text, "fortran_order")
+        .ok_or_else(|| err(path, "header has no 'fortran_order'"))?;
     if order.trim() != "False" {
         return Err(err(path, "Fortran-order arrays are not supported (save with C order)"));
     }
@@ -86,7 +88,9 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header, DataError> {
     let inner = shape_txt.trim().trim_start_matches('(').trim_end_matches(')');
     let mut shape = Vec::new();
     for part in inner.split(',').map(str::trim).filter(|p| !p.is_empty()) {
-        shape.push(part.parse::<usize>().map_err(|_| err(path, format!("bad shape entry '{part}'")))?);
+        shape.push(
+            part.parse::<usize>().map_err(|_| err(path, format!("bad shape entry '{part}'")))?,
+        );
     }
     Ok(Header { dtype, shape, data_offset: end })
 }
@@ -117,15 +121,33 @@ pub fn decode_f64(path: &Path, bytes: &[u8]) -> Result<(Array<f64>, DType), Data
         DType::F64 => 8,
     };
     // The header is untrusted: a shape whose size overflows is an error, not a wrapped number.
-    let n = h.shape.iter().try_fold(1usize, |a, &s| a.checked_mul(s)).filter(|n| n.checked_mul(width).is_some());
+    let n = h
+        .shape
+        .iter()
+        .try_fold(1usize, |a, &s| a.checked_mul(s))
+        .filter(|n| n.checked_mul(width).is_some());
     let body = &bytes[h.data_offset..];
     let Some(n) = n.filter(|&n| body.len() >= n * width) else {
-        let needs = n.map_or("more than 2^64".to_string(), |n| (n as u128 * width as u128).to_string());
-        return Err(err(path, format!("truncated data: shape {:?} needs {needs} bytes, file has {}", h.shape, body.len())));
+        let needs =
+            n.map_or("more than 2^64".to_string(), |n| (n as u128 * width as u128).to_string());
+        return Err(err(
+            path,
+            format!(
+                "truncated data: shape {:?} needs {needs} bytes, file has {}",
+                h.shape,
+                body.len()
+            ),
+        ));
     };
     let data: Vec<f64> = match h.dtype {
-        DType::F32 => body[..n * 4].chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64).collect(),
-        DType::F64 => body[..n * 8].chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().unwrap())).collect(),
+        DType::F32 => body[..n * 4]
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64)
+            .collect(),
+        DType::F64 => body[..n * 8]
+            .chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().unwrap()))
+            .collect(),
     };
     Ok((Array { shape: h.shape, data }, h.dtype))
 }
@@ -151,7 +173,8 @@ pub fn encode<T: NpyElem>(shape: &[usize], data: &[T]) -> Vec<u8> {
         1 => format!("({},)", shape[0]),
         _ => format!("({})", shape.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(", ")),
     };
-    let dict = format!("{{'descr': '{}', 'fortran_order': False, 'shape': {}, }}", T::DESCR, shape_txt);
+    let dict =
+        format!("{{'descr': '{}', 'fortran_order': False, 'shape': {}, }}", T::DESCR, shape_txt);
     // Header (magic + version + len + dict + padding + '\n') is padded to a multiple of 64.
     let mut major = 1u8;
     let mut prefix = 10usize;
@@ -202,7 +225,11 @@ impl NpyElem for f64 {
 
 /// Write an array atomically: to a temporary name beside the target, then rename, so an
 /// interrupted run never leaves a half-written file.
-pub fn write<T: NpyElem>(path: impl AsRef<Path>, shape: &[usize], data: &[T]) -> Result<(), DataError> {
+pub fn write<T: NpyElem>(
+    path: impl AsRef<Path>,
+    shape: &[usize],
+    data: &[T],
+) -> Result<(), DataError> {
     assert_eq!(shape.iter().product::<usize>(), data.len(), "shape does not match data");
     crate::write_atomic(path.as_ref(), &encode(shape, data))
 }
@@ -291,7 +318,8 @@ mod tests {
         let path = dir.join("sub/a.npy");
         write(&path, &[2, 2], &[1f32, 2., 3., 4.]).unwrap();
         assert_eq!(read_f32(&path).unwrap().data, vec![1., 2., 3., 4.]);
-        let names: Vec<_> = std::fs::read_dir(dir.join("sub")).unwrap().map(|e| e.unwrap().file_name()).collect();
+        let names: Vec<_> =
+            std::fs::read_dir(dir.join("sub")).unwrap().map(|e| e.unwrap().file_name()).collect();
         assert_eq!(names.len(), 1, "{names:?}");
         std::fs::remove_dir_all(dir).unwrap();
     }
@@ -301,7 +329,11 @@ mod tests {
 mod overflow_tests {
     #[test]
     fn shapes_whose_size_overflows_are_errors() {
-        for shape in ["(2305843009213693952, 22, 3)", "(4611686018427387904, 263)", "(18446744073709551615, 2)"] {
+        for shape in [
+            "(2305843009213693952, 22, 3)",
+            "(4611686018427387904, 263)",
+            "(18446744073709551615, 2)",
+        ] {
             let dict = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {shape}, }}");
             let mut header = dict.into_bytes();
             while (10 + header.len() + 1) % 64 != 0 {
@@ -312,8 +344,12 @@ mod overflow_tests {
             bytes.extend((header.len() as u16).to_le_bytes());
             bytes.extend(header);
             bytes.extend([0u8; 64]);
-            let e = super::decode_f64(std::path::Path::new("big.npy"), &bytes).unwrap_err().to_string();
-            assert!(e.contains("big.npy") && e.contains("truncated data") && e.contains("file has 64"), "{shape}: {e}");
+            let e =
+                super::decode_f64(std::path::Path::new("big.npy"), &bytes).unwrap_err().to_string();
+            assert!(
+                e.contains("big.npy") && e.contains("truncated data") && e.contains("file has 64"),
+                "{shape}: {e}"
+            );
         }
     }
 }

@@ -29,9 +29,28 @@ pub fn measure(skel: &Skeleton, j: &Joints) -> Plausibility {
         bone_std = bone_std.max(v.sqrt());
     }
     let min_height = j.iter().flatten().map(|p| p[1]).fold(f64::INFINITY, f64::min);
-    let max_speed = j.windows(2).flat_map(|w| w[0].iter().zip(&w[1]).map(|(a, b)| quat::norm(quat::sub(*b, *a)))).fold(0.0, f64::max) * skel.fps;
-    let max_accel = j.windows(3).flat_map(|w| (0..w[0].len()).map(move |k| quat::norm(quat::add(quat::sub(w[2][k], quat::scale(w[1][k], 2.0)), w[0][k])))).fold(0.0, f64::max) * skel.fps * skel.fps;
-    Plausibility { bone_length_std: bone_std, min_height, foot_skating: foot_skating_ratio(skel, j), max_speed, max_accel }
+    let max_speed = j
+        .windows(2)
+        .flat_map(|w| w[0].iter().zip(&w[1]).map(|(a, b)| quat::norm(quat::sub(*b, *a))))
+        .fold(0.0, f64::max)
+        * skel.fps;
+    let max_accel = j
+        .windows(3)
+        .flat_map(|w| {
+            (0..w[0].len()).map(move |k| {
+                quat::norm(quat::add(quat::sub(w[2][k], quat::scale(w[1][k], 2.0)), w[0][k]))
+            })
+        })
+        .fold(0.0, f64::max)
+        * skel.fps
+        * skel.fps;
+    Plausibility {
+        bone_length_std: bone_std,
+        min_height,
+        foot_skating: foot_skating_ratio(skel, j),
+        max_speed,
+        max_accel,
+    }
 }
 
 /// Foot skating ratio: among frames where a toe joint is below 5 cm, the share in which it
@@ -66,8 +85,11 @@ mod tests {
     #[test]
     fn sliding_feet_are_counted() {
         // A rigid pose sliding along x at 1 m/s with toes at 1 cm: every contact frame skates.
-        let pose: Vec<[f64; 3]> = (0..22).map(|i| [0.0, if i == 10 || i == 11 { 0.01 } else { 0.5 }, 0.0]).collect();
-        let slide: Joints = (0..10).map(|t| pose.iter().map(|p| [p[0] + t as f64 * 0.05, p[1], p[2]]).collect()).collect();
+        let pose: Vec<[f64; 3]> =
+            (0..22).map(|i| [0.0, if i == 10 || i == 11 { 0.01 } else { 0.5 }, 0.0]).collect();
+        let slide: Joints = (0..10)
+            .map(|t| pose.iter().map(|p| [p[0] + t as f64 * 0.05, p[1], p[2]]).collect())
+            .collect();
         assert_eq!(foot_skating_ratio(&T2M, &slide), 1.0);
         let still: Joints = (0..10).map(|_| pose.clone()).collect();
         assert_eq!(foot_skating_ratio(&T2M, &still), 0.0);

@@ -19,7 +19,8 @@ pub fn pose_features(skel: &Skeleton, pose: &[Vec3]) -> Result<(Vec<f32>, Vec<bo
     let root = pose[0];
     let fwd = facing(skel, &vec![pose.to_vec()], Facing::Consistent)[0];
     let q = quat::qbetween(fwd, [0.0, 0.0, 1.0]);
-    let local: Vec<Vec3> = pose.iter().map(|p| quat::qrot(q, [p[0] - root[0], p[1], p[2] - root[2]])).collect();
+    let local: Vec<Vec3> =
+        pose.iter().map(|p| quat::qrot(q, [p[0] - root[0], p[1], p[2] - root[2]])).collect();
     let rots = inverse_kinematics(skel, &vec![local.clone()], false);
     let l = Layout::of(skel);
     let mut v = vec![0f32; l.dim()];

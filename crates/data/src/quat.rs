@@ -38,7 +38,12 @@ pub fn normalize(a: Vec3) -> Vec3 {
 pub fn qmul(q: Quat, r: Quat) -> Quat {
     let [w0, x0, y0, z0] = r;
     let [w1, x1, y1, z1] = q;
-    [w1 * w0 - x1 * x0 - y1 * y0 - z1 * z0, w1 * x0 + x1 * w0 + y1 * z0 - z1 * y0, w1 * y0 - x1 * z0 + y1 * w0 + z1 * x0, w1 * z0 + x1 * y0 - y1 * x0 + z1 * w0]
+    [
+        w1 * w0 - x1 * x0 - y1 * y0 - z1 * z0,
+        w1 * x0 + x1 * w0 + y1 * z0 - z1 * y0,
+        w1 * y0 - x1 * z0 + y1 * w0 + z1 * x0,
+        w1 * z0 + x1 * y0 - y1 * x0 + z1 * w0,
+    ]
 }
 
 /// Conjugate (the inverse of a unit quaternion).
@@ -67,7 +72,8 @@ pub fn qbetween(v0: Vec3, v1: Vec3) -> Quat {
     if q.iter().map(|x| x * x).sum::<f64>() < 1e-24 {
         // Opposite directions: any half turn about an axis perpendicular to v0 (the formula
         // above gives 0/0 there).
-        let axis = if v0[0].abs() < 0.9 { cross(v0, [1.0, 0.0, 0.0]) } else { cross(v0, [0.0, 1.0, 0.0]) };
+        let axis =
+            if v0[0].abs() < 0.9 { cross(v0, [1.0, 0.0, 0.0]) } else { cross(v0, [0.0, 1.0, 0.0]) };
         return qnormalize([0.0, axis[0], axis[1], axis[2]]);
     }
     qnormalize(q)

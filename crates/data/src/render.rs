@@ -142,9 +142,14 @@ impl Camera {
         let az = (35f64.to_radians().sin(), 35f64.to_radians().cos());
         let el = (20f64.to_radians().sin(), 20f64.to_radians().cos());
         let mut cam = Camera { centre: [0.0; 3], scale: 1.0, w: w as f64, h: h as f64, az, el };
-        let pts: Vec<Vec3> = j.iter().flatten().copied().chain(j.iter().map(|f| [f[0][0], 0.0, f[0][2]])).collect();
+        let pts: Vec<Vec3> =
+            j.iter().flatten().copied().chain(j.iter().map(|f| [f[0][0], 0.0, f[0][2]])).collect();
         let n = pts.len().max(1) as f64;
-        cam.centre = [pts.iter().map(|p| p[0]).sum::<f64>() / n, 0.8, pts.iter().map(|p| p[2]).sum::<f64>() / n];
+        cam.centre = [
+            pts.iter().map(|p| p[0]).sum::<f64>() / n,
+            0.8,
+            pts.iter().map(|p| p[2]).sum::<f64>() / n,
+        ];
         let (mut lo, mut hi) = ((f64::MAX, f64::MAX), (f64::MIN, f64::MIN));
         for p in &pts {
             let q = cam.raw(*p);
@@ -189,7 +194,8 @@ fn draw_grid(c: &mut Canvas, cam: &Camera, j: &Joints) {
     let zs = j.iter().map(|f| f[0][2]);
     let (x0, x1) = xs.clone().fold((f64::MAX, f64::MIN), |a, v| (a.0.min(v), a.1.max(v)));
     let (z0, z1) = zs.clone().fold((f64::MAX, f64::MIN), |a, v| (a.0.min(v), a.1.max(v)));
-    let (x0, x1, z0, z1) = ((x0 - 1.0).floor(), (x1 + 1.0).ceil(), (z0 - 1.0).floor(), (z1 + 1.0).ceil());
+    let (x0, x1, z0, z1) =
+        ((x0 - 1.0).floor(), (x1 + 1.0).ceil(), (z0 - 1.0).floor(), (z1 + 1.0).ceil());
     let mut x = x0;
     while x <= x1 + 1e-9 {
         c.line(cam.project([x, 0.0, z0]), cam.project([x, 0.0, z1]), 0.5, C::Grid);
@@ -202,9 +208,21 @@ fn draw_grid(c: &mut Canvas, cam: &Camera, j: &Joints) {
     }
 }
 
-fn draw_figure(c: &mut Canvas, cam: &Camera, skel: &Skeleton, f: &[Vec3], colour: Option<C>, r: f64) {
+fn draw_figure(
+    c: &mut Canvas,
+    cam: &Camera,
+    skel: &Skeleton,
+    f: &[Vec3],
+    colour: Option<C>,
+    r: f64,
+) {
     // Shadow of the root on the ground.
-    c.dot(cam.project([f[0][0], 0.0, f[0][2]]).0, cam.project([f[0][0], 0.0, f[0][2]]).1, r + 1.5, C::Shadow);
+    c.dot(
+        cam.project([f[0][0], 0.0, f[0][2]]).0,
+        cam.project([f[0][0], 0.0, f[0][2]]).1,
+        r + 1.5,
+        C::Shadow,
+    );
     for (k, chain) in skel.kinematic_chain.iter().enumerate() {
         let col = colour.unwrap_or(match k {
             0 | 3 => C::Right,
@@ -257,16 +275,26 @@ pub fn gif(skel: &Skeleton, j: &Joints, keyframes: &[usize], path: &Path) -> Res
     let palette: Vec<u8> = PALETTE.iter().flatten().copied().collect();
     let mut bytes = Vec::new();
     {
-        let io = |e: gif::EncodingError| DataError::Invalid(format!("{}: GIF encoding failed: {e}", path.display()));
+        let io = |e: gif::EncodingError| {
+            DataError::Invalid(format!("{}: GIF encoding failed: {e}", path.display()))
+        };
         let mut enc = gif::Encoder::new(&mut bytes, w as u16, h as u16, &palette).map_err(io)?;
         enc.set_repeat(gif::Repeat::Infinite).map_err(io)?;
         for t in 0..j.len() {
             let mut c = Canvas { w, h, px: base.px.clone() };
             for (k, pair) in j.windows(2).enumerate() {
                 let col = if k < t { C::PathDone } else { C::Path };
-                c.line(cam.project([pair[0][0][0], 0.0, pair[0][0][2]]), cam.project([pair[1][0][0], 0.0, pair[1][0][2]]), 1.0, col);
+                c.line(
+                    cam.project([pair[0][0][0], 0.0, pair[0][0][2]]),
+                    cam.project([pair[1][0][0], 0.0, pair[1][0][2]]),
+                    1.0,
+                    col,
+                );
             }
-            for &k in keyframes.iter().filter(|&&k| k < j.len() && k != t && keyframes.len() <= MAX_GHOSTS) {
+            for &k in keyframes
+                .iter()
+                .filter(|&&k| k < j.len() && k != t && keyframes.len() <= MAX_GHOSTS)
+            {
                 draw_figure(&mut c, &cam, skel, &j[k], Some(C::KeyGhost), 1.0);
             }
             let is_key = keyframes.contains(&t);
@@ -282,7 +310,13 @@ pub fn gif(skel: &Skeleton, j: &Joints, keyframes: &[usize], path: &Path) -> Res
 
 /// A contact sheet: one cell per clip, each a strobe of `poses` poses from light to dark,
 /// keyframes (if any) in orange; `cols` cells per row.
-pub fn sheet(skel: &Skeleton, clips: &[(Joints, Vec<usize>)], cols: usize, cell: usize, path: &Path) -> Result<(), DataError> {
+pub fn sheet(
+    skel: &Skeleton,
+    clips: &[(Joints, Vec<usize>)],
+    cols: usize,
+    cell: usize,
+    path: &Path,
+) -> Result<(), DataError> {
     for (j, _) in clips {
         check_drawable(j).map_err(|e| e.in_file(path))?;
     }
@@ -296,7 +330,12 @@ pub fn sheet(skel: &Skeleton, clips: &[(Joints, Vec<usize>)], cols: usize, cell:
             let cam = Camera::fit(j, cell, cell);
             draw_grid(&mut c, &cam, j);
             for pair in j.windows(2) {
-                c.line(cam.project([pair[0][0][0], 0.0, pair[0][0][2]]), cam.project([pair[1][0][0], 0.0, pair[1][0][2]]), 1.0, C::Path);
+                c.line(
+                    cam.project([pair[0][0][0], 0.0, pair[0][0][2]]),
+                    cam.project([pair[1][0][0], 0.0, pair[1][0][2]]),
+                    1.0,
+                    C::Path,
+                );
             }
             let n = 6.min(j.len());
             let fades = [C::Fade1, C::Fade2, C::Fade3, C::Fade3, C::Spine, C::Spine];
@@ -321,7 +360,9 @@ pub fn sheet(skel: &Skeleton, clips: &[(Joints, Vec<usize>)], cols: usize, cell:
         let mut enc = png::Encoder::new(&mut bytes, w as u32, h as u32);
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);
-        let err = |e: png::EncodingError| DataError::Invalid(format!("{}: PNG encoding failed: {e}", path.display()));
+        let err = |e: png::EncodingError| {
+            DataError::Invalid(format!("{}: PNG encoding failed: {e}", path.display()))
+        };
         enc.write_header().map_err(err)?.write_image_data(&out).map_err(err)?;
     }
     crate::write_atomic(path, &bytes)

@@ -106,7 +106,8 @@ pub fn recover_from_ric(skel: &Skeleton, feats: &[f64]) -> Joints {
 /// 3-vectors: HumanML3D smooths the facing direction with it before IK.
 pub fn gaussian_filter_nearest(x: &[Vec3], sigma: f64) -> Vec<Vec3> {
     let radius = (4.0 * sigma + 0.5) as i64;
-    let mut w: Vec<f64> = (-radius..=radius).map(|k| (-0.5 * (k * k) as f64 / (sigma * sigma)).exp()).collect();
+    let mut w: Vec<f64> =
+        (-radius..=radius).map(|k| (-0.5 * (k * k) as f64 / (sigma * sigma)).exp()).collect();
     let s: f64 = w.iter().sum();
     w.iter_mut().for_each(|v| *v /= s);
     let n = x.len() as i64;
@@ -161,7 +162,11 @@ pub(crate) fn facing(skel: &Skeleton, joints: &Joints, how: Facing) -> Vec<Vec3>
 /// Local joint rotations (quaternions) by inverse kinematics on the raw offset directions
 /// (HumanML3D `Skeleton.inverse_kinematics_np`). Frame 0's root rotation is set to identity, as
 /// the reference does (inputs are already turned to face +Z at frame 0).
-pub fn inverse_kinematics(skel: &Skeleton, joints: &Joints, smooth_forward: bool) -> Vec<Vec<Quat>> {
+pub fn inverse_kinematics(
+    skel: &Skeleton,
+    joints: &Joints,
+    smooth_forward: bool,
+) -> Vec<Vec<Quat>> {
     let mut forward = facing(skel, joints, Facing::Reference);
     if smooth_forward {
         forward = gaussian_filter_nearest(&forward, 20.0);
@@ -193,7 +198,12 @@ pub fn inverse_kinematics(skel: &Skeleton, joints: &Joints, smooth_forward: bool
 
 /// Joint positions from local rotations, a root path and bone vectors
 /// (HumanML3D `forward_kinematics_np` with the root rotation applied).
-pub fn forward_kinematics(skel: &Skeleton, rotations: &[Vec<Quat>], root: &[Vec3], offsets: &[Vec3]) -> Joints {
+pub fn forward_kinematics(
+    skel: &Skeleton,
+    rotations: &[Vec<Quat>],
+    root: &[Vec3],
+    offsets: &[Vec3],
+) -> Joints {
     rotations
         .iter()
         .zip(root)
@@ -230,9 +240,16 @@ pub fn bone_offsets(skel: &Skeleton, pose: &[Vec3]) -> Vec<Vec3> {
 /// Retarget a motion to the skeleton's target bone lengths, scaling the root path by the ratio
 /// of lower-leg lengths (HumanML3D `uniform_skeleton`).
 pub fn uniform_skeleton(skel: &Skeleton, joints: &Joints) -> Result<Joints, DataError> {
-    let tgt = skel.target_offsets().ok_or_else(|| DataError::Invalid(format!("skeleton '{}' has no target bone lengths to retarget to", skel.name)))?;
+    let tgt = skel.target_offsets().ok_or_else(|| {
+        DataError::Invalid(format!(
+            "skeleton '{}' has no target bone lengths to retarget to",
+            skel.name
+        ))
+    })?;
     let src = bone_offsets(skel, &joints[0]);
-    let leg = |o: &[Vec3]| -> f64 { skel.leg_bones.iter().map(|&b| o[b].iter().fold(0.0f64, |m, v| m.max(v.abs()))).sum() };
+    let leg = |o: &[Vec3]| -> f64 {
+        skel.leg_bones.iter().map(|&b| o[b].iter().fold(0.0f64, |m, v| m.max(v.abs()))).sum()
+    };
     let scale = leg(&tgt) / leg(&src);
     let root: Vec<Vec3> = joints.iter().map(|f| quat::scale(f[0], scale)).collect();
     let rotations = inverse_kinematics(skel, joints, false);
@@ -240,7 +257,11 @@ pub fn uniform_skeleton(skel: &Skeleton, joints: &Joints) -> Result<Joints, Data
 }
 
 /// HumanML3D `process_file`: joint positions (T frames) to features (T-1 frames), f32 row-major.
-pub fn features_from_joints(skel: &Skeleton, joints: &Joints, feet_threshold: f64) -> Result<Vec<f32>, DataError> {
+pub fn features_from_joints(
+    skel: &Skeleton,
+    joints: &Joints,
+    feet_threshold: f64,
+) -> Result<Vec<f32>, DataError> {
     validate_joints(skel, joints)?;
     let mut pos = uniform_skeleton(skel, joints)?;
     let t = pos.len();
@@ -290,7 +311,8 @@ pub fn features_from_joints(skel: &Skeleton, joints: &Joints, feet_threshold: f6
         // RIC: root-relative in xz, turned by the frame's own root rotation.
         for j in 1..jn {
             let p = global[f][j];
-            let local = quat::qrot(r_rot[f], [p[0] - global[f][0][0], p[1], p[2] - global[f][0][2]]);
+            let local =
+                quat::qrot(r_rot[f], [p[0] - global[f][0][0], p[1], p[2] - global[f][0][2]]);
             for k in 0..3 {
                 row[layout.ric().start + (j - 1) * 3 + k] = local[k] as f32;
             }
@@ -312,7 +334,11 @@ pub fn features_from_joints(skel: &Skeleton, joints: &Joints, feet_threshold: f6
         row[c + 3] = contact(f, skel.feet_right[1]) as f32;
     }
     if let Some(k) = out.iter().position(|v| !v.is_finite()) {
-        return Err(DataError::Invalid(format!("frame {}: feature {} is not finite (a degenerate pose)", k / dim, k % dim)));
+        return Err(DataError::Invalid(format!(
+            "frame {}: feature {} is not finite (a degenerate pose)",
+            k / dim,
+            k % dim
+        )));
     }
     Ok(out)
 }
@@ -320,10 +346,17 @@ pub fn features_from_joints(skel: &Skeleton, joints: &Joints, feet_threshold: f6
 /// Reject sequences `features_from_joints` cannot process, with a reason.
 pub fn validate_joints(skel: &Skeleton, joints: &Joints) -> Result<(), DataError> {
     if joints.len() < 2 {
-        return Err(DataError::Invalid(format!("motion has {} frame(s); at least 2 are needed to compute velocities", joints.len())));
+        return Err(DataError::Invalid(format!(
+            "motion has {} frame(s); at least 2 are needed to compute velocities",
+            joints.len()
+        )));
     }
     if let Some(f) = joints.iter().position(|f| f.len() != skel.num_joints()) {
-        return Err(DataError::Invalid(format!("frame {f} has {} joints, expected {}", joints[f].len(), skel.num_joints())));
+        return Err(DataError::Invalid(format!(
+            "frame {f} has {} joints, expected {}",
+            joints[f].len(),
+            skel.num_joints()
+        )));
     }
     if let Some(f) = joints.iter().position(|f| f.iter().flatten().any(|v| !v.is_finite())) {
         return Err(DataError::Invalid(format!("frame {f} contains NaN or infinite values")));
@@ -334,12 +367,16 @@ pub fn validate_joints(skel: &Skeleton, joints: &Joints) -> Result<(), DataError
         for chain in skel.kinematic_chain {
             for w in chain.windows(2) {
                 if quat::norm(quat::sub(frame[w[1]], frame[w[0]])) < 1e-6 {
-                    return Err(DataError::Invalid(format!("frame {f}: joints {} and {} coincide (a bone of zero length)", skel.joint_names[w[0]], skel.joint_names[w[1]])));
+                    return Err(DataError::Invalid(format!(
+                        "frame {f}: joints {} and {} coincide (a bone of zero length)",
+                        skel.joint_names[w[0]], skel.joint_names[w[1]]
+                    )));
                 }
             }
         }
         let [r_hip, l_hip, r_sho, l_sho] = skel.face_joints;
-        let across = quat::add(quat::sub(frame[r_hip], frame[l_hip]), quat::sub(frame[r_sho], frame[l_sho]));
+        let across =
+            quat::add(quat::sub(frame[r_hip], frame[l_hip]), quat::sub(frame[r_sho], frame[l_sho]));
         if across[0].hypot(across[2]) < 1e-6 {
             return Err(DataError::Invalid(format!("frame {f}: hips and shoulders give no left-right direction on the ground, so the facing is undefined")));
         }
@@ -360,7 +397,11 @@ pub fn resample(joints: &Joints, fps_in: f64, fps_out: f64) -> Joints {
             let x = k as f64 * fps_in / fps_out;
             let i = (x.floor() as usize).min(joints.len() - 2);
             let a = x - i as f64;
-            joints[i].iter().zip(&joints[i + 1]).map(|(p, q)| quat::add(quat::scale(*p, 1.0 - a), quat::scale(*q, a))).collect()
+            joints[i]
+                .iter()
+                .zip(&joints[i + 1])
+                .map(|(p, q)| quat::add(quat::scale(*p, 1.0 - a), quat::scale(*q, a)))
+                .collect()
         })
         .collect()
 }

@@ -88,7 +88,17 @@ const T2M_TPOSE: [Vec3; 22] = [
 const T2M_CONVENTIONS: [(&str, &[(usize, &str)]); 3] = [
     ("diffkfc / LaFAN1", &[]),
     ("Mixamo", &[(10, "LeftToeBase"), (11, "RightToeBase")]),
-    ("CMU", &[(3, "LowerBack"), (6, "Spine"), (9, "Spine1"), (10, "LeftToeBase"), (11, "RightToeBase"), (12, "Neck1")]),
+    (
+        "CMU",
+        &[
+            (3, "LowerBack"),
+            (6, "Spine"),
+            (9, "Spine1"),
+            (10, "LeftToeBase"),
+            (11, "RightToeBase"),
+            (12, "Neck1"),
+        ],
+    ),
 ];
 
 /// The 22 names of a convention.
@@ -119,7 +129,10 @@ fn top_eigenvector(mut a: [[f64; 4]; 4]) -> [f64; 4] {
         row[i] = 1.0;
     }
     for _ in 0..50 {
-        let off: f64 = (0..4).flat_map(|i| (0..4).filter(move |&j| j != i).map(move |j| (i, j))).map(|(i, j)| a[i][j] * a[i][j]).sum();
+        let off: f64 = (0..4)
+            .flat_map(|i| (0..4).filter(move |&j| j != i).map(move |j| (i, j)))
+            .map(|(i, j)| a[i][j] * a[i][j])
+            .sum();
         if off < 1e-30 {
             break;
         }
@@ -163,7 +176,12 @@ pub fn best_rotation(from: &[Vec3], to: &[Vec3]) -> Quat {
         }
     }
     let [[xx, xy, xz], [yx, yy, yz], [zx, zy, zz]] = s;
-    let n = [[xx + yy + zz, yz - zy, zx - xz, xy - yx], [yz - zy, xx - yy - zz, xy + yx, zx + xz], [zx - xz, xy + yx, -xx + yy - zz, yz + zy], [xy - yx, zx + xz, yz + zy, -xx - yy + zz]];
+    let n = [
+        [xx + yy + zz, yz - zy, zx - xz, xy - yx],
+        [yz - zy, xx - yy - zz, xy + yx, zx + xz],
+        [zx - xz, xy + yx, -xx + yy - zz, yz + zy],
+        [xy - yx, zx + xz, yz + zy, -xx - yy + zz],
+    ];
     quat::qnormalize(top_eigenvector(n))
 }
 
@@ -176,7 +194,9 @@ fn rest_offsets(skel: &Skeleton, rig: &Rig, joints: &Joints) -> Vec<Vec3> {
         .map(|c| match parents[c] {
             p if p < 0 => [0.0; 3],
             p => {
-                let len = joints.iter().map(|f| quat::norm(quat::sub(f[c], f[p as usize]))).sum::<f64>() / t;
+                let len =
+                    joints.iter().map(|f| quat::norm(quat::sub(f[c], f[p as usize]))).sum::<f64>()
+                        / t;
                 quat::scale(quat::normalize(rig.tpose[c]), len)
             }
         })
@@ -209,7 +229,12 @@ fn rest_offsets(skel: &Skeleton, rig: &Rig, joints: &Joints) -> Vec<Vec3> {
 }
 
 /// Global rotation of every joint of one frame, given the rest offsets.
-fn global_rotations(parents: &[i64], kids: &[Vec<usize>], rest: &[Vec3], pose: &[Vec3]) -> Vec<Quat> {
+fn global_rotations(
+    parents: &[i64],
+    kids: &[Vec<usize>],
+    rest: &[Vec3],
+    pose: &[Vec3],
+) -> Vec<Quat> {
     let mut g = vec![quat::IDENTITY; pose.len()];
     for j in topological(parents) {
         let base = if parents[j] < 0 { quat::IDENTITY } else { g[parents[j] as usize] };
@@ -275,12 +300,26 @@ pub fn export(skel: &Skeleton, joints: &Joints) -> Bvh {
         .iter()
         .map(|&j| {
             let root = parents[j] < 0;
-            let channels = if root { [vec![Channel::Position(0), Channel::Position(1), Channel::Position(2)], rot.clone()].concat() } else { rot.clone() };
+            let channels = if root {
+                [
+                    vec![Channel::Position(0), Channel::Position(1), Channel::Position(2)],
+                    rot.clone(),
+                ]
+                .concat()
+            } else {
+                rot.clone()
+            };
             let end_site = kids[j].is_empty().then(|| {
                 let len = (0.5 * quat::norm(rest[j])).max(0.03 / skel.metres_per_unit);
                 quat::scale(quat::normalize(rig.tpose[j]), len * k)
             });
-            BvhJoint { name: rig.names[j].to_string(), parent: (!root).then(|| slot[parents[j] as usize]), offset: quat::scale(rest[j], k), channels, end_site }
+            BvhJoint {
+                name: rig.names[j].to_string(),
+                parent: (!root).then(|| slot[parents[j] as usize]),
+                offset: quat::scale(rest[j], k),
+                channels,
+                end_site,
+            }
         })
         .collect();
     let mut prev: Vec<Option<[f64; 3]>> = vec![None; skel.num_joints()];
@@ -316,7 +355,11 @@ pub fn read(skel: &Skeleton, text: &str, opts: &ImportOptions) -> Result<Joints,
 
 /// The joints a BVH of [`export`] places, in the skeleton's order and units.
 pub fn exported_positions(skel: &Skeleton, b: &Bvh) -> Result<Joints, DataError> {
-    import(skel, b, &ImportOptions { metres_per_unit: Some(1.0 / CM), up: Some(Up::Y), ..Default::default() })
+    import(
+        skel,
+        b,
+        &ImportOptions { metres_per_unit: Some(1.0 / CM), up: Some(Up::Y), ..Default::default() },
+    )
 }
 
 /// Mean and largest distance (metres) between a motion and its BVH export's joints.
@@ -324,7 +367,12 @@ pub fn export_error(skel: &Skeleton, joints: &Joints, b: &Bvh) -> (f64, f64) {
     let Ok(back) = exported_positions(skel, b) else {
         return (f64::NAN, f64::NAN);
     };
-    let d: Vec<f64> = back.iter().flatten().zip(joints.iter().flatten()).map(|(a, b)| quat::norm(quat::sub(*a, *b))).collect();
+    let d: Vec<f64> = back
+        .iter()
+        .flatten()
+        .zip(joints.iter().flatten())
+        .map(|(a, b)| quat::norm(quat::sub(*a, *b)))
+        .collect();
     let m = skel.metres_per_unit;
     (m * d.iter().sum::<f64>() / d.len().max(1) as f64, m * d.iter().copied().fold(0.0, f64::max))
 }
@@ -386,26 +434,57 @@ fn bare(name: &str) -> String {
 /// Index in the file of each skeleton joint.
 fn map_joints(skel: &Skeleton, b: &Bvh, map: &[(String, String)]) -> Result<Vec<usize>, DataError> {
     let rig = rig(skel);
-    let find = |name: &str| b.joints.iter().position(|j| j.name == name).or_else(|| b.joints.iter().position(|j| bare(&j.name) == bare(name)));
+    let find = |name: &str| {
+        b.joints
+            .iter()
+            .position(|j| j.name == name)
+            .or_else(|| b.joints.iter().position(|j| bare(&j.name) == bare(name)))
+    };
     let mut fixed = vec![None; skel.num_joints()];
     for (ours, theirs) in map {
         let j = skel
             .joint_index(ours)
             .or_else(|| rig.names.iter().position(|n| n.eq_ignore_ascii_case(ours)))
-            .ok_or_else(|| DataError::Invalid(format!("rig map: '{ours}' is not a joint of the {} skeleton (joints: {})", skel.name, rig.names.join(", "))))?;
-        fixed[j] = Some(find(theirs).ok_or_else(|| DataError::Invalid(format!("rig map: '{ours}' maps to '{theirs}', which the BVH does not have")))?);
+            .ok_or_else(|| {
+                DataError::Invalid(format!(
+                    "rig map: '{ours}' is not a joint of the {} skeleton (joints: {})",
+                    skel.name,
+                    rig.names.join(", ")
+                ))
+            })?;
+        fixed[j] = Some(find(theirs).ok_or_else(|| {
+            DataError::Invalid(format!(
+                "rig map: '{ours}' maps to '{theirs}', which the BVH does not have"
+            ))
+        })?);
     }
-    let mut conventions: Vec<(&str, Vec<&str>)> = vec![("diffkfc", rig.names.clone()), ("snake_case", skel.joint_names.to_vec())];
+    let mut conventions: Vec<(&str, Vec<&str>)> =
+        vec![("diffkfc", rig.names.clone()), ("snake_case", skel.joint_names.to_vec())];
     if skel.name == "t2m" {
-        conventions.extend(T2M_CONVENTIONS.iter().map(|(n, changes)| (*n, convention_names(changes))));
+        conventions
+            .extend(T2M_CONVENTIONS.iter().map(|(n, changes)| (*n, convention_names(changes))));
     }
-    let resolved: Vec<(&str, Vec<Option<usize>>)> = conventions.iter().map(|(n, names)| (*n, names.iter().zip(&fixed).map(|(name, f)| f.or_else(|| find(name))).collect())).collect();
-    let best = resolved.iter().max_by_key(|(_, r)| r.iter().filter(|x| x.is_some()).count()).expect("conventions");
+    let resolved: Vec<(&str, Vec<Option<usize>>)> = conventions
+        .iter()
+        .map(|(n, names)| {
+            (*n, names.iter().zip(&fixed).map(|(name, f)| f.or_else(|| find(name))).collect())
+        })
+        .collect();
+    let best = resolved
+        .iter()
+        .max_by_key(|(_, r)| r.iter().filter(|x| x.is_some()).count())
+        .expect("conventions");
     if best.1.iter().all(Option::is_some) {
         return Ok(best.1.iter().map(|x| x.unwrap_or(0)).collect());
     }
     let names = &conventions.iter().find(|(n, _)| *n == best.0).expect("convention").1;
-    let missing: Vec<String> = best.1.iter().enumerate().filter(|(_, x)| x.is_none()).map(|(j, _)| format!("{} ({})", skel.joint_names[j], names[j])).collect();
+    let missing: Vec<String> = best
+        .1
+        .iter()
+        .enumerate()
+        .filter(|(_, x)| x.is_none())
+        .map(|(j, _)| format!("{} ({})", skel.joint_names[j], names[j]))
+        .collect();
     Err(DataError::Invalid(format!(
         "BVH: no joint for {} of the {} skeleton (closest naming: {}); map them with --rig-map (JSON {{\"{}\": \"<joint in the file>\", ...}})",
         missing.join(", "),
@@ -448,13 +527,21 @@ fn leg_length(skel: &Skeleton, joints: &Joints) -> f64 {
         }
         chain.push(p as usize);
     }
-    joints.iter().map(|f| chain.windows(2).map(|w| quat::norm(quat::sub(f[w[0]], f[w[1]]))).sum::<f64>()).sum::<f64>() / joints.len() as f64
+    joints
+        .iter()
+        .map(|f| chain.windows(2).map(|w| quat::norm(quat::sub(f[w[0]], f[w[1]]))).sum::<f64>())
+        .sum::<f64>()
+        / joints.len() as f64
 }
 
 /// Metres per unit: the candidate unit giving a leg (hip to ankle) nearest 0.8 m.
 fn detect_units(skel: &Skeleton, joints: &Joints) -> f64 {
     let leg = leg_length(skel, joints).max(1e-12);
-    UNITS.iter().map(|u| u.1).min_by(|a, b| (leg * a / 0.8).ln().abs().total_cmp(&(leg * b / 0.8).ln().abs())).unwrap_or(1.0)
+    UNITS
+        .iter()
+        .map(|u| u.1)
+        .min_by(|a, b| (leg * a / 0.8).ln().abs().total_cmp(&(leg * b / 0.8).ln().abs()))
+        .unwrap_or(1.0)
 }
 
 /// Up axis: the axis (with sign) along which the head sits furthest above the ankles.

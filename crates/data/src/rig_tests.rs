@@ -9,7 +9,11 @@ fn real_walk() -> Option<Joints> {
 
 fn max_err(a: &Joints, b: &Joints) -> f64 {
     assert_eq!(a.len(), b.len());
-    a.iter().flatten().zip(b.iter().flatten()).map(|(x, y)| quat::norm(quat::sub(*x, *y))).fold(0.0, f64::max)
+    a.iter()
+        .flatten()
+        .zip(b.iter().flatten())
+        .map(|(x, y)| quat::norm(quat::sub(*x, *y)))
+        .fold(0.0, f64::max)
 }
 
 #[test]
@@ -99,7 +103,8 @@ fn common_rigs_units_axes_and_rates_import() {
         let mut b = base.clone();
         for bj in &mut b.joints {
             let k = T2M_NAMES.iter().position(|n| *n == bj.name).unwrap();
-            bj.name = if ci == 1 { format!("mixamorig:{}", names[k]) } else { names[k].to_string() };
+            bj.name =
+                if ci == 1 { format!("mixamorig:{}", names[k]) } else { names[k].to_string() };
         }
         let back = import(&T2M, &b, &ImportOptions::default()).unwrap();
         assert!(max_err(&back, &j) < 1e-5, "convention {ci}");
@@ -107,7 +112,8 @@ fn common_rigs_units_axes_and_rates_import() {
     // Old diffkfc files used snake_case names.
     let mut b = base.clone();
     for bj in &mut b.joints {
-        bj.name = T2M.joint_names[T2M_NAMES.iter().position(|n| *n == bj.name).unwrap()].to_string();
+        bj.name =
+            T2M.joint_names[T2M_NAMES.iter().position(|n| *n == bj.name).unwrap()].to_string();
     }
     assert!(max_err(&import(&T2M, &b, &ImportOptions::default()).unwrap(), &j) < 1e-5);
 
@@ -149,6 +155,8 @@ fn unmapped_joints_are_named_and_a_rig_map_resolves_them() {
     let back = import(&T2M, &b, &ImportOptions { rig_map: map, ..Default::default() }).unwrap();
     assert!(max_err(&back, &j) < 1e-5);
     let bad = vec![("LeftHand".to_string(), "nope".to_string())];
-    let e = import(&T2M, &b, &ImportOptions { rig_map: bad, ..Default::default() }).unwrap_err().to_string();
+    let e = import(&T2M, &b, &ImportOptions { rig_map: bad, ..Default::default() })
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("'nope'"), "{e}");
 }

@@ -74,7 +74,11 @@ impl Skeleton {
                 out.push(j);
             } else {
                 let parts: Vec<_> = self.parts.iter().map(|p| p.name).collect();
-                return Err(format!("unknown joint or body part '{item}' (body parts: {}; joints: {})", parts.join(", "), self.joint_names.join(", ")));
+                return Err(format!(
+                    "unknown joint or body part '{item}' (body parts: {}; joints: {})",
+                    parts.join(", "),
+                    self.joint_names.join(", ")
+                ));
             }
         }
         out.sort_unstable();
@@ -85,7 +89,9 @@ impl Skeleton {
     /// Target bone vectors: raw offset direction times target length.
     pub fn target_offsets(&self) -> Option<Vec<Vec3>> {
         let lengths = self.target_lengths?;
-        Some(self.raw_offsets.iter().zip(lengths).map(|(d, &l)| crate::quat::scale(*d, l)).collect())
+        Some(
+            self.raw_offsets.iter().zip(lengths).map(|(d, &l)| crate::quat::scale(*d, l)).collect(),
+        )
     }
 
     /// Look a skeleton up by name (`t2m`/`humanml3d` or `kit`).
@@ -152,7 +158,13 @@ pub static T2M: Skeleton = Skeleton {
         "l_wrist",
         "r_wrist",
     ],
-    kinematic_chain: &[&[0, 2, 5, 8, 11], &[0, 1, 4, 7, 10], &[0, 3, 6, 9, 12, 15], &[9, 14, 17, 19, 21], &[9, 13, 16, 18, 20]],
+    kinematic_chain: &[
+        &[0, 2, 5, 8, 11],
+        &[0, 1, 4, 7, 10],
+        &[0, 3, 6, 9, 12, 15],
+        &[9, 14, 17, 19, 21],
+        &[9, 13, 16, 18, 20],
+    ],
     raw_offsets: &[
         [0.0, 0.0, 0.0],
         [1.0, 0.0, 0.0],
@@ -225,7 +237,13 @@ pub static KIT: Skeleton = Skeleton {
         "r_toe_base",
         "r_toe",
     ],
-    kinematic_chain: &[&[0, 11, 12, 13, 14, 15], &[0, 16, 17, 18, 19, 20], &[0, 1, 2, 3, 4], &[3, 5, 6, 7], &[3, 8, 9, 10]],
+    kinematic_chain: &[
+        &[0, 11, 12, 13, 14, 15],
+        &[0, 16, 17, 18, 19, 20],
+        &[0, 1, 2, 3, 4],
+        &[3, 5, 6, 7],
+        &[3, 8, 9, 10],
+    ],
     raw_offsets: &[
         [0.0, 0.0, 0.0],
         [0.0, 1.0, 0.0],

@@ -28,7 +28,10 @@ impl Caption {
 pub fn parse_line(line: &str) -> Result<Caption, String> {
     let parts: Vec<&str> = line.split('#').collect();
     if parts.len() != 4 {
-        return Err(format!("expected 4 '#'-separated fields (caption#tokens#start#end), found {}", parts.len()));
+        return Err(format!(
+            "expected 4 '#'-separated fields (caption#tokens#start#end), found {}",
+            parts.len()
+        ));
     }
     let text = parts[0].trim();
     if text.is_empty() {

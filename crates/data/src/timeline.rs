@@ -32,7 +32,12 @@ pub struct Window {
 
 fn seconds(s: &str, what: &str, seg: &str) -> Result<f64, DataError> {
     let t = s.trim().trim_end_matches('s').trim();
-    t.parse::<f64>().ok().filter(|v| v.is_finite() && *v >= 0.0).ok_or_else(|| DataError::Invalid(format!("timeline segment '{seg}': {what} '{}' is not a time in seconds (e.g. 4 or 6.5s)", s.trim())))
+    t.parse::<f64>().ok().filter(|v| v.is_finite() && *v >= 0.0).ok_or_else(|| {
+        DataError::Invalid(format!(
+            "timeline segment '{seg}': {what} '{}' is not a time in seconds (e.g. 4 or 6.5s)",
+            s.trim()
+        ))
+    })
 }
 
 /// Segments of a timeline: `START-END[s]: text` items separated by `|` or new lines (blank lines
@@ -42,9 +47,13 @@ pub fn parse(spec: &str, fps: f64) -> Result<Vec<Segment>, DataError> {
     let bad = |m: String| DataError::Invalid(m);
     let mut out: Vec<Segment> = Vec::new();
     let mut prev_end_s = 0.0f64;
-    for item in spec.split(['|', '\n']).map(str::trim).filter(|l| !l.is_empty() && !l.starts_with("//")) {
+    for item in
+        spec.split(['|', '\n']).map(str::trim).filter(|l| !l.is_empty() && !l.starts_with("//"))
+    {
         let (range, text) = item.split_once(':').ok_or_else(|| bad(format!("timeline segment '{item}': expected 'START-END: text', e.g. '0-4s: a person walks forward'")))?;
-        let (a, b) = range.split_once('-').ok_or_else(|| bad(format!("timeline segment '{item}': expected a time range START-END before ':'")))?;
+        let (a, b) = range.split_once('-').ok_or_else(|| {
+            bad(format!("timeline segment '{item}': expected a time range START-END before ':'"))
+        })?;
         let (a, b) = (seconds(a, "start", item)?, seconds(b, "end", item)?);
         let text = text.trim();
         if text.is_empty() {
@@ -54,7 +63,9 @@ pub fn parse(spec: &str, fps: f64) -> Result<Vec<Segment>, DataError> {
             return Err(bad(format!("timeline segment '{item}': lasts {:.2} s; segments last at least {MIN_SEGMENT_S} s", b - a)));
         }
         if out.is_empty() && a.abs() > 1e-9 {
-            return Err(bad(format!("timeline segment '{item}': the first segment must start at 0 s, not {a} s")));
+            return Err(bad(format!(
+                "timeline segment '{item}': the first segment must start at 0 s, not {a} s"
+            )));
         }
         if !out.is_empty() && (a - prev_end_s).abs() > 1e-9 {
             let what = if a > prev_end_s { "a gap" } else { "an overlap" };
@@ -128,7 +139,11 @@ mod tests {
         let mut covered = 0;
         for (i, x) in w.iter().enumerate() {
             assert!(x.end - x.start <= 196);
-            assert_eq!(x.start + x.keyed, covered, "window {i} starts its new frames where the last one ended");
+            assert_eq!(
+                x.start + x.keyed,
+                covered,
+                "window {i} starts its new frames where the last one ended"
+            );
             assert!(x.end <= s[x.segment].end && x.start + x.keyed >= s[x.segment].start);
             if i > 0 {
                 assert_eq!(x.keyed, 20);

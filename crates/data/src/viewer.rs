@@ -37,8 +37,16 @@ fn flat(frames: &[Vec<[f64; 3]>]) -> Vec<f64> {
 
 /// A whole HTML page: `title`, an HTML `intro` (already escaped), the view and a card per motion;
 /// `segments` (start frame, text) of a timeline are marked on the timeline and named in the view.
-pub fn page(skel: &Skeleton, title: &str, intro: &str, motions: &[ViewMotion], segments: &[(usize, String)]) -> String {
-    let side = |p: &str| -> Vec<usize> { (0..skel.num_joints()).filter(|&j| skel.joint_names[j].starts_with(p)).collect() };
+pub fn page(
+    skel: &Skeleton,
+    title: &str,
+    intro: &str,
+    motions: &[ViewMotion],
+    segments: &[(usize, String)],
+) -> String {
+    let side = |p: &str| -> Vec<usize> {
+        (0..skel.num_joints()).filter(|&j| skel.joint_names[j].starts_with(p)).collect()
+    };
     let head = skel.joint_names.iter().position(|n| *n == "head").unwrap_or(skel.num_joints() - 1);
     let data = json!({
         "fps": skel.fps,
@@ -59,8 +67,17 @@ pub fn page(skel: &Skeleton, title: &str, intro: &str, motions: &[ViewMotion], s
     let cards: String = motions
         .iter()
         .map(|m| {
-            let links: Vec<String> = m.links.iter().map(|(t, href)| format!("<a href=\"{}\">{}</a>", escape(href), escape(t))).collect();
-            format!("<div class=card><b>{}</b><br>{}<br>{}</div>", escape(&m.label), escape(&m.numbers), links.join(" &middot; "))
+            let links: Vec<String> = m
+                .links
+                .iter()
+                .map(|(t, href)| format!("<a href=\"{}\">{}</a>", escape(href), escape(t)))
+                .collect();
+            format!(
+                "<div class=card><b>{}</b><br>{}<br>{}</div>",
+                escape(&m.label),
+                escape(&m.numbers),
+                links.join(" &middot; ")
+            )
         })
         .collect();
     format!(
@@ -105,10 +122,26 @@ mod tests {
     #[test]
     fn page_embeds_the_motion_and_escapes_text() {
         let pose = vec![[0.1234567, 0.9, -0.5]; 22];
-        let m = ViewMotion { label: "</script><b>x".into(), joints: vec![pose.clone(), pose], keyframes: vec![1], ..Default::default() };
+        let m = ViewMotion {
+            label: "</script><b>x".into(),
+            joints: vec![pose.clone(), pose],
+            keyframes: vec![1],
+            ..Default::default()
+        };
         let html = page(&T2M, "a <walk>", "", &[m], &[(0, "</script>".into())]);
-        assert!(!html.contains("</script><b>") && html.contains("&lt;/script&gt;&lt;b&gt;x") && html.contains("<h1>a &lt;walk&gt;</h1>"));
-        let data = html.split("id=\"motion-data\">").nth(1).unwrap().split("</script>").next().unwrap().replace("<\\/", "</");
+        assert!(
+            !html.contains("</script><b>")
+                && html.contains("&lt;/script&gt;&lt;b&gt;x")
+                && html.contains("<h1>a &lt;walk&gt;</h1>")
+        );
+        let data = html
+            .split("id=\"motion-data\">")
+            .nth(1)
+            .unwrap()
+            .split("</script>")
+            .next()
+            .unwrap()
+            .replace("<\\/", "</");
         let v: serde_json::Value = serde_json::from_str(&data).unwrap();
         assert_eq!(v["motions"][0]["frames"], 2);
         assert_eq!(v["motions"][0]["joints"].as_array().unwrap().len(), 2 * 22 * 3);

@@ -47,7 +47,11 @@ impl RootKey {
 
     /// Inverse of `channels` (a channel pair counts as observed when its mask is set).
     pub fn from_channels(v: &[f32], m: &[f32]) -> RootKey {
-        RootKey { place: (m[0] > 0.0).then(|| [v[0] as f64 * ROOT_POS_SCALE, v[1] as f64 * ROOT_POS_SCALE]), heading: (m[2] > 0.0).then(|| (v[2] as f64).atan2(v[3] as f64)) }
+        RootKey {
+            place: (m[0] > 0.0)
+                .then(|| [v[0] as f64 * ROOT_POS_SCALE, v[1] as f64 * ROOT_POS_SCALE]),
+            heading: (m[2] > 0.0).then(|| (v[2] as f64).atan2(v[3] as f64)),
+        }
     }
 }
 
@@ -107,7 +111,11 @@ fn displacement(len: usize, anchors: &[(usize, f64)], ends: Ends) -> Vec<f64> {
         if f < first.0 {
             if let Ends::Fade(w) = ends {
                 let dist = first.0 - f;
-                *v = if dist < w { first.1 * (1.0 - smoothstep(dist as f64 / w as f64)) } else { 0.0 };
+                *v = if dist < w {
+                    first.1 * (1.0 - smoothstep(dist as f64 / w as f64))
+                } else {
+                    0.0
+                };
             }
         } else if f >= last.0 {
             *v = match ends {
@@ -183,16 +191,27 @@ pub struct Targets<'a> {
 /// Warp de-normalised features `feats` [T, D] so that every observed keyframe value, place and
 /// heading is met exactly; `falloff` frames is how far a pose correction reaches past a key
 /// when the next key is further away. Returns the correction made at each keyed frame.
-pub fn warp(layout: &Layout, feats: &mut [f32], targets: &Targets, falloff: usize) -> Vec<Correction> {
+pub fn warp(
+    layout: &Layout,
+    feats: &mut [f32],
+    targets: &Targets,
+    falloff: usize,
+) -> Vec<Correction> {
     let d = layout.dim();
     let len = feats.len() / d;
     let keyed = |f: usize| targets.mask[f * d..(f + 1) * d].iter().any(|&m| m > 0.0);
-    let mut corr: Vec<Correction> = (0..len).filter(|&f| keyed(f) || targets.root[f] != RootKey::default()).map(|frame| Correction { frame, ..Default::default() }).collect();
+    let mut corr: Vec<Correction> = (0..len)
+        .filter(|&f| keyed(f) || targets.root[f] != RootKey::default())
+        .map(|frame| Correction { frame, ..Default::default() })
+        .collect();
     let slot = |corr: &mut Vec<Correction>, f: usize| corr.iter().position(|c| c.frame == f);
     // Pose: every observed channel except the root's velocities (rewritten below from the
     // trajectory) and the foot contacts (labels, not values to blend).
     for c in 3..layout.contacts().start {
-        let anchors: Vec<(usize, f64)> = (0..len).filter(|&f| targets.mask[f * d + c] > 0.0).map(|f| (f, (targets.features[f * d + c] - feats[f * d + c]) as f64)).collect();
+        let anchors: Vec<(usize, f64)> = (0..len)
+            .filter(|&f| targets.mask[f * d + c] > 0.0)
+            .map(|f| (f, (targets.features[f * d + c] - feats[f * d + c]) as f64))
+            .collect();
         if anchors.is_empty() {
             continue;
         }
@@ -216,17 +235,25 @@ fn warp_root(feats: &mut [f32], d: usize, keys: &[RootKey], corr: &mut [Correcti
         return;
     }
     // Heading first: channel 0 is the per-frame change of the yaw angle a (heading = -2a).
-    let heading_of = |t: &[RootKey], f: usize| t[f].heading.expect("a trajectory has every heading");
+    let heading_of =
+        |t: &[RootKey], f: usize| t[f].heading.expect("a trajectory has every heading");
     let traj = root_trajectory(feats, d);
-    let heading_anchors: Vec<(usize, f64)> = (0..len).filter_map(|f| keys[f].heading.map(|h| (f, wrap(h - heading_of(&traj, f))))).collect();
+    let heading_anchors: Vec<(usize, f64)> = (0..len)
+        .filter_map(|f| keys[f].heading.map(|h| (f, wrap(h - heading_of(&traj, f)))))
+        .collect();
     let dh = displacement(len, &heading_anchors, Ends::Hold);
     for f in 0..len - 1 {
         feats[f * d] -= ((dh[f + 1] - dh[f]) / 2.0) as f32;
     }
     // The path the new headings give with the model's own facing-frame steps, then displaced.
     let traj = root_trajectory(feats, d);
-    let mut pos: Vec<Vec3> = traj.iter().map(|k| k.place.map(|[x, z]| [x, 0.0, z]).expect("a trajectory has every place")).collect();
-    let place_anchors: Vec<(usize, [f64; 2])> = (0..len).filter_map(|f| keys[f].place.map(|[x, z]| (f, [x - pos[f][0], z - pos[f][2]]))).collect();
+    let mut pos: Vec<Vec3> = traj
+        .iter()
+        .map(|k| k.place.map(|[x, z]| [x, 0.0, z]).expect("a trajectory has every place"))
+        .collect();
+    let place_anchors: Vec<(usize, [f64; 2])> = (0..len)
+        .filter_map(|f| keys[f].place.map(|[x, z]| (f, [x - pos[f][0], z - pos[f][2]])))
+        .collect();
     for axis in 0..2 {
         let anchors: Vec<(usize, f64)> = place_anchors.iter().map(|(f, r)| (*f, r[axis])).collect();
         for (p, v) in pos.iter_mut().zip(displacement(len, &anchors, Ends::Hold)) {
@@ -281,9 +308,12 @@ mod tests {
     fn zero_residual_is_the_identity() {
         let x = motion(80, 1);
         let mut y = x.clone();
-        let mask: Vec<f32> = (0..80 * D).map(|k| if [10, 40].contains(&(k / D)) { 1.0 } else { 0.0 }).collect();
+        let mask: Vec<f32> =
+            (0..80 * D).map(|k| if [10, 40].contains(&(k / D)) { 1.0 } else { 0.0 }).collect();
         let traj = root_trajectory(&x, D);
-        let root: Vec<RootKey> = (0..80).map(|f| if f == 40 || f == 70 { traj[f] } else { RootKey::default() }).collect();
+        let root: Vec<RootKey> = (0..80)
+            .map(|f| if f == 40 || f == 70 { traj[f] } else { RootKey::default() })
+            .collect();
         warp(&layout(), &mut y, &Targets { features: &x, mask: &mask, root: &root }, 20);
         let worst = x.iter().zip(&y).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
         assert!(worst < 1e-5, "{worst}");
@@ -295,7 +325,8 @@ mod tests {
         let mut x = motion(len, 2);
         let target = motion(len, 3);
         let keys = [15usize, 30, 90];
-        let mask: Vec<f32> = (0..len * D).map(|k| if keys.contains(&(k / D)) { 1.0 } else { 0.0 }).collect();
+        let mask: Vec<f32> =
+            (0..len * D).map(|k| if keys.contains(&(k / D)) { 1.0 } else { 0.0 }).collect();
         let mut root = vec![RootKey::default(); len];
         root[30] = RootKey { place: Some([1.5, 2.0]), heading: Some(0.7) };
         root[90] = RootKey { place: Some([-0.5, 5.0]), heading: None };
@@ -311,9 +342,14 @@ mod tests {
         // The displacement is smooth: bounded second differences everywhere.
         for c in [3usize, 10, 100, 200] {
             let disp: Vec<f32> = (0..len).map(|f| x[f * D + c] - before[f * D + c]).collect();
-            let worst = (1..len - 1).map(|f| (disp[f + 1] - 2.0 * disp[f] + disp[f - 1]).abs()).fold(0.0, f32::max);
+            let worst = (1..len - 1)
+                .map(|f| (disp[f + 1] - 2.0 * disp[f] + disp[f - 1]).abs())
+                .fold(0.0, f32::max);
             let scale = disp.iter().fold(0.0f32, |m, v| m.max(v.abs()));
-            assert!(worst <= 6.0 * scale / 15.0f32.powi(2) * 1.5 + 1e-6, "channel {c}: {worst} vs {scale}");
+            assert!(
+                worst <= 6.0 * scale / 15.0f32.powi(2) * 1.5 + 1e-6,
+                "channel {c}: {worst} vs {scale}"
+            );
         }
         // The rewritten root velocities integrate to the keyed places and headings.
         let traj = root_trajectory(&x, D);
@@ -339,7 +375,10 @@ mod tests {
         let k = RootKey { place: Some([1.25, -3.0]), heading: Some(-2.0) };
         let (v, m) = k.channels();
         let back = RootKey::from_channels(&v, &m);
-        assert!((back.place.unwrap()[0] - 1.25).abs() < 1e-6 && (back.heading.unwrap() + 2.0).abs() < 1e-6);
+        assert!(
+            (back.place.unwrap()[0] - 1.25).abs() < 1e-6
+                && (back.heading.unwrap() + 2.0).abs() < 1e-6
+        );
         let (v, m) = RootKey { place: None, heading: Some(1.0) }.channels();
         assert_eq!(RootKey::from_channels(&v, &m).place, None);
     }

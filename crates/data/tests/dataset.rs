@@ -9,14 +9,20 @@ use diffkfc_data::keyframes::Strategy;
 use diffkfc_data::{fixtures, npy};
 
 fn write_clip(root: &Path, id: &str, feats: &[f32], dim: usize, captions: &[&str]) {
-    npy::write(root.join("new_joint_vecs").join(format!("{id}.npy")), &[feats.len() / dim, dim], feats).unwrap();
+    npy::write(
+        root.join("new_joint_vecs").join(format!("{id}.npy")),
+        &[feats.len() / dim, dim],
+        feats,
+    )
+    .unwrap();
     std::fs::write(root.join("texts").join(format!("{id}.txt")), captions.join("\n")).unwrap();
 }
 
 /// A dataset from the fixture clip 012314 (170 frames): A whole, B too short, C with a tagged
 /// sub-clip caption, M012314 a mirrored id. Returns (root, clip features).
 fn small_dataset(name: &str) -> Option<(PathBuf, Vec<f32>)> {
-    let clip = npy::read_f32(fixtures::require("humanml3d/new_joint_vecs/012314.npy")?).unwrap().data;
+    let clip =
+        npy::read_f32(fixtures::require("humanml3d/new_joint_vecs/012314.npy")?).unwrap().data;
     let dir = std::env::temp_dir().join(format!("diffkfc-ds-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     for sub in ["new_joint_vecs", "texts"] {
@@ -26,9 +32,24 @@ fn small_dataset(name: &str) -> Option<(PathBuf, Vec<f32>)> {
         std::fs::copy(fixtures::require(&format!("humanml3d/{f}")).unwrap(), dir.join(f)).unwrap();
     }
     let d = 263;
-    write_clip(&dir, "A", &clip, d, &["a person walks.#a/DET person/NOUN walk/VERB#0.0#0.0", "someone strolls.#someone/PRON stroll/VERB#0.0#0.0"]);
+    write_clip(
+        &dir,
+        "A",
+        &clip,
+        d,
+        &[
+            "a person walks.#a/DET person/NOUN walk/VERB#0.0#0.0",
+            "someone strolls.#someone/PRON stroll/VERB#0.0#0.0",
+        ],
+    );
     write_clip(&dir, "B", &clip[..30 * d], d, &["too short.#too/ADV short/ADJ#0.0#0.0"]);
-    write_clip(&dir, "C", &clip[..100 * d], d, &["whole c.#whole/ADJ c/NOUN#0.0#0.0", "part of c.#part/NOUN of/ADP c/NOUN#1.0#4.0"]);
+    write_clip(
+        &dir,
+        "C",
+        &clip[..100 * d],
+        d,
+        &["whole c.#whole/ADJ c/NOUN#0.0#0.0", "part of c.#part/NOUN of/ADP c/NOUN#1.0#4.0"],
+    );
     write_clip(&dir, "M012314", &clip, d, &["a person walks.#a/DET person/NOUN walk/VERB#0.0#0.0"]);
     std::fs::write(dir.join("train.txt"), "A\nB\nC\nM012314\n").unwrap();
     std::fs::write(dir.join("val.txt"), "C\n").unwrap();
@@ -46,8 +67,17 @@ fn items_follow_mdm_rules_and_cache_maps_the_features() {
     let cache = root.join(".cache");
     let split = PackedSplit::open(&ds, "train", &cache, |_, _| {}).unwrap();
     assert!(split.built);
-    let items: Vec<(String, usize, usize, usize)> = split.items.iter().map(|i| (i.clip.clone(), i.start, i.len, i.captions.len())).collect();
-    assert_eq!(items, vec![("A".into(), 0, 170, 2), ("C".into(), 0, 100, 1), ("C".into(), 20, 60, 1), ("M012314".into(), 0, 170, 1)]);
+    let items: Vec<(String, usize, usize, usize)> =
+        split.items.iter().map(|i| (i.clip.clone(), i.start, i.len, i.captions.len())).collect();
+    assert_eq!(
+        items,
+        vec![
+            ("A".into(), 0, 170, 2),
+            ("C".into(), 0, 100, 1),
+            ("C".into(), 20, 60, 1),
+            ("M012314".into(), 0, 170, 1)
+        ]
+    );
     assert_eq!(split.skipped.len(), 1);
     assert!(split.skipped[0].1.contains("30 frames"), "{:?}", split.skipped);
     assert_eq!(split.item_frames(0), &clip[..]);
@@ -82,7 +112,11 @@ fn skipped_clip_says_why() {
     let split = PackedSplit::open(&ds, "val", &root.join(".cache"), |_, _| {}).unwrap();
     assert!(split.items.is_empty());
     let why = &split.skipped[0].1;
-    assert!(why.contains("no whole-clip caption") && why.contains("1 sub-clip caption span(s) run past its end"), "{why}");
+    assert!(
+        why.contains("no whole-clip caption")
+            && why.contains("1 sub-clip caption span(s) run past its end"),
+        "{why}"
+    );
     std::fs::remove_dir_all(root).unwrap();
 }
 
@@ -93,7 +127,12 @@ fn batches_are_normalised_padded_and_deterministic() {
     };
     let ds = Dataset::open(&root).unwrap();
     let split = PackedSplit::open(&ds, "train", &root.join(".cache"), |_, _| {}).unwrap();
-    let kf = KeyframeConfig { strategy: Strategy::Random, rate: 0.05, drop_prob: 0.0, ..Default::default() };
+    let kf = KeyframeConfig {
+        strategy: Strategy::Random,
+        rate: 0.05,
+        drop_prob: 0.0,
+        ..Default::default()
+    };
     let mut loader = Loader::new(&ds, &split, 3, 42, kf.clone());
     let b = loader.batch(0, 0);
     let (n, d) = (b.frames, b.dim);
@@ -102,7 +141,11 @@ fn batches_are_normalised_padded_and_deterministic() {
         let len = b.lengths[i];
         assert_eq!(len % 4, 0);
         let item = &split.items[b.items[i]];
-        assert!(len == item.len / 4 * 4 || len == (item.len / 4 - 1) * 4, "{len} from {}", item.len);
+        assert!(
+            len == item.len / 4 * 4 || len == (item.len / 4 - 1) * 4,
+            "{len} from {}",
+            item.len
+        );
         assert!(item.captions.contains(&b.captions[i]));
         // Valid mask and zero padding.
         assert!(b.valid[i * n..i * n + len].iter().all(|&v| v == 1.0));
@@ -110,8 +153,11 @@ fn batches_are_normalised_padded_and_deterministic() {
         assert!(b.x0[(i * n + len) * d..(i + 1) * n * d].iter().all(|&v| v == 0.0));
         // The sample is a normalised window of the item.
         let raw = split.item_frames(b.items[i]);
-        let first: Vec<f32> = (0..d).map(|k| b.x0[i * n * d + k] * ds.std[k] + ds.mean[k]).collect();
-        let start = (0..=item.len - len).find(|&s| (0..d).all(|k| (raw[s * d + k] - first[k]).abs() < 1e-4)).expect("crop start");
+        let first: Vec<f32> =
+            (0..d).map(|k| b.x0[i * n * d + k] * ds.std[k] + ds.mean[k]).collect();
+        let start = (0..=item.len - len)
+            .find(|&s| (0..d).all(|k| (raw[s * d + k] - first[k]).abs() < 1e-4))
+            .expect("crop start");
         for f in 0..len {
             for k in 0..d {
                 let want = (raw[(start + f) * d + k] - ds.mean[k]) / ds.std[k];
@@ -130,10 +176,16 @@ fn batches_are_normalised_padded_and_deterministic() {
         let r = diffkfc_data::warp::ROOT_CHANNELS;
         assert_eq!(&b.root[i * n * r..i * n * r + r], &[0.0, 0.0, 0.0, 1.0]);
         let want = diffkfc_data::warp::root_channels(&raw[start * d..(start + len) * d], d);
-        assert!(b.root[i * n * r..(i * n + len) * r].iter().zip(&want).all(|(a, b)| (a - b).abs() < 1e-6));
+        assert!(b.root[i * n * r..(i * n + len) * r]
+            .iter()
+            .zip(&want)
+            .all(|(a, b)| (a - b).abs() < 1e-6));
         for f in 0..n {
             if !kf_frames.contains(&f) {
-                assert!(b.root_mask[(i * n + f) * r..(i * n + f + 1) * r].iter().all(|&m| m == 0.0), "root observed off a keyframe");
+                assert!(
+                    b.root_mask[(i * n + f) * r..(i * n + f + 1) * r].iter().all(|&m| m == 0.0),
+                    "root observed off a keyframe"
+                );
             }
         }
     }
@@ -145,7 +197,8 @@ fn batches_are_normalised_padded_and_deterministic() {
     assert_ne!(other.batch(0, 0), b);
     assert_ne!(loader.batch(1, 0), b);
     // Dropped keyframes (classifier-free guidance).
-    let drop = Loader::new(&ds, &split, 3, 42, KeyframeConfig { drop_prob: 1.0, ..Default::default() });
+    let drop =
+        Loader::new(&ds, &split, 3, 42, KeyframeConfig { drop_prob: 1.0, ..Default::default() });
     assert!(drop.batch(0, 0).kf_mask.iter().all(|&v| v == 0.0));
     std::fs::remove_dir_all(root).unwrap();
 }

@@ -11,21 +11,42 @@ use diffkfc_data::rng::Rng;
 use diffkfc_data::{npy, representation as rep, rig, T2M};
 
 fn walk(frames: usize) -> rep::Joints {
-    let pose = T2M.target_offsets().map(|o| rep::forward_kinematics(&T2M, &[vec![diffkfc_data::quat::IDENTITY; 22]], &[[0.0, 0.9, 0.0]], &o)[0].clone()).unwrap();
-    (0..frames).map(|f| pose.iter().map(|p| [p[0], p[1], p[2] + 0.05 * f as f64]).collect()).collect()
+    let pose = T2M
+        .target_offsets()
+        .map(|o| {
+            rep::forward_kinematics(
+                &T2M,
+                &[vec![diffkfc_data::quat::IDENTITY; 22]],
+                &[[0.0, 0.9, 0.0]],
+                &o,
+            )[0]
+            .clone()
+        })
+        .unwrap();
+    (0..frames)
+        .map(|f| pose.iter().map(|p| [p[0], p[1], p[2] + 0.05 * f as f64]).collect())
+        .collect()
 }
 
 #[test]
 fn npy_reader_never_panics() {
     let mut r = Rng::new(1);
     let feats: Vec<f32> = (0..6 * 263).map(|_| r.normal() as f32).collect();
-    let seeds = vec![npy::encode(&[6, 263], &feats), npy::encode(&[4, 22, 3], &vec![0.5f64; 264]), npy::encode(&[263], &vec![1f32; 263])];
+    let seeds = vec![
+        npy::encode(&[6, 263], &feats),
+        npy::encode(&[4, 22, 3], &vec![0.5f64; 264]),
+        npy::encode(&[263], &vec![1f32; 263]),
+    ];
     let (_, errors) = fuzz("npy", &seeds, cases(), &|b| {
         let Ok((a, _)) = npy::decode_f64(Path::new("fuzz.npy"), b) else {
             return false;
         };
         // What the commands do next with an array must hold too.
-        if a.ndim() == 2 && a.shape[1] == 263 && a.shape[0] >= 2 && a.data.iter().all(|v| v.is_finite() && v.abs() < 1e6) {
+        if a.ndim() == 2
+            && a.shape[1] == 263
+            && a.shape[0] >= 2
+            && a.data.iter().all(|v| v.is_finite() && v.abs() < 1e6)
+        {
             let _ = rep::recover_from_ric(&T2M, &a.data);
         }
         true
@@ -62,7 +83,9 @@ fn joints_to_features_never_panics() {
                 }
             }
         }
-        let out = catch_unwind(AssertUnwindSafe(|| rep::features_from_joints(&T2M, &j, 0.002).map(|f| f.iter().all(|v| v.is_finite()))));
+        let out = catch_unwind(AssertUnwindSafe(|| {
+            rep::features_from_joints(&T2M, &j, 0.002).map(|f| f.iter().all(|v| v.is_finite()))
+        }));
         match out {
             Ok(Ok(finite)) => assert!(finite, "case {k}: non-finite features from finite joints"),
             Ok(Err(_)) => {}

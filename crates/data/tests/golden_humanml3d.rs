@@ -38,7 +38,9 @@ fn flat(j: &rep::Joints) -> Vec<f64> {
 
 #[test]
 fn recover_from_ric_matches_released_joints() {
-    let (Some(feats), Some(joints)) = (load("new_joint_vecs/012314.npy"), load("new_joints/012314.npy")) else {
+    let (Some(feats), Some(joints)) =
+        (load("new_joint_vecs/012314.npy"), load("new_joints/012314.npy"))
+    else {
         return;
     };
     assert_eq!(feats.shape, vec![170, 263]);
@@ -50,11 +52,14 @@ fn recover_from_ric_matches_released_joints() {
 
 #[test]
 fn process_file_matches_released_features() {
-    let (Some(feats), Some(joints)) = (load("new_joint_vecs/012314.npy"), load("new_joints/012314.npy")) else {
+    let (Some(feats), Some(joints)) =
+        (load("new_joint_vecs/012314.npy"), load("new_joints/012314.npy"))
+    else {
         return;
     };
     let j = rep::joints_from_array(&joints.data, 170, 22, 22);
-    let out: Vec<f64> = rep::features_from_joints(&T2M, &j, 0.002).unwrap().iter().map(|&v| v as f64).collect();
+    let out: Vec<f64> =
+        rep::features_from_joints(&T2M, &j, 0.002).unwrap().iter().map(|&v| v as f64).collect();
     assert_eq!(out.len(), 169 * 263);
     // Tolerances of the fixtures README (HumanML3D's own code re-run on new_joints), with headroom
     // of 1.5x for float32 vs float64 arithmetic.
@@ -67,12 +72,17 @@ fn process_file_matches_released_features() {
 
 #[test]
 fn process_file_from_raw_mocap_matches_reference() {
-    let (Some(raw), Some(reff), Some(refj)) = (load("000021.npy"), load("000021_features_reference.npy"), load("000021_joints_reference.npy")) else {
+    let (Some(raw), Some(reff), Some(refj)) = (
+        load("000021.npy"),
+        load("000021_features_reference.npy"),
+        load("000021_joints_reference.npy"),
+    ) else {
         return;
     };
     assert_eq!(raw.shape, vec![180, 52, 3]);
     let j = rep::joints_from_array(&raw.data, 180, 52, 22);
-    let out: Vec<f64> = rep::features_from_joints(&T2M, &j, 0.002).unwrap().iter().map(|&v| v as f64).collect();
+    let out: Vec<f64> =
+        rep::features_from_joints(&T2M, &j, 0.002).unwrap().iter().map(|&v| v as f64).collect();
     assert_eq!(out.len(), reff.data.len());
     for (name, e) in group_errors(&out, &reff.data) {
         eprintln!("process_file(000021) {name}: max abs error {e:.3e}");
@@ -81,7 +91,9 @@ fn process_file_from_raw_mocap_matches_reference() {
     }
     let rec = rep::recover_from_ric(&T2M, &out);
     let err = max_abs_diff(&flat(&rec), &refj.data);
-    eprintln!("recover_from_ric(process_file(000021)) max abs error vs reference joints: {err:.3e}");
+    eprintln!(
+        "recover_from_ric(process_file(000021)) max abs error vs reference joints: {err:.3e}"
+    );
     assert!(err < 1e-4, "{err}");
 }
 

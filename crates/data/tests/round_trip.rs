@@ -13,8 +13,14 @@ fn random_motion(seed: u64, t: usize) -> rep::Joints {
     // Per joint: rotation axis, amplitude, frequency, phase.
     let params: Vec<(Vec3, f64, f64, f64)> = (0..jn)
         .map(|_| {
-            let axis = [rng.random::<f64>() - 0.5, rng.random::<f64>() - 0.5, rng.random::<f64>() - 0.5];
-            (axis, rng.random::<f64>() * 0.6, 0.5 + rng.random::<f64>() * 2.0, rng.random::<f64>() * 6.0)
+            let axis =
+                [rng.random::<f64>() - 0.5, rng.random::<f64>() - 0.5, rng.random::<f64>() - 0.5];
+            (
+                axis,
+                rng.random::<f64>() * 0.6,
+                0.5 + rng.random::<f64>() * 2.0,
+                rng.random::<f64>() * 6.0,
+            )
         })
         .collect();
     let yaw0 = rng.random::<f64>() * std::f64::consts::TAU;
@@ -27,10 +33,17 @@ fn random_motion(seed: u64, t: usize) -> rep::Joints {
     let mut root = Vec::new();
     for f in 0..t {
         let s = f as f64 / 20.0;
-        let mut q: Vec<_> = params.iter().map(|(axis, amp, freq, ph)| quat::from_axis_angle(*axis, amp * (freq * s + ph).sin())).collect();
+        let mut q: Vec<_> = params
+            .iter()
+            .map(|(axis, amp, freq, ph)| quat::from_axis_angle(*axis, amp * (freq * s + ph).sin()))
+            .collect();
         q[0] = quat::qmul(quat::from_axis_angle([0.0, 1.0, 0.0], yaw0 + yaw_rate * s), q[0]);
         rots.push(q);
-        root.push([speed[0] * s + 0.1 * (2.0 * s).sin(), 0.95 + 0.05 * (3.0 * s).cos(), speed[1] * s]);
+        root.push([
+            speed[0] * s + 0.1 * (2.0 * s).sin(),
+            0.95 + 0.05 * (3.0 * s).cos(),
+            speed[1] * s,
+        ]);
     }
     rep::forward_kinematics(&T2M, &rots, &root, &offsets)
 }

@@ -23,9 +23,15 @@ fn same_seed_same_bytes_any_thread_count() {
     let files = |d: &std::path::Path| -> Vec<(String, Vec<u8>)> {
         let mut v = Vec::new();
         for sub in ["", "new_joint_vecs", "new_joints", "texts"] {
-            let mut names: Vec<_> = std::fs::read_dir(d.join(sub)).unwrap().map(|e| e.unwrap().path()).filter(|p| p.is_file()).collect();
+            let mut names: Vec<_> = std::fs::read_dir(d.join(sub))
+                .unwrap()
+                .map(|e| e.unwrap().path())
+                .filter(|p| p.is_file())
+                .collect();
             names.sort();
-            v.extend(names.into_iter().map(|p| (p.strip_prefix(d).unwrap().display().to_string(), std::fs::read(&p).unwrap())));
+            v.extend(names.into_iter().map(|p| {
+                (p.strip_prefix(d).unwrap().display().to_string(), std::fs::read(&p).unwrap())
+            }));
         }
         v
     };
@@ -46,7 +52,8 @@ fn every_clip_is_plausible_and_everything_is_covered() {
     let d = out_dir("cover");
     let n = 600;
     synth::write_dataset(&d, n, 1, 2, &|_, _| {}).unwrap();
-    let manifest: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("manifest.json")).unwrap()).unwrap();
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("manifest.json")).unwrap()).unwrap();
     let clips = manifest["clips"].as_array().unwrap();
     assert_eq!(clips.len(), n);
     let mut seen: HashMap<&str, HashSet<String>> = HashMap::new();
@@ -58,7 +65,9 @@ fn every_clip_is_plausible_and_everything_is_covered() {
         for a in c["actions"].as_array().unwrap() {
             seen.entry(split).or_default().insert(a["action"].as_str().unwrap().to_string());
         }
-        seen.entry(split).or_default().insert(format!("pattern:{}", c["pattern"].as_str().unwrap()));
+        seen.entry(split)
+            .or_default()
+            .insert(format!("pattern:{}", c["pattern"].as_str().unwrap()));
         let j = npy::read_f64(d.join(format!("new_joints/{id}.npy"))).unwrap();
         let t = j.shape[0];
         assert!((40..196).contains(&t), "{id}: {t} frames");

@@ -56,7 +56,12 @@ pub struct Evaluator {
 impl EvaluatorConfig {
     pub fn init(&self, device: &Device) -> Evaluator {
         let h = self.hidden;
-        let conv = |i: usize, o: usize| Conv1dConfig::new(i, o, 4).with_stride(2).with_padding(PaddingConfig1d::Explicit(1, 1)).init(device);
+        let conv = |i: usize, o: usize| {
+            Conv1dConfig::new(i, o, 4)
+                .with_stride(2)
+                .with_padding(PaddingConfig1d::Explicit(1, 1))
+                .init(device)
+        };
         Evaluator {
             conv1: conv(self.motion_dim, h),
             conv2: conv(h, h),
@@ -89,7 +94,8 @@ impl Evaluator {
         let h = gelu(self.conv2.forward(h)).swap_dims(1, 2); // [B, N/4, H]
         let [b, n4, hid] = h.dims();
         // Valid downsampled steps: ceil(len / 4), at least one.
-        let valid: Vec<bool> = lengths.iter().flat_map(|&l| (0..n4).map(move |i| i < l.div_ceil(4).max(1))).collect();
+        let valid: Vec<bool> =
+            lengths.iter().flat_map(|&l| (0..n4).map(move |i| i < l.div_ceil(4).max(1))).collect();
         let pad = key_mask(valid.iter().map(|v| !v).collect());
         let mut h = h;
         for blk in &self.blocks {
@@ -98,7 +104,11 @@ impl Evaluator {
             let f = linear(&blk.ff2, linear_gelu(&blk.ff1, h.clone()));
             h = layer_norm(&blk.ln2, h + f);
         }
-        let w = Tensor::<1>::from_floats(valid.iter().map(|&v| v as i32 as f32).collect::<Vec<_>>().as_slice(), &device).reshape([b, n4, 1]);
+        let w = Tensor::<1>::from_floats(
+            valid.iter().map(|&v| v as i32 as f32).collect::<Vec<_>>().as_slice(),
+            &device,
+        )
+        .reshape([b, n4, 1]);
         let pooled = (h * w.clone()).sum_dim(1).reshape([b, hid]) / w.sum_dim(1).reshape([b, 1]);
         normalise(linear(&self.motion_out, pooled))
     }
@@ -116,7 +126,8 @@ pub fn info_nce(m: Tensor<2>, t: Tensor<2>, temperature: f64, same: &[bool]) -> 
     let device = m.device();
     let logits = m.matmul(t.transpose()) / (SCALE * SCALE * temperature);
     // Other pairs with an identical caption are masked out of the denominators.
-    let off: Vec<f32> = (0..b * b).map(|k| if same[k] && k / b != k % b { -1e4 } else { 0.0 }).collect();
+    let off: Vec<f32> =
+        (0..b * b).map(|k| if same[k] && k / b != k % b { -1e4 } else { 0.0 }).collect();
     let logits = logits + Tensor::<1>::from_floats(off.as_slice(), &device).reshape([b, b]);
     let eye: Vec<f32> = (0..b * b).map(|k| (k / b == k % b) as i32 as f32).collect();
     let eye = Tensor::<1>::from_floats(eye.as_slice(), &device).reshape([b, b]);
@@ -157,7 +168,11 @@ pub fn motion_tensor(x: &[f32], b: usize, n: usize, d: usize, device: &Device) -
 }
 
 /// Text input of the evaluator: the cached frozen embeddings of `captions` -> [B, text_dim].
-pub fn text_tensor(cache: &diffkfc_model::text::cache::EmbeddingCache, captions: &[&str], device: &Device) -> Result<Tensor<2>, String> {
+pub fn text_tensor(
+    cache: &diffkfc_model::text::cache::EmbeddingCache,
+    captions: &[&str],
+    device: &Device,
+) -> Result<Tensor<2>, String> {
     let mut v = Vec::with_capacity(captions.len() * cache.dim);
     for c in captions {
         v.extend_from_slice(cache.get(c).ok_or_else(|| format!("caption not embedded: {c}"))?);
@@ -167,23 +182,52 @@ pub fn text_tensor(cache: &diffkfc_model::text::cache::EmbeddingCache, captions:
 
 /// Rows of a [B, 512] tensor as f64 vectors.
 fn rows(t: Tensor<2>) -> Vec<Vec<f64>> {
-    diffkfc_model::params::host(t).chunks(EMBED).map(|r| r.iter().map(|&x| x as f64).collect()).collect()
+    diffkfc_model::params::host(t)
+        .chunks(EMBED)
+        .map(|r| r.iter().map(|&x| x as f64).collect())
+        .collect()
 }
 
 impl<'a> ContrastiveEvaluator<'a> {
     /// Load the newest checkpoint of `diffkfc eval train-evaluator --out DIR`.
-    pub fn load(dir: &std::path::Path, text: &'a diffkfc_model::text::cache::EmbeddingCache, device: &Device) -> Result<Self, String> {
-        let ck = diffkfc_model::checkpoint::Checkpoint::latest(dir).ok_or(format!("{}: no evaluator checkpoint (run `diffkfc eval train-evaluator` first)", dir.display()))??;
-        let cfg: EvaluatorConfig = serde_json::from_str(&ck.config).map_err(|e| format!("{}: evaluator config: {e}", dir.display()))?;
+    pub fn load(
+        dir: &std::path::Path,
+        text: &'a diffkfc_model::text::cache::EmbeddingCache,
+        device: &Device,
+    ) -> Result<Self, String> {
+        let ck = diffkfc_model::checkpoint::Checkpoint::latest(dir).ok_or(format!(
+            "{}: no evaluator checkpoint (run `diffkfc eval train-evaluator` first)",
+            dir.display()
+        ))??;
+        let cfg: EvaluatorConfig = serde_json::from_str(&ck.config)
+            .map_err(|e| format!("{}: evaluator config: {e}", dir.display()))?;
         if cfg.text_dim != text.dim {
-            return Err(format!("{}: evaluator expects {}-d text embeddings, the text encoder gives {}", dir.display(), cfg.text_dim, text.dim));
+            return Err(format!(
+                "{}: evaluator expects {}-d text embeddings, the text encoder gives {}",
+                dir.display(),
+                cfg.text_dim,
+                text.dim
+            ));
         }
-        let read = |n: &str| diffkfc_data::npy::read_f32(dir.join(n)).map(|a| a.data).map_err(|e| e.to_string());
+        let read = |n: &str| {
+            diffkfc_data::npy::read_f32(dir.join(n)).map(|a| a.data).map_err(|e| e.to_string())
+        };
         let (mean, std) = (read("Mean.npy")?, read("Std.npy")?);
         if mean.len() != cfg.motion_dim + 4 || std.len() != mean.len() {
-            return Err(format!("{}: Mean/Std have {} values, the evaluator expects {}", dir.display(), mean.len(), cfg.motion_dim + 4));
+            return Err(format!(
+                "{}: Mean/Std have {} values, the evaluator expects {}",
+                dir.display(),
+                mean.len(),
+                cfg.motion_dim + 4
+            ));
         }
-        Ok(ContrastiveEvaluator { model: diffkfc_model::params::load(cfg.init(device), &ck.model), mean, std, text, device: device.clone() })
+        Ok(ContrastiveEvaluator {
+            model: diffkfc_model::params::load(cfg.init(device), &ck.model),
+            mean,
+            std,
+            text,
+            device: device.clone(),
+        })
     }
 }
 
@@ -200,7 +244,10 @@ impl TextMotionEvaluator for ContrastiveEvaluator<'_> {
                 diffkfc_data::dataset::normalise(dst, &self.mean, &self.std);
             }
             let lengths: Vec<usize> = chunk.iter().map(|m| m.len() / d).collect();
-            out.extend(rows(self.model.encode_motion(motion_tensor(&x, chunk.len(), n, d, &self.device), &lengths)));
+            out.extend(rows(
+                self.model
+                    .encode_motion(motion_tensor(&x, chunk.len(), n, d, &self.device), &lengths),
+            ));
         }
         out
     }

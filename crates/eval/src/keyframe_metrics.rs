@@ -5,7 +5,12 @@ use diffkfc_data::representation::{Joints, Layout};
 use diffkfc_data::skeleton::Skeleton;
 
 /// Mean L2 distance between `gen` and `reference` over the given frames and joints (global).
-pub fn k_err_global(gen: &Joints, reference: &Joints, frames: &[usize], joints: &[usize]) -> Option<f64> {
+pub fn k_err_global(
+    gen: &Joints,
+    reference: &Joints,
+    frames: &[usize],
+    joints: &[usize],
+) -> Option<f64> {
     let mut sum = 0.0;
     let mut n = 0usize;
     for &f in frames.iter().filter(|&&f| f < gen.len() && f < reference.len()) {
@@ -19,7 +24,13 @@ pub fn k_err_global(gen: &Joints, reference: &Joints, frames: &[usize], joints: 
 
 /// Root-relative, facing-normalised K-Err from de-normalised features [T, D] of the generated
 /// motion and of the keyframes: joint 0 by its height, the others by their RIC positions.
-pub fn k_err_local(skel: &Skeleton, gen: &[f32], kf: &[f32], frames: &[usize], joints: &[usize]) -> Option<f64> {
+pub fn k_err_local(
+    skel: &Skeleton,
+    gen: &[f32],
+    kf: &[f32],
+    frames: &[usize],
+    joints: &[usize],
+) -> Option<f64> {
     let d = skel.feature_dim();
     let ric = Layout::of(skel).ric().start;
     let mut sum = 0.0;
@@ -42,7 +53,8 @@ pub fn k_err_local(skel: &Skeleton, gen: &[f32], kf: &[f32], frames: &[usize], j
 /// Displacement error of one sample (ADE takes its minimum over samples): mean L2 joint error
 /// against the ground truth over all joints of every frame that is not a keyframe.
 pub fn displacement_error(gen: &Joints, reference: &Joints, keys: &[usize]) -> Option<f64> {
-    let frames: Vec<usize> = (0..gen.len().min(reference.len())).filter(|f| !keys.contains(f)).collect();
+    let frames: Vec<usize> =
+        (0..gen.len().min(reference.len())).filter(|f| !keys.contains(f)).collect();
     let joints: Vec<usize> = (0..gen.first().map_or(0, |p| p.len())).collect();
     k_err_global(gen, reference, &frames, &joints)
 }

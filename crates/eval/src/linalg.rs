@@ -35,7 +35,8 @@ fn tridiagonalise(t: &mut [f64], n: usize) -> Vec<f64> {
         }
         v.iter_mut().for_each(|x| *x /= vn);
         // H A22 H = A22 - 2 (v w^T + w v^T), p = A22 v, w = p - (v^T p) v.
-        let p: Vec<f64> = (0..m).map(|i| (0..m).map(|j| t[(k + 1 + i) * n + k + 1 + j] * v[j]).sum()).collect();
+        let p: Vec<f64> =
+            (0..m).map(|i| (0..m).map(|j| t[(k + 1 + i) * n + k + 1 + j] * v[j]).sum()).collect();
         let kk: f64 = v.iter().zip(&p).map(|(a, b)| a * b).sum();
         let w: Vec<f64> = p.iter().zip(&v).map(|(p, v)| p - kk * v).collect();
         for i in 0..m {
@@ -60,7 +61,14 @@ fn tridiagonalise(t: &mut [f64], n: usize) -> Vec<f64> {
 
 /// Rotation acting on indices (p, p+1) of `t` (entries within `lo..=hi`) and on columns of `q`:
 /// T <- G^T T G, Q <- Q G with G = [[c, s], [-s, c]] in that plane.
-fn rotate(t: &mut [f64], q: &mut [f64], n: usize, p: usize, (lo, hi): (usize, usize), (c, s): (f64, f64)) {
+fn rotate(
+    t: &mut [f64],
+    q: &mut [f64],
+    n: usize,
+    p: usize,
+    (lo, hi): (usize, usize),
+    (c, s): (f64, f64),
+) {
     let (a, b) = (p.saturating_sub(1).max(lo), (p + 2).min(hi));
     for j in a..=b {
         let (x, y) = (t[p * n + j], t[(p + 1) * n + j]);
@@ -99,14 +107,19 @@ pub fn sym_eigen(a: &[f64], n: usize) -> (Vec<f64>, Vec<f64>) {
     let mut iterations = 0;
     while hi > 0 && iterations < 60 * n {
         // Deflate converged trailing eigenvalues.
-        if off(&t, hi).abs() <= f64::EPSILON * (t[hi * n + hi].abs() + t[(hi - 1) * n + hi - 1].abs()) {
+        if off(&t, hi).abs()
+            <= f64::EPSILON * (t[hi * n + hi].abs() + t[(hi - 1) * n + hi - 1].abs())
+        {
             t[hi * n + hi - 1] = 0.0;
             t[(hi - 1) * n + hi] = 0.0;
             hi -= 1;
             continue;
         }
         let mut lo = hi - 1;
-        while lo > 0 && off(&t, lo).abs() > f64::EPSILON * (t[lo * n + lo].abs() + t[(lo - 1) * n + lo - 1].abs()) {
+        while lo > 0
+            && off(&t, lo).abs()
+                > f64::EPSILON * (t[lo * n + lo].abs() + t[(lo - 1) * n + lo - 1].abs())
+        {
             lo -= 1;
         }
         // Wilkinson shift from the trailing 2 x 2 block.
@@ -155,7 +168,8 @@ mod tests {
             let a = random_symmetric(n, seed);
             let (w, v) = sym_eigen(&a, n);
             let av = matmul(&a, &v, n);
-            let vtv = matmul(&(0..n * n).map(|k| v[(k % n) * n + k / n]).collect::<Vec<_>>(), &v, n);
+            let vtv =
+                matmul(&(0..n * n).map(|k| v[(k % n) * n + k / n]).collect::<Vec<_>>(), &v, n);
             for i in 0..n {
                 for j in 0..n {
                     assert!((av[i * n + j] - v[i * n + j] * w[j]).abs() < 1e-9, "n={n}");
@@ -183,13 +197,15 @@ mod tests {
         let mut r = Rng::new(11);
         for n in [2, 5, 16, 40] {
             let a: Vec<f64> = (0..n * n).map(|_| r.normal()).collect();
-            let mut spd = matmul(&a, &(0..n * n).map(|k| a[(k % n) * n + k / n]).collect::<Vec<_>>(), n);
+            let mut spd =
+                matmul(&a, &(0..n * n).map(|k| a[(k % n) * n + k / n]).collect::<Vec<_>>(), n);
             (0..n).for_each(|i| spd[i * n + i] += 1e-3);
             let root = sqrtm_psd(&spd, n);
             let back = matmul(&root, &root, n);
             let scale = spd.iter().fold(0.0f64, |m, x| m.max(x.abs()));
             assert!(spd.iter().zip(&back).all(|(x, y)| (x - y).abs() < 1e-9 * scale), "n={n}");
-            assert!((0..n * n).all(|k| (root[k] - root[(k % n) * n + k / n]).abs() < 1e-9 * scale.sqrt()));
+            assert!((0..n * n)
+                .all(|k| (root[k] - root[(k % n) * n + k / n]).abs() < 1e-9 * scale.sqrt()));
         }
     }
 }

@@ -62,15 +62,29 @@ pub struct Rows {
 impl Rows {
     /// The settings, each (name, rate) once, in the order above.
     pub fn settings(&self) -> Vec<Setting> {
-        let make = |inpaint: bool, transition: f64, rate: f64| Setting { name: Setting::name_of(inpaint, transition), rate, inpaint, transition, suggested: false };
+        let make = |inpaint: bool, transition: f64, rate: f64| Setting {
+            name: Setting::name_of(inpaint, transition),
+            rate,
+            inpaint,
+            transition,
+            suggested: false,
+        };
         let mut v = vec![make(self.inpaint, self.transition, self.rate)];
         if self.two_stage {
-            v.push(Setting { name: "DiffKFC, suggested keys".into(), suggested: true, ..make(false, self.transition, self.rate) });
+            v.push(Setting {
+                name: "DiffKFC, suggested keys".into(),
+                suggested: true,
+                ..make(false, self.transition, self.rate)
+            });
         }
         if self.compare {
             // Table 2's TG row needs guidance: the paper's r where the main setting has none.
             let r = if self.transition > 0.0 { self.transition } else { 100.0 };
-            v.extend([make(false, r, self.rate), make(false, 0.0, self.rate), make(true, 0.0, self.rate)]);
+            v.extend([
+                make(false, r, self.rate),
+                make(false, 0.0, self.rate),
+                make(true, 0.0, self.rate),
+            ]);
         }
         v.extend(self.sweep.iter().map(|&r| make(self.inpaint, self.transition, r)));
         let mut out: Vec<Setting> = Vec::new();
@@ -170,7 +184,9 @@ impl Protocol<'_> {
                 let spec = &self.split.items[i];
                 let len = eval_length(spec.len);
                 let feats = &self.split.item_frames(i)[..len * d];
-                let caption = Rng::derive(self.opts.seed, 2 + (rep as u64) * 16, pos as u64).pick(&spec.captions).clone();
+                let caption = Rng::derive(self.opts.seed, 2 + (rep as u64) * 16, pos as u64)
+                    .pick(&spec.captions)
+                    .clone();
                 Item { len, caption, feats, joints: joints_of(self.ds, feats) }
             })
             .collect()
@@ -180,20 +196,40 @@ impl Protocol<'_> {
     fn keys(&self, rep: usize, items: &[Item], rate: f64) -> Vec<Vec<usize>> {
         let d = self.ds.dim();
         let stream = 3 + (rep as u64) * 16;
-        items.iter().enumerate().map(|(p, it)| keyframes::select(self.opts.strategy, it.len, rate, it.feats, d, &mut Rng::derive(self.opts.seed, stream, p as u64))).collect()
+        items
+            .iter()
+            .enumerate()
+            .map(|(p, it)| {
+                keyframes::select(
+                    self.opts.strategy,
+                    it.len,
+                    rate,
+                    it.feats,
+                    d,
+                    &mut Rng::derive(self.opts.seed, stream, p as u64),
+                )
+            })
+            .collect()
     }
 
     /// Denoising steps (sampler calls) one generation of `rows` motions costs.
     fn steps_for(&self, rows: usize) -> usize {
-        rows.div_ceil(self.opts.batch.max(1)) * sampler::timesteps(self.schedule, self.opts.sampler).len()
+        rows.div_ceil(self.opts.batch.max(1))
+            * sampler::timesteps(self.schedule, self.opts.sampler).len()
     }
 
     /// Denoising steps the whole run takes (for the progress bar and the estimate).
     pub fn planned_steps(&self, settings: &[Setting]) -> usize {
         let n = self.opts.num_items.min(self.split.items.len());
-        let mm = if self.opts.multimodality > 0 { self.steps_for(self.opts.multimodality.min(n) * MM_GENERATIONS) } else { 0 };
+        let mm = if self.opts.multimodality > 0 {
+            self.steps_for(self.opts.multimodality.min(n) * MM_GENERATIONS)
+        } else {
+            0
+        };
         let proposals = settings.iter().filter(|s| s.suggested).count() * self.steps_for(n);
-        self.opts.replications * (settings.len() * (self.steps_for(n * self.opts.samples_for_ade.max(1)) + mm) + proposals)
+        self.opts.replications
+            * (settings.len() * (self.steps_for(n * self.opts.samples_for_ade.max(1)) + mm)
+                + proposals)
     }
 
     /// Whether generating `s` runs both keyframe-guidance branches (a doubled batch).
@@ -203,7 +239,8 @@ impl Protocol<'_> {
 
     /// Generation jobs (item, sample) in denoiser batches, sorted by length to limit padding.
     fn batches(&self, items: &[Item], k: usize) -> Vec<Vec<(usize, usize)>> {
-        let mut jobs: Vec<(usize, usize)> = (0..items.len()).flat_map(|p| (0..k).map(move |j| (p, j))).collect();
+        let mut jobs: Vec<(usize, usize)> =
+            (0..items.len()).flat_map(|p| (0..k).map(move |j| (p, j))).collect();
         jobs.sort_by_key(|&(p, _)| items[p].len);
         jobs.chunks(self.opts.batch.max(1)).map(<[_]>::to_vec).collect()
     }
@@ -212,16 +249,34 @@ impl Protocol<'_> {
     /// when guided), summed over batches.
     fn units(&self, items: &[Item], k: usize, s: &Setting) -> f64 {
         let per_row = if self.guided(s) { 2.0 } else { 1.0 };
-        self.batches(items, k).iter().map(|c| per_row * (c.len() * c.iter().map(|&(p, _)| items[p].len).max().unwrap_or(0)) as f64).sum()
+        self.batches(items, k)
+            .iter()
+            .map(|c| {
+                per_row * (c.len() * c.iter().map(|&(p, _)| items[p].len).max().unwrap_or(0)) as f64
+            })
+            .sum()
     }
 
     /// Estimated seconds of the whole run: its work (on replication 0's items) times the
     /// measured cost of a frame-row, from a 2-step guided generation of one batch (encoder
     /// included, so a slight overestimate).
     pub fn estimate_seconds(&self, settings: &[Setting]) -> f64 {
-        let probe = Protocol { opts: Options { sampler: Sampler::Ddim(2), num_items: self.opts.batch, ..self.opts.clone() }, ..*self };
+        let probe = Protocol {
+            opts: Options {
+                sampler: Sampler::Ddim(2),
+                num_items: self.opts.batch,
+                ..self.opts.clone()
+            },
+            ..*self
+        };
         let items = probe.items(0);
-        let s = Setting { name: String::new(), rate: settings.iter().map(|s| s.rate).fold(0.05, f64::max), inpaint: false, transition: 0.0, suggested: false };
+        let s = Setting {
+            name: String::new(),
+            rate: settings.iter().map(|s| s.rate).fold(0.05, f64::max),
+            inpaint: false,
+            transition: 0.0,
+            suggested: false,
+        };
         let keys = probe.keys(0, &items, s.rate);
         let t0 = std::time::Instant::now();
         probe.generate(&items, &keys, &s, 1, 0, &mut || {});
@@ -230,13 +285,29 @@ impl Protocol<'_> {
         let steps = sampler::timesteps(self.schedule, self.opts.sampler).len() as f64;
         let mm = self.opts.multimodality.min(items.len());
         let text_only = Setting { rate: 0.0, ..s.clone() };
-        let proposal = |s: &Setting| if s.suggested { self.units(&items, 1, &text_only) } else { 0.0 };
-        let work: f64 = settings.iter().map(|s| proposal(s) + self.units(&items, self.opts.samples_for_ade.max(1), s) + if mm > 0 { self.units(&items[..mm], MM_GENERATIONS, s) } else { 0.0 }).sum();
+        let proposal =
+            |s: &Setting| if s.suggested { self.units(&items, 1, &text_only) } else { 0.0 };
+        let work: f64 = settings
+            .iter()
+            .map(|s| {
+                proposal(s)
+                    + self.units(&items, self.opts.samples_for_ade.max(1), s)
+                    + if mm > 0 { self.units(&items[..mm], MM_GENERATIONS, s) } else { 0.0 }
+            })
+            .sum();
         work * steps * per_unit * self.opts.replications as f64
     }
 
     /// `k` samples per item (raw features [len, D]), in batches sorted by length.
-    fn generate(&self, items: &[Item], keys: &[Vec<usize>], s: &Setting, k: usize, seed: u64, tick: &mut dyn FnMut()) -> Vec<Vec<Vec<f32>>> {
+    fn generate(
+        &self,
+        items: &[Item],
+        keys: &[Vec<usize>],
+        s: &Setting,
+        k: usize,
+        seed: u64,
+        tick: &mut dyn FnMut(),
+    ) -> Vec<Vec<Vec<f32>>> {
         let d = self.ds.dim();
         let all_dims = keyframes::dim_mask(self.ds.skeleton, None);
         let mut out: Vec<Vec<Vec<f32>>> = items.iter().map(|_| vec![Vec::new(); k]).collect();
@@ -246,7 +317,9 @@ impl Protocol<'_> {
             let mut req = Request::text_only(n, d, Vec::new(), self.text.dim, vec![0; b]);
             for (r, &(p, _)) in chunk.iter().enumerate() {
                 let it = &items[p];
-                req.text.extend_from_slice(self.text.get(&it.caption).expect("captions of the split are embedded"));
+                req.text.extend_from_slice(
+                    self.text.get(&it.caption).expect("captions of the split are embedded"),
+                );
                 req.lengths[r] = it.len;
                 let mask = keyframes::frame_mask(it.len, &keys[p], &all_dims);
                 let mut kf: Vec<f32> = it.feats.to_vec();
@@ -273,21 +346,38 @@ impl Protocol<'_> {
                 seed: Rng::derive(seed, 7, c as u64).next_u64(),
                 tg_mode: TgMode::X0,
                 inpaint: s.inpaint,
-                place: (self.opts.place_guidance > 0.0).then(|| PlaceGuidance::new(self.opts.place_guidance, self.mean, self.std)),
+                place: (self.opts.place_guidance > 0.0)
+                    .then(|| PlaceGuidance::new(self.opts.place_guidance, self.mean, self.std)),
                 ..Default::default()
             };
             let x = sampler::sample(self.model, self.schedule, &req, &opts, |_, _| tick());
             for (r, &(p, j)) in chunk.iter().enumerate() {
-                out[p][j] = finish(&x, &req, r, self.mean, self.std, self.ds.skeleton, self.opts.fit).features;
+                out[p][j] =
+                    finish(&x, &req, r, self.mean, self.std, self.ds.skeleton, self.opts.fit)
+                        .features;
             }
         }
         out
     }
 
     /// Text-motion metrics of motions paired with the replication's caption embeddings.
-    fn text_motion(&self, reference: &Gaussian, texts: &[Vec<f64>], motions: &[Vec<f64>], seed: u64, v: &mut Values) {
+    fn text_motion(
+        &self,
+        reference: &Gaussian,
+        texts: &[Vec<f64>],
+        motions: &[Vec<f64>],
+        seed: u64,
+        v: &mut Values,
+    ) {
         let ([r1, r2, r3], mm) = r_precision(texts, motions, R_BATCH);
-        let pairs = [("fid", reference.fid_to(motions)), ("r_top1", r1), ("r_top2", r2), ("r_top3", r3), ("mm_dist", mm), ("diversity", diversity(motions, DIVERSITY_PAIRS, seed))];
+        let pairs = [
+            ("fid", reference.fid_to(motions)),
+            ("r_top1", r1),
+            ("r_top2", r2),
+            ("r_top3", r3),
+            ("mm_dist", mm),
+            ("diversity", diversity(motions, DIVERSITY_PAIRS, seed)),
+        ];
         for (k, x) in pairs {
             v.entry(k).or_default().push(x);
         }
@@ -295,12 +385,23 @@ impl Protocol<'_> {
 
     /// Run every setting for every replication. `reference`: evaluator statistics of the real
     /// test motions that FID compares against.
-    pub fn run(&self, settings: &[Setting], reference: &Gaussian, tick: &mut dyn FnMut()) -> Result<Vec<RowResult>, String> {
+    pub fn run(
+        &self,
+        settings: &[Setting],
+        reference: &Gaussian,
+        tick: &mut dyn FnMut(),
+    ) -> Result<Vec<RowResult>, String> {
         let mut rates: Vec<f64> = settings.iter().map(|s| s.rate).collect();
         rates.sort_by(f64::total_cmp);
         rates.dedup();
-        let mut real: Vec<RowResult> = rates.iter().map(|&rate| RowResult { setting: None, rate, values: Values::new() }).collect();
-        let mut rows: Vec<RowResult> = settings.iter().map(|s| RowResult { setting: Some(s.clone()), rate: s.rate, values: Values::new() }).collect();
+        let mut real: Vec<RowResult> = rates
+            .iter()
+            .map(|&rate| RowResult { setting: None, rate, values: Values::new() })
+            .collect();
+        let mut rows: Vec<RowResult> = settings
+            .iter()
+            .map(|s| RowResult { setting: Some(s.clone()), rate: s.rate, values: Values::new() })
+            .collect();
         let skel = self.ds.skeleton;
         let all_joints: Vec<usize> = (0..skel.num_joints()).collect();
         for rep in 0..self.opts.replications {
@@ -309,10 +410,13 @@ impl Protocol<'_> {
             let texts = self.evaluator.embed_texts(&captions)?;
             let rep_seed = Rng::derive(self.opts.seed, 5, rep as u64).next_u64();
             // The real motions' metrics are the same at every rate but K-TranS (keyframes differ).
-            let real_m = self.evaluator.embed_motions(&items.iter().map(|it| it.feats).collect::<Vec<_>>());
+            let real_m =
+                self.evaluator.embed_motions(&items.iter().map(|it| it.feats).collect::<Vec<_>>());
             let mut shared = Values::new();
             self.text_motion(reference, &texts, &real_m, rep_seed, &mut shared);
-            if let Some(x) = mean(&items.iter().map(|it| foot_skating_ratio(skel, &it.joints)).collect::<Vec<_>>()) {
+            if let Some(x) = mean(
+                &items.iter().map(|it| foot_skating_ratio(skel, &it.joints)).collect::<Vec<_>>(),
+            ) {
                 shared.insert("foot_skate", vec![x]);
             }
             for row in real.iter_mut() {
@@ -320,7 +424,11 @@ impl Protocol<'_> {
                     row.values.entry(k).or_default().extend(x);
                 }
                 let keys = self.keys(rep, &items, row.rate);
-                let kt: Vec<f64> = items.iter().zip(&keys).filter_map(|(it, k)| k_trans(&it.joints, k, K_TRANS_WINDOW)).collect();
+                let kt: Vec<f64> = items
+                    .iter()
+                    .zip(&keys)
+                    .filter_map(|(it, k)| k_trans(&it.joints, k, K_TRANS_WINDOW))
+                    .collect();
                 row.values.entry("k_trans").or_default().extend(mean(&kt));
             }
             for row in rows.iter_mut() {
@@ -329,15 +437,39 @@ impl Protocol<'_> {
                 let proposals: Vec<Vec<f32>> = if s.suggested {
                     let none: Vec<Vec<usize>> = vec![Vec::new(); items.len()];
                     let text_only = Setting { rate: 0.0, suggested: false, ..s.clone() };
-                    self.generate(&items, &none, &text_only, 1, rep_seed ^ 0x5347, tick).into_iter().map(|mut g| g.swap_remove(0)).collect()
+                    self.generate(&items, &none, &text_only, 1, rep_seed ^ 0x5347, tick)
+                        .into_iter()
+                        .map(|mut g| g.swap_remove(0))
+                        .collect()
                 } else {
                     Vec::new()
                 };
-                let staged: Vec<Item> = items.iter().zip(&proposals).map(|(it, f)| Item { len: it.len, caption: it.caption.clone(), feats: f, joints: joints_of(self.ds, f) }).collect();
+                let staged: Vec<Item> = items
+                    .iter()
+                    .zip(&proposals)
+                    .map(|(it, f)| Item {
+                        len: it.len,
+                        caption: it.caption.clone(),
+                        feats: f,
+                        joints: joints_of(self.ds, f),
+                    })
+                    .collect();
                 let targets = if s.suggested { &staged } else { &items };
                 let keys = if s.suggested {
                     let d = self.ds.dim();
-                    targets.iter().map(|t| keyframes::select(Strategy::Mdo, t.len, s.rate, t.feats, d, &mut Rng::new(0))).collect()
+                    targets
+                        .iter()
+                        .map(|t| {
+                            keyframes::select(
+                                Strategy::Mdo,
+                                t.len,
+                                s.rate,
+                                t.feats,
+                                d,
+                                &mut Rng::new(0),
+                            )
+                        })
+                        .collect()
                 } else {
                     self.keys(rep, &items, s.rate)
                 };
@@ -345,13 +477,22 @@ impl Protocol<'_> {
                 let gens = self.generate(targets, &keys, &s, k, rep_seed, tick);
                 let mut per: BTreeMap<&'static str, Vec<f64>> = BTreeMap::new();
                 for ((it, key), samples) in targets.iter().zip(&keys).zip(&gens) {
-                    let joints: Vec<Joints> = samples.iter().map(|f| joints_of(self.ds, f)).collect();
-                    let ade = joints.iter().filter_map(|j| displacement_error(j, &it.joints, key)).fold(f64::INFINITY, f64::min);
-                    let avg = |f: &dyn Fn(usize) -> Option<f64>| mean(&(0..k).filter_map(f).collect::<Vec<_>>());
+                    let joints: Vec<Joints> =
+                        samples.iter().map(|f| joints_of(self.ds, f)).collect();
+                    let ade = joints
+                        .iter()
+                        .filter_map(|j| displacement_error(j, &it.joints, key))
+                        .fold(f64::INFINITY, f64::min);
+                    let avg = |f: &dyn Fn(usize) -> Option<f64>| {
+                        mean(&(0..k).filter_map(f).collect::<Vec<_>>())
+                    };
                     let entries = [
                         ("ade", ade.is_finite().then_some(ade)),
                         ("k_err", avg(&|j| k_err_global(&joints[j], &it.joints, key, &all_joints))),
-                        ("k_err_local", avg(&|j| k_err_local(skel, &samples[j], it.feats, key, &all_joints))),
+                        (
+                            "k_err_local",
+                            avg(&|j| k_err_local(skel, &samples[j], it.feats, key, &all_joints)),
+                        ),
                         ("k_trans", avg(&|j| k_trans(&joints[j], key, K_TRANS_WINDOW))),
                         ("k_trans_real", k_trans(&it.joints, key, K_TRANS_WINDOW)),
                         ("foot_skate", avg(&|j| Some(foot_skating_ratio(skel, &joints[j])))),
@@ -370,9 +511,25 @@ impl Protocol<'_> {
                 self.text_motion(reference, &texts, &motions, rep_seed, &mut row.values);
                 if self.opts.multimodality > 0 {
                     let m = self.opts.multimodality.min(items.len());
-                    let groups = self.generate(&targets[..m], &keys[..m], &s, MM_GENERATIONS, rep_seed ^ 0x4d4d, tick);
-                    let emb: Vec<Vec<Vec<f64>>> = groups.iter().map(|g| self.evaluator.embed_motions(&g.iter().map(Vec::as_slice).collect::<Vec<_>>())).collect();
-                    row.values.entry("multimodality").or_default().push(multimodality(&emb, MM_PAIRS, rep_seed));
+                    let groups = self.generate(
+                        &targets[..m],
+                        &keys[..m],
+                        &s,
+                        MM_GENERATIONS,
+                        rep_seed ^ 0x4d4d,
+                        tick,
+                    );
+                    let emb: Vec<Vec<Vec<f64>>> = groups
+                        .iter()
+                        .map(|g| {
+                            self.evaluator
+                                .embed_motions(&g.iter().map(Vec::as_slice).collect::<Vec<_>>())
+                        })
+                        .collect();
+                    row.values
+                        .entry("multimodality")
+                        .or_default()
+                        .push(multimodality(&emb, MM_PAIRS, rep_seed));
                 }
             }
         }
@@ -389,9 +546,24 @@ mod rows_tests {
     /// main setting is not.
     #[test]
     fn rows_of_the_tables() {
-        let rows = Rows { rate: 0.05, transition: 0.0, compare: true, two_stage: true, sweep: vec![0.0, 0.05, 0.1], ..Default::default() };
-        let names: Vec<(String, f64)> = rows.settings().into_iter().map(|s| (s.name, s.rate)).collect();
-        let want = [("DiffKFC w/o TG", 0.05), ("DiffKFC, suggested keys", 0.05), ("DiffKFC", 0.05), ("MDM-inp", 0.05), ("DiffKFC w/o TG", 0.0), ("DiffKFC w/o TG", 0.1)];
+        let rows = Rows {
+            rate: 0.05,
+            transition: 0.0,
+            compare: true,
+            two_stage: true,
+            sweep: vec![0.0, 0.05, 0.1],
+            ..Default::default()
+        };
+        let names: Vec<(String, f64)> =
+            rows.settings().into_iter().map(|s| (s.name, s.rate)).collect();
+        let want = [
+            ("DiffKFC w/o TG", 0.05),
+            ("DiffKFC, suggested keys", 0.05),
+            ("DiffKFC", 0.05),
+            ("MDM-inp", 0.05),
+            ("DiffKFC w/o TG", 0.0),
+            ("DiffKFC w/o TG", 0.1),
+        ];
         assert_eq!(names, want.map(|(n, r)| (n.to_string(), r)).to_vec());
         assert_eq!(rows.settings()[2].transition, 100.0);
     }

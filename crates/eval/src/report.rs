@@ -57,28 +57,46 @@ fn rate_label(rate: f64) -> String {
 
 /// Columns that some row of `rows` has.
 fn present<'c>(rows: &[&RowResult], skip: &[&str]) -> Vec<(&'c str, &'c str)> {
-    COLUMNS.iter().copied().filter(|(k, _)| !skip.contains(k) && rows.iter().any(|r| r.values.get(k).is_some_and(|v| !v.is_empty()))).collect()
+    COLUMNS
+        .iter()
+        .copied()
+        .filter(|(k, _)| {
+            !skip.contains(k) && rows.iter().any(|r| r.values.get(k).is_some_and(|v| !v.is_empty()))
+        })
+        .collect()
 }
 
 fn table(first: &str, rows: &[(String, &RowResult)], skip: &[&str]) -> String {
     let refs: Vec<&RowResult> = rows.iter().map(|(_, r)| *r).collect();
     let cols = present(&refs, skip);
-    let mut s = format!("| {first} | {} |\n|---|{}\n", cols.iter().map(|c| c.1).collect::<Vec<_>>().join(" | "), "---|".repeat(cols.len()));
+    let mut s = format!(
+        "| {first} | {} |\n|---|{}\n",
+        cols.iter().map(|c| c.1).collect::<Vec<_>>().join(" | "),
+        "---|".repeat(cols.len())
+    );
     for (label, r) in rows {
-        s += &format!("| {label} | {} |\n", cols.iter().map(|(k, _)| cell(r, k)).collect::<Vec<_>>().join(" | "));
+        s += &format!(
+            "| {label} | {} |\n",
+            cols.iter().map(|(k, _)| cell(r, k)).collect::<Vec<_>>().join(" | ")
+        );
     }
     s
 }
 
 /// Table 2: the real row and every setting at `rate`.
 pub fn table2(rows: &[RowResult], rate: f64) -> Option<String> {
-    let at: Vec<(String, &RowResult)> = rows.iter().filter(|r| r.rate == rate).map(|r| (row_name(r), r)).collect();
+    let at: Vec<(String, &RowResult)> =
+        rows.iter().filter(|r| r.rate == rate).map(|r| (row_name(r), r)).collect();
     (at.iter().any(|(_, r)| r.setting.is_some())).then(|| table("Method", &at, &["k_trans_real"]))
 }
 
 /// Table 4: the rows of the setting named `name` at each rate, with the real K-TranS.
 pub fn table4(rows: &[RowResult], name: &str) -> Option<String> {
-    let mut at: Vec<(String, &RowResult)> = rows.iter().filter(|r| r.setting.as_ref().is_some_and(|s| s.name == name)).map(|r| (rate_label(r.rate), r)).collect();
+    let mut at: Vec<(String, &RowResult)> = rows
+        .iter()
+        .filter(|r| r.setting.as_ref().is_some_and(|s| s.name == name))
+        .map(|r| (rate_label(r.rate), r))
+        .collect();
     at.sort_by(|a, b| a.1.rate.total_cmp(&b.1.rate));
     (at.len() > 1).then(|| table("Keyframe rate", &at, &[]))
 }
@@ -130,15 +148,33 @@ mod tests {
     fn row(name: Option<&str>, rate: f64, fid: &[f64]) -> RowResult {
         let mut values = Values::new();
         values.insert("fid", fid.to_vec());
-        RowResult { setting: name.map(|n| Setting { name: n.into(), rate, inpaint: false, transition: 100.0, suggested: false }), rate, values }
+        RowResult {
+            setting: name.map(|n| Setting {
+                name: n.into(),
+                rate,
+                inpaint: false,
+                transition: 100.0,
+                suggested: false,
+            }),
+            rate,
+            values,
+        }
     }
 
     #[test]
     fn tables_layout() {
-        let rows = vec![row(None, 0.05, &[0.01, 0.03]), row(Some("DiffKFC"), 0.05, &[1.0, 3.0]), row(Some("DiffKFC"), 0.0, &[2.0]), row(Some("MDM-inp"), 0.05, &[4.0])];
+        let rows = vec![
+            row(None, 0.05, &[0.01, 0.03]),
+            row(Some("DiffKFC"), 0.05, &[1.0, 3.0]),
+            row(Some("DiffKFC"), 0.0, &[2.0]),
+            row(Some("MDM-inp"), 0.05, &[4.0]),
+        ];
         let t2 = table2(&rows, 0.05).unwrap();
         assert!(t2.contains("| Real motion | 0.020 ± 0.014 |"), "{t2}");
-        assert!(t2.contains("| DiffKFC | 2.000 ± 1.386 |") && t2.contains("| MDM-inp | 4.000 |"), "{t2}");
+        assert!(
+            t2.contains("| DiffKFC | 2.000 ± 1.386 |") && t2.contains("| MDM-inp | 4.000 |"),
+            "{t2}"
+        );
         let t4 = table4(&rows, "DiffKFC").unwrap();
         assert!(t4.find("| 0% |").unwrap() < t4.find("| 5% |").unwrap(), "{t4}");
         assert!(table4(&rows, "MDM-inp").is_none());

@@ -62,9 +62,11 @@ impl Gaussian {
         let (m2, s2) = mean_cov(x);
         let (s1, r1) = (&self.cov, &self.sqrt_cov);
         let inner = matmul(&matmul(r1, &s2, d), r1, d);
-        let sym: Vec<f64> = (0..d * d).map(|k| 0.5 * (inner[k] + inner[(k % d) * d + k / d])).collect();
+        let sym: Vec<f64> =
+            (0..d * d).map(|k| 0.5 * (inner[k] + inner[(k % d) * d + k / d])).collect();
         let covmean = sqrtm_psd(&sym, d);
-        let tr = (0..d).map(|i| s1[i * d + i] + s2[i * d + i] - 2.0 * covmean[i * d + i]).sum::<f64>();
+        let tr =
+            (0..d).map(|i| s1[i * d + i] + s2[i * d + i] - 2.0 * covmean[i * d + i]).sum::<f64>();
         self.mean.iter().zip(&m2).map(|(x, y)| (x - y).powi(2)).sum::<f64>() + tr
     }
 }
@@ -83,7 +85,9 @@ pub fn r_precision(texts: &[Vec<f64>], motions: &[Vec<f64>], batch: usize) -> ([
         for i in start..start + batch {
             let d_true = dist(&motions[i], &texts[i]);
             mm += d_true;
-            let closer = (start..start + batch).filter(|&j| j != i && dist(&motions[i], &texts[j]) < d_true).count();
+            let closer = (start..start + batch)
+                .filter(|&j| j != i && dist(&motions[i], &texts[j]) < d_true)
+                .count();
             for (k, h) in hits.iter_mut().enumerate() {
                 if closer <= k {
                     *h += 1;
@@ -114,7 +118,8 @@ pub fn diversity(x: &[Vec<f64>], pairs: usize, seed: u64) -> f64 {
 /// MultiModality: for each text, the mean distance of `pairs` random pairs among its
 /// generations; averaged over texts.
 pub fn multimodality(groups: &[Vec<Vec<f64>>], pairs: usize, seed: u64) -> f64 {
-    let per: Vec<f64> = groups.iter().enumerate().map(|(g, x)| diversity(x, pairs, seed ^ g as u64)).collect();
+    let per: Vec<f64> =
+        groups.iter().enumerate().map(|(g, x)| diversity(x, pairs, seed ^ g as u64)).collect();
     per.iter().sum::<f64>() / per.len().max(1) as f64
 }
 
@@ -162,10 +167,17 @@ mod tests {
         // Two points 5 apart: every distinct pair is at distance 5.
         let x = vec![vec![0.0, 0.0], vec![3.0, 4.0]];
         assert!((diversity(&x, 300, 1) - 5.0).abs() < 1e-12);
-        assert!((multimodality(&[x.clone(), vec![vec![0.0, 0.0], vec![0.0, 1.0]]], 10, 2) - 3.0).abs() < 1e-12);
+        assert!(
+            (multimodality(&[x.clone(), vec![vec![0.0, 0.0], vec![0.0, 1.0]]], 10, 2) - 3.0).abs()
+                < 1e-12
+        );
         // MM-dist: true pairs at distances 1 and 3 -> 2 (32 pairs: one full batch).
         let texts: Vec<Vec<f64>> = (0..32).map(|i| vec![100.0 * i as f64, 0.0]).collect();
-        let motions: Vec<Vec<f64>> = texts.iter().enumerate().map(|(i, t)| vec![t[0], if i % 2 == 0 { 1.0 } else { 3.0 }]).collect();
+        let motions: Vec<Vec<f64>> = texts
+            .iter()
+            .enumerate()
+            .map(|(i, t)| vec![t[0], if i % 2 == 0 { 1.0 } else { 3.0 }])
+            .collect();
         let (r, mm) = r_precision(&texts, &motions, 32);
         assert_eq!((r, mm), ([1.0; 3], 2.0));
         let (m, ci) = mean_ci(&[1.0, 1.0, 1.0]);

@@ -12,7 +12,10 @@ use diffkfc_model::optim::{descend, Adam};
 use diffkfc_model::params;
 use diffkfc_model::text::cache::EmbeddingCache;
 
-use crate::evaluator::{eval_length, info_nce, motion_tensor, text_tensor, ContrastiveEvaluator, EvaluatorConfig, TextMotionEvaluator};
+use crate::evaluator::{
+    eval_length, info_nce, motion_tensor, text_tensor, ContrastiveEvaluator, EvaluatorConfig,
+    TextMotionEvaluator,
+};
 use crate::text_motion::r_precision;
 
 pub struct EvaluatorTraining<'a> {
@@ -39,9 +42,15 @@ fn same_caption(b: &Batch) -> Vec<bool> {
 /// Embeddings, one vector per item.
 pub type Embeddings = Vec<Vec<f64>>;
 
-pub fn embed_split(ev: &dyn TextMotionEvaluator, ds: &Dataset, split: &PackedSplit) -> Result<(Embeddings, Embeddings), String> {
+pub fn embed_split(
+    ev: &dyn TextMotionEvaluator,
+    ds: &Dataset,
+    split: &PackedSplit,
+) -> Result<(Embeddings, Embeddings), String> {
     let d = ds.dim();
-    let motions: Vec<&[f32]> = (0..split.items.len()).map(|i| &split.item_frames(i)[..eval_length(split.items[i].len) * d]).collect();
+    let motions: Vec<&[f32]> = (0..split.items.len())
+        .map(|i| &split.item_frames(i)[..eval_length(split.items[i].len) * d])
+        .collect();
     let captions: Vec<&str> = split.items.iter().map(|it| it.captions[0].as_str()).collect();
     Ok((ev.embed_texts(&captions)?, ev.embed_motions(&motions)))
 }
@@ -71,11 +80,15 @@ impl EvaluatorTraining<'_> {
         let (mut first, mut last) = (f64::NAN, f64::NAN);
         for step in 0..self.steps {
             let b = loader.batch((step / per_epoch) as u64, step % per_epoch);
-            let m = model.encode_motion(motion_tensor(&b.x0, b.batch_size, b.frames, b.dim, &device), &b.lengths);
+            let m = model.encode_motion(
+                motion_tensor(&b.x0, b.batch_size, b.frames, b.dim, &device),
+                &b.lengths,
+            );
             let captions: Vec<&str> = b.captions.iter().map(String::as_str).collect();
             let t = model.encode_text(text_tensor(self.text, &captions, &device)?);
             let loss = info_nce(m, t, self.cfg.temperature, &same_caption(&b));
-            let l: f64 = loss.clone().into_data().convert::<f64>().try_to_vec::<f64>().expect("scalar")[0];
+            let l: f64 =
+                loss.clone().into_data().convert::<f64>().try_to_vec::<f64>().expect("scalar")[0];
             model = descend(model, loss, &mut vals, &mut adam, 1.0, self.lr).0;
             if step == 0 {
                 first = l;
@@ -97,11 +110,26 @@ impl EvaluatorTraining<'_> {
         ck.save(&self.out)?;
         Checkpoint::prune(&self.out, 1);
         let dims = [self.ds.dim()];
-        diffkfc_data::npy::write(self.out.join("Mean.npy"), &dims, &self.ds.mean).map_err(|e| e.to_string())?;
-        diffkfc_data::npy::write(self.out.join("Std.npy"), &dims, &self.ds.std).map_err(|e| e.to_string())?;
-        let ev = ContrastiveEvaluator { model: params::load(self.cfg.init(&self.device), &vals), mean: self.ds.mean.clone(), std: self.ds.std.clone(), text: self.text, device: self.device.clone() };
+        diffkfc_data::npy::write(self.out.join("Mean.npy"), &dims, &self.ds.mean)
+            .map_err(|e| e.to_string())?;
+        diffkfc_data::npy::write(self.out.join("Std.npy"), &dims, &self.ds.std)
+            .map_err(|e| e.to_string())?;
+        let ev = ContrastiveEvaluator {
+            model: params::load(self.cfg.init(&self.device), &vals),
+            mean: self.ds.mean.clone(),
+            std: self.ds.std.clone(),
+            text: self.text,
+            device: self.device.clone(),
+        };
         let (t, m) = embed_split(&ev, self.ds, self.test)?;
         let (r, mm) = r_precision(&t, &m, 32);
-        Ok(EvaluatorReport { steps: self.steps, first_loss: first, last_loss: last, r_precision: r, mm_dist: mm, items: t.len() })
+        Ok(EvaluatorReport {
+            steps: self.steps,
+            first_loss: first,
+            last_loss: last,
+            r_precision: r,
+            mm_dist: mm,
+            items: t.len(),
+        })
     }
 }

@@ -46,15 +46,35 @@ impl Attention {
     /// Self-attention of the token rows `x` [B*L, d] where only `queries` are wanted and only
     /// `keys` may be seen (the mask blocks the rest): projections run on those rows only, the
     /// attention core on the whole [B, L, d] layout (zeros elsewhere) -> [queries, d].
-    pub fn forward_rows(&self, x: Tensor<2>, b: usize, queries: &Rows, keys: &Rows, mask: Mask) -> Tensor<2> {
+    pub fn forward_rows(
+        &self,
+        x: Tensor<2>,
+        b: usize,
+        queries: &Rows,
+        keys: &Rows,
+        mask: Mask,
+    ) -> Tensor<2> {
         let [bl, d] = x.dims();
-        let full = |rows: &Rows, lin: &Linear| rows.scatter(linear(lin, rows.gather(x.clone()))).reshape([b, bl / b, d]);
-        let ctx = kernels::attention(full(queries, &self.query), full(keys, &self.key), full(keys, &self.value), self.heads, mask);
+        let full = |rows: &Rows, lin: &Linear| {
+            rows.scatter(linear(lin, rows.gather(x.clone()))).reshape([b, bl / b, d])
+        };
+        let ctx = kernels::attention(
+            full(queries, &self.query),
+            full(keys, &self.key),
+            full(keys, &self.value),
+            self.heads,
+            mask,
+        );
         linear(&self.output, queries.gather(ctx.reshape([bl, d])))
     }
 
     /// Attention of `q_in` [B, Lq, d] to precomputed keys and values.
-    pub fn forward_kv(&self, q_in: Tensor<3>, kv: &(Tensor<3>, Tensor<3>), mask: Mask) -> Tensor<3> {
+    pub fn forward_kv(
+        &self,
+        q_in: Tensor<3>,
+        kv: &(Tensor<3>, Tensor<3>),
+        mask: Mask,
+    ) -> Tensor<3> {
         let q = linear(&self.query, q_in);
         linear(&self.output, kernels::attention(q, kv.0.clone(), kv.1.clone(), self.heads, mask))
     }
@@ -74,7 +94,8 @@ mod tests {
         let att = Attention::new(d, h, &dev);
         let x = Tensor::<3>::random([b, lq, d], Distribution::Normal(0.0, 1.0), &dev);
         let y = Tensor::<3>::random([b, lk, d], Distribution::Normal(0.0, 1.0), &dev);
-        let blocked: Vec<bool> = (0..b * lq * lk).map(|i| i % lk != 0 && (i * 7919) % 3 == 0).collect();
+        let blocked: Vec<bool> =
+            (0..b * lq * lk).map(|i| i % lk != 0 && (i * 7919) % 3 == 0).collect();
         let m = Mask::Full(std::sync::Arc::new(blocked.clone()));
         let got = att.forward(x.clone(), y.clone(), m).into_data().try_to_vec::<f32>().unwrap();
         let split = |t: Tensor<3>, l: usize| t.reshape([b, l, h, d / h]).swap_dims(1, 2);
@@ -84,7 +105,12 @@ mod tests {
         let bias: Vec<f32> = blocked.iter().map(|&x| if x { -1e9 } else { 0.0 }).collect();
         let bias = Tensor::<1>::from_floats(bias.as_slice(), &dev).reshape([b, 1, lq, lk]);
         let w = softmax(q.matmul(k.transpose()).div_scalar(((d / h) as f32).sqrt()) + bias, 3);
-        let want = att.output.forward(w.matmul(v).swap_dims(1, 2).reshape([b, lq, d])).into_data().try_to_vec::<f32>().unwrap();
+        let want = att
+            .output
+            .forward(w.matmul(v).swap_dims(1, 2).reshape([b, lq, d]))
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap();
         let e = got.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
         assert!(e < 1e-5, "{e}");
     }

@@ -24,5 +24,9 @@ pub fn to_tensors(b: &Batch, text: &[f32], text_dim: usize, device: &Device) -> 
     let real = b.valid.iter().map(|&v| v > 0.0).collect();
     let text = Tensor::<1>::from_floats(text, device).reshape([bs, text_dim]);
     let cond = Condition::new(text, kf, kf_mask, &b.kf_mask, &b.root, &b.root_mask, real, device);
-    TensorBatch { x0, valid: Tensor::<1>::from_floats(b.valid.as_slice(), device).reshape([bs, n]), cond }
+    TensorBatch {
+        x0,
+        valid: Tensor::<1>::from_floats(b.valid.as_slice(), device).reshape([bs, n]),
+        cond,
+    }
 }

@@ -63,9 +63,21 @@ impl TrainStep {
         let req = request(cfg, batch, frames, 1);
         let mut r = Rng::new(2);
         let shape = [batch, frames, cfg.feat_dim];
-        let (x0, noise) = (normal_tensor(&mut r, shape, &device), normal_tensor(&mut r, shape, &device));
+        let (x0, noise) =
+            (normal_tensor(&mut r, shape, &device), normal_tensor(&mut r, shape, &device));
         let t = (0..batch).map(|i| (97 * i + 500) % 1000).collect();
-        TrainStep { model: Some(model), vals, adam, req, x0, noise, t, schedule: Schedule::cosine(1000), device, phases: [0.0; 3] }
+        TrainStep {
+            model: Some(model),
+            vals,
+            adam,
+            req,
+            x0,
+            noise,
+            t,
+            schedule: Schedule::cosine(1000),
+            device,
+            phases: [0.0; 3],
+        }
     }
 
     /// One step; returns the loss (its value forces the work to finish).
@@ -77,7 +89,8 @@ impl TrainStep {
         let loss = (model.forward(x_t, &self.t, &cond) - self.x0.clone()).powf_scalar(2.0).mean();
         let value = params::host(loss.clone())[0] as f64;
         let forward = t0.elapsed().as_secs_f64();
-        let (model, _, [backward, update]) = descend_timed(model, loss, &mut self.vals, &mut self.adam, 1.0, 1e-4);
+        let (model, _, [backward, update]) =
+            descend_timed(model, loss, &mut self.vals, &mut self.adam, 1.0, 1e-4);
         self.phases = [forward, backward, update];
         self.model = Some(model);
         value
@@ -94,7 +107,12 @@ pub struct Sampling<'a> {
 }
 
 impl<'a> Sampling<'a> {
-    pub fn new(model: &'a Denoiser, cfg: &DiffKfcConfig, batch: usize, frames: usize) -> Sampling<'a> {
+    pub fn new(
+        model: &'a Denoiser,
+        cfg: &DiffKfcConfig,
+        batch: usize,
+        frames: usize,
+    ) -> Sampling<'a> {
         let device = model.devices().first().cloned().unwrap_or_else(Device::flex);
         let req = request(cfg, batch, frames, 3);
         let encoded = model.encode(&crate::guidance::pair(&req.condition(&device)));
@@ -107,7 +125,8 @@ impl<'a> Sampling<'a> {
     /// the first) or encoder + decoder.
     pub fn call(&self, with_encoder: bool) -> Vec<f32> {
         let out = if with_encoder {
-            let enc = self.model.encode(&crate::guidance::pair(&self.req.condition(&self.x.device())));
+            let enc =
+                self.model.encode(&crate::guidance::pair(&self.req.condition(&self.x.device())));
             self.model.decode(self.x.clone(), &self.t, &enc)
         } else {
             self.model.decode(self.x.clone(), &self.t, &self.encoded)
@@ -118,7 +137,12 @@ impl<'a> Sampling<'a> {
     /// A full sample: DDIM with keyframe guidance 2.5 and transition guidance 100 (x0 mode).
     pub fn sample(&self, steps: usize) -> Vec<f32> {
         let schedule = Schedule::cosine(1000);
-        let opts = Options { sampler: Sampler::Ddim(steps), kf_guidance: 2.5, transition: 100.0, ..Options::default() };
+        let opts = Options {
+            sampler: Sampler::Ddim(steps),
+            kf_guidance: 2.5,
+            transition: 100.0,
+            ..Options::default()
+        };
         sampler::sample(self.model, &schedule, &self.req, &opts, |_, _| {})
     }
 }
@@ -129,7 +153,13 @@ impl<'a> Sampling<'a> {
 /// all threads), so timings from different machines compare as fractions of their peak.
 pub fn machine(n: usize, reps: usize) -> serde_json::Value {
     let info = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
-    let field = |k: &str| info.lines().find(|l| l.starts_with(k)).and_then(|l| l.split_once(':')).map(|(_, v)| v.trim().to_string()).unwrap_or_default();
+    let field = |k: &str| {
+        info.lines()
+            .find(|l| l.starts_with(k))
+            .and_then(|l| l.split_once(':'))
+            .map(|(_, v)| v.trim().to_string())
+            .unwrap_or_default()
+    };
     let flags = field("flags");
     let has = |f: &str| flags.split_whitespace().any(|x| x == f);
     let (x, w, b) = (vec![0.5f32; n * n], vec![0.25f32; n * n], vec![0f32; n]);

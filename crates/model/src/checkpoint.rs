@@ -32,11 +32,20 @@ fn bytes(v: &[f32]) -> Vec<u8> {
 }
 
 /// Shape and values (as f32) of tensor `name`, stored as F32 or F16.
-fn tensor_values(st: &safetensors::SafeTensors, name: &str) -> Result<(Vec<usize>, Vec<f32>), String> {
+fn tensor_values(
+    st: &safetensors::SafeTensors,
+    name: &str,
+) -> Result<(Vec<usize>, Vec<f32>), String> {
     let t = st.tensor(name).map_err(|_| format!("tensor {name} missing"))?;
     let values = match t.dtype() {
-        Dtype::F32 => t.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect(),
-        Dtype::F16 => t.data().chunks_exact(2).map(|c| half::f16::from_le_bytes([c[0], c[1]]).to_f32()).collect(),
+        Dtype::F32 => {
+            t.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+        }
+        Dtype::F16 => t
+            .data()
+            .chunks_exact(2)
+            .map(|c| half::f16::from_le_bytes([c[0], c[1]]).to_f32())
+            .collect(),
         other => return Err(format!("tensor {name} is {other:?}; expected F32 or F16")),
     };
     Ok((t.shape().to_vec(), values))
@@ -57,7 +66,10 @@ impl Checkpoint {
                 owned.push((format!("ema/{i:04}"), shape.clone(), bytes(&e[i])));
             }
         }
-        let views: Vec<(String, TensorView)> = owned.iter().map(|(n, s, b)| (n.clone(), TensorView::new(Dtype::F32, s.clone(), b).expect("view"))).collect();
+        let views: Vec<(String, TensorView)> = owned
+            .iter()
+            .map(|(n, s, b)| (n.clone(), TensorView::new(Dtype::F32, s.clone(), b).expect("view")))
+            .collect();
         let meta = HashMap::from([
             ("format".to_string(), FORMAT.to_string()),
             ("step".to_string(), self.step.to_string()),
@@ -77,11 +89,26 @@ impl Checkpoint {
     pub fn save_weights(&self, dir: &Path, half: bool) -> Result<PathBuf, String> {
         let weights = self.ema.as_ref().unwrap_or(&self.model);
         let (dtype, owned): (Dtype, Vec<Vec<u8>>) = if half {
-            (Dtype::F16, weights.iter().map(|w| w.iter().flat_map(|&f| half::f16::from_f32(f).to_le_bytes()).collect()).collect())
+            (
+                Dtype::F16,
+                weights
+                    .iter()
+                    .map(|w| w.iter().flat_map(|&f| half::f16::from_f32(f).to_le_bytes()).collect())
+                    .collect(),
+            )
         } else {
             (Dtype::F32, weights.iter().map(|w| bytes(w)).collect())
         };
-        let views: Vec<(String, TensorView)> = owned.iter().enumerate().map(|(i, b)| (format!("weights/{i:04}"), TensorView::new(dtype, self.shapes[i].clone(), b).expect("view"))).collect();
+        let views: Vec<(String, TensorView)> = owned
+            .iter()
+            .enumerate()
+            .map(|(i, b)| {
+                (
+                    format!("weights/{i:04}"),
+                    TensorView::new(dtype, self.shapes[i].clone(), b).expect("view"),
+                )
+            })
+            .collect();
         let meta = HashMap::from([
             ("format".to_string(), WEIGHTS_FORMAT.to_string()),
             ("step".to_string(), self.step.to_string()),
@@ -101,20 +128,26 @@ impl Checkpoint {
     pub fn load(path: &Path) -> Result<Checkpoint, String> {
         let err = |m: String| format!("{}: {m}", path.display());
         let data = std::fs::read(path).map_err(|e| err(e.to_string()))?;
-        let (_, meta) = safetensors::SafeTensors::read_metadata(&data).map_err(|e| err(format!("not a checkpoint ({e})")))?;
+        let (_, meta) = safetensors::SafeTensors::read_metadata(&data)
+            .map_err(|e| err(format!("not a checkpoint ({e})")))?;
         let meta = meta.metadata().clone().unwrap_or_default();
         let weights_only = match meta.get("format").map(String::as_str) {
             Some(FORMAT) => false,
             Some(WEIGHTS_FORMAT) => true,
             _ => return Err(err("not a diffkfc checkpoint".into())),
         };
-        let num = |k: &str| -> Result<u64, String> { meta.get(k).and_then(|v| v.parse().ok()).ok_or_else(|| err(format!("metadata '{k}' missing"))) };
+        let num = |k: &str| -> Result<u64, String> {
+            meta.get(k)
+                .and_then(|v| v.parse().ok())
+                .ok_or_else(|| err(format!("metadata '{k}' missing")))
+        };
         let n = num("params")? as usize;
         let st = safetensors::SafeTensors::deserialize(&data).map_err(|e| err(e.to_string()))?;
         if weights_only {
             let (mut shapes, mut model) = (vec![], vec![]);
             for i in 0..n {
-                let (shape, values) = tensor_values(&st, &format!("weights/{i:04}")).map_err(err)?;
+                let (shape, values) =
+                    tensor_values(&st, &format!("weights/{i:04}")).map_err(err)?;
                 shapes.push(shape);
                 model.push(values);
             }
@@ -131,7 +164,8 @@ impl Checkpoint {
             });
         }
         let get = |name: String| tensor_values(&st, &name).map_err(err);
-        let (mut shapes, mut model, mut m, mut v, mut ema) = (vec![], vec![], vec![], vec![], vec![]);
+        let (mut shapes, mut model, mut m, mut v, mut ema) =
+            (vec![], vec![], vec![], vec![], vec![]);
         let has_ema = st.names().iter().any(|k| k.starts_with("ema/"));
         for i in 0..n {
             let (s, p) = get(format!("model/{i:04}"))?;
@@ -164,7 +198,8 @@ impl Checkpoint {
             .flatten()
             .filter_map(|e| {
                 let name = e.file_name().to_string_lossy().into_owned();
-                let step = name.strip_prefix("ckpt-")?.strip_suffix(".safetensors")?.parse().ok()?;
+                let step =
+                    name.strip_prefix("ckpt-")?.strip_suffix(".safetensors")?.parse().ok()?;
                 Some((step, e.path()))
             })
             .collect();
@@ -214,22 +249,32 @@ pub fn export(run: &Path, out: &Path, half: bool) -> Result<Exported, String> {
     let (ck, dir) = if run.is_file() {
         (Checkpoint::load(run)?, run.parent().unwrap_or(Path::new(".")).to_path_buf())
     } else {
-        let ck = Checkpoint::latest(run).ok_or(format!("{}: no ckpt-*.safetensors to export", run.display()))??;
+        let ck = Checkpoint::latest(run)
+            .ok_or(format!("{}: no ckpt-*.safetensors to export", run.display()))??;
         (ck, run.to_path_buf())
     };
-    let same = |a: &Path, b: &Path| a == b || matches!((a.canonicalize(), b.canonicalize()), (Ok(x), Ok(y)) if x == y);
+    let same = |a: &Path, b: &Path| {
+        a == b || matches!((a.canonicalize(), b.canonicalize()), (Ok(x), Ok(y)) if x == y)
+    };
     if same(out, &dir) {
-        return Err(format!("{}: export into the run directory itself is refused; choose another --out", out.display()));
+        return Err(format!(
+            "{}: export into the run directory itself is refused; choose another --out",
+            out.display()
+        ));
     }
     // A model directory needs the run's normalisation, readable and as wide as the model.
-    let cfg = crate::run_config::RunConfig::parse(&ck.config).map_err(|e| format!("{}: stored config: {e}", run.display()))?;
-    diffkfc_data::dataset::read_normalisation(&dir, Some(cfg.model.feat_dim)).map_err(|e| e.to_string())?;
+    let cfg = crate::run_config::RunConfig::parse(&ck.config)
+        .map_err(|e| format!("{}: stored config: {e}", run.display()))?;
+    diffkfc_data::dataset::read_normalisation(&dir, Some(cfg.model.feat_dim))
+        .map_err(|e| e.to_string())?;
     std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
     let weights = ck.save_weights(out, half)?;
     let mut files = vec![weights.clone()];
-    let config: serde_json::Value = serde_json::from_str(&ck.config).map_err(|e| format!("{}: stored config: {e}", run.display()))?;
+    let config: serde_json::Value = serde_json::from_str(&ck.config)
+        .map_err(|e| format!("{}: stored config: {e}", run.display()))?;
     let text = serde_json::to_string_pretty(&config).map_err(|e| e.to_string())? + "\n";
-    diffkfc_data::write_atomic(&out.join("config.json"), text.as_bytes()).map_err(|e| e.to_string())?;
+    diffkfc_data::write_atomic(&out.join("config.json"), text.as_bytes())
+        .map_err(|e| e.to_string())?;
     files.push(out.join("config.json"));
     for name in ["Mean.npy", "Std.npy", "metrics.jsonl", "loss.svg"] {
         let src = dir.join(name);

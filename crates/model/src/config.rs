@@ -44,12 +44,22 @@ impl DiffKfcConfig {
     }
 
     pub fn small() -> Self {
-        Self::new().with_d_model(256).with_heads(4).with_ffn(512).with_dec_layers(4).with_dma_sizes(vec![2, 4, 8, 0])
+        Self::new()
+            .with_d_model(256)
+            .with_heads(4)
+            .with_ffn(512)
+            .with_dec_layers(4)
+            .with_dma_sizes(vec![2, 4, 8, 0])
     }
 
     /// Fast on a CPU: for tests, the quick start and smoke benchmarks.
     pub fn tiny() -> Self {
-        Self::new().with_d_model(64).with_heads(4).with_ffn(128).with_dec_layers(2).with_dma_sizes(vec![2, 4, 0])
+        Self::new()
+            .with_d_model(64)
+            .with_heads(4)
+            .with_ffn(128)
+            .with_dec_layers(2)
+            .with_dma_sizes(vec![2, 4, 0])
     }
 
     pub fn preset(name: &str) -> Option<Self> {

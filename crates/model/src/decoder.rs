@@ -27,7 +27,14 @@ pub struct DecoderLayer {
 
 impl DecoderLayer {
     /// `temporal_kernel` 0: no temporal convolution (the paper).
-    pub fn new(d: usize, heads: usize, ffn: usize, dropout: f64, temporal_kernel: usize, device: &Device) -> Self {
+    pub fn new(
+        d: usize,
+        heads: usize,
+        ffn: usize,
+        dropout: f64,
+        temporal_kernel: usize,
+        device: &Device,
+    ) -> Self {
         DecoderLayer {
             self_attn: Attention::new(d, heads, device),
             cross_attn: Attention::new(d, heads, device),
@@ -49,7 +56,14 @@ impl DecoderLayer {
     /// `h` [B, 2+N, d] with `self_pad` (key padding of the decoder sequence); `enc_kv` from
     /// [`cross_kv`] with `enc_pad` (encoder tokens that are not valid keys); `real` [B, N, 1]
     /// 1 on real frames, 0 on padding -> [B, 2+N, d].
-    pub fn forward(&self, h: Tensor<3>, self_pad: Mask, enc_kv: &(Tensor<3>, Tensor<3>), enc_pad: Mask, real: &Tensor<3>) -> Tensor<3> {
+    pub fn forward(
+        &self,
+        h: Tensor<3>,
+        self_pad: Mask,
+        enc_kv: &(Tensor<3>, Tensor<3>),
+        enc_pad: Mask,
+        real: &Tensor<3>,
+    ) -> Tensor<3> {
         let mut a = self.self_attn.forward(h.clone(), h.clone(), self_pad);
         if let Some(conv) = &self.temporal {
             let [b, m, d] = h.dims();

@@ -35,13 +35,41 @@ impl Condition {
     /// A condition from device tensors `text` [B, T], `kf`/`kf_mask` [B, N, D] and the host
     /// copies of the masks ([B*N*D] features, [B*N*R] root channels with their values).
     #[allow(clippy::too_many_arguments)]
-    pub fn new(text: Tensor<2>, kf: Tensor<3>, kf_mask: Tensor<3>, mask: &[f32], root: &[f32], root_mask: &[f32], real: Vec<bool>, device: &Device) -> Condition {
+    pub fn new(
+        text: Tensor<2>,
+        kf: Tensor<3>,
+        kf_mask: Tensor<3>,
+        mask: &[f32],
+        root: &[f32],
+        root_mask: &[f32],
+        real: Vec<bool>,
+        device: &Device,
+    ) -> Condition {
         let [b, n, d] = kf.dims();
         let r = ROOT_CHANNELS;
-        assert_eq!((root.len(), root_mask.len()), (b * n * r, b * n * r), "root channels [B, N, {r}]");
-        let kf_frames = (0..b * n).map(|f| mask[f * d..(f + 1) * d].iter().chain(&root_mask[f * r..(f + 1) * r]).any(|&m| m > 0.0)).collect();
+        assert_eq!(
+            (root.len(), root_mask.len()),
+            (b * n * r, b * n * r),
+            "root channels [B, N, {r}]"
+        );
+        let kf_frames = (0..b * n)
+            .map(|f| {
+                mask[f * d..(f + 1) * d]
+                    .iter()
+                    .chain(&root_mask[f * r..(f + 1) * r])
+                    .any(|&m| m > 0.0)
+            })
+            .collect();
         let root_t = |v: &[f32]| Tensor::<1>::from_floats(v, device).reshape([b, n, r]);
-        Condition { text, kf, kf_mask, root: root_t(root), root_mask: root_t(root_mask), kf_frames, real }
+        Condition {
+            text,
+            kf,
+            kf_mask,
+            root: root_t(root),
+            root_mask: root_t(root_mask),
+            kf_frames,
+            real,
+        }
     }
 
     /// The same condition with all keyframes dropped (keyframe classifier-free guidance).
@@ -96,8 +124,27 @@ impl DiffKfcConfig {
             x_in: LinearConfig::new(self.feat_dim, d).init(device),
             text_in: LinearConfig::new(self.text_dim, d).init(device),
             time: TimestepEmbed::new(d, device),
-            encoder: KeyframeEncoder::new(self.feat_dim, self.root_channels, d, self.heads, self.ffn, self.dma_sizes.len(), device),
-            layers: (0..self.dec_layers).map(|_| DecoderLayer::new(d, self.heads, self.ffn, self.dropout, self.temporal_kernel, device)).collect(),
+            encoder: KeyframeEncoder::new(
+                self.feat_dim,
+                self.root_channels,
+                d,
+                self.heads,
+                self.ffn,
+                self.dma_sizes.len(),
+                device,
+            ),
+            layers: (0..self.dec_layers)
+                .map(|_| {
+                    DecoderLayer::new(
+                        d,
+                        self.heads,
+                        self.ffn,
+                        self.dropout,
+                        self.temporal_kernel,
+                        device,
+                    )
+                })
+                .collect(),
             out: LinearConfig::new(d, self.feat_dim).init(device),
             d_model: d,
             dma_sizes: self.dma_sizes.clone(),
@@ -116,10 +163,20 @@ impl Denoiser {
         let pos = positions(n, self.d_model, &device);
         let tokens = self.encoder.forward(text_tok.clone(), c, pos.clone(), &plan);
         let key_pad = plan.final_valid().iter().map(|v| !v).collect();
-        let self_pad = (0..b * (n + 2)).map(|k| k % (n + 2) >= 2 && !c.real[k / (n + 2) * n + k % (n + 2) - 2]).collect();
+        let self_pad = (0..b * (n + 2))
+            .map(|k| k % (n + 2) >= 2 && !c.real[k / (n + 2) * n + k % (n + 2) - 2])
+            .collect();
         let cross_kv = self.layers.iter().map(|l| l.cross_kv(tokens.clone())).collect();
         let real: Vec<f32> = c.real.iter().map(|&r| if r { 1.0 } else { 0.0 }).collect();
-        Encoded { real: Tensor::<1>::from_floats(real.as_slice(), &device).reshape([b, n, 1]), cross_kv, tokens, key_pad: key_mask(key_pad), text_tok, self_pad: key_mask(self_pad), pos }
+        Encoded {
+            real: Tensor::<1>::from_floats(real.as_slice(), &device).reshape([b, n, 1]),
+            cross_kv,
+            tokens,
+            key_pad: key_mask(key_pad),
+            text_tok,
+            self_pad: key_mask(self_pad),
+            pos,
+        }
     }
 
     /// Predict x0 from x_t [B, N, D] at timesteps `t` (one per sample) -> [B, N, D].
@@ -144,7 +201,15 @@ impl Denoiser {
     pub fn param_counts(&self) -> Vec<(&'static str, usize)> {
         let enc = self.encoder.num_params();
         let dec: usize = self.layers.iter().map(|l| l.num_params()).sum();
-        let emb = self.x_in.num_params() + self.text_in.num_params() + self.time.num_params() + self.out.num_params();
-        vec![("keyframe encoder (DMA)", enc), ("decoder layers", dec), ("input/output/timestep/text projections", emb), ("total", self.num_params())]
+        let emb = self.x_in.num_params()
+            + self.text_in.num_params()
+            + self.time.num_params()
+            + self.out.num_params();
+        vec![
+            ("keyframe encoder (DMA)", enc),
+            ("decoder layers", dec),
+            ("input/output/timestep/text projections", emb),
+            ("total", self.num_params()),
+        ]
     }
 }

@@ -15,8 +15,11 @@ impl Schedule {
     /// Cosine schedule (Nichol & Dhariwal): alpha_bar(t) = cos((t/T + s)/(1 + s) * pi/2)^2,
     /// s = 0.008, betas capped at 0.999.
     pub fn cosine(steps: usize) -> Schedule {
-        let f = |t: f64| ((t / steps as f64 + 0.008) / 1.008 * std::f64::consts::FRAC_PI_2).cos().powi(2);
-        let betas: Vec<f64> = (0..steps).map(|i| (1.0 - f(i as f64 + 1.0) / f(i as f64)).min(0.999)).collect();
+        let f = |t: f64| {
+            ((t / steps as f64 + 0.008) / 1.008 * std::f64::consts::FRAC_PI_2).cos().powi(2)
+        };
+        let betas: Vec<f64> =
+            (0..steps).map(|i| (1.0 - f(i as f64 + 1.0) / f(i as f64)).min(0.999)).collect();
         Self::from_betas(betas)
     }
 
@@ -24,7 +27,9 @@ impl Schedule {
     pub fn linear(steps: usize) -> Schedule {
         let scale = 1000.0 / steps as f64;
         let (a, b) = (scale * 1e-4, scale * 0.02);
-        Self::from_betas((0..steps).map(|i| a + (b - a) * i as f64 / (steps - 1).max(1) as f64).collect())
+        Self::from_betas(
+            (0..steps).map(|i| a + (b - a) * i as f64 / (steps - 1).max(1) as f64).collect(),
+        )
     }
 
     pub fn by_name(name: &str, steps: usize) -> Option<Schedule> {

@@ -34,7 +34,13 @@ pub struct DmaPlan {
 
 impl DmaPlan {
     /// `keyframe[b*N+i]`: frame i of sample b is observed; `real`: it is not padding.
-    pub fn new(keyframe: &[bool], real: &[bool], batch: usize, frames: usize, sizes: &[usize]) -> DmaPlan {
+    pub fn new(
+        keyframe: &[bool],
+        real: &[bool],
+        batch: usize,
+        frames: usize,
+        sizes: &[usize],
+    ) -> DmaPlan {
         let (n, l) = (frames, frames + 1);
         let mut valid: Vec<bool> = (0..batch * l)
             .map(|k| {
@@ -107,7 +113,12 @@ pub struct DmaBlock {
 
 impl DmaBlock {
     pub fn new(d: usize, heads: usize, ffn: usize, device: &Device) -> Self {
-        DmaBlock { attn: Attention::new(d, heads, device), fc: LinearConfig::new(2 * d, d).init(device), mlp1: LinearConfig::new(d, ffn).init(device), mlp2: LinearConfig::new(ffn, d).init(device) }
+        DmaBlock {
+            attn: Attention::new(d, heads, device),
+            fc: LinearConfig::new(2 * d, d).init(device),
+            mlp1: LinearConfig::new(d, ffn).init(device),
+            mlp2: LinearConfig::new(ffn, d).init(device),
+        }
     }
 
     /// `z`: [B, 1+N, d]; `blocked`: the block's [B, 1+N, 1+N] mask; `active`: per token (B x
@@ -116,7 +127,13 @@ impl DmaBlock {
     /// the concat-FC and MLP) run on the active rows only and keys and values on the valid rows
     /// only: early blocks with small windows, and the keyframe-free half of a guided batch, have
     /// few of either.
-    pub fn forward(&self, z: Tensor<3>, blocked: Mask, active: &[bool], valid: &[bool]) -> Tensor<3> {
+    pub fn forward(
+        &self,
+        z: Tensor<3>,
+        blocked: Mask,
+        active: &[bool],
+        valid: &[bool],
+    ) -> Tensor<3> {
         let [b, l, d] = z.dims();
         let rows = Rows::new(active, &z.device());
         if rows.count == 0 {
@@ -126,10 +143,15 @@ impl DmaBlock {
         let keys = Rows::new(valid, &flat.device());
         let zs = rows.gather(flat.clone());
         let a = self.attn.forward_rows(flat.clone(), b, &rows, &keys, blocked);
-        let zk = linear(&self.mlp2, linear_gelu(&self.mlp1, linear(&self.fc, Tensor::cat(vec![a, zs.clone()], 1))));
+        let zk = linear(
+            &self.mlp2,
+            linear_gelu(&self.mlp1, linear(&self.fc, Tensor::cat(vec![a, zs.clone()], 1))),
+        );
         match &rows.index {
             None => zk.reshape([b, l, d]),
-            Some(idx) => flat.select_assign(0, idx.clone(), zk - zs, IndexingUpdateOp::Add).reshape([b, l, d]),
+            Some(idx) => flat
+                .select_assign(0, idx.clone(), zk - zs, IndexingUpdateOp::Add)
+                .reshape([b, l, d]),
         }
     }
 }
@@ -144,10 +166,12 @@ pub struct Rows {
 
 impl Rows {
     pub fn new(mask: &[bool], device: &Device) -> Rows {
-        let rows: Vec<i64> = mask.iter().enumerate().filter(|(_, &v)| v).map(|(i, _)| i as i64).collect();
+        let rows: Vec<i64> =
+            mask.iter().enumerate().filter(|(_, &v)| v).map(|(i, _)| i as i64).collect();
         let (count, total) = (rows.len(), mask.len());
         // Above ~3/4 of the rows the saved products no longer pay for the gather and scatter.
-        let index = (count * 4 < total * 3).then(|| Tensor::<1, Int>::from_data(TensorData::new(rows, [count]), device));
+        let index = (count * 4 < total * 3)
+            .then(|| Tensor::<1, Int>::from_data(TensorData::new(rows, [count]), device));
         Rows { count, total, index }
     }
 
@@ -162,7 +186,12 @@ impl Rows {
     /// Rows [count, d] back in place among zeros -> [total, d].
     pub fn scatter(&self, x: Tensor<2>) -> Tensor<2> {
         match &self.index {
-            Some(idx) => Tensor::zeros([self.total, x.dims()[1]], &x.device()).select_assign(0, idx.clone(), x, IndexingUpdateOp::Add),
+            Some(idx) => Tensor::zeros([self.total, x.dims()[1]], &x.device()).select_assign(
+                0,
+                idx.clone(),
+                x,
+                IndexingUpdateOp::Add,
+            ),
             None => x,
         }
     }
@@ -178,13 +207,31 @@ pub struct KeyframeEncoder {
 }
 
 impl KeyframeEncoder {
-    pub fn new(feat: usize, root_channels: usize, d: usize, heads: usize, ffn: usize, blocks: usize, device: &Device) -> Self {
-        KeyframeEncoder { kf_in: LinearConfig::new(2 * (feat + root_channels), d).init(device), blocks: (0..blocks).map(|_| DmaBlock::new(d, heads, ffn, device)).collect(), root_channels }
+    pub fn new(
+        feat: usize,
+        root_channels: usize,
+        d: usize,
+        heads: usize,
+        ffn: usize,
+        blocks: usize,
+        device: &Device,
+    ) -> Self {
+        KeyframeEncoder {
+            kf_in: LinearConfig::new(2 * (feat + root_channels), d).init(device),
+            blocks: (0..blocks).map(|_| DmaBlock::new(d, heads, ffn, device)).collect(),
+            root_channels,
+        }
     }
 
     /// `text_tok` [B,1,d]; the condition's keyframes `kf`/`kf_mask` [B,N,D] and root channels
     /// [B,N,R]; `pos` [1,N,d] -> [B, 1+N, d].
-    pub fn forward(&self, text_tok: Tensor<3>, c: &Condition, pos: Tensor<3>, plan: &DmaPlan) -> Tensor<3> {
+    pub fn forward(
+        &self,
+        text_tok: Tensor<3>,
+        c: &Condition,
+        pos: Tensor<3>,
+        plan: &DmaPlan,
+    ) -> Tensor<3> {
         let mut parts = vec![c.kf.clone() * c.kf_mask.clone(), c.kf_mask.clone()];
         if self.root_channels > 0 {
             let [b, n, _] = c.root.dims();
@@ -196,7 +243,12 @@ impl KeyframeEncoder {
         let z0 = Tensor::cat(vec![text_tok, frames], 1);
         let mut z = z0.clone();
         for (k, block) in self.blocks.iter().enumerate() {
-            z = block.forward(z, Mask::Full(plan.blocked[k].clone()), &plan.active[k], plan.valid_before(k));
+            z = block.forward(
+                z,
+                Mask::Full(plan.blocked[k].clone()),
+                &plan.active[k],
+                plan.valid_before(k),
+            );
         }
         z + z0
     }
@@ -207,7 +259,9 @@ mod tests {
     use super::*;
 
     fn dilate(keys: &[usize], real: usize, r: usize) -> Vec<bool> {
-        (0..real).map(|i| keys.iter().any(|&k| (k as i64 - i as i64).unsigned_abs() as usize <= r)).collect()
+        (0..real)
+            .map(|i| keys.iter().any(|&k| (k as i64 - i as i64).unsigned_abs() as usize <= r))
+            .collect()
     }
 
     #[test]

@@ -53,7 +53,9 @@ impl Dropout {
 
     pub fn forward<const D: usize>(&self, x: Tensor<D>) -> Tensor<D> {
         match self.host_mask(&x) {
-            Some(m) => x.clone() * Tensor::<D>::from_data(TensorData::new(m, x.shape()), &x.device()),
+            Some(m) => {
+                x.clone() * Tensor::<D>::from_data(TensorData::new(m, x.shape()), &x.device())
+            }
             None => x,
         }
     }
@@ -94,6 +96,9 @@ mod tests {
         let ad = Tensor::<1>::from_floats([1.0, 2.0, 3.0].as_slice(), &Device::flex().autodiff());
         assert_eq!(crate::params::host(Dropout::new(0.0).forward(ad.clone())), vec![1.0, 2.0, 3.0]);
         let y = crate::params::host(Dropout::new(0.5).forward(ad));
-        assert!(y.iter().zip([1.0, 2.0, 3.0]).all(|(a, b)| *a == 0.0 || (*a - 2.0 * b).abs() < 1e-6));
+        assert!(y
+            .iter()
+            .zip([1.0, 2.0, 3.0])
+            .all(|(a, b)| *a == 0.0 || (*a - 2.0 * b).abs() < 1e-6));
     }
 }

@@ -35,13 +35,18 @@ pub struct TimestepEmbed {
 
 impl TimestepEmbed {
     pub fn new(d: usize, device: &Device) -> Self {
-        TimestepEmbed { fc1: LinearConfig::new(d, d).init(device), fc2: LinearConfig::new(d, d).init(device), d }
+        TimestepEmbed {
+            fc1: LinearConfig::new(d, d).init(device),
+            fc2: LinearConfig::new(d, d).init(device),
+            d,
+        }
     }
 
     /// `t`: timesteps, one per sample -> [B, 1, d].
     pub fn forward(&self, t: &[usize], device: &Device) -> Tensor<3> {
         let pos: Vec<f32> = t.iter().map(|&x| x as f32).collect();
-        let table = Tensor::<1>::from_floats(sinusoid_table(&pos, self.d).as_slice(), device).reshape([t.len(), self.d]);
+        let table = Tensor::<1>::from_floats(sinusoid_table(&pos, self.d).as_slice(), device)
+            .reshape([t.len(), self.d]);
         linear(&self.fc2, silu(linear(&self.fc1, table))).unsqueeze_dim(1)
     }
 }

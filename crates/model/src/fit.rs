@@ -62,7 +62,15 @@ pub struct Fitted {
 
 /// Sample `i` of the sampler's normalised output `x` [B, N, D], de-normalised, fitted to the
 /// request's keyframes and, with `fit.foot_lock`, its planted feet held (pose keyframes untouched).
-pub fn finish(x: &[f32], req: &Request, i: usize, mean: &[f32], std: &[f32], skel: &Skeleton, fit: Fit) -> Fitted {
+pub fn finish(
+    x: &[f32],
+    req: &Request,
+    i: usize,
+    mean: &[f32],
+    std: &[f32],
+    skel: &Skeleton,
+    fit: Fit,
+) -> Fitted {
     let layout = Layout::of(skel);
     let (mut features, corrections) = fit_keys(x, req, i, mean, std, &layout, fit.keyframes);
     let mut feet = LockReport::default();
@@ -74,7 +82,15 @@ pub fn finish(x: &[f32], req: &Request, i: usize, mean: &[f32], std: &[f32], ske
     Fitted { features, corrections, feet }
 }
 
-fn fit_keys(x: &[f32], req: &Request, i: usize, mean: &[f32], std: &[f32], layout: &Layout, fit: KeyframeFit) -> (Vec<f32>, Vec<Correction>) {
+fn fit_keys(
+    x: &[f32],
+    req: &Request,
+    i: usize,
+    mean: &[f32],
+    std: &[f32],
+    layout: &Layout,
+    fit: KeyframeFit,
+) -> (Vec<f32>, Vec<Correction>) {
     let (n, d, r) = (req.frames, req.dim, ROOT_CHANNELS);
     let len = req.lengths[i];
     let span = |v: &[f32], w: usize| v[i * n * w..(i * n + len) * w].to_vec();
@@ -105,8 +121,15 @@ fn fit_keys(x: &[f32], req: &Request, i: usize, mean: &[f32], std: &[f32], layou
         }
         KeyframeFit::Warp => {
             let (rv, rm) = (span(&req.root, r), span(&req.root_mask, r));
-            let root: Vec<RootKey> = (0..len).map(|f| RootKey::from_channels(&rv[f * r..(f + 1) * r], &rm[f * r..(f + 1) * r])).collect();
-            let corr = warp::warp(layout, &mut out, &warp::Targets { features: &target, mask: &mask, root: &root }, FALLOFF);
+            let root: Vec<RootKey> = (0..len)
+                .map(|f| RootKey::from_channels(&rv[f * r..(f + 1) * r], &rm[f * r..(f + 1) * r]))
+                .collect();
+            let corr = warp::warp(
+                layout,
+                &mut out,
+                &warp::Targets { features: &target, mask: &mask, root: &root },
+                FALLOFF,
+            );
             (out, corr)
         }
     }

@@ -33,11 +33,28 @@ fn attend(b: usize, lq: usize, lk: usize, d: usize) -> f64 {
 pub fn forward(c: &DiffKfcConfig, batch: usize, frames: usize) -> Flops {
     let (b, n, d, f) = (batch, frames, c.d_model, c.ffn);
     let (le, ld) = (n + 1, n + 2);
-    let block = linear(b * le, d, 3 * d) + attend(b, le, le, d) + linear(b * le, d, d) + linear(b * le, 2 * d, d) + linear(b * le, d, f) + linear(b * le, f, d);
-    let encoder = linear(b, c.text_dim, d) + linear(b * n, 2 * c.feat_dim, d) + c.dma_sizes.len() as f64 * block + c.dec_layers as f64 * linear(b * le, d, 2 * d);
-    let layer =
-        linear(b * ld, d, 3 * d) + attend(b, ld, ld, d) + linear(b * ld, d, d) + linear(b * ld, d, d) + attend(b, ld, le, d) + linear(b * ld, d, d) + linear(b * ld, d, f) + linear(b * ld, f, d);
-    let decoder = linear(b * n, c.feat_dim, d) + 2.0 * linear(b, d, d) + c.dec_layers as f64 * layer + linear(b * n, d, c.feat_dim);
+    let block = linear(b * le, d, 3 * d)
+        + attend(b, le, le, d)
+        + linear(b * le, d, d)
+        + linear(b * le, 2 * d, d)
+        + linear(b * le, d, f)
+        + linear(b * le, f, d);
+    let encoder = linear(b, c.text_dim, d)
+        + linear(b * n, 2 * c.feat_dim, d)
+        + c.dma_sizes.len() as f64 * block
+        + c.dec_layers as f64 * linear(b * le, d, 2 * d);
+    let layer = linear(b * ld, d, 3 * d)
+        + attend(b, ld, ld, d)
+        + linear(b * ld, d, d)
+        + linear(b * ld, d, d)
+        + attend(b, ld, le, d)
+        + linear(b * ld, d, d)
+        + linear(b * ld, d, f)
+        + linear(b * ld, f, d);
+    let decoder = linear(b * n, c.feat_dim, d)
+        + 2.0 * linear(b, d, d)
+        + c.dec_layers as f64 * layer
+        + linear(b * n, d, c.feat_dim);
     Flops { encoder, decoder }
 }
 
@@ -64,9 +81,13 @@ mod tests {
         let block_weights = 4.0 * d * d + 2.0 * d * d + 2.0 * d * c.ffn as f64;
         let layer_weights = 4.0 * d * d + 2.0 * d * d + 2.0 * d * d + 2.0 * d * c.ffn as f64;
         let io = (2 * c.feat_dim) as f64 * d + 2.0 * c.feat_dim as f64 * d;
-        let weights = c.dma_sizes.len() as f64 * block_weights + c.dec_layers as f64 * layer_weights + io;
+        let weights =
+            c.dma_sizes.len() as f64 * block_weights + c.dec_layers as f64 * layer_weights + io;
         // Attention products add ~4 L d per layer per frame: small next to the weights.
-        assert!(per_frame_linear > 2.0 * weights && per_frame_linear < 2.6 * weights, "{per_frame_linear} vs {weights}");
+        assert!(
+            per_frame_linear > 2.0 * weights && per_frame_linear < 2.6 * weights,
+            "{per_frame_linear} vs {weights}"
+        );
         // Paper decoder at batch 2 x 196 frames, by hand: 396 tokens x 8 layers x 2 x 2.62 M
         // weights = 16.6 GFLOP, attention products 8 x 0.32 = 2.6, input/output 0.2: 19.4.
         let dec = forward(&c, 2, 196).decoder / 1e9;

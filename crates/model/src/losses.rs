@@ -71,9 +71,16 @@ impl Kinematic<'_> {
 }
 
 /// All loss terms; the kinematic ones only when their weight is positive.
-pub fn losses(x0: Tensor<3>, pred: Tensor<3>, kf_mask: Tensor<3>, valid: Tensor<2>, k: &Kinematic) -> Losses {
+pub fn losses(
+    x0: Tensor<3>,
+    pred: Tensor<3>,
+    kf_mask: Tensor<3>,
+    valid: Tensor<2>,
+    k: &Kinematic,
+) -> Losses {
     let simple = l_simple(x0.clone(), pred.clone(), kf_mask.clone(), valid.clone());
-    let key = (k.keyframe_loss > 0.0).then(|| l_key(x0.clone(), pred.clone(), kf_mask, valid.clone()));
+    let key =
+        (k.keyframe_loss > 0.0).then(|| l_key(x0.clone(), pred.clone(), kf_mask, valid.clone()));
     let smooth = (k.smooth_loss > 0.0).then(|| l_smooth(x0.clone(), pred.clone(), valid.clone()));
     if !k.any() {
         return Losses { simple, key, smooth, pos: None, vel: None, foot: None };
@@ -88,21 +95,32 @@ pub fn losses(x0: Tensor<3>, pred: Tensor<3>, kf_mask: Tensor<3>, valid: Tensor<
     let v4 = valid.clone().reshape([b, n, 1, 1]);
     let frames = valid.clone().sum().clamp_min(1.0);
     let per_joint = (k.joints * 3) as f64;
-    let pos = (k.lambda_pos > 0.0).then(|| ((jg.clone() - jp.clone()).powf_scalar(2.0) * v4.clone()).sum() / (frames.clone() * per_joint));
+    let pos = (k.lambda_pos > 0.0).then(|| {
+        ((jg.clone() - jp.clone()).powf_scalar(2.0) * v4.clone()).sum()
+            / (frames.clone() * per_joint)
+    });
     // Velocities between consecutive real frames.
-    let vel_of = |j: Tensor<4>| j.clone().slice([0..b, 1..n, 0..k.joints, 0..3]) - j.slice([0..b, 0..n - 1, 0..k.joints, 0..3]);
+    let vel_of = |j: Tensor<4>| {
+        j.clone().slice([0..b, 1..n, 0..k.joints, 0..3])
+            - j.slice([0..b, 0..n - 1, 0..k.joints, 0..3])
+    };
     let pair_valid = valid.clone().slice([0..b, 1..n]) * valid.slice([0..b, 0..n - 1]);
     let pv4 = pair_valid.clone().reshape([b, n - 1, 1, 1]);
     let pairs = pair_valid.clone().sum().clamp_min(1.0);
     let vp = vel_of(jp);
-    let vel = (k.lambda_vel > 0.0).then(|| ((vel_of(jg) - vp.clone()).powf_scalar(2.0) * pv4.clone()).sum() / (pairs.clone() * per_joint));
+    let vel = (k.lambda_vel > 0.0).then(|| {
+        ((vel_of(jg) - vp.clone()).powf_scalar(2.0) * pv4.clone()).sum()
+            / (pairs.clone() * per_joint)
+    });
     let foot = (k.lambda_foot > 0.0).then(|| {
         // Predicted foot velocity where the ground truth says the foot is in contact.
         let contact = gt_feats.slice([0..b, 0..n - 1, d - 4..d]);
         let mut total = Tensor::<1>::zeros([1], &device);
         for (c, &joint) in k.feet.iter().enumerate() {
-            let fv = vp.clone().slice([0..b, 0..n - 1, joint..joint + 1, 0..3]).reshape([b, n - 1, 3]);
-            let m = contact.clone().slice([0..b, 0..n - 1, c..c + 1]) * pair_valid.clone().unsqueeze_dim::<3>(2);
+            let fv =
+                vp.clone().slice([0..b, 0..n - 1, joint..joint + 1, 0..3]).reshape([b, n - 1, 3]);
+            let m = contact.clone().slice([0..b, 0..n - 1, c..c + 1])
+                * pair_valid.clone().unsqueeze_dim::<3>(2);
             total = total + (fv.powf_scalar(2.0) * m).sum();
         }
         total / (pairs * 12.0)
@@ -114,7 +132,13 @@ impl Losses {
     /// The weighted sum that is optimised.
     pub fn total(&self, k: &Kinematic) -> Tensor<1> {
         let mut t = self.simple.clone();
-        for (term, w) in [(&self.key, k.keyframe_loss), (&self.smooth, k.smooth_loss), (&self.pos, k.lambda_pos), (&self.vel, k.lambda_vel), (&self.foot, k.lambda_foot)] {
+        for (term, w) in [
+            (&self.key, k.keyframe_loss),
+            (&self.smooth, k.smooth_loss),
+            (&self.pos, k.lambda_pos),
+            (&self.vel, k.lambda_vel),
+            (&self.foot, k.lambda_foot),
+        ] {
             if let Some(x) = term {
                 t = t + x.clone() * w;
             }
@@ -134,7 +158,17 @@ mod tests {
         let x = Tensor::<3>::random([b, n, d], burn::tensor::Distribution::Normal(0.0, 1.0), &dev);
         let mean = vec![0.0f32; d];
         let std = vec![0.1f32; d];
-        let k = Kinematic { mean: &mean, std: &std, joints: 22, feet: [7, 10, 8, 11], lambda_pos: 1.0, lambda_vel: 1.0, lambda_foot: 1.0, keyframe_loss: 0.0, smooth_loss: 0.0 };
+        let k = Kinematic {
+            mean: &mean,
+            std: &std,
+            joints: 22,
+            feet: [7, 10, 8, 11],
+            lambda_pos: 1.0,
+            lambda_vel: 1.0,
+            lambda_foot: 1.0,
+            keyframe_loss: 0.0,
+            smooth_loss: 0.0,
+        };
         let valid = Tensor::<2>::ones([b, n], &dev);
         let l = losses(x.clone(), x.clone(), x.zeros_like(), valid.clone(), &k);
         let pos: f32 = l.pos.unwrap().into_scalar();
@@ -149,10 +183,13 @@ mod tests {
     #[test]
     fn l_simple_ignores_keyframes_and_padding() {
         let dev = Device::flex();
-        let x0 = Tensor::<1>::from_floats([1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0].as_slice(), &dev).reshape([1, 3, 2]);
-        let pred = Tensor::<1>::from_floats([1.0f32, 0.0, 0.0, 4.0, 0.0, 0.0].as_slice(), &dev).reshape([1, 3, 2]);
+        let x0 = Tensor::<1>::from_floats([1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0].as_slice(), &dev)
+            .reshape([1, 3, 2]);
+        let pred = Tensor::<1>::from_floats([1.0f32, 0.0, 0.0, 4.0, 0.0, 0.0].as_slice(), &dev)
+            .reshape([1, 3, 2]);
         // Frame 0 dim 1 is a keyframe element; frame 2 is padding.
-        let m = Tensor::<1>::from_floats([0.0f32, 1.0, 0.0, 0.0, 0.0, 0.0].as_slice(), &dev).reshape([1, 3, 2]);
+        let m = Tensor::<1>::from_floats([0.0f32, 1.0, 0.0, 0.0, 0.0, 0.0].as_slice(), &dev)
+            .reshape([1, 3, 2]);
         let valid = Tensor::<1>::from_floats([1.0f32, 1.0, 0.0].as_slice(), &dev).reshape([1, 3]);
         let l: f32 = l_simple(x0, pred, m, valid).into_scalar();
         // Counted elements: (0,0) err 0, (1,0) err 9, (1,1) err 0 -> 9 / 3.
@@ -162,7 +199,8 @@ mod tests {
     #[test]
     fn l_smooth_sees_jitter_not_offsets() {
         let dev = Device::flex();
-        let x0 = Tensor::<3>::random([2, 10, 4], burn::tensor::Distribution::Normal(0.0, 1.0), &dev);
+        let x0 =
+            Tensor::<3>::random([2, 10, 4], burn::tensor::Distribution::Normal(0.0, 1.0), &dev);
         let valid = Tensor::<2>::ones([2, 10], &dev);
         // A constant offset changes no frame-to-frame difference.
         let l: f32 = l_smooth(x0.clone(), x0.clone() + 0.7, valid.clone()).into_scalar();
@@ -173,8 +211,14 @@ mod tests {
         let l: f32 = l_smooth(x0.clone(), x0.clone() + jitter.clone(), valid).into_scalar();
         assert!((l - 1.0).abs() < 1e-5, "{l}");
         // Pairs that touch padding do not count.
-        let v = Tensor::<1>::from_floats([[1.0f32; 5], [0.0; 5]].concat().as_slice(), &dev).reshape([1, 10]);
-        let l: f32 = l_smooth(x0.clone().slice([0..1, 0..10, 0..4]), (x0 + jitter).slice([0..1, 0..10, 0..4]), v).into_scalar();
+        let v = Tensor::<1>::from_floats([[1.0f32; 5], [0.0; 5]].concat().as_slice(), &dev)
+            .reshape([1, 10]);
+        let l: f32 = l_smooth(
+            x0.clone().slice([0..1, 0..10, 0..4]),
+            (x0 + jitter).slice([0..1, 0..10, 0..4]),
+            v,
+        )
+        .into_scalar();
         assert!((l - 1.0).abs() < 1e-5, "{l}");
     }
 }

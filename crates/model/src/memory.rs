@@ -23,7 +23,8 @@ pub fn training_bytes(cfg: &RunConfig, frames: usize) -> f64 {
 pub fn per_sample_bytes(cfg: &RunConfig, frames: usize) -> f64 {
     let m = &cfg.model;
     let layers = (m.dec_layers + m.dma_sizes.len()) as f64;
-    let per_token = 5.3 * (m.d_model + m.ffn) as f64 * layers + 0.6 * (m.heads * frames) as f64 * layers;
+    let per_token =
+        5.3 * (m.d_model + m.ffn) as f64 * layers + 0.6 * (m.heads * frames) as f64 * layers;
     frames as f64 * per_token * 4.0
 }
 
@@ -33,14 +34,22 @@ pub fn fixed_bytes(cfg: &RunConfig) -> f64 {
     let m = &cfg.model;
     let layers = (m.dec_layers + m.dma_sizes.len()) as f64;
     let d = m.d_model as f64;
-    let params = layers * (4.0 * d * d + 2.0 * d * m.ffn as f64) + 2.0 * d * (m.feat_dim + m.text_dim) as f64;
+    let params = layers * (4.0 * d * d + 2.0 * d * m.ffn as f64)
+        + 2.0 * d * (m.feat_dim + m.text_dim) as f64;
     BASE_BYTES + 5.0 * params * 4.0
 }
 
 /// Memory the system can still give (`MemAvailable` of /proc/meminfo), when it can be read.
 pub fn available_bytes() -> Option<f64> {
     let text = std::fs::read_to_string("/proc/meminfo").ok()?;
-    let kb: f64 = text.lines().find_map(|l| l.strip_prefix("MemAvailable:"))?.trim().trim_end_matches("kB").trim().parse().ok()?;
+    let kb: f64 = text
+        .lines()
+        .find_map(|l| l.strip_prefix("MemAvailable:"))?
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
     Some(kb * 1024.0)
 }
 
@@ -51,11 +60,16 @@ mod tests {
     #[test]
     fn estimate_follows_the_measured_runs() {
         // (preset, batch, measured peak MB): the calibration runs.
-        for (preset, batch, mb) in [("tiny", 8, 246.0), ("tiny", 256, 1689.0), ("small", 16, 603.0), ("small", 64, 1966.0)] {
+        for (preset, batch, mb) in
+            [("tiny", 8, 246.0), ("tiny", 256, 1689.0), ("small", 16, 603.0), ("small", 64, 1966.0)]
+        {
             let mut cfg = RunConfig::parse(&format!(r#"{{"model": "{preset}"}}"#)).unwrap();
             cfg.training.batch_size = batch;
             let est = training_bytes(&cfg, 196) / 1e6;
-            assert!((est / mb - 1.0).abs() < 0.3, "{preset} batch {batch}: estimate {est:.0} MB vs measured {mb} MB");
+            assert!(
+                (est / mb - 1.0).abs() < 0.3,
+                "{preset} batch {batch}: estimate {est:.0} MB vs measured {mb} MB"
+            );
         }
     }
 }

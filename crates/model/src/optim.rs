@@ -16,7 +16,14 @@ pub struct Adam {
 
 impl Adam {
     pub fn new(shapes: &[usize]) -> Adam {
-        Adam { beta1: 0.9, beta2: 0.999, eps: 1e-8, step: 0, m: shapes.iter().map(|&n| vec![0.0; n]).collect(), v: shapes.iter().map(|&n| vec![0.0; n]).collect() }
+        Adam {
+            beta1: 0.9,
+            beta2: 0.999,
+            eps: 1e-8,
+            step: 0,
+            m: shapes.iter().map(|&n| vec![0.0; n]).collect(),
+            v: shapes.iter().map(|&n| vec![0.0; n]).collect(),
+        }
     }
 
     /// One update of `params` with `grads` at learning rate `lr`.
@@ -34,7 +41,13 @@ impl Adam {
             .zip(grads)
             .zip(self.m.iter_mut())
             .zip(self.v.iter_mut())
-            .flat_map(|(((p, g), m), v)| p.chunks_mut(CHUNK).zip(g.chunks(CHUNK)).zip(m.chunks_mut(CHUNK)).zip(v.chunks_mut(CHUNK)).map(|(((p, g), m), v)| (p, g, m, v)))
+            .flat_map(|(((p, g), m), v)| {
+                p.chunks_mut(CHUNK)
+                    .zip(g.chunks(CHUNK))
+                    .zip(m.chunks_mut(CHUNK))
+                    .zip(v.chunks_mut(CHUNK))
+                    .map(|(((p, g), m), v)| (p, g, m, v))
+            })
             .collect();
         chunks.into_par_iter().for_each(|(p, g, m, v)| {
             for i in 0..p.len() {
@@ -53,11 +66,20 @@ const CHUNK: usize = 1 << 16;
 pub fn clip_grad_norm(grads: &mut [Vec<f32>], max: f64) -> f64 {
     use rayon::prelude::*;
     // Partial sums over fixed chunks, added in order: the same norm for any thread count.
-    let parts: Vec<f64> = grads.iter().flat_map(|g| g.chunks(CHUNK)).collect::<Vec<_>>().par_iter().map(|c| c.iter().map(|&g| (g as f64) * (g as f64)).sum::<f64>()).collect();
+    let parts: Vec<f64> = grads
+        .iter()
+        .flat_map(|g| g.chunks(CHUNK))
+        .collect::<Vec<_>>()
+        .par_iter()
+        .map(|c| c.iter().map(|&g| (g as f64) * (g as f64)).sum::<f64>())
+        .collect();
     let norm = parts.iter().sum::<f64>().sqrt();
     if max > 0.0 && norm > max {
         let s = (max / norm) as f32;
-        grads.par_iter_mut().flat_map(|g| g.par_chunks_mut(CHUNK)).for_each(|c| c.iter_mut().for_each(|g| *g *= s));
+        grads
+            .par_iter_mut()
+            .flat_map(|g| g.par_chunks_mut(CHUNK))
+            .for_each(|c| c.iter_mut().for_each(|g| *g *= s));
     }
     norm
 }
@@ -78,21 +100,41 @@ pub fn learning_rate(base: f64, step: usize, warmup: usize, cosine: bool, max_st
 pub fn ema_update(ema: &mut [Vec<f32>], params: &[Vec<f32>], decay: f64) {
     use rayon::prelude::*;
     let d = decay as f32;
-    let chunks: Vec<(&mut [f32], &[f32])> = ema.iter_mut().zip(params).flat_map(|(e, p)| e.chunks_mut(CHUNK).zip(p.chunks(CHUNK))).collect();
-    chunks.into_par_iter().for_each(|(e, p)| e.iter_mut().zip(p).for_each(|(x, y)| *x = d * *x + (1.0 - d) * y));
+    let chunks: Vec<(&mut [f32], &[f32])> = ema
+        .iter_mut()
+        .zip(params)
+        .flat_map(|(e, p)| e.chunks_mut(CHUNK).zip(p.chunks(CHUNK)))
+        .collect();
+    chunks
+        .into_par_iter()
+        .for_each(|(e, p)| e.iter_mut().zip(p).for_each(|(x, y)| *x = d * *x + (1.0 - d) * y));
 }
 
 /// One optimiser step as the trainers take it: backward of `loss`, gradients to the host,
 /// global-norm clipping, Adam on the flat host values, the new values loaded into `model`.
 /// Returns the updated model and the gradient norm before clipping.
-pub fn descend<M: burn::module::Module>(model: M, loss: burn::tensor::Tensor<1>, vals: &mut [Vec<f32>], adam: &mut Adam, clip: f64, lr: f64) -> (M, f64) {
+pub fn descend<M: burn::module::Module>(
+    model: M,
+    loss: burn::tensor::Tensor<1>,
+    vals: &mut [Vec<f32>],
+    adam: &mut Adam,
+    clip: f64,
+    lr: f64,
+) -> (M, f64) {
     let (m, norm, _) = descend_timed(model, loss, vals, adam, clip, lr);
     (m, norm)
 }
 
 /// `descend`, also returning the seconds spent in the backward pass and in the host-side update
 /// (gradients out, clipping, Adam, weights in): the benchmark's breakdown of a step.
-pub fn descend_timed<M: burn::module::Module>(model: M, loss: burn::tensor::Tensor<1>, vals: &mut [Vec<f32>], adam: &mut Adam, clip: f64, lr: f64) -> (M, f64, [f64; 2]) {
+pub fn descend_timed<M: burn::module::Module>(
+    model: M,
+    loss: burn::tensor::Tensor<1>,
+    vals: &mut [Vec<f32>],
+    adam: &mut Adam,
+    clip: f64,
+    lr: f64,
+) -> (M, f64, [f64; 2]) {
     let t0 = std::time::Instant::now();
     let grads = burn::optim::GradientsParams::from_grads(loss.backward(), &model);
     let t1 = std::time::Instant::now();

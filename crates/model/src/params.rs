@@ -47,7 +47,11 @@ struct Grads<'a> {
 }
 impl ModuleVisitor for Grads<'_> {
     fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
-        let g = self.grads.get::<D>(p.id).map(host).unwrap_or_else(|| vec![0.0; p.val().shape().num_elements()]);
+        let g = self
+            .grads
+            .get::<D>(p.id)
+            .map(host)
+            .unwrap_or_else(|| vec![0.0; p.val().shape().num_elements()]);
         self.out.push(g);
     }
 }
@@ -69,7 +73,14 @@ impl ModuleMapper for Load<'_> {
         let device = t.device();
         let shape = t.shape();
         let v = &self.vals[self.i];
-        assert_eq!(v.len(), shape.num_elements(), "parameter {} has {} values, expected {}", self.i, v.len(), shape.num_elements());
+        assert_eq!(
+            v.len(),
+            shape.num_elements(),
+            "parameter {} has {} values, expected {}",
+            self.i,
+            v.len(),
+            shape.num_elements()
+        );
         self.i += 1;
         // TensorData::new takes the vector over: one memcpy, not an element-wise conversion
         // (which was ~4% of a paper training step).

@@ -27,7 +27,14 @@ impl PlaceGuidance {
     /// sample's normalised x0 [N, D] and its keyed places (`root`, `root_mask` [N, 4]), and
     /// the gradient with respect to x0 (only the linear-velocity channels 1 and 2 are nonzero;
     /// the heading is held fixed).
-    pub fn loss_and_grad(&self, x0: &[f32], root: &[f32], root_mask: &[f32], len: usize, dim: usize) -> (f64, Vec<f32>) {
+    pub fn loss_and_grad(
+        &self,
+        x0: &[f32],
+        root: &[f32],
+        root_mask: &[f32],
+        len: usize,
+        dim: usize,
+    ) -> (f64, Vec<f32>) {
         let mut grad = vec![0f32; x0.len()];
         let r = ROOT_CHANNELS;
         let keys: Vec<usize> = (1..len).filter(|&f| root_mask[f * r] > 0.0).collect();
@@ -46,7 +53,8 @@ impl PlaceGuidance {
         let mut loss = 0.0;
         let mut residual = vec![[0.0f64; 3]; len];
         for &f in &keys {
-            let t = [ROOT_POS_SCALE * root[f * r] as f64, 0.0, ROOT_POS_SCALE * root[f * r + 1] as f64];
+            let t =
+                [ROOT_POS_SCALE * root[f * r] as f64, 0.0, ROOT_POS_SCALE * root[f * r + 1] as f64];
             let e = [pos[f][0] - t[0], 0.0, pos[f][2] - t[2]];
             loss += (e[0] * e[0] + e[2] * e[2]) / k;
             residual[f] = e;
@@ -93,8 +101,14 @@ mod tests {
             xp[f * d + c] += h;
             let mut xm = x0.clone();
             xm[f * d + c] -= h;
-            let num = (pg.loss_and_grad(&xp, &root, &mask, n, d).0 - pg.loss_and_grad(&xm, &root, &mask, n, d).0) / (2.0 * h as f64);
-            assert!((num - g[f * d + c] as f64).abs() < 1e-3 * (1.0 + num.abs()), "frame {f} channel {c}: {num} vs {}", g[f * d + c]);
+            let num = (pg.loss_and_grad(&xp, &root, &mask, n, d).0
+                - pg.loss_and_grad(&xm, &root, &mask, n, d).0)
+                / (2.0 * h as f64);
+            assert!(
+                (num - g[f * d + c] as f64).abs() < 1e-3 * (1.0 + num.abs()),
+                "frame {f} channel {c}: {num} vs {}",
+                g[f * d + c]
+            );
         }
         // A small step against the gradient lowers the loss; only channels 1 and 2 move.
         let step: Vec<f32> = x0.iter().zip(&g).map(|(x, g)| x - 0.5 * g).collect();

@@ -149,20 +149,29 @@ impl RunConfig {
     }
 
     pub fn parse(text: &str) -> Result<RunConfig, String> {
-        let mut v: serde_json::Value = serde_json::from_str(text).map_err(|e| format!("not valid JSON: {e}"))?;
+        let mut v: serde_json::Value =
+            serde_json::from_str(text).map_err(|e| format!("not valid JSON: {e}"))?;
         let model = v.get_mut("model").ok_or("missing section 'model'")?;
         let base = match model {
-            serde_json::Value::String(name) => DiffKfcConfig::preset(name).ok_or(format!("model: unknown preset '{name}' (tiny, small, paper)"))?,
+            serde_json::Value::String(name) => DiffKfcConfig::preset(name)
+                .ok_or(format!("model: unknown preset '{name}' (tiny, small, paper)"))?,
             serde_json::Value::Object(m) => match m.remove("preset") {
-                Some(serde_json::Value::String(name)) => DiffKfcConfig::preset(&name).ok_or(format!("model.preset: unknown preset '{name}' (tiny, small, paper)"))?,
-                Some(other) => return Err(format!("model.preset: expected a preset name, got {other}")),
+                Some(serde_json::Value::String(name)) => DiffKfcConfig::preset(&name)
+                    .ok_or(format!("model.preset: unknown preset '{name}' (tiny, small, paper)"))?,
+                Some(other) => {
+                    return Err(format!("model.preset: expected a preset name, got {other}"))
+                }
                 None => DiffKfcConfig::paper(),
             },
-            other => return Err(format!("model: expected a preset name or an object, got {other}")),
+            other => {
+                return Err(format!("model: expected a preset name or an object, got {other}"))
+            }
         };
         // Overlay the given model keys on the preset.
         let mut merged = serde_json::to_value(&base).expect("config serialises");
-        if let (serde_json::Value::Object(m), serde_json::Value::Object(out)) = (&*model, &mut merged) {
+        if let (serde_json::Value::Object(m), serde_json::Value::Object(out)) =
+            (&*model, &mut merged)
+        {
             for (k, val) in m {
                 if !out.contains_key(k) {
                     return Err(format!("unknown key 'model.{k}'"));
@@ -193,7 +202,8 @@ impl RunConfig {
         let m = &self.model;
         let t = &self.training;
         let k = &self.keyframes;
-        let bad = |key: &str, v: &dyn std::fmt::Display, want: &str| Err(format!("{key}: {v} {want}"));
+        let bad =
+            |key: &str, v: &dyn std::fmt::Display, want: &str| Err(format!("{key}: {v} {want}"));
         let positive = [
             ("model.feat_dim", m.feat_dim),
             ("model.text_dim", m.text_dim),
@@ -210,10 +220,16 @@ impl RunConfig {
             }
         }
         if crate::diffusion::Schedule::by_name(&self.diffusion.schedule, 2).is_none() {
-            return Err(format!("diffusion.schedule: unknown '{}' (cosine, linear)", self.diffusion.schedule));
+            return Err(format!(
+                "diffusion.schedule: unknown '{}' (cosine, linear)",
+                self.diffusion.schedule
+            ));
         }
         if !m.d_model.is_multiple_of(m.heads) {
-            return Err(format!("model.heads: {} does not divide model.d_model ({})", m.heads, m.d_model));
+            return Err(format!(
+                "model.heads: {} does not divide model.d_model ({})",
+                m.heads, m.d_model
+            ));
         }
         // Sizes whose products would not fit in memory on any machine this runs on.
         let limits = [
@@ -238,12 +254,26 @@ impl RunConfig {
             return bad("model.dropout", &m.dropout, "must be in [0, 1)");
         }
         if m.root_channels != 0 && m.root_channels != diffkfc_data::warp::ROOT_CHANNELS {
-            return bad("model.root_channels", &m.root_channels, &format!("must be 0 or {}", diffkfc_data::warp::ROOT_CHANNELS));
+            return bad(
+                "model.root_channels",
+                &m.root_channels,
+                &format!("must be 0 or {}", diffkfc_data::warp::ROOT_CHANNELS),
+            );
         }
-        if (m.temporal_kernel.is_multiple_of(2) && m.temporal_kernel != 0) || m.temporal_kernel > 31 {
-            return bad("model.temporal_kernel", &m.temporal_kernel, "must be 0 (none) or an odd number up to 31");
+        if (m.temporal_kernel.is_multiple_of(2) && m.temporal_kernel != 0) || m.temporal_kernel > 31
+        {
+            return bad(
+                "model.temporal_kernel",
+                &m.temporal_kernel,
+                "must be 0 (none) or an odd number up to 31",
+            );
         }
-        let unit = [("keyframes.rate", k.rate), ("keyframes.drop_prob", k.drop_prob), ("keyframes.root_drop_prob", k.root_drop_prob), ("training.ema_decay", t.ema_decay)];
+        let unit = [
+            ("keyframes.rate", k.rate),
+            ("keyframes.drop_prob", k.drop_prob),
+            ("keyframes.root_drop_prob", k.root_drop_prob),
+            ("training.ema_decay", t.ema_decay),
+        ];
         for (key, v) in unit {
             if !(0.0..=1.0).contains(&v) {
                 return bad(key, &v, "must be in [0, 1]");
@@ -286,7 +316,8 @@ mod tests {
         let c = RunConfig::parse(r#"{"model": {"preset": "small", "dec_layers": 2}}"#).unwrap();
         assert_eq!(c.model.dec_layers, 2);
         assert_eq!(c.model.d_model, 256);
-        let e = RunConfig::parse(r#"{"model": "tiny", "training": {"learning_rate": 1}}"#).unwrap_err();
+        let e =
+            RunConfig::parse(r#"{"model": "tiny", "training": {"learning_rate": 1}}"#).unwrap_err();
         assert!(e.contains("training.learning_rate"), "{e}");
         let e = RunConfig::parse(r#"{"model": {"d_modle": 3}}"#).unwrap_err();
         assert!(e.contains("model.d_modle"), "{e}");
@@ -316,7 +347,8 @@ mod tests {
         }
         let e = RunConfig::parse(r#"{"model": "huge"}"#).unwrap_err();
         assert!(e.contains("unknown preset 'huge'"), "{e}");
-        let e = RunConfig::parse(r#"{"model": "tiny", "keyframes": {"strategy": "sometimes"}}"#).unwrap_err();
+        let e = RunConfig::parse(r#"{"model": "tiny", "keyframes": {"strategy": "sometimes"}}"#)
+            .unwrap_err();
         assert!(e.contains("bad value") && e.contains("sometimes"), "{e}");
     }
 

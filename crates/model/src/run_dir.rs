@@ -21,7 +21,14 @@ pub fn parse_metrics(text: &str) -> Vec<(Metric, &str)> {
     text.lines()
         .filter_map(|l| {
             let v: serde_json::Value = serde_json::from_str(l).ok()?;
-            Some((Metric { step: v["step"].as_u64()? as usize, loss: v["loss"].as_f64(), val_loss: v["val_loss"].as_f64() }, l))
+            Some((
+                Metric {
+                    step: v["step"].as_u64()? as usize,
+                    loss: v["loss"].as_f64(),
+                    val_loss: v["val_loss"].as_f64(),
+                },
+                l,
+            ))
         })
         .collect()
 }
@@ -80,10 +87,13 @@ impl RunDir {
 
     /// Create the directory and write the config and the normalisation sampling will need.
     pub fn prepare(&self, cfg: &RunConfig, mean: &[f32], std: &[f32]) -> Result<(), String> {
-        std::fs::create_dir_all(&self.path).map_err(|e| format!("creating {}: {e}", self.path.display()))?;
-        diffkfc_data::write_atomic(&self.config_path(), cfg.to_json().as_bytes()).map_err(|e| e.to_string())?;
+        std::fs::create_dir_all(&self.path)
+            .map_err(|e| format!("creating {}: {e}", self.path.display()))?;
+        diffkfc_data::write_atomic(&self.config_path(), cfg.to_json().as_bytes())
+            .map_err(|e| e.to_string())?;
         for (name, v) in [("Mean.npy", mean), ("Std.npy", std)] {
-            diffkfc_data::npy::write(self.path.join(name), &[v.len()], v).map_err(|e| e.to_string())?;
+            diffkfc_data::npy::write(self.path.join(name), &[v.len()], v)
+                .map_err(|e| e.to_string())?;
         }
         Ok(())
     }
@@ -93,9 +103,15 @@ impl RunDir {
         let dir = if self.path.join("Mean.npy").exists() {
             self.path.clone()
         } else {
-            PathBuf::from(cfg.data.dir.clone().ok_or_else(|| format!("{}: no Mean.npy/Std.npy and no data.dir in its config", self.path.display()))?)
+            PathBuf::from(cfg.data.dir.clone().ok_or_else(|| {
+                format!(
+                    "{}: no Mean.npy/Std.npy and no data.dir in its config",
+                    self.path.display()
+                )
+            })?)
         };
-        diffkfc_data::dataset::read_normalisation(&dir, Some(cfg.model.feat_dim)).map_err(|e| e.to_string())
+        diffkfc_data::dataset::read_normalisation(&dir, Some(cfg.model.feat_dim))
+            .map_err(|e| e.to_string())
     }
 
     /// Every metrics line so far.
@@ -110,34 +126,48 @@ impl RunDir {
         let Ok(text) = std::fs::read_to_string(&path) else {
             return Ok(());
         };
-        let kept: Vec<&str> = parse_metrics(&text).into_iter().filter(|(m, _)| m.step <= step).map(|(_, l)| l).collect();
+        let kept: Vec<&str> = parse_metrics(&text)
+            .into_iter()
+            .filter(|(m, _)| m.step <= step)
+            .map(|(_, l)| l)
+            .collect();
         let mut out = kept.join("\n");
         if !out.is_empty() {
             out.push('\n');
         }
-        diffkfc_data::write_atomic(&path, out.as_bytes()).map_err(|e| format!("{}: {e}", path.display()))
+        diffkfc_data::write_atomic(&path, out.as_bytes())
+            .map_err(|e| format!("{}: {e}", path.display()))
     }
 
     /// Write loss.svg from metrics.jsonl.
     pub fn write_loss_plot(&self) -> Result<(), String> {
-        diffkfc_data::write_atomic(&self.plot_path(), loss_svg(&self.metrics()).as_bytes()).map_err(|e| e.to_string())
+        diffkfc_data::write_atomic(&self.plot_path(), loss_svg(&self.metrics()).as_bytes())
+            .map_err(|e| e.to_string())
     }
 }
 
 fn loss_svg(metrics: &[Metric]) -> String {
-    let train: Vec<(f64, f64)> = metrics.iter().filter_map(|m| Some((m.step as f64, m.loss?))).collect();
-    let val: Vec<(f64, f64)> = metrics.iter().filter_map(|m| Some((m.step as f64, m.val_loss?))).collect();
+    let train: Vec<(f64, f64)> =
+        metrics.iter().filter_map(|m| Some((m.step as f64, m.loss?))).collect();
+    let val: Vec<(f64, f64)> =
+        metrics.iter().filter_map(|m| Some((m.step as f64, m.val_loss?))).collect();
     let (w, h, m) = (640.0, 360.0, 50.0);
     let all: Vec<f64> = train.iter().chain(&val).map(|p| p.1.max(1e-6)).collect();
     if all.is_empty() {
         return format!("<svg xmlns='http://www.w3.org/2000/svg' width='{w}' height='{h}'><text x='20' y='30'>no steps yet</text></svg>");
     }
-    let (lo, hi) = all.iter().fold((f64::MAX, f64::MIN), |a, &v| (a.0.min(v.ln()), a.1.max(v.ln())));
+    let (lo, hi) =
+        all.iter().fold((f64::MAX, f64::MIN), |a, &v| (a.0.min(v.ln()), a.1.max(v.ln())));
     let hi = if hi - lo < 1e-9 { lo + 1.0 } else { hi };
     let smax = train.iter().chain(&val).map(|p| p.0).fold(1.0, f64::max);
     let x = |s: f64| m + (w - 2.0 * m) * s / smax;
     let y = |l: f64| h - m - (h - 2.0 * m) * (l.max(1e-6).ln() - lo) / (hi - lo);
-    let path = |pts: &[(f64, f64)]| pts.iter().enumerate().map(|(i, p)| format!("{}{:.1},{:.1}", if i == 0 { "M" } else { "L" }, x(p.0), y(p.1))).collect::<String>();
+    let path = |pts: &[(f64, f64)]| {
+        pts.iter()
+            .enumerate()
+            .map(|(i, p)| format!("{}{:.1},{:.1}", if i == 0 { "M" } else { "L" }, x(p.0), y(p.1)))
+            .collect::<String>()
+    };
     let k = (train.len() / 50).max(1);
     let smooth: Vec<(f64, f64)> = (0..train.len())
         .map(|i| {

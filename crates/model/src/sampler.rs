@@ -66,7 +66,17 @@ impl Default for Options {
     fn default() -> Self {
         // Not the paper's s = 2.5 and r = 100 (tuned for 1000 DDPM steps): on our models both
         // cost FID, ADE and R-precision (README, "Reference model").
-        Options { sampler: Sampler::Ddim(DEFAULT_STEPS), kf_guidance: 1.0, transition: DEFAULT_TRANSITION, window: 2, dct_bases: 3, seed: 0, tg_mode: TgMode::X0, inpaint: false, place: None }
+        Options {
+            sampler: Sampler::Ddim(DEFAULT_STEPS),
+            kf_guidance: 1.0,
+            transition: DEFAULT_TRANSITION,
+            window: 2,
+            dct_bases: 3,
+            seed: 0,
+            tg_mode: TgMode::X0,
+            inpaint: false,
+            place: None,
+        }
     }
 }
 
@@ -92,7 +102,13 @@ pub struct Request {
 
 impl Request {
     /// A request with no keyframes: B motions of the given lengths, texts [B, text_dim].
-    pub fn text_only(frames: usize, dim: usize, text: Vec<f32>, text_dim: usize, lengths: Vec<usize>) -> Request {
+    pub fn text_only(
+        frames: usize,
+        dim: usize,
+        text: Vec<f32>,
+        text_dim: usize,
+        lengths: Vec<usize>,
+    ) -> Request {
         let b = lengths.len();
         let r = ROOT_CHANNELS;
         Request {
@@ -112,14 +128,17 @@ impl Request {
     /// Frames of sample `b` whose pose (any feature) is observed.
     pub(crate) fn key_frames(&self, b: usize) -> Vec<usize> {
         let (n, d) = (self.frames, self.dim);
-        (0..self.lengths[b]).filter(|&f| self.mask[(b * n + f) * d..(b * n + f + 1) * d].iter().any(|&m| m > 0.0)).collect()
+        (0..self.lengths[b])
+            .filter(|&f| self.mask[(b * n + f) * d..(b * n + f + 1) * d].iter().any(|&m| m > 0.0))
+            .collect()
     }
 
     /// The network's condition of this request.
     pub fn condition(&self, device: &Device) -> Condition {
         let (b, n, d) = (self.batch, self.frames, self.dim);
         let real = (0..b * n).map(|f| f % n < self.lengths[f / n]).collect();
-        let text = Tensor::<1>::from_floats(self.text.as_slice(), device).reshape([b, self.text_dim]);
+        let text =
+            Tensor::<1>::from_floats(self.text.as_slice(), device).reshape([b, self.text_dim]);
         let kf = Tensor::<1>::from_floats(self.kf.as_slice(), device).reshape([b, n, d]);
         let kf_mask = Tensor::<1>::from_floats(self.mask.as_slice(), device).reshape([b, n, d]);
         Condition::new(text, kf, kf_mask, &self.mask, &self.root, &self.root_mask, real, device)
@@ -137,7 +156,9 @@ pub fn timesteps(schedule: &Schedule, sampler: Sampler) -> Vec<usize> {
             if k == 1 {
                 return vec![t - 1];
             }
-            let mut v: Vec<usize> = (0..k).map(|i| ((i as f64) * (t - 1) as f64 / (k - 1).max(1) as f64).round() as usize).collect();
+            let mut v: Vec<usize> = (0..k)
+                .map(|i| ((i as f64) * (t - 1) as f64 / (k - 1).max(1) as f64).round() as usize)
+                .collect();
             v.dedup();
             v.reverse();
             v
@@ -147,7 +168,13 @@ pub fn timesteps(schedule: &Schedule, sampler: Sampler) -> Vec<usize> {
 
 /// Generate; returns normalised features [B, N, D] (frames past each length are zero).
 /// `progress(done, total)` after every step.
-pub fn sample(model: &Denoiser, schedule: &Schedule, req: &Request, opts: &Options, mut progress: impl FnMut(usize, usize)) -> Vec<f32> {
+pub fn sample(
+    model: &Denoiser,
+    schedule: &Schedule,
+    req: &Request,
+    opts: &Options,
+    mut progress: impl FnMut(usize, usize),
+) -> Vec<f32> {
     let device = model.devices().first().cloned().unwrap_or_else(Device::flex);
     let (b, n, d) = (req.batch, req.frames, req.dim);
     let cond = req.condition(&device);
@@ -155,7 +182,10 @@ pub fn sample(model: &Denoiser, schedule: &Schedule, req: &Request, opts: &Optio
     let any_keys = keys.iter().any(|k| !k.is_empty());
     let guided = guidance::is_guided(opts.kf_guidance, any_keys, opts.inpaint);
     let exact = opts.tg_mode == TgMode::Exact && opts.transition > 0.0 && any_keys;
-    assert!(!exact || device.is_autodiff(), "exact transition guidance needs the model on an autodiff device");
+    assert!(
+        !exact || device.is_autodiff(),
+        "exact transition guidance needs the model on an autodiff device"
+    );
     // The encoder runs once; both guidance branches share each decoder call. Its output is
     // detached so per-step backward passes (exact mode) never reach into it.
     let cond = if opts.inpaint { cond.without_keyframes() } else { cond };
@@ -176,22 +206,42 @@ pub fn sample(model: &Denoiser, schedule: &Schedule, req: &Request, opts: &Optio
         if exact {
             xt = xt.require_grad();
         }
-        let x0_t =
-            if guided { guidance::combine(model.decode(Tensor::cat(vec![xt.clone(), xt.clone()], 0), &vec![t; 2 * b], &enc), opts.kf_guidance) } else { model.decode(xt.clone(), &vec![t; b], &enc) };
+        let x0_t = if guided {
+            guidance::combine(
+                model.decode(Tensor::cat(vec![xt.clone(), xt.clone()], 0), &vec![t; 2 * b], &enc),
+                opts.kf_guidance,
+            )
+        } else {
+            model.decode(xt.clone(), &vec![t; b], &enc)
+        };
         // MDM-inp: the observed features replace the prediction at every step.
-        let x0_t = if opts.inpaint { x0_t.clone() * (mask_t.ones_like() - mask_t.clone()) + kf_t.clone() * mask_t.clone() } else { x0_t };
+        let x0_t = if opts.inpaint {
+            x0_t.clone() * (mask_t.ones_like() - mask_t.clone()) + kf_t.clone() * mask_t.clone()
+        } else {
+            x0_t
+        };
         let x0 = host(x0_t.clone().detach());
         let prev = ts.get(k + 1).copied();
         let ab = schedule.alphas_cumprod[t];
         let ab_prev = prev.map(|p| schedule.alphas_cumprod[p]).unwrap_or(1.0);
         // Posterior variance of the jump t -> prev.
-        let var = if prev.is_some() { (1.0 - ab_prev) / (1.0 - ab) * (1.0 - ab / ab_prev) } else { 0.0 };
+        let var =
+            if prev.is_some() { (1.0 - ab_prev) / (1.0 - ab) * (1.0 - ab / ab_prev) } else { 0.0 };
         let mut shift = vec![0f32; x.len()];
         if opts.transition > 0.0 && var > 0.0 {
             let mut grad = vec![0f32; x.len()];
             for (i, key) in keys.iter().enumerate() {
                 let r = i * n * d..(i + 1) * n * d;
-                let (_, g) = transition::loss_and_grad(&x0[r.clone()], &req.kf[r.clone()], &req.mask[r.clone()], key, req.lengths[i], d, opts.window, opts.dct_bases);
+                let (_, g) = transition::loss_and_grad(
+                    &x0[r.clone()],
+                    &req.kf[r.clone()],
+                    &req.mask[r.clone()],
+                    key,
+                    req.lengths[i],
+                    d,
+                    opts.window,
+                    opts.dct_bases,
+                );
                 grad[r].copy_from_slice(&g);
             }
             if exact {
@@ -206,8 +256,17 @@ pub fn sample(model: &Denoiser, schedule: &Schedule, req: &Request, opts: &Optio
         }
         if let (Some(pg), true) = (&opts.place, var > 0.0) {
             for i in 0..b {
-                let (r, rr) = (i * n * d..(i + 1) * n * d, i * n * ROOT_CHANNELS..(i + 1) * n * ROOT_CHANNELS);
-                let (_, g) = pg.loss_and_grad(&x0[r.clone()], &req.root[rr.clone()], &req.root_mask[rr], req.lengths[i], d);
+                let (r, rr) = (
+                    i * n * d..(i + 1) * n * d,
+                    i * n * ROOT_CHANNELS..(i + 1) * n * ROOT_CHANNELS,
+                );
+                let (_, g) = pg.loss_and_grad(
+                    &x0[r.clone()],
+                    &req.root[rr.clone()],
+                    &req.root_mask[rr],
+                    req.lengths[i],
+                    d,
+                );
                 for (s, gv) in shift[r].iter_mut().zip(g) {
                     *s += (pg.strength * var) as f32 * gv;
                 }

@@ -54,7 +54,11 @@ fn shift(x: Tensor<3>, o: isize, b: usize, n: usize, d: usize) -> Option<Tensor<
         return Some(x);
     }
     let zeros = Tensor::<3>::zeros([b, s, d], &x.device());
-    Some(if o > 0 { Tensor::cat(vec![x.slice([0..b, s..n, 0..d]), zeros], 1) } else { Tensor::cat(vec![zeros, x.slice([0..b, 0..n - s, 0..d])], 1) })
+    Some(if o > 0 {
+        Tensor::cat(vec![x.slice([0..b, s..n, 0..d]), zeros], 1)
+    } else {
+        Tensor::cat(vec![zeros, x.slice([0..b, 0..n - s, 0..d])], 1)
+    })
 }
 
 #[cfg(test)]
@@ -67,10 +71,15 @@ mod tests {
         let device = Device::flex();
         let conv = TemporalConv::new(3, 2, &device);
         // Zero-initialised: the layer adds nothing until trained.
-        let x = Tensor::<1>::from_floats([1.0, 10.0, 2.0, 20.0, 3.0, 30.0, 4.0, 40.0].as_slice(), &device).reshape([1, 4, 2]);
+        let x = Tensor::<1>::from_floats(
+            [1.0, 10.0, 2.0, 20.0, 3.0, 30.0, 4.0, 40.0].as_slice(),
+            &device,
+        )
+        .reshape([1, 4, 2]);
         assert!(params::host(conv.forward(x.clone())).iter().all(|&v| v == 0.0));
         // Taps (previous, current, next) = (1, 0, -1) on channel 0 and (0, 2, 0) on channel 1.
-        let w = Tensor::<1>::from_floats([1.0, 0.0, 0.0, 2.0, -1.0, 0.0].as_slice(), &device).reshape([3, 2]);
+        let w = Tensor::<1>::from_floats([1.0, 0.0, 0.0, 2.0, -1.0, 0.0].as_slice(), &device)
+            .reshape([3, 2]);
         let conv = TemporalConv { weight: Param::from_tensor(w), kernel: 3 };
         let y = params::host(conv.forward(x));
         // Channel 0: x[t-1] - x[t+1] = 0-2, 1-3, 2-4, 3-0; channel 1: 2 x[t].

@@ -79,7 +79,12 @@ fn scalar(t: Tensor<1>) -> f64 {
 
 impl Trainer<'_> {
     fn text_of(&self, b: &Batch) -> Vec<f32> {
-        b.captions.iter().flat_map(|c| self.text.get(c).unwrap_or_else(|| panic!("caption not embedded: {c}")).to_vec()).collect()
+        b.captions
+            .iter()
+            .flat_map(|c| {
+                self.text.get(c).unwrap_or_else(|| panic!("caption not embedded: {c}")).to_vec()
+            })
+            .collect()
     }
 
     fn kinematic(&self) -> Kinematic<'_> {
@@ -99,7 +104,14 @@ impl Trainer<'_> {
     }
 
     /// Timesteps and noise of a step, from (seed, stream, index) only.
-    fn draw(&self, stream: u64, index: u64, [b, n, d]: [usize; 3], steps: usize, device: &Device) -> (Vec<usize>, Tensor<3>) {
+    fn draw(
+        &self,
+        stream: u64,
+        index: u64,
+        [b, n, d]: [usize; 3],
+        steps: usize,
+        device: &Device,
+    ) -> (Vec<usize>, Tensor<3>) {
         let mut r = Rng::derive(self.cfg.training.seed, stream, index);
         let t: Vec<usize> = (0..b).map(|_| r.below(steps)).collect();
         let noise: Vec<f32> = (0..b * n * d).map(|_| r.normal() as f32).collect();
@@ -107,7 +119,15 @@ impl Trainer<'_> {
     }
 
     /// Loss of the model on a batch at the given timesteps and noise.
-    fn batch_loss(&self, model: &Denoiser, schedule: &Schedule, b: &Batch, t: &[usize], noise: Tensor<3>, device: &Device) -> crate::losses::Losses {
+    fn batch_loss(
+        &self,
+        model: &Denoiser,
+        schedule: &Schedule,
+        b: &Batch,
+        t: &[usize],
+        noise: Tensor<3>,
+        device: &Device,
+    ) -> crate::losses::Losses {
         let tb = to_tensors(b, &self.text_of(b), self.text.dim, device);
         let x_t = schedule.q_sample(tb.x0.clone(), t, noise);
         let pred = model.forward(x_t, t, &tb.cond);
@@ -123,13 +143,15 @@ impl Trainer<'_> {
         }
         let model = params::load(self.cfg.model.init(&self.device), weights);
         let tc = &self.cfg.training;
-        let loader = Loader::new(self.ds, val, tc.batch_size, tc.seed ^ 0x5A17, self.cfg.keyframes.clone());
+        let loader =
+            Loader::new(self.ds, val, tc.batch_size, tc.seed ^ 0x5A17, self.cfg.keyframes.clone());
         let dev = self.device.clone();
         let n = tc.val_batches.min(loader.batches_per_epoch()).max(1);
         let mut total = 0.0;
         for k in 0..n {
             let b = loader.batch(0, k);
-            let (t, noise) = self.draw(0xFA11, k as u64, [b.batch_size, b.frames, b.dim], schedule.steps, &dev);
+            let (t, noise) =
+                self.draw(0xFA11, k as u64, [b.batch_size, b.frames, b.dim], schedule.steps, &dev);
             let l = self.batch_loss(&model, schedule, &b, &t, noise, &dev);
             total += scalar(l.total(&self.kinematic()));
         }
@@ -138,12 +160,20 @@ impl Trainer<'_> {
 
     /// Train to `max_steps` (from the latest checkpoint when `resume`). `stop()` is polled
     /// before every step; when it says stop, a checkpoint is written and the call returns.
-    pub fn run(&self, resume: bool, max_steps: usize, stop: &dyn Fn() -> bool, on_event: &mut dyn FnMut(Event)) -> Result<Outcome, String> {
+    pub fn run(
+        &self,
+        resume: bool,
+        max_steps: usize,
+        stop: &dyn Fn() -> bool,
+        on_event: &mut dyn FnMut(Event),
+    ) -> Result<Outcome, String> {
         let tc = &self.cfg.training;
         let dm = &self.cfg.diffusion;
         tc.check_stop(max_steps)?;
-        let schedule = Schedule::by_name(&dm.schedule, dm.steps).ok_or(format!("diffusion.schedule: unknown '{}' (cosine, linear)", dm.schedule))?;
-        std::fs::create_dir_all(&self.run_dir).map_err(|e| format!("{}: {e}", self.run_dir.display()))?;
+        let schedule = Schedule::by_name(&dm.schedule, dm.steps)
+            .ok_or(format!("diffusion.schedule: unknown '{}' (cosine, linear)", dm.schedule))?;
+        std::fs::create_dir_all(&self.run_dir)
+            .map_err(|e| format!("{}: {e}", self.run_dir.display()))?;
         let device = self.device.clone().autodiff();
         device.seed(tc.seed);
         let mut model = self.cfg.model.init(&device);
@@ -176,16 +206,30 @@ impl Trainer<'_> {
         let run = crate::run_dir::RunDir::new(&self.run_dir);
         let metrics_path = run.metrics_path();
         run.truncate_metrics(start)?;
-        let mut metrics = std::fs::OpenOptions::new().create(true).append(true).open(&metrics_path).map_err(|e| format!("{}: {e}", metrics_path.display()))?;
-        let loader = Loader::new(self.ds, self.train, tc.batch_size, tc.seed, self.cfg.keyframes.clone());
+        let mut metrics = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&metrics_path)
+            .map_err(|e| format!("{}: {e}", metrics_path.display()))?;
+        let loader =
+            Loader::new(self.ds, self.train, tc.batch_size, tc.seed, self.cfg.keyframes.clone());
         let per_epoch = loader.batches_per_epoch().max(1);
         let kin = self.kinematic();
         let t0 = Instant::now();
         let mut last = None;
         let mut step = start;
-        let save = |step: usize, vals: &[Vec<f32>], ema: &Option<Vec<Vec<f32>>>, adam: &Adam| -> Result<PathBuf, String> {
+        let save = |step: usize,
+                    vals: &[Vec<f32>],
+                    ema: &Option<Vec<Vec<f32>>>,
+                    adam: &Adam|
+         -> Result<PathBuf, String> {
             // Never write (and so never rotate older checkpoints away for) non-finite weights.
-            if let Some(x) = vals.iter().chain(ema.iter().flatten()).flat_map(|v| v.iter()).find(|x| !x.is_finite()) {
+            if let Some(x) = vals
+                .iter()
+                .chain(ema.iter().flatten())
+                .flat_map(|v| v.iter())
+                .find(|x| !x.is_finite())
+            {
                 return Err(non_finite(step, "a weight", *x as f64, &self.run_dir));
             }
             let ck = Checkpoint {
@@ -206,11 +250,16 @@ impl Trainer<'_> {
         let mut stopped = false;
         // Validation lines without a training loss: before the first step of a fresh run, and
         // where a run is stopped early, so start and end are always measured.
-        let val_line = |step: usize, vals: &[Vec<f32>], ema: &Option<Vec<Vec<f32>>>, metrics: &mut std::fs::File| -> Result<Option<f64>, String> {
+        let val_line = |step: usize,
+                        vals: &[Vec<f32>],
+                        ema: &Option<Vec<Vec<f32>>>,
+                        metrics: &mut std::fs::File|
+         -> Result<Option<f64>, String> {
             let v = self.validate(ema.as_deref().unwrap_or(vals), &schedule);
             if let Some(v) = v {
                 let line = serde_json::json!({"step": step, "val_loss": v, "wall_s": t0.elapsed().as_secs_f64()});
-                writeln!(metrics, "{line}").map_err(|e| format!("{}: {e}", metrics_path.display()))?;
+                writeln!(metrics, "{line}")
+                    .map_err(|e| format!("{}: {e}", metrics_path.display()))?;
             }
             Ok(v)
         };
@@ -229,7 +278,13 @@ impl Trainer<'_> {
             device.seed(step_seed);
             crate::dropout::seed(step_seed);
             let b = loader.batch((step / per_epoch) as u64, step % per_epoch);
-            let (t, noise) = self.draw(0x7EA1, step as u64, [b.batch_size, b.frames, b.dim], schedule.steps, &device);
+            let (t, noise) = self.draw(
+                0x7EA1,
+                step as u64,
+                [b.batch_size, b.frames, b.dim],
+                schedule.steps,
+                &device,
+            );
             let l = self.batch_loss(&model, &schedule, &b, &t, noise, &device);
             let total = l.total(&kin);
             let lr = learning_rate(tc.lr, step, tc.warmup_steps, tc.cosine_decay, tc.max_steps);
@@ -238,7 +293,8 @@ impl Trainer<'_> {
                 // Stop before the step is taken: the weights and every checkpoint stay finite.
                 return Err(non_finite(step + 1, "loss", loss, &self.run_dir));
             }
-            let (updated, grad_norm) = descend(model, total, &mut vals, &mut adam, tc.grad_clip, lr);
+            let (updated, grad_norm) =
+                descend(model, total, &mut vals, &mut adam, tc.grad_clip, lr);
             if !grad_norm.is_finite() {
                 return Err(non_finite(step + 1, "gradient norm", grad_norm, &self.run_dir));
             }
@@ -266,7 +322,8 @@ impl Trainer<'_> {
             if tc.val_every > 0 && (step % tc.val_every == 0 || step == max_steps) {
                 rec.val_loss = self.validate(ema.as_deref().unwrap_or(&vals), &schedule);
             }
-            writeln!(metrics, "{}", serde_json::to_string(&rec).expect("json")).map_err(|e| format!("{}: {e}", metrics_path.display()))?;
+            writeln!(metrics, "{}", serde_json::to_string(&rec).expect("json"))
+                .map_err(|e| format!("{}: {e}", metrics_path.display()))?;
             on_event(Event::Step(&rec));
             if step % tc.checkpoint_every.max(1) == 0 || step == max_steps {
                 let p = save(step, &vals, &ema, &adam)?;
@@ -274,7 +331,10 @@ impl Trainer<'_> {
             }
             last = Some(rec);
         }
-        if stopped && step > start && !Checkpoint::list(&self.run_dir).iter().any(|(s, _)| *s == step) {
+        if stopped
+            && step > start
+            && !Checkpoint::list(&self.run_dir).iter().any(|(s, _)| *s == step)
+        {
             let p = save(step, &vals, &ema, &adam)?;
             on_event(Event::Checkpoint(step, &p));
         }
@@ -284,13 +344,19 @@ impl Trainer<'_> {
 
 /// The error of a training run that went non-finite (no checkpoint is written for that step).
 fn non_finite(step: usize, what: &str, value: f64, run_dir: &Path) -> String {
-    let kept = Checkpoint::list(run_dir).last().map(|(s, _)| format!("the newest checkpoint (step {s}) is kept")).unwrap_or_else(|| "no checkpoint was written".into());
+    let kept = Checkpoint::list(run_dir)
+        .last()
+        .map(|(s, _)| format!("the newest checkpoint (step {s}) is kept"))
+        .unwrap_or_else(|| "no checkpoint was written".into());
     format!("{}: step {step}: {what} is {value} (not finite): training stopped; {kept}. Lower training.lr, check the data with `diffkfc data check`, or resume from the checkpoint", run_dir.display())
 }
 
 /// Load the weights of a run for inference: the EMA when present, else the raw model. `run_dir`
 /// is a run directory (its newest checkpoint) or one checkpoint file of it.
-pub fn load_for_inference(run_dir: &Path, device: &Device) -> Result<(RunConfig, Denoiser, usize), String> {
+pub fn load_for_inference(
+    run_dir: &Path,
+    device: &Device,
+) -> Result<(RunConfig, Denoiser, usize), String> {
     let exported = run_dir.join(crate::checkpoint::WEIGHTS_FILE);
     let ck = if run_dir.is_file() {
         Checkpoint::load(run_dir)?
@@ -301,7 +367,8 @@ pub fn load_for_inference(run_dir: &Path, device: &Device) -> Result<(RunConfig,
     } else {
         return Err(format!("{}: no checkpoint found (train first, or pass a run directory, a model directory or a ckpt-*.safetensors file)", run_dir.display()));
     };
-    let mut cfg = RunConfig::parse(&ck.config).map_err(|e| format!("{}: stored config: {e}", run_dir.display()))?;
+    let mut cfg = RunConfig::parse(&ck.config)
+        .map_err(|e| format!("{}: stored config: {e}", run_dir.display()))?;
     // Inference: no dropout (it has no parameters, so the weights load the same).
     cfg.model.dropout = 0.0;
     let mut model = cfg.model.init(device);
@@ -310,7 +377,10 @@ pub fn load_for_inference(run_dir: &Path, device: &Device) -> Result<(RunConfig,
         let old = cfg.model.clone().with_root_channels(0);
         model = old.init(device);
         if params::shapes(&model) != ck.shapes {
-            return Err(format!("{}: checkpoint tensors do not match its stored config", run_dir.display()));
+            return Err(format!(
+                "{}: checkpoint tensors do not match its stored config",
+                run_dir.display()
+            ));
         }
         cfg.model = old;
     }

@@ -10,7 +10,8 @@ pub fn dct_basis(n: usize, m: usize) -> Vec<f64> {
     for k in 0..m.min(n) {
         let scale = if k == 0 { (1.0 / n as f64).sqrt() } else { (2.0 / n as f64).sqrt() };
         for t in 0..n {
-            d[t * m + k] = scale * (std::f64::consts::PI * (t as f64 + 0.5) * k as f64 / n as f64).cos();
+            d[t * m + k] =
+                scale * (std::f64::consts::PI * (t as f64 + 0.5) * k as f64 / n as f64).cos();
         }
     }
     d
@@ -33,7 +34,16 @@ pub fn projection(n: usize, m: usize) -> Vec<f64> {
 /// (observed dims of a keyframe frame take the keyframe's value inside the window; the rest the
 /// prediction's). Frames >= `len` are padding and stay outside windows. Returns (loss, grad [N, D]).
 #[allow(clippy::too_many_arguments)] // the paper's symbols (Eq. 4-5): window l, bases m
-pub fn loss_and_grad(x: &[f32], kf: &[f32], mask: &[f32], keys: &[usize], len: usize, dim: usize, l: usize, m: usize) -> (f64, Vec<f32>) {
+pub fn loss_and_grad(
+    x: &[f32],
+    kf: &[f32],
+    mask: &[f32],
+    keys: &[usize],
+    len: usize,
+    dim: usize,
+    l: usize,
+    m: usize,
+) -> (f64, Vec<f32>) {
     let mut grad = vec![0f32; x.len()];
     if keys.is_empty() || len == 0 {
         return (0.0, grad);
@@ -56,7 +66,8 @@ pub fn loss_and_grad(x: &[f32], kf: &[f32], mask: &[f32], keys: &[usize], len: u
         for c in 0..dim {
             let g: Vec<f64> = (lo..=hi).map(|f| value(f, c)).collect();
             // r = (I - P) g
-            let r: Vec<f64> = (0..n).map(|a| g[a] - (0..n).map(|b| p[a * n + b] * g[b]).sum::<f64>()).collect();
+            let r: Vec<f64> =
+                (0..n).map(|a| g[a] - (0..n).map(|b| p[a * n + b] * g[b]).sum::<f64>()).collect();
             loss += norm * r.iter().map(|v| v * v).sum::<f64>();
             for (a, f) in (lo..=hi).enumerate() {
                 // Observed elements are data, not variables.
@@ -114,7 +125,9 @@ mod tests {
             let (mut xp, mut xm) = (x.clone(), x.clone());
             xp[k] += h;
             xm[k] -= h;
-            let fd = (loss_and_grad(&xp, &kf, &mask, &keys, 10, dim, 2, 2).0 - loss_and_grad(&xm, &kf, &mask, &keys, 10, dim, 2, 2).0) / (2.0 * h as f64);
+            let fd = (loss_and_grad(&xp, &kf, &mask, &keys, 10, dim, 2, 2).0
+                - loss_and_grad(&xm, &kf, &mask, &keys, 10, dim, 2, 2).0)
+                / (2.0 * h as f64);
             assert!((fd - g[k] as f64).abs() < 1e-3, "element {k}: fd {fd} vs {}", g[k]);
         }
     }

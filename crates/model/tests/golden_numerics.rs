@@ -16,7 +16,11 @@ fn model(cfg: &DiffKfcConfig, device: &Device) -> diffkfc_model::Denoiser {
         .map(|(shape, v)| {
             // Fan-in scaled normals: activations stay O(1) through every layer.
             let fan_in = if shape.len() >= 2 { shape[0] } else { 1 } as f64;
-            (0..v.len()).map(|_| (r.normal() / fan_in.sqrt()) as f32 * if shape.len() >= 2 { 1.0 } else { 0.1 }).collect()
+            (0..v.len())
+                .map(|_| {
+                    (r.normal() / fan_in.sqrt()) as f32 * if shape.len() >= 2 { 1.0 } else { 0.1 }
+                })
+                .collect()
         })
         .collect();
     params::load(m, &vals)
@@ -29,7 +33,12 @@ fn check(name: &str, got: &[f32], shape: &[usize]) {
         eprintln!("wrote {}", path.display());
         return;
     }
-    let want = npy::read_f32(&path).unwrap_or_else(|e| panic!("{}: {e} (record it with DIFFKFC_WRITE_GOLDEN=1 on the reference build)", path.display()));
+    let want = npy::read_f32(&path).unwrap_or_else(|e| {
+        panic!(
+            "{}: {e} (record it with DIFFKFC_WRITE_GOLDEN=1 on the reference build)",
+            path.display()
+        )
+    });
     assert_eq!(want.shape, shape);
     let scale = want.data.iter().fold(0f32, |m, v| m.max(v.abs())).max(1.0);
     let err = got.iter().zip(&want.data).fold(0f32, |m, (a, b)| m.max((a - b).abs())) / scale;
@@ -47,7 +56,11 @@ fn forward_and_sample_match_the_recorded_outputs() {
     let req = request(&cfg, 2, n, 5);
     let cond = req.condition(&device);
     let mut r = Rng::new(6);
-    let x = Tensor::<1>::from_floats((0..2 * n * d).map(|_| r.normal() as f32).collect::<Vec<_>>().as_slice(), &device).reshape([2, n, d]);
+    let x = Tensor::<1>::from_floats(
+        (0..2 * n * d).map(|_| r.normal() as f32).collect::<Vec<_>>().as_slice(),
+        &device,
+    )
+    .reshape([2, n, d]);
     let out = params::host(m.forward(x, &[10, 700], &cond));
     check("forward_tiny.npy", &out, &[2, n, d]);
     let s = Sampling::new(&m, &cfg, 1, n);

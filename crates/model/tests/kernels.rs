@@ -22,12 +22,21 @@ fn random(shape: [usize; 3], dev: &Device) -> Tensor<3> {
 }
 
 /// Output and (dq, dk, dv) of sum(attention(q, k, v) * w), through `f`.
-fn attention_grads(f: impl Fn(Tensor<3>, Tensor<3>, Tensor<3>) -> Tensor<3>, inputs: &[Tensor<3>; 4]) -> Vec<Vec<f32>> {
-    let [q, k, v, w] = inputs.clone().map(|t| Tensor::<3>::from_data(t.into_data(), &Device::flex().autodiff()));
+fn attention_grads(
+    f: impl Fn(Tensor<3>, Tensor<3>, Tensor<3>) -> Tensor<3>,
+    inputs: &[Tensor<3>; 4],
+) -> Vec<Vec<f32>> {
+    let [q, k, v, w] =
+        inputs.clone().map(|t| Tensor::<3>::from_data(t.into_data(), &Device::flex().autodiff()));
     let (q, k, v) = (q.require_grad(), k.require_grad(), v.require_grad());
     let out = f(q.clone(), k.clone(), v.clone());
     let grads = (out.clone() * w).sum().backward();
-    vec![host(out), host(q.grad(&grads).unwrap()), host(k.grad(&grads).unwrap()), host(v.grad(&grads).unwrap())]
+    vec![
+        host(out),
+        host(q.grad(&grads).unwrap()),
+        host(k.grad(&grads).unwrap()),
+        host(v.grad(&grads).unwrap()),
+    ]
 }
 
 #[test]
@@ -38,17 +47,30 @@ fn fused_attention_matches_composed_with_gradients() {
     // Every query keeps key 0 open (as the models guarantee), the rest is a pseudo-random pattern.
     let full: Vec<bool> = (0..b * lq * lk).map(|i| i % lk != 0 && (i * 7919) % 3 == 0).collect();
     for mask in [Mask::None, Mask::Keys(Arc::new(keys)), Mask::Full(Arc::new(full))] {
-        let inputs = [random([b, lq, d], &dev), random([b, lk, d], &dev), random([b, lk, d], &dev), random([b, lq, d], &dev)];
+        let inputs = [
+            random([b, lq, d], &dev),
+            random([b, lk, d], &dev),
+            random([b, lk, d], &dev),
+            random([b, lq, d], &dev),
+        ];
         assert!(kernels::fused(&dev), "flex runs the fused kernel");
-        let fused = attention_grads(|q, k, v| kernels::attention(q, k, v, heads, mask.clone()), &inputs);
-        let composed = attention_grads(|q, k, v| kernels::attention_composed(q, k, v, heads, &mask), &inputs);
+        let fused =
+            attention_grads(|q, k, v| kernels::attention(q, k, v, heads, mask.clone()), &inputs);
+        let composed =
+            attention_grads(|q, k, v| kernels::attention_composed(q, k, v, heads, &mask), &inputs);
         for (what, (f, c)) in ["output", "dq", "dk", "dv"].iter().zip(fused.iter().zip(&composed)) {
             let e = max_err(f, c);
             assert!(e < 2e-5, "{mask:?} {what}: max error {e}");
             assert!(c.iter().any(|x| x.abs() > 1e-3), "{what} is not trivially zero");
         }
         // Inference (no autodiff) takes the same kernel.
-        let plain = kernels::attention(inputs[0].clone(), inputs[1].clone(), inputs[2].clone(), heads, mask.clone());
+        let plain = kernels::attention(
+            inputs[0].clone(),
+            inputs[1].clone(),
+            inputs[2].clone(),
+            heads,
+            mask.clone(),
+        );
         assert!(max_err(&host(plain), &fused[0]) < 1e-6);
     }
 }
@@ -59,7 +81,8 @@ fn fused_layer_norm_matches_burn_with_gradients() {
     let mut ln = LayerNormConfig::new(24).init(&ad);
     // Non-trivial scale and shift, so their gradients and effect are both tested.
     ln.gamma = ln.gamma.map(|g| g.random_like(Distribution::Normal(1.0, 0.5)).require_grad());
-    ln.beta = ln.beta.map(|p| p.map(|b| b.random_like(Distribution::Normal(0.0, 0.5)).require_grad()));
+    ln.beta =
+        ln.beta.map(|p| p.map(|b| b.random_like(Distribution::Normal(0.0, 0.5)).require_grad()));
     let x = random([5, 70, 24], &ad).mul_scalar(3.0).add_scalar(1.5);
     let w = random([5, 70, 24], &ad);
     let run = |fused: bool| {
@@ -67,7 +90,12 @@ fn fused_layer_norm_matches_burn_with_gradients() {
         let y = if fused { kernels::layer_norm(&ln, x.clone()) } else { ln.forward(x.clone()) };
         let grads = (y.clone() * w.clone()).sum().backward();
         let beta = ln.beta.as_ref().unwrap().val();
-        vec![host(y), host(x.grad(&grads).unwrap()), host(ln.gamma.val().grad(&grads).unwrap()), host(beta.grad(&grads).unwrap())]
+        vec![
+            host(y),
+            host(x.grad(&grads).unwrap()),
+            host(ln.gamma.val().grad(&grads).unwrap()),
+            host(beta.grad(&grads).unwrap()),
+        ]
     };
     let (f, c) = (run(true), run(false));
     for (what, (a, b)) in ["output", "dx", "dgamma", "dbeta"].iter().zip(f.iter().zip(&c)) {
@@ -94,7 +122,12 @@ fn fused_linear_and_linear_gelu_match_burn_with_gradients() {
             };
             let grads = (y.clone() * w.clone()).sum().backward();
             let b = lin.bias.as_ref().unwrap().val();
-            vec![host(y), host(x.grad(&grads).unwrap()), host(lin.weight.val().grad(&grads).unwrap()), host(b.grad(&grads).unwrap())]
+            vec![
+                host(y),
+                host(x.grad(&grads).unwrap()),
+                host(lin.weight.val().grad(&grads).unwrap()),
+                host(b.grad(&grads).unwrap()),
+            ]
         };
         for act in [false, true] {
             let (f, c) = (run(true, act), run(false, act));
@@ -121,13 +154,24 @@ fn fused_residual_layer_norm_matches_burn_with_dropout_and_gradients() {
         let run = |fused: bool| {
             diffkfc_model::dropout::seed(11);
             let (h, a) = (h0.clone().detach().require_grad(), a0.clone().detach().require_grad());
-            let y = if fused { kernels::residual_layer_norm(&ln, h.clone(), a.clone(), &drop) } else { ln.forward(h.clone() + drop.forward(a.clone())) };
+            let y = if fused {
+                kernels::residual_layer_norm(&ln, h.clone(), a.clone(), &drop)
+            } else {
+                ln.forward(h.clone() + drop.forward(a.clone()))
+            };
             let grads = (y.clone() * w.clone()).sum().backward();
             let beta = ln.beta.as_ref().unwrap().val();
-            vec![host(y), host(h.grad(&grads).unwrap()), host(a.grad(&grads).unwrap()), host(ln.gamma.val().grad(&grads).unwrap()), host(beta.grad(&grads).unwrap())]
+            vec![
+                host(y),
+                host(h.grad(&grads).unwrap()),
+                host(a.grad(&grads).unwrap()),
+                host(ln.gamma.val().grad(&grads).unwrap()),
+                host(beta.grad(&grads).unwrap()),
+            ]
         };
         let (f, c) = (run(true), run(false));
-        for (what, (x, y)) in ["output", "dh", "da", "dgamma", "dbeta"].iter().zip(f.iter().zip(&c)) {
+        for (what, (x, y)) in ["output", "dh", "da", "dgamma", "dbeta"].iter().zip(f.iter().zip(&c))
+        {
             let e = max_err(x, y);
             assert!(e < 2e-5, "p {prob} {what}: max error {e}");
         }

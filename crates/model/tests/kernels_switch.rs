@@ -14,7 +14,8 @@ fn the_environment_switch_selects_the_composed_ops() {
         Tensor::<3>::random([2, 6, 8], Distribution::Normal(0.0, 1.0), &dev),
         Tensor::<3>::random([2, 6, 8], Distribution::Normal(0.0, 1.0), &dev),
     );
-    let composed = host(kernels::attention_composed(q.clone(), k.clone(), v.clone(), 2, &Mask::None));
+    let composed =
+        host(kernels::attention_composed(q.clone(), k.clone(), v.clone(), 2, &Mask::None));
     std::env::set_var("DIFFKFC_KERNELS", "burn");
     assert!(!kernels::fused(&dev), "DIFFKFC_KERNELS=burn must select the composed ops");
     assert!(!kernels::fused(&dev.clone().autodiff()));

@@ -26,7 +26,11 @@ fn env_or(name: &str, default: usize) -> usize {
 fn one_embedding(split: &PackedSplit) -> EmbeddingCache {
     let mut r = Rng::new(11);
     let e: Vec<f32> = (0..384).map(|_| r.normal() as f32 * 0.05).collect();
-    let map: HashMap<String, Vec<f32>> = split.items.iter().flat_map(|it| it.captions.iter().map(|c| (c.clone(), e.clone()))).collect();
+    let map: HashMap<String, Vec<f32>> = split
+        .items
+        .iter()
+        .flat_map(|it| it.captions.iter().map(|c| (c.clone(), e.clone())))
+        .collect();
     EmbeddingCache { dim: 384, map }
 }
 
@@ -57,9 +61,12 @@ fn keyframes_reproduce_a_clip_far_better_than_text() {
     let root = root_dir();
     diffkfc_data::synth::write_dataset(&root.join("data"), 24, 5, 2, &|_, _| {}).unwrap();
     let ds = Dataset::open(root.join("data")).unwrap();
-    let train = PackedSplit::open(&ds, "train", &root.join("data/.diffkfc-cache"), |_, _| {}).unwrap();
+    let train =
+        PackedSplit::open(&ds, "train", &root.join("data/.diffkfc-cache"), |_, _| {}).unwrap();
     let text = one_embedding(&train);
-    let mut cfg = RunConfig::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/tiny.json")).unwrap();
+    let mut cfg =
+        RunConfig::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/tiny.json"))
+            .unwrap();
     cfg.training.batch_size = 16;
     cfg.training.max_steps = steps;
     cfg.training.warmup_steps = 20;
@@ -72,7 +79,15 @@ fn keyframes_reproduce_a_clip_far_better_than_text() {
     }
     let run_dir = root.join("run");
     let t0 = std::time::Instant::now();
-    let tr = Trainer { cfg: &cfg, ds: &ds, train: &train, val: None, text: &text, device: Device::flex(), run_dir: run_dir.clone() };
+    let tr = Trainer {
+        cfg: &cfg,
+        ds: &ds,
+        train: &train,
+        val: None,
+        text: &text,
+        device: Device::flex(),
+        run_dir: run_dir.clone(),
+    };
     tr.run(false, steps, &|| false, &mut |_| {}).unwrap();
     let train_s = t0.elapsed().as_secs_f64();
 
@@ -92,17 +107,38 @@ fn keyframes_reproduce_a_clip_far_better_than_text() {
         let keys = keyframes::select(keyframes::Strategy::Random, len, 0.05, &gt, d, &mut rng);
         let others: Vec<usize> = (0..len).filter(|f| !keys.contains(f)).collect();
         let mut errs = [0.0; 3];
-        for (slot, (observed, s)) in [(keys.clone(), 1.0), (vec![], 1.0), (keys.clone(), 2.5)].into_iter().enumerate() {
+        for (slot, (observed, s)) in
+            [(keys.clone(), 1.0), (vec![], 1.0), (keys.clone(), 2.5)].into_iter().enumerate()
+        {
             let n = MAX_FRAMES;
             let mut kf = vec![0f32; n * d];
             let mask = keyframes::frame_mask(n, &observed, &vec![true; d]);
             for &f in &observed {
                 kf[f * d..(f + 1) * d].copy_from_slice(&gt[f * d..(f + 1) * d]);
             }
-            let req = Request { kf: kf.repeat(2), mask: mask.repeat(2), ..Request::text_only(n, d, text.get(&spec.captions[0]).unwrap().repeat(2), 384, vec![len; 2]) };
-            let opts = Options { sampler: Sampler::Ddim(20), kf_guidance: s, transition: 0.0, seed: i as u64, ..Options::default() };
+            let req = Request {
+                kf: kf.repeat(2),
+                mask: mask.repeat(2),
+                ..Request::text_only(
+                    n,
+                    d,
+                    text.get(&spec.captions[0]).unwrap().repeat(2),
+                    384,
+                    vec![len; 2],
+                )
+            };
+            let opts = Options {
+                sampler: Sampler::Ddim(20),
+                kf_guidance: s,
+                transition: 0.0,
+                seed: i as u64,
+                ..Options::default()
+            };
             let out = sample(&model, &schedule, &req, &opts, |_, _| {});
-            errs[slot] = (0..2).map(|s| ric_error(&ds, &out[s * n * d..(s * n + len) * d], &gt, &others)).sum::<f64>() / 2.0;
+            errs[slot] = (0..2)
+                .map(|s| ric_error(&ds, &out[s * n * d..(s * n + len) * d], &gt, &others))
+                .sum::<f64>()
+                / 2.0;
         }
         with_keys += errs[0] / items.len() as f64;
         text_only += errs[1] / items.len() as f64;
@@ -114,5 +150,8 @@ fn keyframes_reproduce_a_clip_far_better_than_text() {
         with_keys / text_only
     );
     std::fs::remove_dir_all(&root).unwrap();
-    assert!(with_keys < 0.75 * text_only, "keyframes do not help: {with_keys:.4} vs {text_only:.4}");
+    assert!(
+        with_keys < 0.75 * text_only,
+        "keyframes do not help: {with_keys:.4} vs {text_only:.4}"
+    );
 }

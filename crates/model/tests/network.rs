@@ -20,7 +20,12 @@ fn to_vec<const K: usize>(t: Tensor<K>) -> Vec<f32> {
 }
 
 /// A condition for `b` samples: sample k has `lens[k]` real frames and keyframes at `keys[k]`.
-fn condition(lens: &[usize], keys: &[Vec<usize>], dev: &Device, seed: u64) -> (Tensor<3>, Condition) {
+fn condition(
+    lens: &[usize],
+    keys: &[Vec<usize>],
+    dev: &Device,
+    seed: u64,
+) -> (Tensor<3>, Condition) {
     let b = lens.len();
     dev.seed(seed);
     let x = Tensor::<3>::random([b, N, D], Distribution::Normal(0.0, 1.0), dev);
@@ -37,11 +42,16 @@ fn condition(lens: &[usize], keys: &[Vec<usize>], dev: &Device, seed: u64) -> (T
         }
     }
     let kf_mask = Tensor::<1>::from_floats(mask.as_slice(), dev).reshape([b, N, D]);
-    let valid = Tensor::<1>::from_floats(real.iter().map(|&r| r as i32 as f32).collect::<Vec<_>>().as_slice(), dev).reshape([b, N, 1]);
+    let valid = Tensor::<1>::from_floats(
+        real.iter().map(|&r| r as i32 as f32).collect::<Vec<_>>().as_slice(),
+        dev,
+    )
+    .reshape([b, N, 1]);
     let x = x * valid;
     let text = Tensor::<2>::random([b, 384], Distribution::Normal(0.0, 0.05), dev);
     let root = vec![0f32; b * N * ROOT_CHANNELS];
-    let mut cond = Condition::new(text, x.clone() * kf_mask.clone(), kf_mask, &mask, &root, &root, real, dev);
+    let mut cond =
+        Condition::new(text, x.clone() * kf_mask.clone(), kf_mask, &mask, &root, &root, real, dev);
     cond.kf_frames = kf_frames;
     (x, cond)
 }
@@ -150,7 +160,10 @@ fn invalid_tokens_do_not_leak_within_a_block() {
         let z2 = z.clone() + Tensor::<1>::from_floats(bump.as_slice(), &dev).reshape([1, l, d]);
         let out = to_vec(block.forward(z2, blocked.clone(), active, plan.valid_before(0)));
         for i in (0..l).filter(|&i| i != tok) {
-            assert!(max_diff(&base[i * d..(i + 1) * d], &out[i * d..(i + 1) * d]) < 1e-5, "token {i} changed when {tok} did");
+            assert!(
+                max_diff(&base[i * d..(i + 1) * d], &out[i * d..(i + 1) * d]) < 1e-5,
+                "token {i} changed when {tok} did"
+            );
         }
     }
     // An inactive token passes through unchanged.

@@ -36,7 +36,15 @@ fn max_diff(a: &[f32], b: &[f32]) -> f32 {
 fn guidance_identities_and_exact_keyframes() {
     let model = DiffKfcConfig::tiny().init(&Device::flex());
     let run = |o: &Options| run(&model, o);
-    let base = Options { sampler: Sampler::Ddim(8), kf_guidance: 1.0, transition: 0.0, window: 2, dct_bases: 3, seed: 4, ..Options::default() };
+    let base = Options {
+        sampler: Sampler::Ddim(8),
+        kf_guidance: 1.0,
+        transition: 0.0,
+        window: 2,
+        dct_bases: 3,
+        seed: 4,
+        ..Options::default()
+    };
     let a = run(&base);
     // s = 1 (conditional branch alone) vs the batched guided path at s = 1 + 1e-6.
     let b = run(&Options { kf_guidance: 1.0 + 1e-6, ..base.clone() });
@@ -53,10 +61,27 @@ fn guidance_identities_and_exact_keyframes() {
     let (mean, std) = (vec![0.1f32; 263], vec![0.5f32; 263]);
     for fit in [KeyframeFit::Paste, KeyframeFit::Warp] {
         for i in 0..2 {
-            let done = finish(&a, &req, i, &mean, &std, &diffkfc_data::T2M, Fit { keyframes: fit, foot_lock: false });
+            let done = finish(
+                &a,
+                &req,
+                i,
+                &mean,
+                &std,
+                &diffkfc_data::T2M,
+                Fit { keyframes: fit, foot_lock: false },
+            );
             let (f, corr) = (done.features, done.corrections);
             // Foot locking leaves the keyed frames as the fit made them.
-            let locked = finish(&a, &req, i, &mean, &std, &diffkfc_data::T2M, Fit { keyframes: fit, foot_lock: true }).features;
+            let locked = finish(
+                &a,
+                &req,
+                i,
+                &mean,
+                &std,
+                &diffkfc_data::T2M,
+                Fit { keyframes: fit, foot_lock: true },
+            )
+            .features;
             for (k, (x, y)) in f.iter().zip(&locked).enumerate() {
                 if req.mask[i * 24 * 263 + k] > 0.0 {
                     assert_eq!(x, y, "{fit:?} sample {i} element {k}");
@@ -70,7 +95,10 @@ fn guidance_identities_and_exact_keyframes() {
                 let c = k % 263;
                 if req.mask[src] > 0.0 && (fit == KeyframeFit::Paste || (3..259).contains(&c)) {
                     let want = req.kf[src] * 0.5 + 0.1;
-                    assert!((v - want).abs() < 1e-5, "{fit:?} sample {i} element {k}: {v} vs {want}");
+                    assert!(
+                        (v - want).abs() < 1e-5,
+                        "{fit:?} sample {i} element {k}: {v} vs {want}"
+                    );
                 }
             }
         }
@@ -90,7 +118,13 @@ fn ddpm_runs_and_ddim_steps_are_spaced() {
     let s20 = Schedule::cosine(20);
     let dev = Device::flex();
     let model = DiffKfcConfig::tiny().init(&dev);
-    let out = sample(&model, &s20, &request(), &Options { sampler: Sampler::Ddpm, ..Default::default() }, |_, _| {});
+    let out = sample(
+        &model,
+        &s20,
+        &request(),
+        &Options { sampler: Sampler::Ddpm, ..Default::default() },
+        |_, _| {},
+    );
     assert!(out.iter().all(|v| v.is_finite()));
 }
 
@@ -101,7 +135,15 @@ fn dpm_solver_starts_as_ddim_then_corrects() {
     let s = Schedule::cosine(1000);
     assert_eq!(timesteps(&s, Sampler::DpmSolver(5)), timesteps(&s, Sampler::Ddim(5)));
     let model = DiffKfcConfig::tiny().init(&Device::flex());
-    let run = |sampler| sample(&model, &s, &request(), &Options { sampler, transition: 0.0, ..Default::default() }, |_, _| {});
+    let run = |sampler| {
+        sample(
+            &model,
+            &s,
+            &request(),
+            &Options { sampler, transition: 0.0, ..Default::default() },
+            |_, _| {},
+        )
+    };
     let e = max_diff(&run(Sampler::DpmSolver(2)), &run(Sampler::Ddim(2)));
     assert!(e < 1e-4, "first-order DPM-Solver differs from DDIM by {e}");
     let (a, b) = (run(Sampler::DpmSolver(6)), run(Sampler::Ddim(6)));

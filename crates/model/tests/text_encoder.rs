@@ -25,7 +25,8 @@ fn matches_reference_embeddings() {
         return;
     };
     let Some(enc) = encoder() else { return };
-    let reference: serde_json::Value = serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap();
+    let reference: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap();
     let items = reference["items"].as_array().unwrap();
     assert!(!items.is_empty());
     let texts: Vec<&str> = items.iter().map(|i| i["text"].as_str().unwrap()).collect();
@@ -33,9 +34,15 @@ fn matches_reference_embeddings() {
     let embs = enc.embed(&texts).unwrap();
     let mut worst = 1.0f64;
     for (item, e) in items.iter().zip(&embs) {
-        let ids: Vec<u32> = item["token_ids"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap() as u32).collect();
+        let ids: Vec<u32> = item["token_ids"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_u64().unwrap() as u32)
+            .collect();
         assert_eq!(enc.token_ids(item["text"].as_str().unwrap()).unwrap(), ids, "{}", item["text"]);
-        let r: Vec<f64> = item["embedding"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        let r: Vec<f64> =
+            item["embedding"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
         assert_eq!(r.len(), e.len());
         let dot: f64 = r.iter().zip(e).map(|(a, b)| a * *b as f64).sum();
         let nr: f64 = r.iter().map(|a| a * a).sum::<f64>().sqrt();
@@ -56,6 +63,9 @@ fn empty_text_is_an_error() {
 
 #[test]
 fn missing_weights_say_how_to_fetch() {
-    let e = MiniLm::load(std::path::Path::new("/nonexistent/dir"), &Device::flex()).err().unwrap().to_string();
+    let e = MiniLm::load(std::path::Path::new("/nonexistent/dir"), &Device::flex())
+        .err()
+        .unwrap()
+        .to_string();
     assert!(e.contains("scripts/fetch-text-encoder.sh") && e.contains("model.safetensors"), "{e}");
 }

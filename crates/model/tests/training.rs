@@ -28,7 +28,9 @@ fn embeddings(train: &PackedSplit, val: &PackedSplit) -> EmbeddingCache {
     let mut map = HashMap::new();
     for it in train.items.iter().chain(&val.items) {
         for c in &it.captions {
-            let mut r = diffkfc_data::rng::Rng::new(c.bytes().fold(7u64, |h, b| h.wrapping_mul(31).wrapping_add(b as u64)));
+            let mut r = diffkfc_data::rng::Rng::new(
+                c.bytes().fold(7u64, |h, b| h.wrapping_mul(31).wrapping_add(b as u64)),
+            );
             map.insert(c.clone(), (0..384).map(|_| r.normal() as f32 * 0.05).collect());
         }
     }
@@ -36,7 +38,10 @@ fn embeddings(train: &PackedSplit, val: &PackedSplit) -> EmbeddingCache {
 }
 
 /// A synthetic dataset with its opened splits and caption embeddings.
-fn prepared(name: &str, clips: usize) -> (PathBuf, Dataset, PackedSplit, PackedSplit, EmbeddingCache) {
+fn prepared(
+    name: &str,
+    clips: usize,
+) -> (PathBuf, Dataset, PackedSplit, PackedSplit, EmbeddingCache) {
     let root = dataset(name, clips);
     let ds = Dataset::open(&root).unwrap();
     let cache = root.join(".diffkfc-cache");
@@ -70,7 +75,15 @@ fn resume_is_exact_and_checkpoints_rotate() {
     let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let (root, ds, train, val, text) = prepared("resume", 24);
     let cfg = config();
-    let mk = |dir: &str| Trainer { cfg: &cfg, ds: &ds, train: &train, val: Some(&val), text: &text, device: Device::flex(), run_dir: root.join(dir) };
+    let mk = |dir: &str| Trainer {
+        cfg: &cfg,
+        ds: &ds,
+        train: &train,
+        val: Some(&val),
+        text: &text,
+        device: Device::flex(),
+        run_dir: root.join(dir),
+    };
     let never = || false;
 
     let full = mk("full");
@@ -95,8 +108,14 @@ fn resume_is_exact_and_checkpoints_rotate() {
     let b = losses(&root.join("half"));
     assert_eq!(a, b, "resumed run differs from the uninterrupted one");
     // Two checkpoints kept (steps 3 and 6), no temporary files.
-    let names: Vec<_> = std::fs::read_dir(root.join("half")).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
-    assert_eq!(Checkpoint::list(&root.join("half")).iter().map(|c| c.0).collect::<Vec<_>>(), vec![3, 6]);
+    let names: Vec<_> = std::fs::read_dir(root.join("half"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(
+        Checkpoint::list(&root.join("half")).iter().map(|c| c.0).collect::<Vec<_>>(),
+        vec![3, 6]
+    );
     assert!(names.iter().all(|n| !n.contains(".tmp")), "{names:?}");
 
     // A stop request writes a checkpoint at the step reached.
@@ -118,14 +137,24 @@ fn resume_is_exact_and_checkpoints_rotate() {
 fn tiny_config_lowers_validation_loss() {
     let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let (root, ds, train, val, text) = prepared("learn", 300);
-    let mut cfg = RunConfig::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/tiny.json")).unwrap();
+    let mut cfg =
+        RunConfig::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/tiny.json"))
+            .unwrap();
     cfg.training.batch_size = 8;
     cfg.training.warmup_steps = 10;
     cfg.training.max_steps = 120;
     cfg.training.checkpoint_every = 120;
     cfg.training.val_every = 120;
     cfg.training.val_batches = 2;
-    let tr = Trainer { cfg: &cfg, ds: &ds, train: &train, val: Some(&val), text: &text, device: Device::flex(), run_dir: root.join("run") };
+    let tr = Trainer {
+        cfg: &cfg,
+        ds: &ds,
+        train: &train,
+        val: Some(&val),
+        text: &text,
+        device: Device::flex(),
+        run_dir: root.join("run"),
+    };
     tr.run(false, 120, &|| false, &mut |_| {}).unwrap();
     let vals: Vec<(u64, f64)> = std::fs::read_to_string(root.join("run/metrics.jsonl"))
         .unwrap()
@@ -134,7 +163,10 @@ fn tiny_config_lowers_validation_loss() {
         .filter_map(|v| Some((v["step"].as_u64()?, v["val_loss"].as_f64()?)))
         .collect();
     assert_eq!(vals.iter().map(|v| v.0).collect::<Vec<_>>(), vec![0, 120]);
-    eprintln!("configs/tiny.json, 120 steps of batch 8: validation loss {:.4} -> {:.4}", vals[0].1, vals[1].1);
+    eprintln!(
+        "configs/tiny.json, 120 steps of batch 8: validation loss {:.4} -> {:.4}",
+        vals[0].1, vals[1].1
+    );
     assert!(vals[1].1 < vals[0].1 * 0.9, "{vals:?}");
     std::fs::remove_dir_all(root).unwrap();
 }
@@ -157,12 +189,28 @@ fn checkpoint_without_root_channels_loads() {
     let zeros: Vec<Vec<f32>> = model.iter().map(|v| vec![0.0; v.len()]).collect();
     let dir = std::env::temp_dir().join(format!("diffkfc-oldckpt-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let ck = Checkpoint { step: 7, shapes, model, ema: None, adam_step: 7, adam_m: zeros.clone(), adam_v: zeros, config: json.to_string(), seed: 0 };
+    let ck = Checkpoint {
+        step: 7,
+        shapes,
+        model,
+        ema: None,
+        adam_step: 7,
+        adam_m: zeros.clone(),
+        adam_v: zeros,
+        config: json.to_string(),
+        seed: 0,
+    };
     ck.save(&dir).unwrap();
     let (loaded, denoiser, step) = load_for_inference(&dir, &device).unwrap();
     assert_eq!((step, loaded.model.root_channels), (7, 0));
     let req = Request::text_only(16, 263, vec![0.01; 384], 384, vec![16]);
-    let out = sample(&denoiser, &diffkfc_model::diffusion::Schedule::cosine(1000), &req, &Options { sampler: Sampler::Ddim(2), ..Options::default() }, |_, _| {});
+    let out = sample(
+        &denoiser,
+        &diffkfc_model::diffusion::Schedule::cosine(1000),
+        &req,
+        &Options { sampler: Sampler::Ddim(2), ..Options::default() },
+        |_, _| {},
+    );
     assert!(out.iter().all(|v| v.is_finite()));
     // A checkpoint whose tensors match neither layout is refused with a message.
     let mut bad = ck.clone();

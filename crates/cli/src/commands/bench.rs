@@ -105,27 +105,51 @@ fn line(case: &str, ms: f64, runs: &[f64], gflop: f64, extra: Value) -> Value {
     v
 }
 
-fn torch_reference(python: &PathBuf, script: &PathBuf, preset: &str, batch: usize, frames: usize, repeats: usize) -> Result<Value> {
+fn torch_reference(
+    python: &PathBuf,
+    script: &PathBuf,
+    preset: &str,
+    batch: usize,
+    frames: usize,
+    repeats: usize,
+) -> Result<Value> {
     if !script.exists() {
         bail!("--reference: {} not found", script.display());
     }
     let out = Command::new(python)
         .arg(script)
-        .args(["--config", preset, "--batch", &batch.to_string(), "--frames", &frames.to_string(), "--steps", &repeats.max(1).to_string()])
+        .args([
+            "--config",
+            preset,
+            "--batch",
+            &batch.to_string(),
+            "--frames",
+            &frames.to_string(),
+            "--steps",
+            &repeats.max(1).to_string(),
+        ])
         .output()
         .with_context(|| format!("--torch: running {}", python.display()))?;
     let text = String::from_utf8_lossy(&out.stdout);
     let last = text.lines().rev().find(|l| l.trim_start().starts_with('{'));
     match (out.status.success(), last) {
-        (true, Some(l)) => Ok(serde_json::from_str(l).with_context(|| format!("--torch: unreadable output: {l}"))?),
-        _ => bail!("--torch: the reference failed: {}", String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or("no output")),
+        (true, Some(l)) => {
+            Ok(serde_json::from_str(l)
+                .with_context(|| format!("--torch: unreadable output: {l}"))?)
+        }
+        _ => bail!(
+            "--torch: the reference failed: {}",
+            String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or("no output")
+        ),
     }
 }
 
 pub fn run(a: BenchArgs) -> Result<()> {
     let cfg = model_config(&a.config)?;
     let cases: Vec<&str> = a.cases.split(',').map(str::trim).filter(|c| !c.is_empty()).collect();
-    if let Some(bad) = cases.iter().find(|c| !["train", "call", "call-cached", "ddim", "loader"].contains(c)) {
+    if let Some(bad) =
+        cases.iter().find(|c| !["train", "call", "call-cached", "ddim", "loader"].contains(c))
+    {
         bail!("--cases: unknown case '{bad}' (train, call, call-cached, ddim, loader)");
     }
     if a.batch == 0 || a.frames == 0 || a.frames > cfg.max_frames {
@@ -144,7 +168,10 @@ pub fn run(a: BenchArgs) -> Result<()> {
     };
     // Every run records the machine: CPU, vector extensions, threads, matrix-product peak; each
     // model case's GFLOP/s then reads as a fraction of it.
-    let machine = diffkfc_model::bench::machine(if a.quick { 256 } else { 2048 }, if a.quick { 2 } else { 4 });
+    let machine = diffkfc_model::bench::machine(
+        if a.quick { 256 } else { 2048 },
+        if a.quick { 2 } else { 4 },
+    );
     let peak = machine["matmul_peak_gflops"].as_f64().unwrap_or(f64::NAN);
     emit(machine);
     let _ = PEAK.set(peak);
@@ -159,8 +186,13 @@ pub fn run(a: BenchArgs) -> Result<()> {
         let Some(py) = &a.torch else { continue };
         let t = torch_reference(py, &a.reference, preset, a.batch, a.frames, runs)?;
         emit(json!({"case": "pytorch", "round": round, "reference": t}));
-        let keys = [("train_step", "train_step_ms"), ("sampling_call", "cfg_call_ms"), ("sampling_call_cached", "cfg_call_ms")];
-        let r: BTreeMap<&str, f64> = keys.iter().filter_map(|&(k, tk)| Some((k, ours.get(k)? / t[tk].as_f64()?))).collect();
+        let keys = [
+            ("train_step", "train_step_ms"),
+            ("sampling_call", "cfg_call_ms"),
+            ("sampling_call_cached", "cfg_call_ms"),
+        ];
+        let r: BTreeMap<&str, f64> =
+            keys.iter().filter_map(|&(k, tk)| Some((k, ours.get(k)? / t[tk].as_f64()?))).collect();
         let mut line = json!({"case": "ratio", "round": round, "note": "diffkfc ms / PyTorch ms, same machine, same run (<= 1.0: as fast or faster)"});
         r.iter().for_each(|(k, v)| line[*k] = json!(v));
         emit(line);
@@ -174,7 +206,11 @@ pub fn run(a: BenchArgs) -> Result<()> {
                 continue;
             }
             v.sort_by(f64::total_cmp);
-            let median = if v.len() % 2 == 1 { v[v.len() / 2] } else { (v[v.len() / 2 - 1] + v[v.len() / 2]) / 2.0 };
+            let median = if v.len() % 2 == 1 {
+                v[v.len() / 2]
+            } else {
+                (v[v.len() / 2 - 1] + v[v.len() / 2]) / 2.0
+            };
             line[k] = json!({"median": median, "min": v[0], "max": v[v.len() - 1]});
         }
         emit(line);
@@ -190,16 +226,30 @@ fn emit(v: Value) {
 }
 
 /// Times the model cases asked for, printing a line each; returns the medians by case name.
-fn model_cases(a: &BenchArgs, cfg: &DiffKfcConfig, cases: &[&str], runs: usize, device: &Device, with_ddim: bool) -> Result<BTreeMap<&'static str, f64>> {
+fn model_cases(
+    a: &BenchArgs,
+    cfg: &DiffKfcConfig,
+    cases: &[&str],
+    runs: usize,
+    device: &Device,
+    with_ddim: bool,
+) -> Result<BTreeMap<&'static str, f64>> {
     let (b, n) = (a.batch, a.frames);
-    let common = json!({"config": a.config, "frames": n, "device": a.device, "threads": rayon_threads()});
+    let common =
+        json!({"config": a.config, "frames": n, "device": a.device, "threads": rayon_threads()});
     let mut ours = BTreeMap::new();
     if cases.contains(&"train") {
         let mut w = TrainStep::new(cfg, b, n, device);
         let (ms, r) = time_ms(runs, || w.step());
         ours.insert("train_step", ms);
         let [f, bw, up] = w.phases.map(|s| s * 1e3);
-        emit(line("train_step", ms, &r, flops::train_step(cfg, b, n) / 1e9, json!({"batch": b, "last_step_phases_ms": {"forward": f, "backward": bw, "host_update": up}, "common": common})));
+        emit(line(
+            "train_step",
+            ms,
+            &r,
+            flops::train_step(cfg, b, n) / 1e9,
+            json!({"batch": b, "last_step_phases_ms": {"forward": f, "backward": bw, "host_update": up}, "common": common}),
+        ));
     }
     let ddim = with_ddim && cases.contains(&"ddim");
     if !(cases.contains(&"call") || cases.contains(&"call-cached") || ddim) {
@@ -211,18 +261,37 @@ fn model_cases(a: &BenchArgs, cfg: &DiffKfcConfig, cases: &[&str], runs: usize, 
     if cases.contains(&"call") {
         let (ms, r) = time_ms(runs * 3, || s.call(true));
         ours.insert("sampling_call", ms);
-        emit(line("sampling_call", ms, &r, f.total() / 1e9, json!({"batch": 2, "encoder": true, "common": common})));
+        emit(line(
+            "sampling_call",
+            ms,
+            &r,
+            f.total() / 1e9,
+            json!({"batch": 2, "encoder": true, "common": common}),
+        ));
     }
     if cases.contains(&"call-cached") {
         let (ms, r) = time_ms(runs * 3, || s.call(false));
         ours.insert("sampling_call_cached", ms);
-        emit(line("sampling_call_cached", ms, &r, f.decoder / 1e9, json!({"batch": 2, "encoder": false, "common": common})));
+        emit(line(
+            "sampling_call_cached",
+            ms,
+            &r,
+            f.decoder / 1e9,
+            json!({"batch": 2, "encoder": false, "common": common}),
+        ));
     }
     if ddim {
         let steps = if a.quick { 2 } else { a.ddim_steps };
         let mut finite = true;
-        let (ms, r) = time_ms(runs.min(2), || finite &= s.sample(steps).iter().all(|v| v.is_finite()));
-        emit(line("ddim", ms, &r, (f.encoder + steps as f64 * f.decoder) / 1e9, json!({"steps": steps, "kf_guidance": 2.5, "transition_guidance": 100.0, "finite": finite, "common": common})));
+        let (ms, r) =
+            time_ms(runs.min(2), || finite &= s.sample(steps).iter().all(|v| v.is_finite()));
+        emit(line(
+            "ddim",
+            ms,
+            &r,
+            (f.encoder + steps as f64 * f.decoder) / 1e9,
+            json!({"steps": steps, "kf_guidance": 2.5, "transition_guidance": 100.0, "finite": finite, "common": common}),
+        ));
     }
     Ok(ours)
 }
@@ -236,7 +305,14 @@ fn loader_case(a: &BenchArgs) -> Result<()> {
             tmp.clone()
         }
     };
-    let v = diffkfc_data::loader_bench::run(&dir, "train", if a.quick { 20 } else { 200 }, 64, 1, crate::progress::bar("caching"));
+    let v = diffkfc_data::loader_bench::run(
+        &dir,
+        "train",
+        if a.quick { 20 } else { 200 },
+        64,
+        1,
+        crate::progress::bar("caching"),
+    );
     let _ = std::fs::remove_dir_all(&tmp);
     emit(v?);
     Ok(())

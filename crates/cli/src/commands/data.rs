@@ -4,7 +4,9 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
-use diffkfc_data::motion_file::{is_bvh, load_bvh, load_features, load_joints, load_motion, MIN_MOTION_FRAMES};
+use diffkfc_data::motion_file::{
+    is_bvh, load_bvh, load_features, load_joints, load_motion, MIN_MOTION_FRAMES,
+};
 use diffkfc_data::representation::{self as rep, FOOT_CONTACT_THRESHOLD};
 
 use crate::args::BvhInputArgs;
@@ -21,26 +23,38 @@ pub struct DataArgs {
 enum DataCommand {
     /// Joint positions (T,22,3) -- or SMPL-H (T,52,3), first 22 joints used -- to HumanML3D
     /// features (T-1,263), exactly as HumanML3D's `process_file`.
-    #[command(after_help = "Examples:\n  diffkfc data features 000021.npy -o 000021_features.npy\n  diffkfc data features amass_clip.npy --fps 120 --up z -o clip.npy")]
+    #[command(
+        after_help = "Examples:\n  diffkfc data features 000021.npy -o 000021_features.npy\n  diffkfc data features amass_clip.npy --fps 120 --up z -o clip.npy"
+    )]
     Features(FeaturesArgs),
     /// Validate a HumanML3D / KIT-ML dataset directory and print its statistics. Lists every
     /// problem (file and problem, one per line) and exits non-zero if there is any.
-    #[command(after_help = "Examples:\n  diffkfc data check ~/data/HumanML3D\n  diffkfc data check ~/data/HumanML3D --json > check.json")]
+    #[command(
+        after_help = "Examples:\n  diffkfc data check ~/data/HumanML3D\n  diffkfc data check ~/data/HumanML3D --json > check.json"
+    )]
     Check(CheckArgs),
     /// Write a synthetic text-motion dataset in the HumanML3D layout (the default data).
-    #[command(after_help = "Examples:\n  diffkfc data synth --out work/synth\n  diffkfc data synth --out work/small --clips 200 --seed 7")]
+    #[command(
+        after_help = "Examples:\n  diffkfc data synth --out work/synth\n  diffkfc data synth --out work/small --clips 200 --seed 7"
+    )]
     Synth(SynthArgs),
     /// Benchmark the data loader: cache build/open time, items per second, resident memory.
     /// Prints one JSON line.
-    #[command(after_help = "Example:\n  diffkfc data bench-loader work/synth --batches 200 --batch-size 64")]
+    #[command(
+        after_help = "Example:\n  diffkfc data bench-loader work/synth --batches 200 --batch-size 64"
+    )]
     BenchLoader(BenchLoaderArgs),
     /// HumanML3D features (T,263) to global joint positions (T,22,3) (`recover_from_ric`), or
     /// a BVH's joints (metres, Y up, 20 fps).
-    #[command(after_help = "Examples:\n  diffkfc data joints new_joint_vecs/012314.npy -o 012314_joints.npy\n  diffkfc data joints walk.bvh --bvh-units cm -o walk_joints.npy")]
+    #[command(
+        after_help = "Examples:\n  diffkfc data joints new_joint_vecs/012314.npy -o 012314_joints.npy\n  diffkfc data joints walk.bvh --bvh-units cm -o walk_joints.npy"
+    )]
     Joints(JointsArgs),
     /// Any motion (features, joints, a BVH of another rig) to a BVH on our rig: T-pose rest,
     /// common joint names, Y up, centimetres. Prints how far its joints are from the input's.
-    #[command(after_help = "Examples:\n  diffkfc data bvh new_joints/012314.npy -o 012314.bvh\n  diffkfc data bvh mixamo_walk.bvh -o walk.bvh")]
+    #[command(
+        after_help = "Examples:\n  diffkfc data bvh new_joints/012314.npy -o 012314.bvh\n  diffkfc data bvh mixamo_walk.bvh -o walk.bvh"
+    )]
     Bvh(BvhArgs),
 }
 
@@ -171,9 +185,20 @@ pub fn run(args: DataArgs) -> Result<()> {
 
 fn bench_loader(a: BenchLoaderArgs) -> Result<()> {
     if a.batch_size == 0 || a.batches == 0 {
-        bail!("--batch-size and --batches: must be at least 1 (got {} and {})", a.batch_size, a.batches);
+        bail!(
+            "--batch-size and --batches: must be at least 1 (got {} and {})",
+            a.batch_size,
+            a.batches
+        );
     }
-    let r = loader_bench::run(&a.dir, &a.split, a.batches, a.batch_size, a.threads, crate::progress::bar("caching"))?;
+    let r = loader_bench::run(
+        &a.dir,
+        &a.split,
+        a.batches,
+        a.batch_size,
+        a.threads,
+        crate::progress::bar("caching"),
+    )?;
     println!("{}", r);
     Ok(())
 }
@@ -182,11 +207,23 @@ fn synth(a: SynthArgs) -> Result<()> {
     if a.clips == 0 {
         bail!("--clips: must be at least 1");
     }
-    let threads = a.threads.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1));
+    let threads = a
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1));
     let bar = std::sync::Mutex::new(crate::progress::bar("synthesising"));
     let t0 = std::time::Instant::now();
-    let s = diffkfc_data::synth::write_dataset(&a.out, a.clips, a.seed, threads, &|d, n| (bar.lock().unwrap())(d, n))?;
-    println!("{}: {} clips, {} frames ({:.2} h at 20 fps), seed {}, in {:.1} s", s.out.display(), s.clips, s.frames, s.frames as f64 / 20.0 / 3600.0, a.seed, t0.elapsed().as_secs_f64());
+    let s = diffkfc_data::synth::write_dataset(&a.out, a.clips, a.seed, threads, &|d, n| {
+        (bar.lock().unwrap())(d, n)
+    })?;
+    println!(
+        "{}: {} clips, {} frames ({:.2} h at 20 fps), seed {}, in {:.1} s",
+        s.out.display(),
+        s.clips,
+        s.frames,
+        s.frames as f64 / 20.0 / 3600.0,
+        a.seed,
+        t0.elapsed().as_secs_f64()
+    );
     Ok(())
 }
 
@@ -221,14 +258,26 @@ fn features(a: FeaturesArgs) -> Result<()> {
         }
         joints = rep::resample(&joints, fps, skel.fps);
         if joints.len() < 2 {
-            bail!("{}: only {} frame(s) after resampling from {fps} to {} fps", a.input.display(), joints.len(), skel.fps);
+            bail!(
+                "{}: only {} frame(s) after resampling from {fps} to {} fps",
+                a.input.display(),
+                joints.len(),
+                skel.fps
+            );
         }
     }
-    let feats = rep::features_from_joints(skel, &joints, a.feet_threshold).map_err(|e| e.in_file(&a.input))?;
+    let feats = rep::features_from_joints(skel, &joints, a.feet_threshold)
+        .map_err(|e| e.in_file(&a.input))?;
     let dim = skel.feature_dim();
     let t = feats.len() / dim;
-    npy::write(&a.output, &[t, dim], &feats).with_context(|| format!("writing {}", a.output.display()))?;
-    println!("{}: ({t}, {dim}) features from {frames_in} input frames ({} at {} fps)", a.output.display(), joints.len(), skel.fps);
+    npy::write(&a.output, &[t, dim], &feats)
+        .with_context(|| format!("writing {}", a.output.display()))?;
+    println!(
+        "{}: ({t}, {dim}) features from {frames_in} input frames ({} at {} fps)",
+        a.output.display(),
+        joints.len(),
+        skel.fps
+    );
     Ok(())
 }
 
@@ -241,7 +290,8 @@ fn joints(a: JointsArgs) -> Result<()> {
         rep::recover_from_ric(skel, &feats.data.iter().map(|&v| v as f64).collect::<Vec<_>>())
     };
     let jn = skel.num_joints();
-    npy::write(&a.output, &[joints.len(), jn, 3], &rep::joints_to_f32(&joints)).with_context(|| format!("writing {}", a.output.display()))?;
+    npy::write(&a.output, &[joints.len(), jn, 3], &rep::joints_to_f32(&joints))
+        .with_context(|| format!("writing {}", a.output.display()))?;
     println!("{}: ({}, {jn}, 3) joint positions", a.output.display(), joints.len());
     Ok(())
 }
@@ -252,6 +302,13 @@ fn bvh(a: BvhArgs) -> Result<()> {
     let b = rig::export(skel, &joints);
     diffkfc_data::write_atomic(&a.output, b.to_text().as_bytes())?;
     let (mean, max) = rig::export_error(skel, &joints, &b);
-    println!("{}: {} frames at {} fps; joints within {:.2} mm of the input on average, {:.2} mm at most", a.output.display(), joints.len(), skel.fps, mean * 1e3, max * 1e3);
+    println!(
+        "{}: {} frames at {} fps; joints within {:.2} mm of the input on average, {:.2} mm at most",
+        a.output.display(),
+        joints.len(),
+        skel.fps,
+        mean * 1e3,
+        max * 1e3
+    );
     Ok(())
 }

@@ -135,7 +135,9 @@ struct RunArgs {
 enum EvalCommand {
     /// Train the contrastive text-motion evaluator on a dataset's train split and report its
     /// R-precision on real motions of --split (chance: 1/32, 2/32, 3/32).
-    #[command(after_help = "Example:\n  diffkfc eval train-evaluator --data work/synth --out work/evaluator --max-steps 2000")]
+    #[command(
+        after_help = "Example:\n  diffkfc eval train-evaluator --data work/synth --out work/evaluator --max-steps 2000"
+    )]
     TrainEvaluator {
         /// Dataset root (HumanML3D layout); trains on its train split.
         #[arg(long)]
@@ -168,21 +170,53 @@ enum EvalCommand {
 pub fn run(a: EvalArgs) -> Result<()> {
     match a.command {
         None => evaluate(a.run),
-        Some(EvalCommand::TrainEvaluator { data, out, max_steps, batch_size, lr, seed, split, device }) => {
+        Some(EvalCommand::TrainEvaluator {
+            data,
+            out,
+            max_steps,
+            batch_size,
+            lr,
+            seed,
+            split,
+            device,
+        }) => {
             let device = crate::device::parse(&device)?;
             let ds = Dataset::open(&data)?;
             let cache = default_cache_dir(&ds);
-            let train = PackedSplit::open(&ds, "train", &cache, crate::progress::bar("caching train"))?;
+            let train =
+                PackedSplit::open(&ds, "train", &cache, crate::progress::bar("caching train"))?;
             let test = PackedSplit::open(&ds, &split, &cache, crate::progress::bar("caching"))?;
             if train.items.is_empty() || test.items.len() < 32 {
-                anyhow::bail!("{}: needs training items and at least 32 items in split '{split}' (has {})", data.display(), test.items.len());
+                anyhow::bail!(
+                    "{}: needs training items and at least 32 items in split '{split}' (has {})",
+                    data.display(),
+                    test.items.len()
+                );
             }
             let text = embed_captions(&ds, &[&train, &test], crate::progress::bar("embedding"))?;
             let cfg = EvaluatorConfig::new().with_motion_dim(ds.dim() - 4).with_text_dim(text.dim);
             let pb = ProgressBar::new(max_steps as u64);
-            pb.set_style(ProgressStyle::with_template("{msg} [{bar:30}] step {pos}/{len} {per_sec} ETA {eta}").expect("template").progress_chars("=> "));
+            pb.set_style(
+                ProgressStyle::with_template(
+                    "{msg} [{bar:30}] step {pos}/{len} {per_sec} ETA {eta}",
+                )
+                .expect("template")
+                .progress_chars("=> "),
+            );
             let t0 = std::time::Instant::now();
-            let job = EvaluatorTraining { cfg, ds: &ds, train: &train, test: &test, text: &text, device, out: out.clone(), batch_size, steps: max_steps, lr, seed };
+            let job = EvaluatorTraining {
+                cfg,
+                ds: &ds,
+                train: &train,
+                test: &test,
+                text: &text,
+                device,
+                out: out.clone(),
+                batch_size,
+                steps: max_steps,
+                lr,
+                seed,
+            };
             let r = job
                 .run(|s, l| {
                     pb.set_position(s as u64);
@@ -193,8 +227,18 @@ pub fn run(a: EvalArgs) -> Result<()> {
             let report = serde_json::json!({"steps": r.steps, "seconds": t0.elapsed().as_secs_f64(), "first_loss": r.first_loss, "last_loss": r.last_loss,
                 "split": split, "items": r.items, "r_precision_top1": r.r_precision[0], "r_precision_top2": r.r_precision[1], "r_precision_top3": r.r_precision[2],
                 "mm_dist": r.mm_dist, "chance": [1.0 / 32.0, 2.0 / 32.0, 3.0 / 32.0]});
-            diffkfc_data::write_atomic(&out.join("report.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
-            println!("{}: {} steps in {:.1} s, InfoNCE {:.3} -> {:.3}", out.display(), r.steps, t0.elapsed().as_secs_f64(), r.first_loss, r.last_loss);
+            diffkfc_data::write_atomic(
+                &out.join("report.json"),
+                serde_json::to_string_pretty(&report)?.as_bytes(),
+            )?;
+            println!(
+                "{}: {} steps in {:.1} s, InfoNCE {:.3} -> {:.3}",
+                out.display(),
+                r.steps,
+                t0.elapsed().as_secs_f64(),
+                r.first_loss,
+                r.last_loss
+            );
             println!(
                 "  R-precision on {} real '{split}' motions: top-1 {:.3}, top-2 {:.3}, top-3 {:.3} (chance 0.031, 0.062, 0.094); MM-dist {:.3}",
                 r.items, r.r_precision[0], r.r_precision[1], r.r_precision[2], r.mm_dist
@@ -220,31 +264,60 @@ fn settings(a: &RunArgs) -> Result<Vec<Setting>> {
     let mut sweep = Vec::new();
     if let Some(spec) = &a.sweep_rates {
         for p in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
-            let r: f64 = p.parse().map_err(|_| anyhow::anyhow!("--sweep-rates: '{p}' is not a number"))?;
+            let r: f64 =
+                p.parse().map_err(|_| anyhow::anyhow!("--sweep-rates: '{p}' is not a number"))?;
             sweep.push(parse_rate(r, "--sweep-rates")?);
         }
     }
-    let rows = protocol::Rows { rate, inpaint: matches!(a.keyframe_mode, KeyframeMode::Inpaint), transition: a.transition_guidance, compare: a.compare, two_stage: a.two_stage, sweep };
+    let rows = protocol::Rows {
+        rate,
+        inpaint: matches!(a.keyframe_mode, KeyframeMode::Inpaint),
+        transition: a.transition_guidance,
+        compare: a.compare,
+        two_stage: a.two_stage,
+        sweep,
+    };
     Ok(rows.settings())
 }
 
 fn evaluate(a: RunArgs) -> Result<()> {
-    let (Some(run_dir), Some(eval_dir), Some(data)) = (a.checkpoint.clone(), a.evaluator.clone(), a.data.clone()) else { bail!("eval: needs --checkpoint, --evaluator and --data") };
+    let (Some(run_dir), Some(eval_dir), Some(data)) =
+        (a.checkpoint.clone(), a.evaluator.clone(), a.data.clone())
+    else {
+        bail!("eval: needs --checkpoint, --evaluator and --data")
+    };
     let settings = settings(&a)?;
-    for (v, flag) in [(a.replications, "--replications"), (a.samples_for_ade, "--samples-for-ade"), (a.steps, "--steps"), (a.batch_size, "--batch-size")] {
+    for (v, flag) in [
+        (a.replications, "--replications"),
+        (a.samples_for_ade, "--samples-for-ade"),
+        (a.steps, "--steps"),
+        (a.batch_size, "--batch-size"),
+    ] {
         if v == 0 {
             bail!("{flag}: must be at least 1");
         }
     }
-    let strategy: Strategy = a.keyframe_strategy.parse().map_err(|e: String| anyhow::anyhow!("--keyframe-strategy: {e}"))?;
+    let strategy: Strategy = a
+        .keyframe_strategy
+        .parse()
+        .map_err(|e: String| anyhow::anyhow!("--keyframe-strategy: {e}"))?;
     let device = crate::device::parse(&a.device)?;
     let (cfg, model, step) = load_for_inference(&run_dir, &device).map_err(anyhow::Error::msg)?;
-    let (mean, std) = diffkfc_model::run_dir::RunDir::of(&run_dir).normalisation(&cfg).map_err(anyhow::Error::msg)?;
+    let (mean, std) = diffkfc_model::run_dir::RunDir::of(&run_dir)
+        .normalisation(&cfg)
+        .map_err(anyhow::Error::msg)?;
     let ds = Dataset::open(&data)?;
     if ds.dim() != cfg.model.feat_dim {
-        bail!("--data: {} has {}-d features, the checkpoint {} expects {}", data.display(), ds.dim(), run_dir.display(), cfg.model.feat_dim);
+        bail!(
+            "--data: {} has {}-d features, the checkpoint {} expects {}",
+            data.display(),
+            ds.dim(),
+            run_dir.display(),
+            cfg.model.feat_dim
+        );
     }
-    let split = PackedSplit::open(&ds, &a.split, &default_cache_dir(&ds), crate::progress::bar("caching"))?;
+    let split =
+        PackedSplit::open(&ds, &a.split, &default_cache_dir(&ds), crate::progress::bar("caching"))?;
     let num_items = a.num_items.min(split.items.len());
     if num_items < protocol::R_BATCH {
         bail!("--num-items: {num_items} items (split '{}' of {} has {}); R-precision needs at least {}", a.split, data.display(), split.items.len(), protocol::R_BATCH);
@@ -252,12 +325,24 @@ fn evaluate(a: RunArgs) -> Result<()> {
     let text = embed_captions(&ds, &[&split], crate::progress::bar("embedding"))?;
     let ev = ContrastiveEvaluator::load(&eval_dir, &text, &device).map_err(anyhow::Error::msg)?;
     if ev.mean.len() != ds.dim() {
-        bail!("--evaluator: {} was trained on {}-d features, {} has {}", eval_dir.display(), ev.mean.len(), data.display(), ds.dim());
+        bail!(
+            "--evaluator: {} was trained on {}-d features, {} has {}",
+            eval_dir.display(),
+            ev.mean.len(),
+            data.display(),
+            ds.dim()
+        );
     }
     let (_, real) = embed_split(&ev, &ds, &split).map_err(anyhow::Error::msg)?;
     let reference = Gaussian::fit(&real);
-    let schedule = Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps)
-        .with_context(|| format!("{}: unknown diffusion schedule '{}' in the checkpoint's config (cosine, linear)", run_dir.display(), cfg.diffusion.schedule))?;
+    let schedule =
+        Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps).with_context(|| {
+            format!(
+                "{}: unknown diffusion schedule '{}' in the checkpoint's config (cosine, linear)",
+                run_dir.display(),
+                cfg.diffusion.schedule
+            )
+        })?;
     let sampler = a.sampler.sampler(a.steps);
     let fit = a.fit.fit();
     let opts = protocol::Options {
@@ -274,7 +359,17 @@ fn evaluate(a: RunArgs) -> Result<()> {
         batch: a.batch_size,
         seed: a.seed,
     };
-    let p = Protocol { model: &model, schedule: &schedule, mean: &mean, std: &std, ds: &ds, split: &split, text: &text, evaluator: &ev, opts };
+    let p = Protocol {
+        model: &model,
+        schedule: &schedule,
+        mean: &mean,
+        std: &std,
+        ds: &ds,
+        split: &split,
+        text: &text,
+        evaluator: &ev,
+        opts,
+    };
     let total = p.planned_steps(&settings);
     let estimate = p.estimate_seconds(&settings);
     println!(
@@ -286,7 +381,11 @@ fn evaluate(a: RunArgs) -> Result<()> {
         estimate / 60.0
     );
     let pb = ProgressBar::new(total as u64);
-    pb.set_style(ProgressStyle::with_template("generating [{bar:30}] {pos}/{len} steps {elapsed} ETA {eta}").expect("template").progress_chars("=> "));
+    pb.set_style(
+        ProgressStyle::with_template("generating [{bar:30}] {pos}/{len} steps {elapsed} ETA {eta}")
+            .expect("template")
+            .progress_chars("=> "),
+    );
     let t0 = std::time::Instant::now();
     let rows = p.run(&settings, &reference, &mut || pb.inc(1)).map_err(anyhow::Error::msg)?;
     pb.finish_and_clear();
@@ -314,9 +413,17 @@ fn evaluate(a: RunArgs) -> Result<()> {
         secs
     );
     let md = report::to_markdown(&rows, &header, settings[0].rate, &settings[0].name);
-    std::fs::create_dir_all(&a.out).with_context(|| format!("--out: creating {}", a.out.display()))?;
-    diffkfc_data::write_atomic(&a.out.join("report.json"), serde_json::to_string_pretty(&report::to_json(&rows, meta))?.as_bytes())?;
+    std::fs::create_dir_all(&a.out)
+        .with_context(|| format!("--out: creating {}", a.out.display()))?;
+    diffkfc_data::write_atomic(
+        &a.out.join("report.json"),
+        serde_json::to_string_pretty(&report::to_json(&rows, meta))?.as_bytes(),
+    )?;
     diffkfc_data::write_atomic(&a.out.join("report.md"), md.as_bytes())?;
-    println!("{md}\nwrote {} and {}", a.out.join("report.json").display(), a.out.join("report.md").display());
+    println!(
+        "{md}\nwrote {} and {}",
+        a.out.join("report.json").display(),
+        a.out.join("report.md").display()
+    );
     Ok(())
 }

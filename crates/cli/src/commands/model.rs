@@ -17,7 +17,9 @@ pub struct ModelArgs {
 #[derive(Subcommand)]
 enum ModelCommand {
     /// Parameters per module and in total.
-    #[command(after_help = "Example:\n  diffkfc model summary --config configs/paper-humanml3d.json")]
+    #[command(
+        after_help = "Example:\n  diffkfc model summary --config configs/paper-humanml3d.json"
+    )]
     Summary {
         /// A run config (configs/*.json) or a run/model directory's config.json.
         #[arg(long)]
@@ -26,7 +28,9 @@ enum ModelCommand {
     /// A trained run as a model directory for `--checkpoint`: model.safetensors (the EMA
     /// weights, f16 by default; no optimiser state), config.json, Mean.npy/Std.npy, and the
     /// run's metrics.jsonl and loss.svg.
-    #[command(after_help = "Example:\n  diffkfc model export --checkpoint work/runs/tiny --out models/my-model\n  diffkfc sample --checkpoint models/my-model --text \"a person walks forward\"")]
+    #[command(
+        after_help = "Example:\n  diffkfc model export --checkpoint work/runs/tiny --out models/my-model\n  diffkfc sample --checkpoint models/my-model --text \"a person walks forward\""
+    )]
     Export {
         /// Run directory (its newest checkpoint) or one ckpt-*.safetensors file.
         #[arg(long)]
@@ -68,17 +72,25 @@ pub fn run(a: ModelArgs) -> Result<()> {
             for (name, n) in model.param_counts() {
                 println!("  {name:<42} {n:>12} ({:.2} M)", n as f64 / 1e6);
             }
-            println!("  (the frozen text encoder, all-MiniLM-L6-v2, adds 22.7 M that are not trained)");
+            println!(
+                "  (the frozen text encoder, all-MiniLM-L6-v2, adds 22.7 M that are not trained)"
+            );
             Ok(())
         }
         ModelCommand::Export { checkpoint, out, dtype } => {
-            let e = diffkfc_model::checkpoint::export(&checkpoint, &out, dtype == "f16").map_err(anyhow::Error::msg)?;
+            let e = diffkfc_model::checkpoint::export(&checkpoint, &out, dtype == "f16")
+                .map_err(anyhow::Error::msg)?;
             println!(
                 "{}: step {} as {dtype}, {:.2} MB; wrote {}",
                 out.display(),
                 e.step,
                 e.bytes as f64 / 1e6,
-                e.files.iter().filter_map(|f| f.file_name()).map(|n| n.to_string_lossy().into_owned()).collect::<Vec<_>>().join(", ")
+                e.files
+                    .iter()
+                    .filter_map(|f| f.file_name())
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .collect::<Vec<_>>()
+                    .join(", ")
             );
             Ok(())
         }
@@ -90,6 +102,9 @@ pub fn text_embed(a: TextEmbedArgs) -> Result<()> {
     let enc = MiniLm::load(&dir, &Device::flex())?;
     let ids = enc.token_ids(&a.text).context("--text")?;
     let emb = enc.embed(&[a.text.as_str()]).context("--text")?.remove(0);
-    println!("{}", serde_json::json!({"encoder": enc.name(), "text": a.text, "token_ids": ids, "dim": emb.len(), "embedding": emb}));
+    println!(
+        "{}",
+        serde_json::json!({"encoder": enc.name(), "text": a.text, "token_ids": ids, "dim": emb.len(), "embedding": emb})
+    );
     Ok(())
 }

@@ -42,14 +42,27 @@ pub struct RenderArgs {
 
 pub fn run(a: RenderArgs) -> Result<()> {
     let bvh = a.bvh.options()?;
-    let motions = a.inputs.iter().map(|p| load_motion(p, &T2M, &bvh)).collect::<Result<Vec<_>, _>>()?;
+    let motions =
+        a.inputs.iter().map(|p| load_motion(p, &T2M, &bvh)).collect::<Result<Vec<_>, _>>()?;
     if !a.labels.is_empty() && a.labels.len() != a.inputs.len() {
-        bail!("--label: {} label(s) for {} input(s); give one per input", a.labels.len(), a.inputs.len());
+        bail!(
+            "--label: {} label(s) for {} input(s); give one per input",
+            a.labels.len(),
+            a.inputs.len()
+        );
     }
-    let label = |i: usize| a.labels.get(i).cloned().unwrap_or_else(|| a.inputs[i].file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default());
+    let label = |i: usize| {
+        a.labels.get(i).cloned().unwrap_or_else(|| {
+            a.inputs[i].file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
+        })
+    };
     for (i, j) in motions.iter().enumerate() {
         if let Some(k) = a.keyframes.iter().find(|&&k| k >= j.len()) {
-            bail!("--keyframes: frame {k} is beyond {} ({} frames)", a.inputs[i].display(), j.len());
+            bail!(
+                "--keyframes: frame {k} is beyond {} ({} frames)",
+                a.inputs[i].display(),
+                j.len()
+            );
         }
     }
     if a.output.extension().is_some_and(|e| e.eq_ignore_ascii_case("html")) {
@@ -60,12 +73,19 @@ pub fn run(a: RenderArgs) -> Result<()> {
                 label: label(i),
                 keyframes: a.keyframes.clone(),
                 key_poses: a.keyframes.iter().map(|&k| (k, j[k].clone())).collect(),
-                numbers: format!("{} frames, foot skating {:.4}", j.len(), diffkfc_data::plausibility::foot_skating_ratio(&T2M, &j)),
+                numbers: format!(
+                    "{} frames, foot skating {:.4}",
+                    j.len(),
+                    diffkfc_data::plausibility::foot_skating_ratio(&T2M, &j)
+                ),
                 joints: j,
                 ..Default::default()
             })
             .collect();
-        diffkfc_data::write_atomic(&a.output, viewer::page(&T2M, &a.title, "", &views, &[]).as_bytes())?;
+        diffkfc_data::write_atomic(
+            &a.output,
+            viewer::page(&T2M, &a.title, "", &views, &[]).as_bytes(),
+        )?;
         println!("{}: 3D page of {} motion(s)", a.output.display(), views.len());
     } else if a.sheet {
         let clips: Vec<_> = motions.into_iter().map(|j| (j, a.keyframes.clone())).collect();
@@ -73,7 +93,10 @@ pub fn run(a: RenderArgs) -> Result<()> {
         println!("{}: contact sheet of {} motion(s)", a.output.display(), clips.len());
     } else {
         if motions.len() != 1 {
-            bail!("render: {} inputs given; a GIF shows one motion (use --sheet for several)", motions.len());
+            bail!(
+                "render: {} inputs given; a GIF shows one motion (use --sheet for several)",
+                motions.len()
+            );
         }
         let j = &motions[0];
         render::gif(&T2M, j, &a.keyframes, &a.output)?;

@@ -153,10 +153,12 @@ pub struct SampleArgs {
 }
 
 mod keys;
+mod output;
 mod parts;
 pub mod suggest;
 mod timeline;
 use keys::*;
+use output::write_outputs;
 
 pub fn run(a: SampleArgs) -> Result<()> {
     if let Some(spec) = a.timeline.clone() {
@@ -168,9 +170,16 @@ pub fn run(a: SampleArgs) -> Result<()> {
     let Some(file) = a.prompts.clone() else {
         return run_one(a);
     };
-    let text = std::fs::read_to_string(&file).with_context(|| format!("reading {}", file.display()))?;
+    let text =
+        std::fs::read_to_string(&file).with_context(|| format!("reading {}", file.display()))?;
     // (line number in the file, text): blank and comment lines are skipped but still counted.
-    let lines: Vec<(usize, &str)> = text.lines().map(str::trim).enumerate().filter(|(_, l)| !l.is_empty() && !l.starts_with("//")).map(|(n, l)| (n + 1, l)).collect();
+    let lines: Vec<(usize, &str)> = text
+        .lines()
+        .map(str::trim)
+        .enumerate()
+        .filter(|(_, l)| !l.is_empty() && !l.starts_with("//"))
+        .map(|(n, l)| (n + 1, l))
+        .collect();
     if lines.is_empty() {
         bail!("{}: no prompts", file.display());
     }
@@ -179,10 +188,15 @@ pub fn run(a: SampleArgs) -> Result<()> {
     let prompts: Vec<(usize, &str, Option<usize>)> = lines
         .iter()
         .map(|&(line_no, line)| match line.rsplit_once('#') {
-            Some((t, l)) => match l.trim().parse::<usize>().ok().filter(|&n| (1..=max).contains(&n)) {
-                Some(n) => Ok((line_no, t.trim(), Some(n))),
-                None => bail!("{}: line {line_no}: length '{l}' is not a number of frames from 1 to {max}", file.display()),
-            },
+            Some((t, l)) => {
+                match l.trim().parse::<usize>().ok().filter(|&n| (1..=max).contains(&n)) {
+                    Some(n) => Ok((line_no, t.trim(), Some(n))),
+                    None => bail!(
+                    "{}: line {line_no}: length '{l}' is not a number of frames from 1 to {max}",
+                    file.display()
+                ),
+                }
+            }
             None => Ok((line_no, line, None)),
         })
         .collect::<Result<_>>()?;
@@ -197,26 +211,6 @@ pub fn run(a: SampleArgs) -> Result<()> {
     Ok(())
 }
 
-/// Outputs of an earlier, larger run into the same folder (sample_NN files with NN >= `keep`),
-/// so the folder holds only what results.json describes.
-fn remove_stale_samples(out: &Path, keep: usize) -> Result<()> {
-    let Ok(entries) = std::fs::read_dir(out) else {
-        return Ok(());
-    };
-    for e in entries.flatten() {
-        let name = e.file_name().to_string_lossy().into_owned();
-        let Some(rest) = name.strip_prefix("sample_") else {
-            continue;
-        };
-        let (num, tail) = rest.split_at(rest.find(|c: char| !c.is_ascii_digit()).unwrap_or(rest.len()));
-        let ours = [".npy", "_joints.npy", ".gif", ".bvh"].contains(&tail);
-        if ours && num.parse::<usize>().is_ok_and(|k| k >= keep) {
-            std::fs::remove_file(e.path()).with_context(|| format!("removing the stale {}", e.path().display()))?;
-        }
-    }
-    Ok(())
-}
-
 /// Flag values in their ranges, before any work.
 fn check_flags(a: &SampleArgs) -> Result<()> {
     if !(a.kf_guidance.is_finite() && (0.0..=MAX_GUIDANCE).contains(&a.kf_guidance)) {
@@ -225,7 +219,9 @@ fn check_flags(a: &SampleArgs) -> Result<()> {
     if !(a.place_guidance.is_finite() && (0.0..=MAX_TRANSITION).contains(&a.place_guidance)) {
         bail!("--place-guidance: {} must be a number from 0 to {MAX_TRANSITION}", a.place_guidance);
     }
-    if !(a.transition_guidance.is_finite() && (0.0..=MAX_TRANSITION).contains(&a.transition_guidance)) {
+    if !(a.transition_guidance.is_finite()
+        && (0.0..=MAX_TRANSITION).contains(&a.transition_guidance))
+    {
         bail!("--transition-guidance: {} must be a number from 0 to {MAX_TRANSITION} (100 = the paper)", a.transition_guidance);
     }
     if a.steps == 0 || a.steps > 1000 {
@@ -253,7 +249,8 @@ fn run_one(a: SampleArgs) -> Result<()> {
     let keys = request_keys(&a)?;
     let gen = Generator::load(&a)?;
     let emb = gen.embed(&a.text, "--text")?;
-    let req = gen.request(&emb, keys.length, a.num_samples, &[(&keys.values, &keys.mask, &keys.root)]);
+    let req =
+        gen.request(&emb, keys.length, a.num_samples, &[(&keys.values, &keys.mask, &keys.root)]);
     let (fitted, secs) = gen.generate(&req, &a)?;
     write_outputs(&a, &gen, &keys, fitted, secs, json!({}), &[])
 }
@@ -263,7 +260,12 @@ fn text_only_motion(a: &SampleArgs) -> Result<Vec<f32>> {
     check_flags(a)?;
     let keys = request_keys(a)?;
     let gen = Generator::load(a)?;
-    let req = gen.request(&gen.embed(&a.text, "--text")?, keys.length, 1, &[(&keys.values, &keys.mask, &keys.root)]);
+    let req = gen.request(
+        &gen.embed(&a.text, "--text")?,
+        keys.length,
+        1,
+        &[(&keys.values, &keys.mask, &keys.root)],
+    );
     Ok(gen.generate(&req, a)?.0.remove(0).features)
 }
 
@@ -273,7 +275,12 @@ fn request_keys(a: &SampleArgs) -> Result<Keys> {
     // Checked before anything is allocated for the motion.
     if let Some(s) = a.seconds {
         if !(s.is_finite() && s * T2M.fps >= 0.5 && s * T2M.fps <= max as f64) {
-            bail!("--seconds: {s} is not between {:.2} and {:.1} ({max} frames at {} fps)", 0.5 / T2M.fps, max as f64 / T2M.fps, T2M.fps);
+            bail!(
+                "--seconds: {s} is not between {:.2} and {:.1} ({max} frames at {} fps)",
+                0.5 / T2M.fps,
+                max as f64 / T2M.fps,
+                T2M.fps
+            );
         }
     }
     let length = a.length.or(a.seconds.map(|s| (s * T2M.fps).round() as usize));
@@ -281,7 +288,9 @@ fn request_keys(a: &SampleArgs) -> Result<Keys> {
         bail!("--length: {l} frames; must be 1 to {max}");
     }
     let keys = match (&a.from, &a.keyframes) {
-        (Some(p), _) => keys_from_motion(a, p, length, joint_set(a.joints.as_deref(), "--joints")?)?,
+        (Some(p), _) => {
+            keys_from_motion(a, p, length, joint_set(a.joints.as_deref(), "--joints")?)?
+        }
         (None, Some(p)) => keys_from_json(p, length, a.joints.as_deref())?,
         (None, None) => {
             let length = length.unwrap_or(120);
@@ -319,12 +328,18 @@ impl Generator {
         let device = crate::device::parse(&a.device)?;
         // Exact transition guidance differentiates through the denoiser.
         let device = if matches!(a.tg_mode, TgModeArg::Exact) { device.autodiff() } else { device };
-        let (cfg, model, step) = load_for_inference(&a.checkpoint, &device).map_err(anyhow::Error::msg)?;
-        let (mean, std) = RunDir::of(&a.checkpoint).normalisation(&cfg).map_err(anyhow::Error::msg)?;
+        let (cfg, model, step) =
+            load_for_inference(&a.checkpoint, &device).map_err(anyhow::Error::msg)?;
+        let (mean, std) =
+            RunDir::of(&a.checkpoint).normalisation(&cfg).map_err(anyhow::Error::msg)?;
         let schedule = Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps)
             .with_context(|| format!("{}: unknown diffusion schedule '{}' in the checkpoint's config (cosine, linear)", a.checkpoint.display(), cfg.diffusion.schedule))?;
         if a.steps > schedule.steps {
-            bail!("--steps: {} is more than the checkpoint's {} diffusion steps", a.steps, schedule.steps);
+            bail!(
+                "--steps: {} is more than the checkpoint's {} diffusion steps",
+                a.steps,
+                schedule.steps
+            );
         }
         let opts = Options {
             sampler: a.sampler.sampler(a.steps),
@@ -338,7 +353,8 @@ impl Generator {
                 TgModeArg::Exact => sampler::TgMode::Exact,
             },
             inpaint: matches!(a.keyframe_mode, KeyframeMode::Inpaint),
-            place: (a.place_guidance > 0.0).then(|| PlaceGuidance::new(a.place_guidance, &mean, &std)),
+            place: (a.place_guidance > 0.0)
+                .then(|| PlaceGuidance::new(a.place_guidance, &mean, &std)),
         };
         let enc = MiniLm::load(&text::default_dir(), &Device::flex())?;
         Ok(Generator { model, schedule, mean, std, enc, opts, fit: a.fit.fit(), step })
@@ -350,12 +366,25 @@ impl Generator {
 
     /// A request for `b` motions of `n` frames of the text `emb`; item i observes `keys[i]`
     /// (raw features [n, D], their mask, root keys [n]), or `keys[0]` when one is given.
-    fn request(&self, emb: &[f32], n: usize, b: usize, keys: &[(&[f32], &[f32], &[RootKey])]) -> Request {
+    fn request(
+        &self,
+        emb: &[f32],
+        n: usize,
+        b: usize,
+        keys: &[(&[f32], &[f32], &[RootKey])],
+    ) -> Request {
         let d = T2M.feature_dim();
         let (mean, std) = (&self.mean, &self.std);
-        let norm = |v: &[f32], m: &[f32]| -> Vec<f32> { v.iter().zip(m).enumerate().map(|(k, (x, mk))| if *mk > 0.0 { (x - mean[k % d]) / std[k % d] } else { 0.0 }).collect() };
+        let norm = |v: &[f32], m: &[f32]| -> Vec<f32> {
+            v.iter()
+                .zip(m)
+                .enumerate()
+                .map(|(k, (x, mk))| if *mk > 0.0 { (x - mean[k % d]) / std[k % d] } else { 0.0 })
+                .collect()
+        };
         let item = |i: usize| keys[i.min(keys.len() - 1)];
-        let (mut kf, mut mask, mut root, mut root_mask) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let (mut kf, mut mask, mut root, mut root_mask) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for i in 0..b {
             let (v, m, r) = item(i);
             kf.extend(norm(v, m));
@@ -366,211 +395,47 @@ impl Generator {
                 root_mask.extend(cm);
             }
         }
-        Request { kf, mask, root, root_mask, ..Request::text_only(n, d, emb.iter().copied().cycle().take(b * emb.len()).collect(), emb.len(), vec![n; b]) }
+        Request {
+            kf,
+            mask,
+            root,
+            root_mask,
+            ..Request::text_only(
+                n,
+                d,
+                emb.iter().copied().cycle().take(b * emb.len()).collect(),
+                emb.len(),
+                vec![n; b],
+            )
+        }
     }
 
     /// Sample, fit and check every motion of `req`; also the seconds the sampler took. A
     /// diverged sampler (extreme guidance) gives an error, not NaN files with exit 0.
     fn generate(&self, req: &Request, a: &SampleArgs) -> Result<(Vec<Fitted>, f64)> {
         let t0 = std::time::Instant::now();
-        let x = sampler::sample(&self.model, &self.schedule, req, &self.opts, crate::progress::bar("denoising"));
+        let x = sampler::sample(
+            &self.model,
+            &self.schedule,
+            req,
+            &self.opts,
+            crate::progress::bar("denoising"),
+        );
         let secs = t0.elapsed().as_secs_f64();
-        let fitted: Vec<_> = (0..req.batch).map(|i| finish(&x, req, i, &self.mean, &self.std, &T2M, self.fit)).collect();
+        let fitted: Vec<_> = (0..req.batch)
+            .map(|i| finish(&x, req, i, &self.mean, &self.std, &T2M, self.fit))
+            .collect();
         for (i, f) in fitted.iter().map(|s| &s.features).enumerate() {
             let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
-            if let Err(e) = render::check_drawable(&j).map_err(|e| e.to_string()).and(f.iter().all(|v| v.is_finite()).then_some(()).ok_or_else(|| "features not finite".to_string())) {
+            if let Err(e) = render::check_drawable(&j).map_err(|e| e.to_string()).and(
+                f.iter()
+                    .all(|v| v.is_finite())
+                    .then_some(())
+                    .ok_or_else(|| "features not finite".to_string()),
+            ) {
                 bail!("sample {i} diverged ({e}); lower --kf-guidance ({}) or --transition-guidance ({})", a.kf_guidance, a.transition_guidance);
             }
         }
         Ok((fitted, secs))
-    }
-}
-
-/// Every file of a `sample` folder: per-sample features, joints, GIF, BVH; the source; results.json
-/// (with `extra` merged in) and the 3D page (with timeline `segments`: start frame and text).
-fn write_outputs(a: &SampleArgs, gen: &Generator, keys: &Keys, fitted: Vec<Fitted>, secs: f64, extra: serde_json::Value, segments: &[(usize, String)]) -> Result<()> {
-    let (b, n, d) = (fitted.len(), keys.length, T2M.feature_dim());
-    let (opts, fit, step) = (&gen.opts, gen.fit, gen.step);
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    remove_stale_samples(&a.out, b)?;
-    let mut samples = Vec::new();
-    let mut views = Vec::new();
-    let key_joints = (keys.joints.len() < T2M.num_joints()).then(|| keys.joints.clone());
-    if let Some(src) = &keys.source {
-        npy::write(a.out.join("source_joints.npy"), &[src.len(), 22, 3], &rep::joints_to_f32(src))?;
-        views.push(ViewMotion {
-            label: "source".into(),
-            joints: src.clone(),
-            keyframes: keys.frames.clone(),
-            key_joints: key_joints.clone(),
-            numbers: format!("K-TranS {}, foot skating {:.4}", k_trans(src, &keys.frames, 2).map_or("-".into(), |v| format!("{v:.4}")), diffkfc_data::plausibility::foot_skating_ratio(&T2M, src)),
-            links: vec![("joints".into(), "source_joints.npy".into())],
-            ..Default::default()
-        });
-    }
-    for (i, done) in fitted.into_iter().enumerate() {
-        let (f, corrections) = (done.features, done.corrections);
-        let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
-        let name = format!("sample_{i:02}");
-        let stem = a.out.join(&name);
-        npy::write(stem.with_extension("npy"), &[n, d], &f)?;
-        npy::write(a.out.join(format!("{name}_joints.npy")), &[n, 22, 3], &rep::joints_to_f32(&j))?;
-        render::gif(&T2M, &j, &keys.frames, &stem.with_extension("gif"))?;
-        let rig = diffkfc_data::rig::export(&T2M, &j);
-        diffkfc_data::write_atomic(&stem.with_extension("bvh"), rig.to_text().as_bytes())?;
-        // The BVH is a rigid rig; generated bones stretch a little from frame to frame.
-        let (bvh_mean, bvh_max) = diffkfc_data::rig::export_error(&T2M, &j, &rig);
-        samples.push(json!({
-            "features": format!("{name}.npy"),
-            "joints": format!("{name}_joints.npy"),
-            "gif": format!("{name}.gif"),
-            "bvh": format!("{name}.bvh"),
-            "bvh_error_m": {"mean": bvh_mean, "max": bvh_max},
-            "k_err_m": keys.source.as_ref().and_then(|s| k_err_global(&j, s, &keys.frames, &keys.joints)),
-            "k_err_root_relative_m": k_err_local(&T2M, &f, &keys.values, &keys.frames, &keys.joints),
-            "k_trans": k_trans(&j, &keys.frames, 2),
-            "foot_skating": diffkfc_data::plausibility::foot_skating_ratio(&T2M, &j),
-            "corrections": corrections,
-            "foot_lock": fit.foot_lock.then_some(&done.feet),
-        }));
-        let s = samples.last().expect("pushed");
-        // The keyed pose: the source's where there is one, else the (fitted) sample's own.
-        let key_poses = keys.frames.iter().filter(|&&k| k < j.len()).map(|&k| (k, keys.source.as_ref().and_then(|src| src.get(k)).unwrap_or(&j[k]).clone())).collect();
-        views.push(ViewMotion {
-            label: name.clone(),
-            keyframes: keys.frames.clone(),
-            key_joints: key_joints.clone(),
-            key_poses,
-            numbers: format!("{}, K-TranS {}, foot skating {}", k_err_text(s), fmt(&s["k_trans"]), fmt(&s["foot_skating"])),
-            links: ["gif", "bvh", "features", "joints"].iter().map(|k| (k.to_string(), s[*k].as_str().unwrap_or("").to_string())).collect(),
-            joints: j,
-        });
-    }
-    let mut report = json!({
-        "text": a.text,
-        "checkpoint": a.checkpoint.display().to_string(),
-        "checkpoint_step": step,
-        "length": n,
-        "source": a.from.as_ref().or(a.keyframes.as_ref()).map(|p| p.display().to_string()),
-        "keyframes": keys.frames,
-        "keyframe_joints": keys.joints,
-        "sampler": format!("{:?}", opts.sampler),
-        "kf_guidance": opts.kf_guidance,
-        "transition_guidance": opts.transition,
-        "keyframe_fit": fit.keyframes,
-        "foot_lock": fit.foot_lock,
-        "root_keys": keys.root.iter().enumerate().filter(|(_, k)| **k != RootKey::default()).map(|(f, k)| json!({"frame": f, "place": k.place, "heading_deg": k.heading.map(f64::to_degrees)})).collect::<Vec<_>>(),
-        "keyframe_mode": format!("{:?}", a.keyframe_mode).to_lowercase(),
-        "tg_mode": format!("{:?}", a.tg_mode).to_lowercase(),
-        "tg_window": opts.window,
-        "tg_bases": opts.dct_bases,
-        "seed": a.seed,
-        "seconds": secs,
-        "real_k_trans": keys.source.as_ref().and_then(|s| k_trans(s, &keys.frames, 2)),
-        "real_foot_skating": keys.source.as_ref().map(|s| diffkfc_data::plausibility::foot_skating_ratio(&T2M, s)),
-        "samples": samples,
-    });
-    if let (Some(r), Some(e)) = (report.as_object_mut(), extra.as_object()) {
-        r.extend(e.clone());
-    }
-    diffkfc_data::write_atomic(&a.out.join("results.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
-    diffkfc_data::write_atomic(&a.out.join("index.html"), index_html(&report, &views, segments).as_bytes())?;
-    println!("{}: {b} sample(s) of {n} frames in {secs:.1} s ({:?}); see results.json and index.html", a.out.display(), opts.sampler);
-    for (i, s) in report["samples"].as_array().unwrap().iter().enumerate() {
-        let most = |k: &str| s["corrections"].as_array().into_iter().flatten().filter_map(|c| c[k].as_f64()).map(f64::abs).fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))));
-        let fit_note = match (most("pose"), most("place_m"), most("heading_deg")) {
-            (None, None, None) => String::new(),
-            (p, m, h) => format!(
-                "; largest {:?} correction: pose {}, place {} m, heading {} deg",
-                fit.keyframes,
-                p.map_or("-".into(), |v| format!("{v:.3}")),
-                m.map_or("-".into(), |v| format!("{v:.3}")),
-                h.map_or("-".into(), |v| format!("{v:.1}"))
-            ),
-        };
-        let lock_note = match s["foot_lock"]["frames"].as_u64() {
-            Some(frames) => format!("; foot lock moved {frames} frame(s) (left {} dragged span(s))", s["foot_lock"]["dragged"]),
-            None => String::new(),
-        };
-        println!("  sample_{i:02}: {}, K-TranS {}, foot skating {}{fit_note}{lock_note}", k_err_text(s), fmt(&s["k_trans"]), fmt(&s["foot_skating"]));
-    }
-    Ok(())
-}
-
-/// The folder's page: the 3D view of the source and every sample, the settings above it.
-fn index_html(r: &serde_json::Value, views: &[ViewMotion], segments: &[(usize, String)]) -> String {
-    let intro = format!(
-        "<p>{} frames &middot; {} &middot; {} &middot; keyframe guidance {} &middot; transition guidance {} &middot; fit {} &middot; <a href=results.json>results.json</a>{}</p>",
-        r["length"],
-        keyframe_list(&r["keyframes"]),
-        escape(r["sampler"].as_str().unwrap_or("")),
-        r["kf_guidance"],
-        r["transition_guidance"],
-        escape(&r["keyframe_fit"].to_string()),
-        r["source"].as_str().map(|s| format!(" &middot; source {}", escape(s))).unwrap_or_default()
-    );
-    viewer::page(&T2M, r["text"].as_str().unwrap_or("diffkfc"), &intro, views, segments)
-}
-
-/// "keyframes at frames 0, 40, 80", or a count and range where there are many.
-fn keyframe_list(k: &serde_json::Value) -> String {
-    let f: Vec<u64> = k.as_array().into_iter().flatten().filter_map(|v| v.as_u64()).collect();
-    match (f.first(), f.last()) {
-        (Some(a), Some(b)) if f.len() > 12 => format!("{} keyframes (frames {a} to {b})", f.len()),
-        (Some(_), _) => format!("keyframes at frames {}", f.iter().map(u64::to_string).collect::<Vec<_>>().join(", ")),
-        _ => "no keyframes".into(),
-    }
-}
-
-/// K-Err as a sentence: global only where there is a source motion to compare with.
-fn k_err_text(s: &serde_json::Value) -> String {
-    match (s["k_err_m"].as_f64(), s["k_err_root_relative_m"].as_f64()) {
-        (Some(g), Some(l)) => format!("K-Err {g:.4} m (root-relative {l:.4} m)"),
-        (None, Some(l)) => format!("K-Err root-relative {l:.4} m (global: no source motion)"),
-        (Some(g), None) => format!("K-Err {g:.4} m"),
-        (None, None) => "no keyframes".into(),
-    }
-}
-
-fn fmt(v: &serde_json::Value) -> String {
-    v.as_f64().map(|x| format!("{x:.4}")).unwrap_or_else(|| "-".into())
-}
-
-#[cfg(test)]
-mod tests {
-    /// Bounded fuzzing of the keyframe JSON reader (`diffkfc_data::fuzz`): mutated keyframe
-    /// files give keyframes or a clean error, never a panic or a hang; whatever is accepted has
-    /// finite values, frames inside the motion and a length from 1 to 196.
-    #[test]
-    fn keyframe_json_never_panics() {
-        let dir = std::env::temp_dir().join(format!("diffkfc-kjfuzz-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let pose: Vec<[f64; 3]> = diffkfc_data::T2M
-            .target_offsets()
-            .map(|o| {
-                let rot = vec![vec![diffkfc_data::quat::IDENTITY; 22]];
-                super::rep::forward_kinematics(&diffkfc_data::T2M, &rot, &[[0.0, 0.9, 0.0]], &o)[0].clone()
-            })
-            .unwrap();
-        let feats = vec![0.1f32; 263];
-        let seeds: Vec<Vec<u8>> = vec![
-            serde_json::json!({"length": 60, "joints": "lower_body", "keyframes": [{"frame": 0, "joints": pose}, {"frame": 30, "features": feats, "root": [1.0, 0.9, 2.0], "heading": 45}]})
-                .to_string()
-                .into_bytes(),
-            serde_json::json!({"length": 40, "keyframes": [{"frame": 10, "root": [0.5, 0.9, 1.5]}, {"frame": 39, "heading": -90}]}).to_string().into_bytes(),
-        ];
-        let path = dir.join("keys.json");
-        diffkfc_data::fuzz::fuzz("keyframe json", &seeds, diffkfc_data::fuzz::cases() / 10, &|b| {
-            std::fs::write(&path, b).unwrap();
-            match super::keys_from_json(&path, None, None) {
-                Ok(k) => {
-                    assert!((1..=196).contains(&k.length) && k.frames.iter().all(|&f| f < k.length));
-                    assert!(k.values.iter().all(|v| v.is_finite()), "non-finite keyframe values accepted");
-                    true
-                }
-                Err(_) => false,
-            }
-        });
-        std::fs::remove_dir_all(dir).unwrap();
     }
 }

@@ -47,7 +47,8 @@ pub struct TrainArgs {
 /// Caption embeddings of the given splits with the frozen text encoder, computed once and cached
 /// beside the dataset's packed features.
 pub fn parse_duration(s: &str) -> Result<Duration, String> {
-    let (num, unit) = s.trim().split_at(s.trim().find(|c: char| c.is_alphabetic()).unwrap_or(s.trim().len()));
+    let (num, unit) =
+        s.trim().split_at(s.trim().find(|c: char| c.is_alphabetic()).unwrap_or(s.trim().len()));
     let v: f64 = num.parse().map_err(|_| format!("'{s}' is not a duration like 90s, 10m or 2h"))?;
     let secs = match unit {
         "" | "s" => v,
@@ -71,7 +72,10 @@ fn check_memory(cfg: &RunConfig, device: &str) -> Result<()> {
     let need = memory::training_bytes(cfg, frames);
     if let Some(free) = memory::available_bytes() {
         if need > free {
-            let fits = ((free * 0.8 - memory::fixed_bytes(cfg)) / memory::per_sample_bytes(cfg, frames)).floor().max(0.0);
+            let fits = ((free * 0.8 - memory::fixed_bytes(cfg))
+                / memory::per_sample_bytes(cfg, frames))
+            .floor()
+            .max(0.0);
             bail!("training.batch_size: {} needs about {:.1} GB but {:.1} GB is free; at most about {fits} fits", cfg.training.batch_size, need / 1e9, free / 1e9);
         }
     }
@@ -89,10 +93,16 @@ pub fn run(a: TrainArgs) -> Result<()> {
     if let Some(d) = &a.data {
         cfg.data.dir = Some(d.display().to_string());
     }
-    let data = cfg.data.dir.clone().map(PathBuf::from).context("--data: no dataset given (make one with `diffkfc data synth --out work/synth`)")?;
+    let data = cfg.data.dir.clone().map(PathBuf::from).context(
+        "--data: no dataset given (make one with `diffkfc data synth --out work/synth`)",
+    )?;
     let max_steps = a.max_steps.unwrap_or(cfg.training.max_steps);
     cfg.training.check_stop(max_steps).map_err(anyhow::Error::msg)?;
-    let stem = a.config.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "run".into());
+    let stem = a
+        .config
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "run".into());
     let run = RunDir::new(a.out.clone().unwrap_or_else(|| PathBuf::from("runs").join(stem)));
     let run_dir = run.path.clone();
     if !a.resume && run.has_checkpoints() {
@@ -102,14 +112,34 @@ pub fn run(a: TrainArgs) -> Result<()> {
     check_memory(&cfg, &a.device)?;
     let ds = Dataset::open(&data)?;
     if ds.dim() != cfg.model.feat_dim {
-        bail!("{}: features are {}-dimensional but model.feat_dim is {}", data.display(), ds.dim(), cfg.model.feat_dim);
+        bail!(
+            "{}: features are {}-dimensional but model.feat_dim is {}",
+            data.display(),
+            ds.dim(),
+            cfg.model.feat_dim
+        );
     }
     let cache_dir = default_cache_dir(&ds);
-    let train = PackedSplit::open(&ds, &cfg.data.train_split, &cache_dir, crate::progress::bar("caching train"))?;
+    let train = PackedSplit::open(
+        &ds,
+        &cfg.data.train_split,
+        &cache_dir,
+        crate::progress::bar("caching train"),
+    )?;
     if train.items.is_empty() {
-        bail!("{}: split '{}' has no usable items (run `diffkfc data check`)", data.display(), cfg.data.train_split);
+        bail!(
+            "{}: split '{}' has no usable items (run `diffkfc data check`)",
+            data.display(),
+            cfg.data.train_split
+        );
     }
-    let val = PackedSplit::open(&ds, &cfg.data.val_split, &cache_dir, crate::progress::bar("caching val")).ok();
+    let val = PackedSplit::open(
+        &ds,
+        &cfg.data.val_split,
+        &cache_dir,
+        crate::progress::bar("caching val"),
+    )
+    .ok();
     for (id, why) in train.skipped.iter().take(3) {
         eprintln!("warning: skipped clip {id}: {why}");
     }
@@ -131,10 +161,23 @@ pub fn run(a: TrainArgs) -> Result<()> {
     }
     let started = Instant::now();
     let budget = a.time_budget;
-    let stop = || interrupted.load(Ordering::SeqCst) || budget.is_some_and(|b| started.elapsed() >= b);
+    let stop =
+        || interrupted.load(Ordering::SeqCst) || budget.is_some_and(|b| started.elapsed() >= b);
     let pb = ProgressBar::new(max_steps as u64);
-    pb.set_style(ProgressStyle::with_template("{msg} [{bar:30}] step {pos}/{len} {per_sec} ETA {eta}").expect("template").progress_chars("=> "));
-    let trainer = Trainer { cfg: &cfg, ds: &ds, train: &train, val: val.as_ref(), text: &text, device, run_dir: run_dir.clone() };
+    pb.set_style(
+        ProgressStyle::with_template("{msg} [{bar:30}] step {pos}/{len} {per_sec} ETA {eta}")
+            .expect("template")
+            .progress_chars("=> "),
+    );
+    let trainer = Trainer {
+        cfg: &cfg,
+        ds: &ds,
+        train: &train,
+        val: val.as_ref(),
+        text: &text,
+        device,
+        run_dir: run_dir.clone(),
+    };
     let mut first: Option<(usize, f64)> = None;
     let outcome = trainer
         .run(a.resume, max_steps, &stop, &mut |e| match e {
@@ -147,7 +190,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
         })
         .map_err(anyhow::Error::msg)?;
     pb.finish_and_clear();
-    let vals: Vec<(usize, f64)> = run.metrics().iter().filter_map(|m| Some((m.step, m.val_loss?))).collect();
+    let vals: Vec<(usize, f64)> =
+        run.metrics().iter().filter_map(|m| Some((m.step, m.val_loss?))).collect();
     run.write_loss_plot().map_err(anyhow::Error::msg)?;
     let secs = started.elapsed().as_secs_f64();
     let steps = outcome.end_step - outcome.start_step;
@@ -158,17 +202,29 @@ pub fn run(a: TrainArgs) -> Result<()> {
     } else {
         ""
     };
-    println!("{}: steps {}..{}{why} in {secs:.1} s ({:.2} s/step)", run_dir.display(), outcome.start_step, outcome.end_step, secs / steps.max(1) as f64);
+    println!(
+        "{}: steps {}..{}{why} in {secs:.1} s ({:.2} s/step)",
+        run_dir.display(),
+        outcome.start_step,
+        outcome.end_step,
+        secs / steps.max(1) as f64
+    );
     if let (Some((s0, l0)), Some(last)) = (first, &outcome.last) {
         println!("  train loss: step {s0} {l0:.4} -> step {} {:.4}", last.step, last.loss);
     }
     if let (Some(a), Some(b)) = (vals.first(), vals.last()) {
-        println!("  validation loss (EMA weights): step {} {:.4} -> step {} {:.4}", a.0, a.1, b.0, b.1);
+        println!(
+            "  validation loss (EMA weights): step {} {:.4} -> step {} {:.4}",
+            a.0, a.1, b.0, b.1
+        );
     }
     println!("  checkpoints, metrics.jsonl, loss.svg in {}", run_dir.display());
     if interrupted.load(Ordering::SeqCst) {
         // A script must be able to tell an interrupted run (checkpoint written) from a finished one.
-        eprintln!("interrupted: checkpoint written at step {}; `--resume` continues", outcome.end_step);
+        eprintln!(
+            "interrupted: checkpoint written at step {}; `--resume` continues",
+            outcome.end_step
+        );
         std::process::exit(INTERRUPTED_EXIT);
     }
     Ok(())

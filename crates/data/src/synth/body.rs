@@ -19,7 +19,11 @@ impl Arm {
     pub const REST: Arm = Arm { flex: 0.05, abd: 0.12, elbow: 0.15 };
 
     pub fn lerp(a: Arm, b: Arm, w: f64) -> Arm {
-        Arm { flex: lerp(a.flex, b.flex, w), abd: lerp(a.abd, b.abd, w), elbow: lerp(a.elbow, b.elbow, w) }
+        Arm {
+            flex: lerp(a.flex, b.flex, w),
+            abd: lerp(a.abd, b.abd, w),
+            elbow: lerp(a.elbow, b.elbow, w),
+        }
     }
 }
 
@@ -88,7 +92,18 @@ const HIP_DIR: Vec3 = [0.958, -0.287, 0.0];
 impl Pose {
     /// Standing still at `root_xz` facing `yaw`, feet under the hips.
     pub fn standing(x: f64, z: f64, yaw: f64) -> Pose {
-        let mut p = Pose { root: [x, standing_height(), z], yaw, pitch: 0.0, lean: 0.0, twist: 0.0, head_pitch: 0.0, feet: [[0.0; 3]; 2], toe: [0.0; 2], knee_out: 0.0, arms: [Arm::REST; 2] };
+        let mut p = Pose {
+            root: [x, standing_height(), z],
+            yaw,
+            pitch: 0.0,
+            lean: 0.0,
+            twist: 0.0,
+            head_pitch: 0.0,
+            feet: [[0.0; 3]; 2],
+            toe: [0.0; 2],
+            knee_out: 0.0,
+            arms: [Arm::REST; 2],
+        };
         p.feet = [neutral_foot(x, z, yaw, 0), neutral_foot(x, z, yaw, 1)];
         p
     }
@@ -129,7 +144,10 @@ fn two_bone(root: Vec3, target: Vec3, l1: f64, l2: f64, pole: Vec3) -> Vec3 {
     let cos_a = ((l1 * l1 + d * d - l2 * l2) / (2.0 * l1 * d)).clamp(-1.0, 1.0);
     let bend = quat::sub(pole, quat::scale(u, quat::dot(pole, u)));
     let bend = if quat::norm(bend) < 1e-6 { [0.0, 0.0, 1.0] } else { quat::normalize(bend) };
-    quat::add(root, quat::add(quat::scale(u, l1 * cos_a), quat::scale(bend, l1 * (1.0 - cos_a * cos_a).sqrt())))
+    quat::add(
+        root,
+        quat::add(quat::scale(u, l1 * cos_a), quat::scale(bend, l1 * (1.0 - cos_a * cos_a).sqrt())),
+    )
 }
 
 /// Rotate `v` by yaw about +Y.
@@ -156,12 +174,14 @@ fn joints_with(p: &Pose, bend: &mut [Option<Vec3>; 2]) -> Vec<Vec3> {
     // Spine segments carry growing shares of twist, bend and lean.
     let seg = |share: f64, extra_pitch: f64| {
         let q = quat::qmul(yq, quat::from_axis_angle([0.0, 1.0, 0.0], p.twist * share));
-        let q = quat::qmul(q, quat::from_axis_angle([1.0, 0.0, 0.0], p.pitch * share + extra_pitch));
+        let q =
+            quat::qmul(q, quat::from_axis_angle([1.0, 0.0, 0.0], p.pitch * share + extra_pitch));
         quat::qmul(q, quat::from_axis_angle([0.0, 0.0, 1.0], -p.lean * share))
     };
     let (q1, q2, q3) = (seg(0.35, 0.0), seg(0.7, 0.0), seg(1.0, 0.0));
     let place = |j: &mut Vec<Vec3>, child: usize, parent: usize, q: quat::Quat, dir: Vec3| {
-        j[child] = quat::add(j[parent], quat::scale(quat::qrot(q, quat::normalize(dir)), len(child)));
+        j[child] =
+            quat::add(j[parent], quat::scale(quat::qrot(q, quat::normalize(dir)), len(child)));
     };
     j[0] = p.root;
     place(&mut j, 1, 0, yq, HIP_DIR);
@@ -182,7 +202,13 @@ fn joints_with(p: &Pose, bend: &mut [Option<Vec3>; 2]) -> Vec<Vec3> {
     for (side, (sho, elb, wri)) in [(0usize, (16usize, 18usize, 20usize)), (1, (17, 19, 21))] {
         let out = quat::qrot(q3, [if side == 0 { 1.0 } else { -1.0 }, 0.0, 0.0]);
         let a = p.arms[side];
-        let d = quat::normalize(quat::add(quat::add(quat::scale(u, -a.flex.cos() * a.abd.cos()), quat::scale(f, a.flex.sin() * a.abd.cos())), quat::scale(out, a.abd.sin())));
+        let d = quat::normalize(quat::add(
+            quat::add(
+                quat::scale(u, -a.flex.cos() * a.abd.cos()),
+                quat::scale(f, a.flex.sin() * a.abd.cos()),
+            ),
+            quat::scale(out, a.abd.sin()),
+        ));
         j[elb] = quat::add(j[sho], quat::scale(d, len(elb)));
         // The forearm bends towards the front, as elbows do; where the front is along the upper
         // arm, the previous frame's bend direction carries on.
@@ -204,7 +230,9 @@ fn joints_with(p: &Pose, bend: &mut [Option<Vec3>; 2]) -> Vec<Vec3> {
         j[wri] = quat::add(j[elb], quat::scale(fore, len(wri)));
     }
     // Legs: IK to the ankle targets, knees towards the front (spread by knee_out).
-    for (side, (hip, knee, ankle, foot)) in [(0usize, (1usize, 4usize, 7usize, 10usize)), (1, (2, 5, 8, 11))] {
+    for (side, (hip, knee, ankle, foot)) in
+        [(0usize, (1usize, 4usize, 7usize, 10usize)), (1, (2, 5, 8, 11))]
+    {
         let s = if side == 0 { 1.0 } else { -1.0 };
         // Knees bend to the front and up: a leg raised forward (a kick) then bends upwards
         // instead of flipping where "front" runs along the thigh.
@@ -238,7 +266,12 @@ mod tests {
         for (a, t) in [(7, p.feet[0]), (8, p.feet[1])] {
             assert!(quat::norm(quat::sub(j[a], t)) < 1e-6);
         }
-        assert!((j[10][1] - 0.02).abs() < 1e-6 && (j[11][1] - 0.02).abs() < 1e-6, "{:?} {:?}", j[10], j[11]);
+        assert!(
+            (j[10][1] - 0.02).abs() < 1e-6 && (j[11][1] - 0.02).abs() < 1e-6,
+            "{:?} {:?}",
+            j[10],
+            j[11]
+        );
         assert!(j[15][1] > 1.5 && j[15][1] < 1.8, "head at {}", j[15][1]);
         // It faces its yaw: left hip on the body's left.
         let (fwd, left) = axes(0.7);

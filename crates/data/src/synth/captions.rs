@@ -52,7 +52,11 @@ pub fn modifiers(params: &serde_json::Value) -> Vec<&'static str> {
     }
     if let Some(h) = params.get("height").and_then(|v| v.as_f64()) {
         if params.get("distance").is_some() || params.get("reps").is_some() {
-            m.extend_from_slice(if h > 0.25 { &["high", "powerfully"][..] } else { &["lightly", "gently"][..] });
+            m.extend_from_slice(if h > 0.25 {
+                &["high", "powerfully"][..]
+            } else {
+                &["lightly", "gently"][..]
+            });
         }
     }
     m
@@ -210,7 +214,9 @@ pub fn tokens(caption: &str) -> Vec<(String, String)> {
         .filter(|w| !w.is_empty())
         .map(|w| {
             let w = w.to_lowercase();
-            if let Some((lemma, _)) = VERBS.iter().find(|(l, forms)| *l == w || forms.contains(&w.as_str())) {
+            if let Some((lemma, _)) =
+                VERBS.iter().find(|(l, forms)| *l == w || forms.contains(&w.as_str()))
+            {
                 return (lemma.to_string(), "VERB".to_string());
             }
             let tag = TAGS.iter().find(|(t, _)| *t == w).map(|(_, p)| *p).unwrap_or("NOUN");
@@ -237,6 +243,9 @@ mod tests {
     fn tags_and_lemmas() {
         let t = tokens("A person walks forward, then waves the left hand.");
         let s: Vec<String> = t.iter().map(|(w, p)| format!("{w}/{p}")).collect();
-        assert_eq!(s.join(" "), "a/DET person/NOUN walk/VERB forward/ADV then/ADV wave/VERB the/DET left/ADJ hand/NOUN");
+        assert_eq!(
+            s.join(" "),
+            "a/DET person/NOUN walk/VERB forward/ADV then/ADV wave/VERB the/DET left/ADJ hand/NOUN"
+        );
     }
 }

@@ -34,14 +34,38 @@ pub struct Gait {
 
 impl Gait {
     pub fn walk(speed: f64) -> Gait {
-        Gait { step_rate: 1.6 + 0.6 * speed, swing: 0.75, lift: 0.07, lead: 0.5, arm_swing: 0.25 + 0.2 * speed, elbow: 0.25, pitch: 0.05 }
+        Gait {
+            step_rate: 1.6 + 0.6 * speed,
+            swing: 0.75,
+            lift: 0.07,
+            lead: 0.5,
+            arm_swing: 0.25 + 0.2 * speed,
+            elbow: 0.25,
+            pitch: 0.05,
+        }
     }
     pub fn run(speed: f64) -> Gait {
-        Gait { step_rate: 2.3 + 0.35 * speed, swing: 1.3, lift: 0.16, lead: 0.45, arm_swing: 0.5, elbow: 1.3, pitch: 0.15 }
+        Gait {
+            step_rate: 2.3 + 0.35 * speed,
+            swing: 1.3,
+            lift: 0.16,
+            lead: 0.45,
+            arm_swing: 0.5,
+            elbow: 1.3,
+            pitch: 0.15,
+        }
     }
     /// Small steps in place while turning.
     pub fn shuffle() -> Gait {
-        Gait { step_rate: 2.2, swing: 0.7, lift: 0.05, lead: 0.0, arm_swing: 0.05, elbow: 0.2, pitch: 0.0 }
+        Gait {
+            step_rate: 2.2,
+            swing: 0.7,
+            lift: 0.05,
+            lead: 0.0,
+            arm_swing: 0.05,
+            elbow: 0.2,
+            pitch: 0.0,
+        }
     }
 }
 
@@ -56,7 +80,8 @@ pub fn locomote(traj: &[RootState], gait: &Gait, start_feet: [Vec3; 2], fps: f64
         // Lead the plant along the motion by a share of the step length.
         let t1 = (t + 1).min(n - 1);
         let t0 = t1.saturating_sub(1);
-        let v = [(traj[t1].x - traj[t0].x) * step_frames, 0.0, (traj[t1].z - traj[t0].z) * step_frames];
+        let v =
+            [(traj[t1].x - traj[t0].x) * step_frames, 0.0, (traj[t1].z - traj[t0].z) * step_frames];
         quat::add(base, quat::scale(v, gait.lead))
     };
     let mut plants = start_feet;
@@ -73,7 +98,8 @@ pub fn locomote(traj: &[RootState], gait: &Gait, start_feet: [Vec3; 2], fps: f64
         let land = (t1.round() as usize).min(n - 1);
         let target = ideal(land, side);
         let other = ideal(land, 1 - side);
-        let needs = quat::norm(quat::sub(target, plants[side])) > 0.025 || quat::norm(quat::sub(other, plants[1 - side])) > 0.025;
+        let needs = quat::norm(quat::sub(target, plants[side])) > 0.025
+            || quat::norm(quat::sub(other, plants[1 - side])) > 0.025;
         if needs {
             swings.push((side, t0, t1, plants[side], target));
             plants[side] = target;
@@ -90,7 +116,10 @@ pub fn locomote(traj: &[RootState], gait: &Gait, start_feet: [Vec3; 2], fps: f64
     let mut last_plant = start_feet;
     let mut poses = Vec::with_capacity(n);
     let mut si = [0usize; 2];
-    let side_swings: [Vec<_>; 2] = [swings.iter().filter(|s| s.0 == 0).copied().collect(), swings.iter().filter(|s| s.0 == 1).copied().collect()];
+    let side_swings: [Vec<_>; 2] = [
+        swings.iter().filter(|s| s.0 == 0).copied().collect(),
+        swings.iter().filter(|s| s.0 == 1).copied().collect(),
+    ];
     for (t, r) in traj.iter().enumerate() {
         let tf = t as f64;
         let mut pose = Pose::standing(r.x, r.z, r.yaw);
@@ -144,8 +173,12 @@ pub fn trajectory(start: RootState, n: usize, fps: f64, tr: Travel) -> Vec<RootS
     let ease_frames = (0.6 * fps).min(n as f64 / 3.0);
     for t in 0..n {
         let tf = t as f64;
-        let ease = body::smooth(tf / ease_frames) * body::smooth((n as f64 - 1.0 - tf) / ease_frames);
-        let h = start.height - bounce * (0.5 - 0.5 * (2.0 * std::f64::consts::PI * step_rate * tf / fps).cos()) * ease;
+        let ease =
+            body::smooth(tf / ease_frames) * body::smooth((n as f64 - 1.0 - tf) / ease_frames);
+        let h = start.height
+            - bounce
+                * (0.5 - 0.5 * (2.0 * std::f64::consts::PI * step_rate * tf / fps).cos())
+                * ease;
         out.push(RootState { height: h, ..s });
         let dir = s.yaw + heading;
         s.x += dir.sin() * speed * ease / fps;

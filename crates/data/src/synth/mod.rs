@@ -32,7 +32,8 @@ pub enum Pattern {
     Ambiguous,
 }
 
-pub const PATTERNS: [Pattern; 4] = [Pattern::Single, Pattern::Sequence, Pattern::Simultaneous, Pattern::Ambiguous];
+pub const PATTERNS: [Pattern; 4] =
+    [Pattern::Single, Pattern::Sequence, Pattern::Simultaneous, Pattern::Ambiguous];
 
 #[derive(Clone, Debug, Serialize)]
 pub struct ActionSpan {
@@ -76,18 +77,41 @@ const AMBIGUOUS: &[Ambiguous] = &[
         sequence: ["pick_up", "walk_forward"],
         simultaneous: ("walk_forward", "bent"),
     },
-    Ambiguous { name: "walk_and_wave", phrases: &["walks and waves", "walks forward and waves a hand", "waves and walks"], sequence: ["walk_forward", "wave"], simultaneous: ("walk_forward", "wave") },
+    Ambiguous {
+        name: "walk_and_wave",
+        phrases: &["walks and waves", "walks forward and waves a hand", "waves and walks"],
+        sequence: ["walk_forward", "wave"],
+        simultaneous: ("walk_forward", "wave"),
+    },
     Ambiguous {
         name: "squat_and_raise",
-        phrases: &["squats and raises both arms", "raises both arms and squats", "squats with arms raised"],
+        phrases: &[
+            "squats and raises both arms",
+            "raises both arms and squats",
+            "squats with arms raised",
+        ],
         sequence: ["raise_both_arms", "squat"],
         simultaneous: ("squat", "raise_both_arms"),
     },
-    Ambiguous { name: "turn_and_walk", phrases: &["turns and walks", "walks and turns", "turns while walking"], sequence: ["turn", "walk_forward"], simultaneous: ("walk_circle", "") },
+    Ambiguous {
+        name: "turn_and_walk",
+        phrases: &["turns and walks", "walks and turns", "turns while walking"],
+        sequence: ["turn", "walk_forward"],
+        simultaneous: ("walk_circle", ""),
+    },
 ];
 
 /// Lower-body actions that an upper-body action can be overlaid on.
-const OVERLAY_BASES: &[&str] = &["walk_forward", "walk_backward", "walk_sideways", "walk_circle", "jog", "turn", "squat", "jump_in_place"];
+const OVERLAY_BASES: &[&str] = &[
+    "walk_forward",
+    "walk_backward",
+    "walk_sideways",
+    "walk_circle",
+    "jog",
+    "turn",
+    "squat",
+    "jump_in_place",
+];
 
 fn frames_in(r: &mut Rng, range: (usize, usize), cap: usize) -> usize {
     let lo = range.0.min(cap);
@@ -120,7 +144,9 @@ fn overlay(r: &mut Rng, base: Segment, upper: &str) -> Segment {
             let mut p = *b;
             let rest = base.poses[0].arms;
             for (k, rest) in rest.iter().enumerate() {
-                let changed = (u.arms[k].flex - rest.flex).abs() + (u.arms[k].abd - rest.abd).abs() + (u.arms[k].elbow - rest.elbow).abs();
+                let changed = (u.arms[k].flex - rest.flex).abs()
+                    + (u.arms[k].abd - rest.abd).abs()
+                    + (u.arms[k].elbow - rest.elbow).abs();
                 let w = (changed * 4.0).min(1.0);
                 p.arms[k] = body::Arm::lerp(b.arms[k], u.arms[k], w);
             }
@@ -157,7 +183,8 @@ pub fn clip(seed: u64, index: usize) -> (Clip, Vec<f32>) {
     let mut last = None;
     for attempt in 0..16u64 {
         let c = clip_attempt(seed, index, attempt);
-        let feats = rep::features_from_joints(&T2M, &c.joints, FOOT_CONTACT_THRESHOLD).expect("synthetic joints are valid");
+        let feats = rep::features_from_joints(&T2M, &c.joints, FOOT_CONTACT_THRESHOLD)
+            .expect("synthetic joints are valid");
         let rec = rep::recover_from_ric(&T2M, &feats.iter().map(|&v| v as f64).collect::<Vec<_>>());
         if representable(&c.joints, &rec) {
             return (c, feats);
@@ -240,14 +267,32 @@ fn clip_attempt(seed: u64, index: usize, attempt: u64) -> Clip {
                     "" => base,
                     "bent" => {
                         let bend = r.range(0.6, 0.9);
-                        let poses = base.poses.iter().map(|p| Pose { pitch: p.pitch + bend, head_pitch: -0.3, ..*p }).collect();
-                        Segment { poses, params: json!({"base": base.params, "spine_bend": bend}), side: None }
+                        let poses = base
+                            .poses
+                            .iter()
+                            .map(|p| Pose { pitch: p.pitch + bend, head_pitch: -0.3, ..*p })
+                            .collect();
+                        Segment {
+                            poses,
+                            params: json!({"base": base.params, "spine_bend": bend}),
+                            side: None,
+                        }
                     }
                     u => overlay(&mut r, base, u),
                 };
-                spans.push(ActionSpan { action: lower, start: 0, end: n, params: seg.params.clone() });
+                spans.push(ActionSpan {
+                    action: lower,
+                    start: 0,
+                    end: n,
+                    params: seg.params.clone(),
+                });
                 if !upper.is_empty() && upper != "bent" {
-                    spans.push(ActionSpan { action: upper, start: 0, end: n, params: seg.params["upper"].clone() });
+                    spans.push(ActionSpan {
+                        action: upper,
+                        start: 0,
+                        end: n,
+                        params: seg.params["upper"].clone(),
+                    });
                 }
                 poses = seg.poses;
             } else {
@@ -256,15 +301,28 @@ fn clip_attempt(seed: u64, index: usize, attempt: u64) -> Clip {
                 let n2 = frames_in(&mut r, (45, 95), max - n1);
                 let s1 = perform(&mut r, names[0], &start, n1);
                 let s2 = perform(&mut r, names[1], &end_pose(s1.poses.last().unwrap()), n2);
-                spans.push(ActionSpan { action: names[0], start: 0, end: n1, params: s1.params.clone() });
-                spans.push(ActionSpan { action: names[1], start: n1, end: n1 + n2, params: s2.params.clone() });
+                spans.push(ActionSpan {
+                    action: names[0],
+                    start: 0,
+                    end: n1,
+                    params: s1.params.clone(),
+                });
+                spans.push(ActionSpan {
+                    action: names[1],
+                    start: n1,
+                    end: n1 + n2,
+                    params: s2.params.clone(),
+                });
                 poses = concat(&s1.poses, &s2.poses, 8);
                 if amb.is_none() {
                     caps = (0..3)
                         .map(|_| {
                             let p1 = pick_phrase(&mut r, names[0], s1.side, false);
                             let p1 = modify(&mut r, p1, &s1.params);
-                            let (p2, g2) = (pick_phrase(&mut r, names[1], s2.side, false), pick_phrase(&mut r, names[1], s2.side, true));
+                            let (p2, g2) = (
+                                pick_phrase(&mut r, names[1], s2.side, false),
+                                pick_phrase(&mut r, names[1], s2.side, true),
+                            );
                             let pred = match r.below(4) {
                                 0 => format!("{p1}, then {p2}"),
                                 1 => format!("{p1} and then {p2}"),
@@ -284,22 +342,42 @@ fn clip_attempt(seed: u64, index: usize, attempt: u64) -> Clip {
                     captions::sentence(&mut r, &p)
                 })
                 .collect();
-            spans.insert(0, ActionSpan { action: amb.name, start: 0, end: poses.len(), params: json!({}) });
+            spans.insert(
+                0,
+                ActionSpan { action: amb.name, start: 0, end: poses.len(), params: json!({}) },
+            );
         }
         Pattern::Simultaneous => {
             let lower = *r.pick(OVERLAY_BASES);
-            let uppers: Vec<&str> = ACTIONS.iter().filter(|a| a.part == Part::Upper).map(|a| a.name).collect();
+            let uppers: Vec<&str> =
+                ACTIONS.iter().filter(|a| a.part == Part::Upper).map(|a| a.name).collect();
             let upper = *r.pick(&uppers);
             let n = frames_in(&mut r, actions::by_name(lower).frames, max).max(60);
             let base = (actions::by_name(lower).gen)(&mut r, &start, n);
             let base_side = base.side;
             let seg = overlay(&mut r, base, upper);
-            spans.push(ActionSpan { action: lower, start: 0, end: n, params: seg.params["base"].clone() });
-            spans.push(ActionSpan { action: upper, start: 0, end: n, params: seg.params["upper"].clone() });
+            spans.push(ActionSpan {
+                action: lower,
+                start: 0,
+                end: n,
+                params: seg.params["base"].clone(),
+            });
+            spans.push(ActionSpan {
+                action: upper,
+                start: 0,
+                end: n,
+                params: seg.params["upper"].clone(),
+            });
             caps = (0..3)
                 .map(|_| {
-                    let (l, lg) = (pick_phrase(&mut r, lower, base_side, false), pick_phrase(&mut r, lower, base_side, true));
-                    let (u, ug) = (pick_phrase(&mut r, upper, seg.side, false), pick_phrase(&mut r, upper, seg.side, true));
+                    let (l, lg) = (
+                        pick_phrase(&mut r, lower, base_side, false),
+                        pick_phrase(&mut r, lower, base_side, true),
+                    );
+                    let (u, ug) = (
+                        pick_phrase(&mut r, upper, seg.side, false),
+                        pick_phrase(&mut r, upper, seg.side, true),
+                    );
                     let pred = match r.below(3) {
                         0 => format!("{l} while {ug}"),
                         1 => format!("{u} while {lg}"),
@@ -314,10 +392,28 @@ fn clip_attempt(seed: u64, index: usize, attempt: u64) -> Clip {
     finish(index, pattern, realisation, poses, spans, caps)
 }
 
-fn finish(index: usize, pattern: Pattern, realisation: Option<&'static str>, poses: Vec<Pose>, actions: Vec<ActionSpan>, captions: Vec<String>) -> Clip {
+fn finish(
+    index: usize,
+    pattern: Pattern,
+    realisation: Option<&'static str>,
+    poses: Vec<Pose>,
+    actions: Vec<ActionSpan>,
+    captions: Vec<String>,
+) -> Clip {
     let joints: rep::Joints = body::joints_seq(&poses);
     let frames = joints.len() - 1;
-    Clip { joints, meta: ClipMeta { id: format!("{index:06}"), pattern, realisation, frames, actions, captions, split: "train" } }
+    Clip {
+        joints,
+        meta: ClipMeta {
+            id: format!("{index:06}"),
+            pattern,
+            realisation,
+            frames,
+            actions,
+            captions,
+            split: "train",
+        },
+    }
 }
 
 /// Split of the `k`-th clip of a (pattern, first action) group: about 75% train, 5% val,
@@ -338,15 +434,25 @@ pub struct SynthSummary {
 
 /// Write a synthetic dataset of `n` clips to `out` (built in a temporary sibling directory and
 /// renamed at the end). `progress(done, total)`.
-pub fn write_dataset(out: &Path, n: usize, seed: u64, threads: usize, progress: &(dyn Fn(usize, usize) + Sync)) -> Result<SynthSummary, DataError> {
+pub fn write_dataset(
+    out: &Path,
+    n: usize,
+    seed: u64,
+    threads: usize,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<SynthSummary, DataError> {
     let io = |p: &Path| {
         let p = p.to_path_buf();
         move |e| DataError::Io { path: p, err: e }
     };
     if out.exists() && std::fs::read_dir(out).map(|mut d| d.next().is_some()).unwrap_or(true) {
-        return Err(DataError::Invalid(format!("{}: already exists and is not empty", out.display())));
+        return Err(DataError::Invalid(format!(
+            "{}: already exists and is not empty",
+            out.display()
+        )));
     }
-    let name = out.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "synth".into());
+    let name =
+        out.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "synth".into());
     let tmp = out.with_file_name(format!(".{name}.partial{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&tmp);
     for sub in ["new_joint_vecs", "new_joints", "texts"] {
@@ -362,7 +468,11 @@ pub fn write_dataset(out: &Path, n: usize, seed: u64, threads: usize, progress: 
         let fdata: Vec<f64> = feats.iter().map(|&v| v as f64).collect();
         let rec = rep::recover_from_ric(&T2M, &fdata);
         npy::write(tmp.join(format!("new_joint_vecs/{}.npy", c.meta.id)), &[t, dim], &feats)?;
-        npy::write(tmp.join(format!("new_joints/{}.npy", c.meta.id)), &[t, 22, 3], &rep::joints_to_f32(&rec))?;
+        npy::write(
+            tmp.join(format!("new_joints/{}.npy", c.meta.id)),
+            &[t, 22, 3],
+            &rep::joints_to_f32(&rec),
+        )?;
         let mut sum = vec![0.0; dim];
         let mut sq = vec![0.0; dim];
         for row in fdata.chunks(dim) {
@@ -408,18 +518,32 @@ pub fn write_dataset(out: &Path, n: usize, seed: u64, threads: usize, progress: 
         *k += 1;
     }
     for m in &metas {
-        let lines: Vec<String> = m.captions.iter().map(|c| Caption { text: c.clone(), tokens: captions::tokens(c), start: 0.0, end: 0.0 }.to_line()).collect();
-        crate::write_atomic(&tmp.join(format!("texts/{}.txt", m.id)), (lines.join("\n") + "\n").as_bytes())?;
+        let lines: Vec<String> = m
+            .captions
+            .iter()
+            .map(|c| {
+                Caption { text: c.clone(), tokens: captions::tokens(c), start: 0.0, end: 0.0 }
+                    .to_line()
+            })
+            .collect();
+        crate::write_atomic(
+            &tmp.join(format!("texts/{}.txt", m.id)),
+            (lines.join("\n") + "\n").as_bytes(),
+        )?;
     }
     for split in ["train", "val", "test"] {
-        let ids: Vec<&str> = metas.iter().filter(|m| m.split == split).map(|m| m.id.as_str()).collect();
+        let ids: Vec<&str> =
+            metas.iter().filter(|m| m.split == split).map(|m| m.id.as_str()).collect();
         crate::write_atomic(&tmp.join(format!("{split}.txt")), (ids.join("\n") + "\n").as_bytes())?;
     }
     let (mean, std) = mean_std(&sum, &sq, frames);
     npy::write(tmp.join("Mean.npy"), &[dim], &mean)?;
     npy::write(tmp.join("Std.npy"), &[dim], &std)?;
     let manifest = json!({"generator": "diffkfc data synth", "version": env!("CARGO_PKG_VERSION"), "seed": seed, "clips": metas});
-    crate::write_atomic(&tmp.join("manifest.json"), &serde_json::to_vec_pretty(&manifest).expect("json"))?;
+    crate::write_atomic(
+        &tmp.join("manifest.json"),
+        &serde_json::to_vec_pretty(&manifest).expect("json"),
+    )?;
     if out.exists() {
         std::fs::remove_dir(out).map_err(io(out))?;
     }
@@ -431,7 +555,8 @@ pub fn write_dataset(out: &Path, n: usize, seed: u64, threads: usize, progress: 
 pub fn mean_std(sum: &[f64], sq: &[f64], frames: usize) -> (Vec<f32>, Vec<f32>) {
     let nf = frames.max(1) as f64;
     let mean: Vec<f64> = sum.iter().map(|s| s / nf).collect();
-    let std: Vec<f64> = sq.iter().zip(&mean).map(|(q, m)| (q / nf - m * m).max(0.0).sqrt()).collect();
+    let std: Vec<f64> =
+        sq.iter().zip(&mean).map(|(q, m)| (q / nf - m * m).max(0.0).sqrt()).collect();
     let mut grouped = std.clone();
     for (_, range) in Layout::of(&T2M).groups() {
         let g = std[range.clone()].iter().sum::<f64>() / range.len() as f64;

@@ -34,7 +34,11 @@ fn record<B: Backward<Flex, N>, C: CheckpointStrategy, const N: usize>(
 }
 
 /// Hand each input that needs one its gradient.
-fn register<const N: usize>(grads: &mut Gradients, parents: [Option<NodeId>; N], values: [(Vec<f32>, Shape); N]) {
+fn register<const N: usize>(
+    grads: &mut Gradients,
+    parents: [Option<NodeId>; N],
+    values: [(Vec<f32>, Shape); N],
+) {
     for (id, (g, shape)) in parents.into_iter().zip(values) {
         if let Some(id) = id {
             grads.register::<Flex>(id, tensor(g, shape));
@@ -47,7 +51,13 @@ fn shape(t: &FlexTensor) -> Shape {
 }
 
 /// Gradients of x . w + b for the product's gradient `dh`.
-fn linear_grads(grads: &mut Gradients, parents: [Option<NodeId>; 3], x: &FlexTensor, w: &FlexTensor, dh: &[f32]) {
+fn linear_grads(
+    grads: &mut Gradients,
+    parents: [Option<NodeId>; 3],
+    x: &FlexTensor,
+    w: &FlexTensor,
+    dh: &[f32],
+) {
     let n_out = w.layout().shape()[1];
     let (dx, dw, db) = host::linear_backward(&slice(x), &slice(w), dh, n_out);
     register(grads, parents, [(dx, shape(x)), (dw, shape(w)), (db, [n_out].into())]);
@@ -63,8 +73,13 @@ impl Backward<Flex, 3> for LayerNormBackward {
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
         let dy = grads.consume::<Flex>(&ops.node);
         let (x, gamma) = ops.state;
-        let (dx, dgamma, dbeta) = host::layer_norm_backward(&slice(&x), &slice(&gamma), &slice(&dy), LN_EPS);
-        register(grads, ops.parents.map(|p| p.map(|n| n.id)), [(dx, shape(&x)), (dgamma, shape(&gamma)), (dbeta, shape(&gamma))]);
+        let (dx, dgamma, dbeta) =
+            host::layer_norm_backward(&slice(&x), &slice(&gamma), &slice(&dy), LN_EPS);
+        register(
+            grads,
+            ops.parents.map(|p| p.map(|n| n.id)),
+            [(dx, shape(&x)), (dgamma, shape(&gamma)), (dbeta, shape(&gamma))],
+        );
     }
 }
 
@@ -80,13 +95,15 @@ impl Backward<Flex, 4> for ResidualLayerNormBackward {
         let (h, a, gamma, drop) = ops.state;
         let m = drop.0.as_deref().map(Vec::as_slice);
         let x = host::residual(&slice(&h), &slice(&a), m);
-        let (dx, dgamma, dbeta) = host::layer_norm_backward(&x, &slice(&gamma), &slice(&dy), LN_EPS);
+        let (dx, dgamma, dbeta) =
+            host::layer_norm_backward(&x, &slice(&gamma), &slice(&dy), LN_EPS);
         // d(h + a o m): dx to h, dx o m to a.
         let da = match m {
             Some(m) => dx.par_iter().zip(m.par_iter()).map(|(g, m)| g * m).collect(),
             None => dx.clone(),
         };
-        let values = [(dx, shape(&h)), (da, shape(&a)), (dgamma, shape(&gamma)), (dbeta, shape(&gamma))];
+        let values =
+            [(dx, shape(&h)), (da, shape(&a)), (dgamma, shape(&gamma)), (dbeta, shape(&gamma))];
         register(grads, ops.parents.map(|p| p.map(|n| n.id)), values);
     }
 }
@@ -131,31 +148,81 @@ impl Backward<Flex, 3> for AttentionBackward {
         let dout = grads.consume::<Flex>(&ops.node);
         let (q, k, v, args) = ops.state;
         let s = attn_shape(&q, &k, args.heads);
-        let (dq, dk, dv) = host::attention_backward(&slice(&q), &slice(&k), &slice(&v), &slice(&dout), &s, &args.mask);
-        register(grads, ops.parents.map(|p| p.map(|n| n.id)), [(dq, shape(&q)), (dk, shape(&k)), (dv, shape(&v))]);
+        let (dq, dk, dv) = host::attention_backward(
+            &slice(&q),
+            &slice(&k),
+            &slice(&v),
+            &slice(&dout),
+            &s,
+            &args.mask,
+        );
+        register(
+            grads,
+            ops.parents.map(|p| p.map(|n| n.id)),
+            [(dq, shape(&q)), (dk, shape(&k)), (dv, shape(&v))],
+        );
     }
 }
 
 impl<C: CheckpointStrategy> FusedOps for Autodiff<Flex, C> {
-    fn fused_layer_norm(x: FloatTensor<Self>, gamma: FloatTensor<Self>, beta: FloatTensor<Self>) -> FloatTensor<Self> {
-        record::<_, C, 3>(LayerNormBackward, [x, gamma, beta], |[x, g, b]| (Flex::fused_layer_norm(x.clone(), g.clone(), b), (x, g)), |[x, g, b]| Flex::fused_layer_norm(x, g, b))
+    fn fused_layer_norm(
+        x: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        beta: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
+        record::<_, C, 3>(
+            LayerNormBackward,
+            [x, gamma, beta],
+            |[x, g, b]| (Flex::fused_layer_norm(x.clone(), g.clone(), b), (x, g)),
+            |[x, g, b]| Flex::fused_layer_norm(x, g, b),
+        )
     }
 
-    fn fused_residual_layer_norm(h: FloatTensor<Self>, a: FloatTensor<Self>, gamma: FloatTensor<Self>, beta: FloatTensor<Self>, drop: DropMask) -> FloatTensor<Self> {
+    fn fused_residual_layer_norm(
+        h: FloatTensor<Self>,
+        a: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        beta: FloatTensor<Self>,
+        drop: DropMask,
+    ) -> FloatTensor<Self> {
         let plain = drop.clone(); // an Arc'd mask: cheap
         record::<_, C, 4>(
             ResidualLayerNormBackward,
             [h, a, gamma, beta],
-            |[h, a, g, b]| (Flex::fused_residual_layer_norm(h.clone(), a.clone(), g.clone(), b, drop.clone()), (h, a, g, drop)),
+            |[h, a, g, b]| {
+                (
+                    Flex::fused_residual_layer_norm(
+                        h.clone(),
+                        a.clone(),
+                        g.clone(),
+                        b,
+                        drop.clone(),
+                    ),
+                    (h, a, g, drop),
+                )
+            },
             |[h, a, g, b]| Flex::fused_residual_layer_norm(h, a, g, b, plain),
         )
     }
 
-    fn fused_linear(x: FloatTensor<Self>, w: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self> {
-        record::<_, C, 3>(LinearBackward, [x, w, b], |[x, w, b]| (Flex::fused_linear(x.clone(), w.clone(), b), (x, w)), |[x, w, b]| Flex::fused_linear(x, w, b))
+    fn fused_linear(
+        x: FloatTensor<Self>,
+        w: FloatTensor<Self>,
+        b: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
+        record::<_, C, 3>(
+            LinearBackward,
+            [x, w, b],
+            |[x, w, b]| (Flex::fused_linear(x.clone(), w.clone(), b), (x, w)),
+            |[x, w, b]| Flex::fused_linear(x, w, b),
+        )
     }
 
-    fn fused_linear_gelu(x: FloatTensor<Self>, w: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self> {
+    fn fused_linear_gelu(
+        x: FloatTensor<Self>,
+        w: FloatTensor<Self>,
+        b: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
         let tracked = |[x, w, b]: [FlexTensor; 3]| {
             // The pre-activation is kept for the backward pass.
             let h = host::linear_forward(&slice(&x), &slice(&w), &slice(&b));
@@ -164,15 +231,27 @@ impl<C: CheckpointStrategy> FusedOps for Autodiff<Flex, C> {
             let out: Shape = [x.layout().shape()[0], w.layout().shape()[1]].into();
             (tensor(y, out.clone()), (x, w, tensor(h, out)))
         };
-        record::<_, C, 3>(LinearGeluBackward, [x, w, b], tracked, |[x, w, b]| Flex::fused_linear_gelu(x, w, b))
+        record::<_, C, 3>(LinearGeluBackward, [x, w, b], tracked, |[x, w, b]| {
+            Flex::fused_linear_gelu(x, w, b)
+        })
     }
 
-    fn fused_attention(q: FloatTensor<Self>, k: FloatTensor<Self>, v: FloatTensor<Self>, args: AttnArgs) -> FloatTensor<Self> {
+    fn fused_attention(
+        q: FloatTensor<Self>,
+        k: FloatTensor<Self>,
+        v: FloatTensor<Self>,
+        args: AttnArgs,
+    ) -> FloatTensor<Self> {
         let plain = args.clone(); // an Arc'd mask: cheap
         record::<_, C, 3>(
             AttentionBackward,
             [q, k, v],
-            |[q, k, v]| (Flex::fused_attention(q.clone(), k.clone(), v.clone(), args.clone()), (q, k, v, args)),
+            |[q, k, v]| {
+                (
+                    Flex::fused_attention(q.clone(), k.clone(), v.clone(), args.clone()),
+                    (q, k, v, args),
+                )
+            },
             |[q, k, v]| Flex::fused_attention(q, k, v, plain),
         )
     }

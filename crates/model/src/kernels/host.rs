@@ -40,8 +40,37 @@ unsafe fn matmul(m: usize, n: usize, k: usize, dst: *mut f32, dst_rs: usize, lhs
 /// # Safety
 /// As [`matmul`].
 #[allow(clippy::too_many_arguments)]
-unsafe fn matmul_scaled(m: usize, n: usize, k: usize, dst: *mut f32, dst_rs: usize, lhs: View, rhs: View, scale: f32) {
-    gemm::gemm(m, n, k, dst, 1, dst_rs as isize, false, lhs.ptr, lhs.cs, lhs.rs, rhs.ptr, rhs.cs, rhs.rs, 0.0, scale, false, false, false, gemm::Parallelism::None);
+unsafe fn matmul_scaled(
+    m: usize,
+    n: usize,
+    k: usize,
+    dst: *mut f32,
+    dst_rs: usize,
+    lhs: View,
+    rhs: View,
+    scale: f32,
+) {
+    gemm::gemm(
+        m,
+        n,
+        k,
+        dst,
+        1,
+        dst_rs as isize,
+        false,
+        lhs.ptr,
+        lhs.cs,
+        lhs.rs,
+        rhs.ptr,
+        rhs.cs,
+        rhs.rs,
+        0.0,
+        scale,
+        false,
+        false,
+        false,
+        gemm::Parallelism::None,
+    );
 }
 
 /// A vector of `n` floats that `fill` writes completely through the pointer: no zeroing pass
@@ -64,8 +93,15 @@ const PARALLEL_WORK: usize = 192 * 192 * 192;
 /// # Safety
 /// As [`matmul`].
 unsafe fn matmul_par(m: usize, n: usize, k: usize, dst: *mut f32, acc: bool, lhs: View, rhs: View) {
-    let par = if m * n * k >= PARALLEL_WORK { gemm::Parallelism::Rayon(0) } else { gemm::Parallelism::None };
-    gemm::gemm(m, n, k, dst, 1, n as isize, acc, lhs.ptr, lhs.cs, lhs.rs, rhs.ptr, rhs.cs, rhs.rs, 1.0, 1.0, false, false, false, par);
+    let par = if m * n * k >= PARALLEL_WORK {
+        gemm::Parallelism::Rayon(0)
+    } else {
+        gemm::Parallelism::None
+    };
+    gemm::gemm(
+        m, n, k, dst, 1, n as isize, acc, lhs.ptr, lhs.cs, lhs.rs, rhs.ptr, rhs.cs, rhs.rs, 1.0,
+        1.0, false, false, false, par,
+    );
 }
 
 fn rows(x: &[f32], cols: usize) -> View {
@@ -91,12 +127,25 @@ pub fn linear_forward(x: &[f32], w: &[f32], b: &[f32]) -> Vec<f32> {
 }
 
 /// Gradients (dx, dw, db) of [`linear_forward`] for `dy` [rows, out].
-pub fn linear_backward(x: &[f32], w: &[f32], dy: &[f32], n_out: usize) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+pub fn linear_backward(
+    x: &[f32],
+    w: &[f32],
+    dy: &[f32],
+    n_out: usize,
+) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     let n_in = w.len() / n_out;
     let m = x.len() / n_in;
     // SAFETY: shapes as in linear_forward; dx = dy w^T, dw = x^T dy, every element written.
-    let dx = unsafe { overwritten(m * n_in, |p| matmul_par(m, n_in, n_out, p, false, rows(dy, n_out), transposed(w, n_out))) };
-    let dw = unsafe { overwritten(n_in * n_out, |p| matmul_par(n_in, n_out, m, p, false, transposed(x, n_in), rows(dy, n_out))) };
+    let dx = unsafe {
+        overwritten(m * n_in, |p| {
+            matmul_par(m, n_in, n_out, p, false, rows(dy, n_out), transposed(w, n_out))
+        })
+    };
+    let dw = unsafe {
+        overwritten(n_in * n_out, |p| {
+            matmul_par(n_in, n_out, m, p, false, transposed(x, n_in), rows(dy, n_out))
+        })
+    };
     // Column sums over fixed row blocks, added in order: the same for any thread count.
     let parts: Vec<Vec<f32>> = dy
         .par_chunks(n_out * 64)
@@ -115,7 +164,14 @@ pub fn linear_backward(x: &[f32], w: &[f32], dy: &[f32], n_out: usize) -> (Vec<f
 /// quarter of the sampling call's single-threaded time.
 #[allow(clippy::excessive_precision)] // the published constants, as printed
 fn erf(x: f32) -> f32 {
-    let (p, a1, a2, a3, a4, a5) = (0.3275911f32, 0.254829592f32, -0.284496736f32, 1.421413741f32, -1.453152027f32, 1.061405429f32);
+    let (p, a1, a2, a3, a4, a5) = (
+        0.3275911f32,
+        0.254829592f32,
+        -0.284496736f32,
+        1.421413741f32,
+        -1.453152027f32,
+        1.061405429f32,
+    );
     let z = x.abs();
     let t = 1.0 / (1.0 + p * z);
     let y = 1.0 - ((((a5 * t + a4) * t + a3) * t + a2) * t + a1) * t * (-z * z).exp();
@@ -124,19 +180,23 @@ fn erf(x: f32) -> f32 {
 
 /// GELU (exact form, x Phi(x)) in place.
 pub fn gelu_inplace(h: &mut [f32]) {
-    h.par_chunks_mut(1 << 14).for_each(|c| c.iter_mut().for_each(|x| *x = 0.5 * *x * (1.0 + erf(*x * std::f32::consts::FRAC_1_SQRT_2))));
+    h.par_chunks_mut(1 << 14).for_each(|c| {
+        c.iter_mut().for_each(|x| *x = 0.5 * *x * (1.0 + erf(*x * std::f32::consts::FRAC_1_SQRT_2)))
+    });
 }
 
 /// d gelu(h) / dh * dy.
 pub fn gelu_backward(h: &[f32], dy: &[f32]) -> Vec<f32> {
     let mut dh = vec![0f32; h.len()];
     let inv_sqrt_2pi = 0.5 * std::f32::consts::FRAC_2_SQRT_PI * std::f32::consts::FRAC_1_SQRT_2;
-    dh.par_chunks_mut(1 << 14).zip(h.par_chunks(1 << 14).zip(dy.par_chunks(1 << 14))).for_each(|(o, (h, g))| {
-        for ((o, &x), &g) in o.iter_mut().zip(h).zip(g) {
-            let cdf = 0.5 * (1.0 + erf(x * std::f32::consts::FRAC_1_SQRT_2));
-            *o = g * (cdf + x * inv_sqrt_2pi * (-0.5 * x * x).exp());
-        }
-    });
+    dh.par_chunks_mut(1 << 14).zip(h.par_chunks(1 << 14).zip(dy.par_chunks(1 << 14))).for_each(
+        |(o, (h, g))| {
+            for ((o, &x), &g) in o.iter_mut().zip(h).zip(g) {
+                let cdf = 0.5 * (1.0 + erf(x * std::f32::consts::FRAC_1_SQRT_2));
+                *o = g * (cdf + x * inv_sqrt_2pi * (-0.5 * x * x).exp());
+            }
+        },
+    );
     dh
 }
 
@@ -177,11 +237,30 @@ impl AttnShape {
 }
 
 /// softmax(Q K^T * scale, masked) of head (b, h) into `p` [Lq, Lk]; fully blocked rows are 0.
-fn probabilities(q: &[f32], k: &[f32], s: &AttnShape, open: &Open, b: usize, h: usize, p: &mut [f32]) {
+fn probabilities(
+    q: &[f32],
+    k: &[f32],
+    s: &AttnShape,
+    open: &Open,
+    b: usize,
+    h: usize,
+    p: &mut [f32],
+) {
     let (lq, lk, dh) = (s.lq, s.lk, s.dh());
     let kt = s.head(k, lk, b, h);
     // SAFETY: q and k hold [B, L, d]; p holds lq * lk.
-    unsafe { matmul_scaled(lq, lk, dh, p.as_mut_ptr(), lk, s.head(q, lq, b, h), View { ptr: kt.ptr, rs: kt.cs, cs: kt.rs }, s.scale()) };
+    unsafe {
+        matmul_scaled(
+            lq,
+            lk,
+            dh,
+            p.as_mut_ptr(),
+            lk,
+            s.head(q, lq, b, h),
+            View { ptr: kt.ptr, rs: kt.cs, cs: kt.rs },
+            s.scale(),
+        )
+    };
     softmax::rows(p, s, open, b);
 }
 
@@ -200,7 +279,9 @@ pub fn attention_forward(q: &[f32], k: &[f32], v: &[f32], s: &AttnShape, mask: &
             let pv = View { ptr: p.as_ptr(), rs: lk as isize, cs: 1 };
             let d = dst;
             // SAFETY: head (b, h) writes only its own dh columns of sample b's rows.
-            unsafe { matmul(lq, dh, lk, d.0.add(b * lq * s.d + h * dh), s.d, pv, s.head(v, lk, b, h)) };
+            unsafe {
+                matmul(lq, dh, lk, d.0.add(b * lq * s.d + h * dh), s.d, pv, s.head(v, lk, b, h))
+            };
         },
     );
     // SAFETY: every (b, h) wrote its [lq, dh] block; the blocks tile [B, Lq, d].
@@ -210,10 +291,21 @@ pub fn attention_forward(q: &[f32], k: &[f32], v: &[f32], s: &AttnShape, mask: &
 
 /// Gradients (dQ, dK, dV) of [`attention_forward`] for the output gradient `dout` [B, Lq, d];
 /// the probabilities are recomputed (cheaper than keeping [B, H, Lq, Lk] per layer).
-pub fn attention_backward(q: &[f32], k: &[f32], v: &[f32], dout: &[f32], s: &AttnShape, mask: &Mask) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+pub fn attention_backward(
+    q: &[f32],
+    k: &[f32],
+    v: &[f32],
+    dout: &[f32],
+    s: &AttnShape,
+    mask: &Mask,
+) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     let (lq, lk, dh) = (s.lq, s.lk, s.dh());
     // Not zeroed: every (b, h) writes its blocks of all three (set_len below).
-    let (mut dq, mut dk, mut dv): (Vec<f32>, Vec<f32>, Vec<f32>) = (Vec::with_capacity(s.batch * lq * s.d), Vec::with_capacity(s.batch * lk * s.d), Vec::with_capacity(s.batch * lk * s.d));
+    let (mut dq, mut dk, mut dv): (Vec<f32>, Vec<f32>, Vec<f32>) = (
+        Vec::with_capacity(s.batch * lq * s.d),
+        Vec::with_capacity(s.batch * lk * s.d),
+        Vec::with_capacity(s.batch * lk * s.d),
+    );
     let (dqp, dkp, dvp) = (Out(dq.as_mut_ptr()), Out(dk.as_mut_ptr()), Out(dv.as_mut_ptr()));
     let open = Open::new(mask);
     let scale = s.scale();
@@ -233,7 +325,15 @@ pub fn attention_backward(q: &[f32], k: &[f32], v: &[f32], dout: &[f32], s: &Att
             unsafe {
                 // dV = P^T dO; dP = dO V^T.
                 matmul(lk, dh, lq, dvp.0.add(b * lk * s.d + col), s.d, pt, go);
-                matmul(lq, lk, dh, dp.as_mut_ptr(), lk, go, View { ptr: vh.ptr, rs: vh.cs, cs: vh.rs });
+                matmul(
+                    lq,
+                    lk,
+                    dh,
+                    dp.as_mut_ptr(),
+                    lk,
+                    go,
+                    View { ptr: vh.ptr, rs: vh.cs, cs: vh.rs },
+                );
             }
             // dS = P o (dP - rowsum(P o dP)), times the score scale.
             for (pr, gr) in p.chunks(lk).zip(dp.chunks_mut(lk)) {
@@ -287,16 +387,27 @@ pub fn layer_norm_forward(x: &[f32], gamma: &[f32], beta: &[f32], eps: f32) -> V
 pub fn residual(h: &[f32], a: &[f32], m: Option<&[f32]>) -> Vec<f32> {
     let mut x = h.to_vec();
     match m {
-        Some(m) => x.par_chunks_mut(1 << 14).zip(a.par_chunks(1 << 14).zip(m.par_chunks(1 << 14))).for_each(|(x, (a, m))| {
-            x.iter_mut().zip(a.iter().zip(m)).for_each(|(x, (a, m))| *x += a * m);
-        }),
-        None => x.par_chunks_mut(1 << 14).zip(a.par_chunks(1 << 14)).for_each(|(x, a)| x.iter_mut().zip(a).for_each(|(x, a)| *x += a)),
+        Some(m) => x
+            .par_chunks_mut(1 << 14)
+            .zip(a.par_chunks(1 << 14).zip(m.par_chunks(1 << 14)))
+            .for_each(|(x, (a, m))| {
+                x.iter_mut().zip(a.iter().zip(m)).for_each(|(x, (a, m))| *x += a * m);
+            }),
+        None => x
+            .par_chunks_mut(1 << 14)
+            .zip(a.par_chunks(1 << 14))
+            .for_each(|(x, a)| x.iter_mut().zip(a).for_each(|(x, a)| *x += a)),
     }
     x
 }
 
 /// Gradients (dx, dgamma, dbeta) of [`layer_norm_forward`] for `dy`.
-pub fn layer_norm_backward(x: &[f32], gamma: &[f32], dy: &[f32], eps: f32) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+pub fn layer_norm_backward(
+    x: &[f32],
+    gamma: &[f32],
+    dy: &[f32],
+    eps: f32,
+) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     let d = gamma.len();
     let mut dx = vec![0f32; x.len()];
     let partial: Vec<(Vec<f32>, Vec<f32>)> = dx

@@ -41,22 +41,51 @@ pub struct AttnArgs {
 #[backend_extension(Flex, Autodiff)]
 pub trait FusedOps: Backend {
     /// LayerNorm over the last dim: x [.., d], gamma and beta [d].
-    fn fused_layer_norm(x: FloatTensor<Self>, gamma: FloatTensor<Self>, beta: FloatTensor<Self>) -> FloatTensor<Self>;
+    fn fused_layer_norm(
+        x: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        beta: FloatTensor<Self>,
+    ) -> FloatTensor<Self>;
     /// LayerNorm of h + a (o mask) over the last dim: the post-norm residual of a decoder layer.
-    fn fused_residual_layer_norm(h: FloatTensor<Self>, a: FloatTensor<Self>, gamma: FloatTensor<Self>, beta: FloatTensor<Self>, drop: DropMask) -> FloatTensor<Self>;
+    fn fused_residual_layer_norm(
+        h: FloatTensor<Self>,
+        a: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        beta: FloatTensor<Self>,
+        drop: DropMask,
+    ) -> FloatTensor<Self>;
     /// x [rows, in] . w [in, out] + b [out] -> [rows, out].
-    fn fused_linear(x: FloatTensor<Self>, w: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self>;
+    fn fused_linear(
+        x: FloatTensor<Self>,
+        w: FloatTensor<Self>,
+        b: FloatTensor<Self>,
+    ) -> FloatTensor<Self>;
     /// gelu(x [rows, in] . w [in, out] + b [out]) -> [rows, out].
-    fn fused_linear_gelu(x: FloatTensor<Self>, w: FloatTensor<Self>, b: FloatTensor<Self>) -> FloatTensor<Self>;
+    fn fused_linear_gelu(
+        x: FloatTensor<Self>,
+        w: FloatTensor<Self>,
+        b: FloatTensor<Self>,
+    ) -> FloatTensor<Self>;
     /// q [B, Lq, d], k and v [B, Lk, d] -> [B, Lq, d] (heads split along d).
-    fn fused_attention(q: FloatTensor<Self>, k: FloatTensor<Self>, v: FloatTensor<Self>, args: AttnArgs) -> FloatTensor<Self>;
+    fn fused_attention(
+        q: FloatTensor<Self>,
+        k: FloatTensor<Self>,
+        v: FloatTensor<Self>,
+        args: AttnArgs,
+    ) -> FloatTensor<Self>;
 }
 
 /// Contiguous f32 data of a flex tensor (a copy only when it is a strided view).
 fn slice(t: &FlexTensor) -> std::borrow::Cow<'_, [f32]> {
     match t.as_slice::<f32>() {
         Some(s) if s.len() == t.layout().num_elements() => std::borrow::Cow::Borrowed(s),
-        _ => std::borrow::Cow::Owned(t.clone().into_data().convert::<f32>().try_into_vec::<f32>().expect("the fused kernels run on f32 tensors")),
+        _ => std::borrow::Cow::Owned(
+            t.clone()
+                .into_data()
+                .convert::<f32>()
+                .try_into_vec::<f32>()
+                .expect("the fused kernels run on f32 tensors"),
+        ),
     }
 }
 
@@ -75,7 +104,13 @@ impl FusedOps for Flex {
         tensor(y, x.layout().shape().clone())
     }
 
-    fn fused_residual_layer_norm(h: FlexTensor, a: FlexTensor, gamma: FlexTensor, beta: FlexTensor, drop: DropMask) -> FlexTensor {
+    fn fused_residual_layer_norm(
+        h: FlexTensor,
+        a: FlexTensor,
+        gamma: FlexTensor,
+        beta: FlexTensor,
+        drop: DropMask,
+    ) -> FlexTensor {
         let x = host::residual(&slice(&h), &slice(&a), drop.0.as_deref().map(Vec::as_slice));
         let y = host::layer_norm_forward(&x, &slice(&gamma), &slice(&beta), LN_EPS);
         tensor(y, h.layout().shape().clone())
@@ -127,13 +162,24 @@ pub fn layer_norm(ln: &LayerNorm, x: Tensor<3>) -> Tensor<3> {
 }
 
 /// LayerNorm `ln` of h + drop(a), h and a [B, L, d] (one pass on flex, dropout mask included).
-pub fn residual_layer_norm(ln: &LayerNorm, h: Tensor<3>, a: Tensor<3>, drop: &Dropout) -> Tensor<3> {
+pub fn residual_layer_norm(
+    ln: &LayerNorm,
+    h: Tensor<3>,
+    a: Tensor<3>,
+    drop: &Dropout,
+) -> Tensor<3> {
     if !fused(&h.device()) {
         return layer_norm(ln, h + drop.forward(a));
     }
     let mask = DropMask(drop.host_mask(&a).map(Arc::new));
     let (gamma, beta) = ln_params(ln);
-    let y = <Dispatch as FusedOps>::fused_residual_layer_norm(h.into_dispatch(), a.into_dispatch(), gamma, beta, mask);
+    let y = <Dispatch as FusedOps>::fused_residual_layer_norm(
+        h.into_dispatch(),
+        a.into_dispatch(),
+        gamma,
+        beta,
+        mask,
+    );
     Tensor::from_dispatch(y)
 }
 
@@ -155,8 +201,16 @@ fn linear_with<const D: usize>(lin: &Linear, x: Tensor<D>, gelu: bool) -> Tensor
     let mut shape = x.dims();
     let [n_in, n_out] = lin.weight.dims();
     let rows = x.shape().num_elements() / n_in;
-    let (x, w, b) = (x.reshape([rows, n_in]).into_dispatch(), lin.weight.val().into_dispatch(), bias.val().into_dispatch());
-    let y = if gelu { <Dispatch as FusedOps>::fused_linear_gelu(x, w, b) } else { <Dispatch as FusedOps>::fused_linear(x, w, b) };
+    let (x, w, b) = (
+        x.reshape([rows, n_in]).into_dispatch(),
+        lin.weight.val().into_dispatch(),
+        bias.val().into_dispatch(),
+    );
+    let y = if gelu {
+        <Dispatch as FusedOps>::fused_linear_gelu(x, w, b)
+    } else {
+        <Dispatch as FusedOps>::fused_linear(x, w, b)
+    };
     shape[D - 1] = n_out;
     Tensor::<2>::from_dispatch(y).reshape(shape)
 }
@@ -165,13 +219,24 @@ fn linear_with<const D: usize>(lin: &Linear, x: Tensor<D>, gelu: bool) -> Tensor
 pub fn attention(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usize, mask: Mask) -> Tensor<3> {
     if fused(&q.device()) {
         let args = AttnArgs { heads, mask };
-        return Tensor::from_dispatch(<Dispatch as FusedOps>::fused_attention(q.into_dispatch(), k.into_dispatch(), v.into_dispatch(), args));
+        return Tensor::from_dispatch(<Dispatch as FusedOps>::fused_attention(
+            q.into_dispatch(),
+            k.into_dispatch(),
+            v.into_dispatch(),
+            args,
+        ));
     }
     attention_composed(q, k, v, heads, &mask)
 }
 
 /// The same attention from Burn tensor ops (any backend; the kernels' reference).
-pub fn attention_composed(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usize, mask: &Mask) -> Tensor<3> {
+pub fn attention_composed(
+    q: Tensor<3>,
+    k: Tensor<3>,
+    v: Tensor<3>,
+    heads: usize,
+    mask: &Mask,
+) -> Tensor<3> {
     let [b, lq, d] = q.dims();
     let lk = k.dims()[1];
     let dh = d / heads;
@@ -186,7 +251,9 @@ pub fn attention_composed(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usize
     };
     let scores = match blocked {
         Some(m) => {
-            let m = Tensor::<3, Bool>::from_data(TensorData::new(m, [b, lq, lk]), &device).unsqueeze_dim::<4>(1).expand([b, heads, lq, lk]);
+            let m = Tensor::<3, Bool>::from_data(TensorData::new(m, [b, lq, lk]), &device)
+                .unsqueeze_dim::<4>(1)
+                .expand([b, heads, lq, lk]);
             scores.mask_fill(m, f32::NEG_INFINITY)
         }
         None => scores,

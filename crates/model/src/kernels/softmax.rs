@@ -43,7 +43,12 @@ fn exp_neg(x: f32) -> f32 {
     let n = t - 12_582_912.0;
     let f = (x - n * 0.693_145_75) - n * 1.428_606_8e-6; // |f| <= ln2 / 2
                                                          // Taylor series of e^f to degree 7: truncation < 2e-9 on |f| <= 0.347.
-    let p = 1.0 + f * (1.0 + f * (0.5 + f * (1.0 / 6.0 + f * (1.0 / 24.0 + f * (1.0 / 120.0 + f * (1.0 / 720.0 + f * (1.0 / 5040.0)))))));
+    let p = 1.0
+        + f * (1.0
+            + f * (0.5
+                + f * (1.0 / 6.0
+                    + f * (1.0 / 24.0
+                        + f * (1.0 / 120.0 + f * (1.0 / 720.0 + f * (1.0 / 5040.0)))))));
     // n in [-126, 0]: (bits of t + 127) << 23 keeps exactly the exponent field n + 127.
     p * f32::from_bits(t.to_bits().wrapping_add(127) << 23)
 }
@@ -150,17 +155,37 @@ mod tests {
     fn softmax_rows_match_the_definition() {
         let s = AttnShape { batch: 1, lq: 3, lk: 37, heads: 1, d: 8 };
         let scores: Vec<f32> = (0..3 * 37).map(|i| ((i * 7919) % 101) as f32 / 9.0 - 5.0).collect();
-        let blocked: Vec<bool> = (0..3 * 37).map(|i| i % 37 > 30 || (i % 5 == 2 && i % 37 != 0) || i / 37 == 2).collect();
+        let blocked: Vec<bool> = (0..3 * 37)
+            .map(|i| i % 37 > 30 || (i % 5 == 2 && i % 37 != 0) || i / 37 == 2)
+            .collect();
         let open = Open::new(&Mask::Full(std::sync::Arc::new(blocked.clone())));
         let mut p = scores.clone();
         rows(&mut p, &s, &open, 0);
         for i in 0..3 {
             let r = &scores[i * 37..(i + 1) * 37];
-            let m = r.iter().enumerate().filter(|(j, _)| !blocked[i * 37 + j]).map(|(_, &x)| x).fold(f32::NEG_INFINITY, f32::max);
-            let z: f64 = r.iter().enumerate().filter(|(j, _)| !blocked[i * 37 + j]).map(|(_, &x)| ((x - m) as f64).exp()).sum();
+            let m = r
+                .iter()
+                .enumerate()
+                .filter(|(j, _)| !blocked[i * 37 + j])
+                .map(|(_, &x)| x)
+                .fold(f32::NEG_INFINITY, f32::max);
+            let z: f64 = r
+                .iter()
+                .enumerate()
+                .filter(|(j, _)| !blocked[i * 37 + j])
+                .map(|(_, &x)| ((x - m) as f64).exp())
+                .sum();
             for j in 0..37 {
-                let want = if blocked[i * 37 + j] || m == f32::NEG_INFINITY { 0.0 } else { ((r[j] - m) as f64).exp() / z };
-                assert!((p[i * 37 + j] as f64 - want).abs() < 1e-7, "row {i} key {j}: {} vs {want}", p[i * 37 + j]);
+                let want = if blocked[i * 37 + j] || m == f32::NEG_INFINITY {
+                    0.0
+                } else {
+                    ((r[j] - m) as f64).exp() / z
+                };
+                assert!(
+                    (p[i * 37 + j] as f64 - want).abs() < 1e-7,
+                    "row {i} key {j}: {} vs {want}",
+                    p[i * 37 + j]
+                );
             }
         }
     }

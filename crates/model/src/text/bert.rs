@@ -56,13 +56,20 @@ impl Weights<'_> {
         if t.dtype() != safetensors::Dtype::F32 {
             return Err(bad(format!("tensor '{name}' is {:?}, expected F32", t.dtype())));
         }
-        let data = t.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+        let data = t
+            .data()
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
         Ok((data, t.shape().to_vec()))
     }
 
     fn tensor<const D: usize>(&self, name: &str) -> Result<Tensor<D>, TextError> {
         let (data, shape) = self.get(name)?;
-        let shape: [usize; D] = shape.try_into().map_err(|_| TextError::Bad { path: self.path.to_path_buf(), msg: format!("tensor '{name}' has the wrong rank") })?;
+        let shape: [usize; D] = shape.try_into().map_err(|_| TextError::Bad {
+            path: self.path.to_path_buf(),
+            msg: format!("tensor '{name}' has the wrong rank"),
+        })?;
         Ok(Tensor::<1>::from_floats(data.as_slice(), &self.device).reshape(shape))
     }
 
@@ -88,8 +95,10 @@ impl Weights<'_> {
 
 impl Bert {
     pub fn load(safetensors: &Path, cfg: &BertConfig, device: &Device) -> Result<Bert, TextError> {
-        let bytes = std::fs::read(safetensors).map_err(|e| TextError::Bad { path: safetensors.to_path_buf(), msg: e.to_string() })?;
-        let st = SafeTensors::deserialize(&bytes).map_err(|e| TextError::Bad { path: safetensors.to_path_buf(), msg: e.to_string() })?;
+        let bytes = std::fs::read(safetensors)
+            .map_err(|e| TextError::Bad { path: safetensors.to_path_buf(), msg: e.to_string() })?;
+        let st = SafeTensors::deserialize(&bytes)
+            .map_err(|e| TextError::Bad { path: safetensors.to_path_buf(), msg: e.to_string() })?;
         let w = Weights { st, path: safetensors, device: device.clone() };
         let eps = cfg.layer_norm_eps;
         let layers = (0..cfg.num_hidden_layers)
@@ -123,7 +132,9 @@ impl Bert {
         let device = ids.device();
         let pos = Tensor::<1, Int>::arange(0..l as i64, &device).reshape([1, l]).expand([b, l]);
         let tt = Tensor::<2, Int>::zeros([b, l], &device);
-        let mut h = self.ln_emb.forward(self.word.forward(ids) + self.position.forward(pos) + self.token_type.forward(tt));
+        let mut h = self.ln_emb.forward(
+            self.word.forward(ids) + self.position.forward(pos) + self.token_type.forward(tt),
+        );
         let hidden = h.dims()[2];
         let dh = hidden / self.heads;
         // Additive mask on keys: 0 for tokens, -1e4 for padding (as BERT does).

@@ -20,22 +20,38 @@ impl EmbeddingCache {
 
     /// Load `path` if it holds all `captions` from the same encoder; otherwise embed the missing
     /// ones (in chunks, calling `progress(done, total)`) and rewrite the file atomically.
-    pub fn build(path: &Path, encoder: &dyn TextEncoder, captions: &[String], mut progress: impl FnMut(usize, usize)) -> Result<EmbeddingCache, TextError> {
+    pub fn build(
+        path: &Path,
+        encoder: &dyn TextEncoder,
+        captions: &[String],
+        mut progress: impl FnMut(usize, usize),
+    ) -> Result<EmbeddingCache, TextError> {
         let bad = |msg: String| TextError::Bad { path: path.to_path_buf(), msg };
         let mut map = HashMap::new();
         if let Ok(bytes) = std::fs::read(path) {
             if let Ok((_, meta)) = safetensors::SafeTensors::read_metadata(&bytes) {
-                let same = meta.metadata().as_ref().and_then(|m| m.get("encoder")).map(|e| e == encoder.name()).unwrap_or(false);
+                let same = meta
+                    .metadata()
+                    .as_ref()
+                    .and_then(|m| m.get("encoder"))
+                    .map(|e| e == encoder.name())
+                    .unwrap_or(false);
                 if same {
-                    let st = safetensors::SafeTensors::deserialize(&bytes).map_err(|e| bad(e.to_string()))?;
+                    let st = safetensors::SafeTensors::deserialize(&bytes)
+                        .map_err(|e| bad(e.to_string()))?;
                     for (name, t) in st.tensors() {
-                        let v: Vec<f32> = t.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+                        let v: Vec<f32> = t
+                            .data()
+                            .chunks_exact(4)
+                            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                            .collect();
                         map.insert(name, v);
                     }
                 }
             }
         }
-        let mut missing: Vec<&String> = captions.iter().filter(|c| !map.contains_key(c.as_str())).collect();
+        let mut missing: Vec<&String> =
+            captions.iter().filter(|c| !map.contains_key(c.as_str())).collect();
         missing.sort();
         missing.dedup();
         if !missing.is_empty() {
@@ -47,8 +63,16 @@ impl EmbeddingCache {
                 }
             }
             progress(missing.len(), missing.len());
-            let bytes_of: HashMap<&String, Vec<u8>> = map.iter().map(|(k, v)| (k, v.iter().flat_map(|f| f.to_le_bytes()).collect())).collect();
-            let views: Vec<(&str, TensorView)> = bytes_of.iter().map(|(k, b)| (k.as_str(), TensorView::new(Dtype::F32, vec![b.len() / 4], b).expect("view"))).collect();
+            let bytes_of: HashMap<&String, Vec<u8>> = map
+                .iter()
+                .map(|(k, v)| (k, v.iter().flat_map(|f| f.to_le_bytes()).collect()))
+                .collect();
+            let views: Vec<(&str, TensorView)> = bytes_of
+                .iter()
+                .map(|(k, b)| {
+                    (k.as_str(), TensorView::new(Dtype::F32, vec![b.len() / 4], b).expect("view"))
+                })
+                .collect();
             let meta = HashMap::from([("encoder".to_string(), encoder.name().to_string())]);
             let out = safetensors::serialize(views, Some(meta)).map_err(|e| bad(e.to_string()))?;
             diffkfc_data::write_atomic(path, &out).map_err(|e| bad(e.to_string()))?;
@@ -59,9 +83,16 @@ impl EmbeddingCache {
 
 /// The caption embeddings of a dataset's splits with the default text encoder, cached next to
 /// the dataset's packed splits (`text-<encoder>.safetensors`).
-pub fn embed_captions(ds: &diffkfc_data::dataset::Dataset, splits: &[&diffkfc_data::cache::PackedSplit], progress: impl FnMut(usize, usize)) -> Result<EmbeddingCache, TextError> {
-    let encoder = super::minilm::MiniLm::load(&super::default_dir(), &burn::prelude::Device::flex())?;
-    let captions: Vec<String> = splits.iter().flat_map(|s| s.items.iter().flat_map(|i| i.captions.clone())).collect();
-    let path = diffkfc_data::cache::default_cache_dir(ds).join(format!("text-{}.safetensors", encoder.name()));
+pub fn embed_captions(
+    ds: &diffkfc_data::dataset::Dataset,
+    splits: &[&diffkfc_data::cache::PackedSplit],
+    progress: impl FnMut(usize, usize),
+) -> Result<EmbeddingCache, TextError> {
+    let encoder =
+        super::minilm::MiniLm::load(&super::default_dir(), &burn::prelude::Device::flex())?;
+    let captions: Vec<String> =
+        splits.iter().flat_map(|s| s.items.iter().flat_map(|i| i.captions.clone())).collect();
+    let path = diffkfc_data::cache::default_cache_dir(ds)
+        .join(format!("text-{}.safetensors", encoder.name()));
     EmbeddingCache::build(&path, &encoder, &captions, progress)
 }

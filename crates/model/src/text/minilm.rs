@@ -27,10 +27,18 @@ fn need(dir: &Path, file: &'static str) -> Result<PathBuf, TextError> {
 impl MiniLm {
     /// Load from a directory holding model.safetensors, config.json and tokenizer.json.
     pub fn load(dir: &Path, device: &Device) -> Result<MiniLm, TextError> {
-        let (weights, config, tok) = (need(dir, "model.safetensors")?, need(dir, "config.json")?, need(dir, "tokenizer.json")?);
-        let cfg: BertConfig = serde_json::from_slice(&std::fs::read(&config).map_err(|e| TextError::Bad { path: config.clone(), msg: e.to_string() })?)
-            .map_err(|e| TextError::Bad { path: config.clone(), msg: e.to_string() })?;
-        let mut tokenizer = tokenizers::Tokenizer::from_file(&tok).map_err(|e| TextError::Bad { path: tok.clone(), msg: e.to_string() })?;
+        let (weights, config, tok) = (
+            need(dir, "model.safetensors")?,
+            need(dir, "config.json")?,
+            need(dir, "tokenizer.json")?,
+        );
+        let cfg: BertConfig = serde_json::from_slice(
+            &std::fs::read(&config)
+                .map_err(|e| TextError::Bad { path: config.clone(), msg: e.to_string() })?,
+        )
+        .map_err(|e| TextError::Bad { path: config.clone(), msg: e.to_string() })?;
+        let mut tokenizer = tokenizers::Tokenizer::from_file(&tok)
+            .map_err(|e| TextError::Bad { path: tok.clone(), msg: e.to_string() })?;
         // Pad within a batch to its longest sentence; the attention mask keeps pooling exact.
         tokenizer.with_padding(Some(tokenizers::PaddingParams::default()));
         let bert = Bert::load(&weights, &cfg, device)?;
@@ -51,7 +59,8 @@ impl TextEncoder for MiniLm {
         if text.trim().is_empty() {
             return Err(TextError::Empty);
         }
-        let enc = self.tokenizer.encode(text, true).map_err(|e| TextError::Tokenizer(e.to_string()))?;
+        let enc =
+            self.tokenizer.encode(text, true).map_err(|e| TextError::Tokenizer(e.to_string()))?;
         Ok(enc.get_ids().to_vec())
     }
 
@@ -62,15 +71,21 @@ impl TextEncoder for MiniLm {
         if texts.is_empty() {
             return Ok(vec![]);
         }
-        let encs = self.tokenizer.encode_batch(texts.to_vec(), true).map_err(|e| TextError::Tokenizer(e.to_string()))?;
+        let encs = self
+            .tokenizer
+            .encode_batch(texts.to_vec(), true)
+            .map_err(|e| TextError::Tokenizer(e.to_string()))?;
         let (b, l) = (encs.len(), encs[0].get_ids().len());
-        let ids: Vec<i64> = encs.iter().flat_map(|e| e.get_ids().iter().map(|&i| i as i64)).collect();
-        let mask: Vec<f32> = encs.iter().flat_map(|e| e.get_attention_mask().iter().map(|&m| m as f32)).collect();
+        let ids: Vec<i64> =
+            encs.iter().flat_map(|e| e.get_ids().iter().map(|&i| i as i64)).collect();
+        let mask: Vec<f32> =
+            encs.iter().flat_map(|e| e.get_attention_mask().iter().map(|&m| m as f32)).collect();
         let ids = Tensor::<1, Int>::from_ints(ids.as_slice(), &self.device).reshape([b, l]);
         let mask = Tensor::<1>::from_floats(mask.as_slice(), &self.device).reshape([b, l]);
         let h = self.bert.forward(ids, mask.clone());
         let m3 = mask.clone().unsqueeze_dim::<3>(2);
-        let pooled = (h * m3).sum_dim(1).reshape([b, self.hidden]) / mask.sum_dim(1).reshape([b, 1]);
+        let pooled =
+            (h * m3).sum_dim(1).reshape([b, self.hidden]) / mask.sum_dim(1).reshape([b, 1]);
         let norm = pooled.clone().powf_scalar(2.0).sum_dim(1).sqrt().clamp_min(1e-12);
         let out: Vec<f32> = (pooled / norm).into_data().try_to_vec::<f32>().expect("f32 data");
         Ok(out.chunks(self.hidden).map(|c| c.to_vec()).collect())

@@ -36,6 +36,8 @@ pub fn default_dir() -> PathBuf {
     if let Some(d) = std::env::var_os("DIFFKFC_TEXT_ENCODER") {
         return PathBuf::from(d);
     }
-    let home = std::env::var_os("DIFFKFC_HOME").map(PathBuf::from).unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").unwrap_or_default()).join(".cache/diffkfc"));
+    let home = std::env::var_os("DIFFKFC_HOME").map(PathBuf::from).unwrap_or_else(|| {
+        PathBuf::from(std::env::var_os("HOME").unwrap_or_default()).join(".cache/diffkfc")
+    });
     home.join("text-encoder")
 }

@@ -24,7 +24,12 @@ pub(super) fn run(a: SampleArgs) -> Result<()> {
     let keys = request_keys(&a)?;
     let mut gen = Generator::load(&a)?;
     let (n, d, b) = (keys.length, T2M.feature_dim(), a.num_samples);
-    let req = gen.request(&gen.embed(&lower, "--text-lower")?, n, b, &[(&keys.values, &keys.mask, &keys.root)]);
+    let req = gen.request(
+        &gen.embed(&lower, "--text-lower")?,
+        n,
+        b,
+        &[(&keys.values, &keys.mask, &keys.root)],
+    );
     let (first, secs1) = gen.generate(&req, &a)?;
 
     let lower_joints = T2M.part("lower_body").map(|p| p.joints.to_vec()).unwrap_or_default();
@@ -35,12 +40,16 @@ pub(super) fn run(a: SampleArgs) -> Result<()> {
         .iter()
         .map(|f| {
             // The first motion's lower body on every frame, and the user's keys elsewhere.
-            let mask: Vec<f32> = lower_mask.iter().zip(&keys.mask).map(|(l, u)| l.max(*u)).collect();
-            let values: Vec<f32> = (0..n * d).map(|k| if lower_mask[k] > 0.0 { f.features[k] } else { keys.values[k] }).collect();
+            let mask: Vec<f32> =
+                lower_mask.iter().zip(&keys.mask).map(|(l, u)| l.max(*u)).collect();
+            let values: Vec<f32> = (0..n * d)
+                .map(|k| if lower_mask[k] > 0.0 { f.features[k] } else { keys.values[k] })
+                .collect();
             (values, mask, warp::root_trajectory(&f.features, d))
         })
         .collect();
-    let refs: Vec<(&[f32], &[f32], &[RootKey])> = items.iter().map(|(v, m, r)| (v.as_slice(), m.as_slice(), r.as_slice())).collect();
+    let refs: Vec<(&[f32], &[f32], &[RootKey])> =
+        items.iter().map(|(v, m, r)| (v.as_slice(), m.as_slice(), r.as_slice())).collect();
     let req = gen.request(&gen.embed(&upper, "--text-upper")?, n, b, &refs);
     gen.opts.kf_guidance = a.part_guidance;
     let (second, secs2) = gen.generate(&req, &a)?;

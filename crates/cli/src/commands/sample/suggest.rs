@@ -68,16 +68,36 @@ pub fn run(a: KeyframesArgs) -> Result<()> {
 }
 
 fn suggest(a: SuggestArgs) -> Result<()> {
-    let strategy: Strategy = a.strategy.parse().map_err(|e: String| anyhow::anyhow!("--strategy: {e}"))?;
+    let strategy: Strategy =
+        a.strategy.parse().map_err(|e: String| anyhow::anyhow!("--strategy: {e}"))?;
     let d = T2M.feature_dim();
     let (feats, source) = match (&a.from, &a.checkpoint, &a.text) {
-        (Some(p), _, _) => (load_motion_features(p, &T2M, &a.bvh.options()?)?, p.display().to_string()),
+        (Some(p), _, _) => {
+            (load_motion_features(p, &T2M, &a.bvh.options()?)?, p.display().to_string())
+        }
         (None, Some(ck), Some(text)) => {
             // The sampler's own flags and defaults, as `sample` would take them.
-            let argv = ["sample", "--checkpoint", &ck.to_string_lossy(), "--text", text, "--length", &a.length.to_string(), "--seed", &a.seed.to_string(), "--steps", &a.steps.to_string()];
-            let m = SampleArgs::augment_args(clap::Command::new("sample")).try_get_matches_from(argv).map_err(|e| anyhow::anyhow!("{}", e.to_string().lines().next().unwrap_or("")))?;
+            let argv = [
+                "sample",
+                "--checkpoint",
+                &ck.to_string_lossy(),
+                "--text",
+                text,
+                "--length",
+                &a.length.to_string(),
+                "--seed",
+                &a.seed.to_string(),
+                "--steps",
+                &a.steps.to_string(),
+            ];
+            let m = SampleArgs::augment_args(clap::Command::new("sample"))
+                .try_get_matches_from(argv)
+                .map_err(|e| anyhow::anyhow!("{}", e.to_string().lines().next().unwrap_or("")))?;
             let s = SampleArgs::from_arg_matches(&m)?;
-            (text_only_motion(&s)?, format!("generated from \"{text}\" by {} (seed {})", ck.display(), a.seed))
+            (
+                text_only_motion(&s)?,
+                format!("generated from \"{text}\" by {} (seed {})", ck.display(), a.seed),
+            )
         }
         _ => bail!("keyframes suggest: needs --checkpoint and --text, or --from"),
     };
@@ -106,7 +126,15 @@ fn suggest(a: SuggestArgs) -> Result<()> {
         })
         .collect();
     let doc = json!({"length": n, "source": source, "strategy": a.strategy, "keyframes": keys});
-    diffkfc_data::write_atomic(&a.out, serde_json::to_string_pretty(&doc)?.as_bytes()).with_context(|| format!("writing {}", a.out.display()))?;
-    println!("{}: {} keyframes at frames {:?} of {n} ({}; {})", a.out.display(), frames.len(), frames, a.strategy, source);
+    diffkfc_data::write_atomic(&a.out, serde_json::to_string_pretty(&doc)?.as_bytes())
+        .with_context(|| format!("writing {}", a.out.display()))?;
+    println!(
+        "{}: {} keyframes at frames {:?} of {n} ({}; {})",
+        a.out.display(),
+        frames.len(),
+        frames,
+        a.strategy,
+        source
+    );
     Ok(())
 }

@@ -1,0 +1,230 @@
+//! The files of a `sample` folder: features, joints, GIF and BVH per sample, results.json and
+//! the 3D page.
+
+use super::*;
+
+/// Every file of a `sample` folder: per-sample features, joints, GIF, BVH; the source; results.json
+/// (with `extra` merged in) and the 3D page (with timeline `segments`: start frame and text).
+pub(super) fn write_outputs(
+    a: &SampleArgs,
+    gen: &Generator,
+    keys: &Keys,
+    fitted: Vec<Fitted>,
+    secs: f64,
+    extra: serde_json::Value,
+    segments: &[(usize, String)],
+) -> Result<()> {
+    let (b, n, d) = (fitted.len(), keys.length, T2M.feature_dim());
+    let (opts, fit, step) = (&gen.opts, gen.fit, gen.step);
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    remove_stale_samples(&a.out, b)?;
+    let mut samples = Vec::new();
+    let mut views = Vec::new();
+    let key_joints = (keys.joints.len() < T2M.num_joints()).then(|| keys.joints.clone());
+    if let Some(src) = &keys.source {
+        npy::write(a.out.join("source_joints.npy"), &[src.len(), 22, 3], &rep::joints_to_f32(src))?;
+        views.push(ViewMotion {
+            label: "source".into(),
+            joints: src.clone(),
+            keyframes: keys.frames.clone(),
+            key_joints: key_joints.clone(),
+            numbers: format!(
+                "K-TranS {}, foot skating {:.4}",
+                k_trans(src, &keys.frames, 2).map_or("-".into(), |v| format!("{v:.4}")),
+                diffkfc_data::plausibility::foot_skating_ratio(&T2M, src)
+            ),
+            links: vec![("joints".into(), "source_joints.npy".into())],
+            ..Default::default()
+        });
+    }
+    for (i, done) in fitted.into_iter().enumerate() {
+        let (f, corrections) = (done.features, done.corrections);
+        let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
+        let name = format!("sample_{i:02}");
+        let stem = a.out.join(&name);
+        npy::write(stem.with_extension("npy"), &[n, d], &f)?;
+        npy::write(a.out.join(format!("{name}_joints.npy")), &[n, 22, 3], &rep::joints_to_f32(&j))?;
+        render::gif(&T2M, &j, &keys.frames, &stem.with_extension("gif"))?;
+        let rig = diffkfc_data::rig::export(&T2M, &j);
+        diffkfc_data::write_atomic(&stem.with_extension("bvh"), rig.to_text().as_bytes())?;
+        // The BVH is a rigid rig; generated bones stretch a little from frame to frame.
+        let (bvh_mean, bvh_max) = diffkfc_data::rig::export_error(&T2M, &j, &rig);
+        samples.push(json!({
+            "features": format!("{name}.npy"),
+            "joints": format!("{name}_joints.npy"),
+            "gif": format!("{name}.gif"),
+            "bvh": format!("{name}.bvh"),
+            "bvh_error_m": {"mean": bvh_mean, "max": bvh_max},
+            "k_err_m": keys.source.as_ref().and_then(|s| k_err_global(&j, s, &keys.frames, &keys.joints)),
+            "k_err_root_relative_m": k_err_local(&T2M, &f, &keys.values, &keys.frames, &keys.joints),
+            "k_trans": k_trans(&j, &keys.frames, 2),
+            "foot_skating": diffkfc_data::plausibility::foot_skating_ratio(&T2M, &j),
+            "corrections": corrections,
+            "foot_lock": fit.foot_lock.then_some(&done.feet),
+        }));
+        let s = samples.last().expect("pushed");
+        // The keyed pose: the source's where there is one, else the (fitted) sample's own.
+        let key_poses = keys
+            .frames
+            .iter()
+            .filter(|&&k| k < j.len())
+            .map(|&k| (k, keys.source.as_ref().and_then(|src| src.get(k)).unwrap_or(&j[k]).clone()))
+            .collect();
+        views.push(ViewMotion {
+            label: name.clone(),
+            keyframes: keys.frames.clone(),
+            key_joints: key_joints.clone(),
+            key_poses,
+            numbers: format!(
+                "{}, K-TranS {}, foot skating {}",
+                k_err_text(s),
+                fmt(&s["k_trans"]),
+                fmt(&s["foot_skating"])
+            ),
+            links: ["gif", "bvh", "features", "joints"]
+                .iter()
+                .map(|k| (k.to_string(), s[*k].as_str().unwrap_or("").to_string()))
+                .collect(),
+            joints: j,
+        });
+    }
+    let mut report = json!({
+        "text": a.text,
+        "checkpoint": a.checkpoint.display().to_string(),
+        "checkpoint_step": step,
+        "length": n,
+        "source": a.from.as_ref().or(a.keyframes.as_ref()).map(|p| p.display().to_string()),
+        "keyframes": keys.frames,
+        "keyframe_joints": keys.joints,
+        "sampler": format!("{:?}", opts.sampler),
+        "kf_guidance": opts.kf_guidance,
+        "transition_guidance": opts.transition,
+        "keyframe_fit": fit.keyframes,
+        "foot_lock": fit.foot_lock,
+        "root_keys": keys.root.iter().enumerate().filter(|(_, k)| **k != RootKey::default()).map(|(f, k)| json!({"frame": f, "place": k.place, "heading_deg": k.heading.map(f64::to_degrees)})).collect::<Vec<_>>(),
+        "keyframe_mode": format!("{:?}", a.keyframe_mode).to_lowercase(),
+        "tg_mode": format!("{:?}", a.tg_mode).to_lowercase(),
+        "tg_window": opts.window,
+        "tg_bases": opts.dct_bases,
+        "seed": a.seed,
+        "seconds": secs,
+        "real_k_trans": keys.source.as_ref().and_then(|s| k_trans(s, &keys.frames, 2)),
+        "real_foot_skating": keys.source.as_ref().map(|s| diffkfc_data::plausibility::foot_skating_ratio(&T2M, s)),
+        "samples": samples,
+    });
+    if let (Some(r), Some(e)) = (report.as_object_mut(), extra.as_object()) {
+        r.extend(e.clone());
+    }
+    diffkfc_data::write_atomic(
+        &a.out.join("results.json"),
+        serde_json::to_string_pretty(&report)?.as_bytes(),
+    )?;
+    diffkfc_data::write_atomic(
+        &a.out.join("index.html"),
+        index_html(&report, &views, segments).as_bytes(),
+    )?;
+    println!(
+        "{}: {b} sample(s) of {n} frames in {secs:.1} s ({:?}); see results.json and index.html",
+        a.out.display(),
+        opts.sampler
+    );
+    for (i, s) in report["samples"].as_array().unwrap().iter().enumerate() {
+        let most = |k: &str| {
+            s["corrections"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .filter_map(|c| c[k].as_f64())
+                .map(f64::abs)
+                .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))))
+        };
+        let fit_note = match (most("pose"), most("place_m"), most("heading_deg")) {
+            (None, None, None) => String::new(),
+            (p, m, h) => format!(
+                "; largest {:?} correction: pose {}, place {} m, heading {} deg",
+                fit.keyframes,
+                p.map_or("-".into(), |v| format!("{v:.3}")),
+                m.map_or("-".into(), |v| format!("{v:.3}")),
+                h.map_or("-".into(), |v| format!("{v:.1}"))
+            ),
+        };
+        let lock_note = match s["foot_lock"]["frames"].as_u64() {
+            Some(frames) => format!(
+                "; foot lock moved {frames} frame(s) (left {} dragged span(s))",
+                s["foot_lock"]["dragged"]
+            ),
+            None => String::new(),
+        };
+        println!(
+            "  sample_{i:02}: {}, K-TranS {}, foot skating {}{fit_note}{lock_note}",
+            k_err_text(s),
+            fmt(&s["k_trans"]),
+            fmt(&s["foot_skating"])
+        );
+    }
+    Ok(())
+}
+
+/// The folder's page: the 3D view of the source and every sample, the settings above it.
+fn index_html(r: &serde_json::Value, views: &[ViewMotion], segments: &[(usize, String)]) -> String {
+    let intro = format!(
+        "<p>{} frames &middot; {} &middot; {} &middot; keyframe guidance {} &middot; transition guidance {} &middot; fit {} &middot; <a href=results.json>results.json</a>{}</p>",
+        r["length"],
+        keyframe_list(&r["keyframes"]),
+        escape(r["sampler"].as_str().unwrap_or("")),
+        r["kf_guidance"],
+        r["transition_guidance"],
+        escape(&r["keyframe_fit"].to_string()),
+        r["source"].as_str().map(|s| format!(" &middot; source {}", escape(s))).unwrap_or_default()
+    );
+    viewer::page(&T2M, r["text"].as_str().unwrap_or("diffkfc"), &intro, views, segments)
+}
+
+/// "keyframes at frames 0, 40, 80", or a count and range where there are many.
+fn keyframe_list(k: &serde_json::Value) -> String {
+    let f: Vec<u64> = k.as_array().into_iter().flatten().filter_map(|v| v.as_u64()).collect();
+    match (f.first(), f.last()) {
+        (Some(a), Some(b)) if f.len() > 12 => format!("{} keyframes (frames {a} to {b})", f.len()),
+        (Some(_), _) => format!(
+            "keyframes at frames {}",
+            f.iter().map(u64::to_string).collect::<Vec<_>>().join(", ")
+        ),
+        _ => "no keyframes".into(),
+    }
+}
+
+/// K-Err as a sentence: global only where there is a source motion to compare with.
+fn k_err_text(s: &serde_json::Value) -> String {
+    match (s["k_err_m"].as_f64(), s["k_err_root_relative_m"].as_f64()) {
+        (Some(g), Some(l)) => format!("K-Err {g:.4} m (root-relative {l:.4} m)"),
+        (None, Some(l)) => format!("K-Err root-relative {l:.4} m (global: no source motion)"),
+        (Some(g), None) => format!("K-Err {g:.4} m"),
+        (None, None) => "no keyframes".into(),
+    }
+}
+
+fn fmt(v: &serde_json::Value) -> String {
+    v.as_f64().map(|x| format!("{x:.4}")).unwrap_or_else(|| "-".into())
+}
+
+/// Outputs of an earlier, larger run into the same folder (sample_NN files with NN >= `keep`),
+/// so the folder holds only what results.json describes.
+fn remove_stale_samples(out: &Path, keep: usize) -> Result<()> {
+    let Ok(entries) = std::fs::read_dir(out) else {
+        return Ok(());
+    };
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let Some(rest) = name.strip_prefix("sample_") else {
+            continue;
+        };
+        let (num, tail) =
+            rest.split_at(rest.find(|c: char| !c.is_ascii_digit()).unwrap_or(rest.len()));
+        let ours = [".npy", "_joints.npy", ".gif", ".bvh"].contains(&tail);
+        if ours && num.parse::<usize>().is_ok_and(|k| k >= keep) {
+            std::fs::remove_file(e.path())
+                .with_context(|| format!("removing the stale {}", e.path().display()))?;
+        }
+    }
+    Ok(())
+}
