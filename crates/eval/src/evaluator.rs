@@ -12,6 +12,8 @@ use burn::tensor::activation::{gelu, log_softmax};
 use diffkfc_model::attention::Attention;
 use diffkfc_model::kernels::{key_mask, layer_norm, linear, linear_gelu};
 
+use crate::error::{EvalError, Result};
+
 /// Width of the shared embedding space.
 pub const EMBED: usize = 512;
 /// Scale of the unit-norm embeddings (distances of true pairs land near MDM's ~3-5 range).
@@ -149,7 +151,7 @@ pub trait TextMotionEvaluator {
     /// Raw (de-normalised) motions, each [len, D] with len a multiple of 4 -> one row each.
     fn embed_motions(&self, motions: &[&[f32]]) -> Vec<Vec<f64>>;
     /// Captions -> one row each.
-    fn embed_texts(&self, captions: &[&str]) -> Result<Vec<Vec<f64>>, String>;
+    fn embed_texts(&self, captions: &[&str]) -> Result<Vec<Vec<f64>>>;
 }
 
 /// The trained contrastive evaluator with the normalisation it was trained with.
@@ -172,10 +174,12 @@ pub fn text_tensor(
     cache: &diffkfc_model::text::cache::EmbeddingCache,
     captions: &[&str],
     device: &Device,
-) -> Result<Tensor<2>, String> {
+) -> Result<Tensor<2>> {
     let mut v = Vec::with_capacity(captions.len() * cache.dim);
     for c in captions {
-        v.extend_from_slice(cache.get(c).ok_or_else(|| format!("caption not embedded: {c}"))?);
+        v.extend_from_slice(
+            cache.get(c).ok_or_else(|| EvalError::CaptionNotEmbedded(c.to_string()))?,
+        );
     }
     Ok(Tensor::<1>::from_floats(v.as_slice(), device).reshape([captions.len(), cache.dim]))
 }
@@ -194,31 +198,34 @@ impl<'a> ContrastiveEvaluator<'a> {
         dir: &std::path::Path,
         text: &'a diffkfc_model::text::cache::EmbeddingCache,
         device: &Device,
-    ) -> Result<Self, String> {
-        let ck = diffkfc_model::checkpoint::Checkpoint::latest(dir).ok_or(format!(
-            "{}: no evaluator checkpoint (run `diffkfc eval train-evaluator` first)",
-            dir.display()
-        ))??;
+    ) -> Result<Self> {
+        let ck = diffkfc_model::checkpoint::Checkpoint::latest(dir).ok_or_else(|| {
+            EvalError::file(
+                dir,
+                "no evaluator checkpoint (run `diffkfc eval train-evaluator` first)",
+            )
+        })??;
         let cfg: EvaluatorConfig = serde_json::from_str(&ck.config)
-            .map_err(|e| format!("{}: evaluator config: {e}", dir.display()))?;
+            .map_err(|e| EvalError::file(dir, format!("evaluator config: {e}")))?;
         if cfg.text_dim != text.dim {
-            return Err(format!(
-                "{}: evaluator expects {}-d text embeddings, the text encoder gives {}",
-                dir.display(),
-                cfg.text_dim,
-                text.dim
+            return Err(EvalError::file(
+                dir,
+                format!(
+                    "evaluator expects {}-d text embeddings, the text encoder gives {}",
+                    cfg.text_dim, text.dim
+                ),
             ));
         }
-        let read = |n: &str| {
-            diffkfc_data::npy::read_f32(dir.join(n)).map(|a| a.data).map_err(|e| e.to_string())
-        };
+        let read = |n: &str| diffkfc_data::npy::read_f32(dir.join(n)).map(|a| a.data);
         let (mean, std) = (read("Mean.npy")?, read("Std.npy")?);
         if mean.len() != cfg.motion_dim + 4 || std.len() != mean.len() {
-            return Err(format!(
-                "{}: Mean/Std have {} values, the evaluator expects {}",
-                dir.display(),
-                mean.len(),
-                cfg.motion_dim + 4
+            return Err(EvalError::file(
+                dir,
+                format!(
+                    "Mean/Std have {} values, the evaluator expects {}",
+                    mean.len(),
+                    cfg.motion_dim + 4
+                ),
             ));
         }
         Ok(ContrastiveEvaluator {
@@ -252,7 +259,7 @@ impl TextMotionEvaluator for ContrastiveEvaluator<'_> {
         out
     }
 
-    fn embed_texts(&self, captions: &[&str]) -> Result<Vec<Vec<f64>>, String> {
+    fn embed_texts(&self, captions: &[&str]) -> Result<Vec<Vec<f64>>> {
         let mut out = Vec::with_capacity(captions.len());
         for chunk in captions.chunks(256) {
             out.extend(rows(self.model.encode_text(text_tensor(self.text, chunk, &self.device)?)));

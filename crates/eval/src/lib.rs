@@ -7,6 +7,7 @@
 //! * K-TranS: mean acceleration magnitude |x[j+1] - 2x[j] + x[j-1]| over frames within l of a
 //!   keyframe, averaged over joints and keyframes (real motion gives the reference value).
 
+pub mod error;
 pub mod evaluator;
 pub mod keyframe_metrics;
 pub(crate) mod linalg;

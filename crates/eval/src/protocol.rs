@@ -390,7 +390,7 @@ impl Protocol<'_> {
         settings: &[Setting],
         reference: &Gaussian,
         tick: &mut dyn FnMut(),
-    ) -> Result<Vec<RowResult>, String> {
+    ) -> crate::error::Result<Vec<RowResult>> {
         let mut rates: Vec<f64> = settings.iter().map(|s| s.rate).collect();
         rates.sort_by(f64::total_cmp);
         rates.dedup();

@@ -12,6 +12,7 @@ use diffkfc_model::optim::{descend, Adam};
 use diffkfc_model::params;
 use diffkfc_model::text::cache::EmbeddingCache;
 
+use crate::error::{EvalError, Result};
 use crate::evaluator::{
     eval_length, info_nce, motion_tensor, text_tensor, ContrastiveEvaluator, EvaluatorConfig,
     TextMotionEvaluator,
@@ -46,7 +47,7 @@ pub fn embed_split(
     ev: &dyn TextMotionEvaluator,
     ds: &Dataset,
     split: &PackedSplit,
-) -> Result<(Embeddings, Embeddings), String> {
+) -> Result<(Embeddings, Embeddings)> {
     let d = ds.dim();
     let motions: Vec<&[f32]> = (0..split.items.len())
         .map(|i| &split.item_frames(i)[..eval_length(split.items[i].len) * d])
@@ -65,8 +66,9 @@ pub struct EvaluatorReport {
 }
 
 impl EvaluatorTraining<'_> {
-    pub fn run(&self, mut on_step: impl FnMut(usize, f64)) -> Result<EvaluatorReport, String> {
-        std::fs::create_dir_all(&self.out).map_err(|e| format!("{}: {e}", self.out.display()))?;
+    pub fn run(&self, mut on_step: impl FnMut(usize, f64)) -> Result<EvaluatorReport> {
+        std::fs::create_dir_all(&self.out)
+            .map_err(|err| EvalError::Io { path: self.out.clone(), err })?;
         let device = self.device.clone().autodiff();
         device.seed(self.seed);
         let mut model = self.cfg.init(&device);
@@ -110,10 +112,8 @@ impl EvaluatorTraining<'_> {
         ck.save(&self.out)?;
         Checkpoint::prune(&self.out, 1);
         let dims = [self.ds.dim()];
-        diffkfc_data::npy::write(self.out.join("Mean.npy"), &dims, &self.ds.mean)
-            .map_err(|e| e.to_string())?;
-        diffkfc_data::npy::write(self.out.join("Std.npy"), &dims, &self.ds.std)
-            .map_err(|e| e.to_string())?;
+        diffkfc_data::npy::write(self.out.join("Mean.npy"), &dims, &self.ds.mean)?;
+        diffkfc_data::npy::write(self.out.join("Std.npy"), &dims, &self.ds.std)?;
         let ev = ContrastiveEvaluator {
             model: params::load(self.cfg.init(&self.device), &vals),
             mean: self.ds.mean.clone(),

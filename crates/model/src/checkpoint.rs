@@ -7,6 +7,8 @@ use std::path::{Path, PathBuf};
 
 use safetensors::tensor::{Dtype, TensorView};
 
+use crate::error::{ModelError, Result};
+
 #[derive(Clone, Debug)]
 pub struct Checkpoint {
     pub step: usize,
@@ -31,12 +33,14 @@ fn bytes(v: &[f32]) -> Vec<u8> {
     v.iter().flat_map(|f| f.to_le_bytes()).collect()
 }
 
-/// Shape and values (as f32) of tensor `name`, stored as F32 or F16.
+/// Shape and values (as f32) of tensor `name`, stored as F32 or F16; errors name `path`.
 fn tensor_values(
     st: &safetensors::SafeTensors,
     name: &str,
-) -> Result<(Vec<usize>, Vec<f32>), String> {
-    let t = st.tensor(name).map_err(|_| format!("tensor {name} missing"))?;
+    path: &Path,
+) -> Result<(Vec<usize>, Vec<f32>)> {
+    let t =
+        st.tensor(name).map_err(|_| ModelError::file(path, format!("tensor {name} missing")))?;
     let values = match t.dtype() {
         Dtype::F32 => {
             t.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
@@ -46,7 +50,12 @@ fn tensor_values(
             .chunks_exact(2)
             .map(|c| half::f16::from_le_bytes([c[0], c[1]]).to_f32())
             .collect(),
-        other => return Err(format!("tensor {name} is {other:?}; expected F32 or F16")),
+        other => {
+            return Err(ModelError::file(
+                path,
+                format!("tensor {name} is {other:?}; expected F32 or F16"),
+            ))
+        }
     };
     Ok((t.shape().to_vec(), values))
 }
@@ -56,7 +65,7 @@ impl Checkpoint {
         format!("ckpt-{step:08}.safetensors")
     }
 
-    pub fn save(&self, dir: &Path) -> Result<PathBuf, String> {
+    pub fn save(&self, dir: &Path) -> Result<PathBuf> {
         let mut owned: Vec<(String, Vec<usize>, Vec<u8>)> = Vec::new();
         for (i, shape) in self.shapes.iter().enumerate() {
             owned.push((format!("model/{i:04}"), shape.clone(), bytes(&self.model[i])));
@@ -78,15 +87,16 @@ impl Checkpoint {
             ("params".to_string(), self.shapes.len().to_string()),
             ("config".to_string(), self.config.clone()),
         ]);
-        let data = safetensors::serialize(views, Some(meta)).map_err(|e| e.to_string())?;
         let path = dir.join(Self::file_name(self.step));
-        diffkfc_data::write_atomic(&path, &data).map_err(|e| e.to_string())?;
+        let data =
+            safetensors::serialize(views, Some(meta)).map_err(|e| ModelError::file(&path, e))?;
+        diffkfc_data::write_atomic(&path, &data)?;
         Ok(path)
     }
 
     /// Write the inference weights (EMA when the checkpoint has them) as `dir/model.safetensors`,
     /// in f16 when `half` (tiny and small models lose nothing measurable, the file halves).
-    pub fn save_weights(&self, dir: &Path, half: bool) -> Result<PathBuf, String> {
+    pub fn save_weights(&self, dir: &Path, half: bool) -> Result<PathBuf> {
         let weights = self.ema.as_ref().unwrap_or(&self.model);
         let (dtype, owned): (Dtype, Vec<Vec<u8>>) = if half {
             (
@@ -117,17 +127,18 @@ impl Checkpoint {
             ("weights".to_string(), if self.ema.is_some() { "ema" } else { "model" }.to_string()),
             ("config".to_string(), self.config.clone()),
         ]);
-        let data = safetensors::serialize(views, Some(meta)).map_err(|e| e.to_string())?;
         let path = dir.join(WEIGHTS_FILE);
-        diffkfc_data::write_atomic(&path, &data).map_err(|e| e.to_string())?;
+        let data =
+            safetensors::serialize(views, Some(meta)).map_err(|e| ModelError::file(&path, e))?;
+        diffkfc_data::write_atomic(&path, &data)?;
         Ok(path)
     }
 
     /// Read a training checkpoint, or exported weights (then `model` holds them, in f32, and
     /// there is no optimiser state: such a file serves inference only).
-    pub fn load(path: &Path) -> Result<Checkpoint, String> {
-        let err = |m: String| format!("{}: {m}", path.display());
-        let data = std::fs::read(path).map_err(|e| err(e.to_string()))?;
+    pub fn load(path: &Path) -> Result<Checkpoint> {
+        let err = |m: String| ModelError::file(path, m);
+        let data = std::fs::read(path).map_err(ModelError::io(path))?;
         let (_, meta) = safetensors::SafeTensors::read_metadata(&data)
             .map_err(|e| err(format!("not a checkpoint ({e})")))?;
         let meta = meta.metadata().clone().unwrap_or_default();
@@ -136,7 +147,7 @@ impl Checkpoint {
             Some(WEIGHTS_FORMAT) => true,
             _ => return Err(err("not a diffkfc checkpoint".into())),
         };
-        let num = |k: &str| -> Result<u64, String> {
+        let num = |k: &str| -> Result<u64> {
             meta.get(k)
                 .and_then(|v| v.parse().ok())
                 .ok_or_else(|| err(format!("metadata '{k}' missing")))
@@ -146,8 +157,7 @@ impl Checkpoint {
         if weights_only {
             let (mut shapes, mut model) = (vec![], vec![]);
             for i in 0..n {
-                let (shape, values) =
-                    tensor_values(&st, &format!("weights/{i:04}")).map_err(err)?;
+                let (shape, values) = tensor_values(&st, &format!("weights/{i:04}"), path)?;
                 shapes.push(shape);
                 model.push(values);
             }
@@ -163,7 +173,7 @@ impl Checkpoint {
                 seed: num("seed")?,
             });
         }
-        let get = |name: String| tensor_values(&st, &name).map_err(err);
+        let get = |name: String| tensor_values(&st, &name, path);
         let (mut shapes, mut model, mut m, mut v, mut ema) =
             (vec![], vec![], vec![], vec![], vec![]);
         let has_ema = st.names().iter().any(|k| k.starts_with("ema/"));
@@ -208,7 +218,7 @@ impl Checkpoint {
     }
 
     /// The newest checkpoint that loads (a damaged one is skipped).
-    pub fn latest(dir: &Path) -> Option<Result<Checkpoint, String>> {
+    pub fn latest(dir: &Path) -> Option<Result<Checkpoint>> {
         let list = Self::list(dir);
         let mut last_err = None;
         for (_, p) in list.iter().rev() {
@@ -245,42 +255,40 @@ pub struct Exported {
 /// Turn a run directory (or one checkpoint file in it) into a model directory `out` that
 /// `--checkpoint` loads: `model.safetensors` (inference weights), `config.json` (the stored
 /// config) and the run's `Mean.npy`, `Std.npy`, `metrics.jsonl`, `loss.svg` where present.
-pub fn export(run: &Path, out: &Path, half: bool) -> Result<Exported, String> {
+pub fn export(run: &Path, out: &Path, half: bool) -> Result<Exported> {
     let (ck, dir) = if run.is_file() {
         (Checkpoint::load(run)?, run.parent().unwrap_or(Path::new(".")).to_path_buf())
     } else {
         let ck = Checkpoint::latest(run)
-            .ok_or(format!("{}: no ckpt-*.safetensors to export", run.display()))??;
+            .ok_or_else(|| ModelError::file(run, "no ckpt-*.safetensors to export"))??;
         (ck, run.to_path_buf())
     };
     let same = |a: &Path, b: &Path| {
         a == b || matches!((a.canonicalize(), b.canonicalize()), (Ok(x), Ok(y)) if x == y)
     };
     if same(out, &dir) {
-        return Err(format!(
+        return Err(ModelError::Refused(format!(
             "{}: export into the run directory itself is refused; choose another --out",
             out.display()
-        ));
+        )));
     }
     // A model directory needs the run's normalisation, readable and as wide as the model.
     let cfg = crate::run_config::RunConfig::parse(&ck.config)
-        .map_err(|e| format!("{}: stored config: {e}", run.display()))?;
-    diffkfc_data::dataset::read_normalisation(&dir, Some(cfg.model.feat_dim))
-        .map_err(|e| e.to_string())?;
-    std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
+        .map_err(|e| ModelError::file(run, format!("stored config: {e}")))?;
+    diffkfc_data::dataset::read_normalisation(&dir, Some(cfg.model.feat_dim))?;
+    std::fs::create_dir_all(out).map_err(ModelError::io(out))?;
     let weights = ck.save_weights(out, half)?;
     let mut files = vec![weights.clone()];
     let config: serde_json::Value = serde_json::from_str(&ck.config)
-        .map_err(|e| format!("{}: stored config: {e}", run.display()))?;
-    let text = serde_json::to_string_pretty(&config).map_err(|e| e.to_string())? + "\n";
-    diffkfc_data::write_atomic(&out.join("config.json"), text.as_bytes())
-        .map_err(|e| e.to_string())?;
+        .map_err(|e| ModelError::file(run, format!("stored config: {e}")))?;
+    let text = serde_json::to_string_pretty(&config).expect("a JSON value serialises") + "\n";
+    diffkfc_data::write_atomic(&out.join("config.json"), text.as_bytes())?;
     files.push(out.join("config.json"));
     for name in ["Mean.npy", "Std.npy", "metrics.jsonl", "loss.svg"] {
         let src = dir.join(name);
         if src.is_file() {
-            let data = std::fs::read(&src).map_err(|e| format!("{}: {e}", src.display()))?;
-            diffkfc_data::write_atomic(&out.join(name), &data).map_err(|e| e.to_string())?;
+            let data = std::fs::read(&src).map_err(ModelError::io(&src))?;
+            diffkfc_data::write_atomic(&out.join(name), &data)?;
             files.push(out.join(name));
         }
     }

@@ -12,6 +12,7 @@ pub mod diffusion;
 pub mod dma;
 pub mod dropout;
 pub(crate) mod embed;
+pub mod error;
 pub mod fit;
 pub mod flops;
 pub mod guidance;

@@ -7,6 +7,7 @@ use diffkfc_data::batch::KeyframeConfig;
 use serde::{Deserialize, Serialize};
 
 use crate::config::DiffKfcConfig;
+use crate::error::{ModelError, Result};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -70,12 +71,12 @@ pub struct TrainingConfig {
 impl TrainingConfig {
     /// Refuses a stop step past `max_steps` when the learning rate decays to 0 there: every
     /// further step would be wasted (a run continued that way once trained 3000 steps at lr 0).
-    pub fn check_stop(&self, stop: usize) -> Result<(), String> {
+    pub fn check_stop(&self, stop: usize) -> Result<()> {
         if self.cosine_decay && stop > self.max_steps {
-            return Err(format!(
+            return Err(ModelError::Refused(format!(
                 "--max-steps: {stop} is past training.max_steps {} of the config, where the cosine learning rate has decayed to 0; raise training.max_steps in the config instead",
                 self.max_steps
-            ));
+            )));
         }
         Ok(())
     }
@@ -120,51 +121,33 @@ pub struct RunConfig {
     pub training: TrainingConfig,
 }
 
-/// Every key of `v` must exist in `known` (recursively); returns the dotted path of the first
-/// that does not.
-fn unknown_key(v: &serde_json::Value, known: &serde_json::Value, path: &str) -> Option<String> {
-    let (serde_json::Value::Object(a), serde_json::Value::Object(b)) = (v, known) else {
-        return None;
-    };
-    for (k, val) in a {
-        let p = if path.is_empty() { k.clone() } else { format!("{path}.{k}") };
-        match b.get(k) {
-            None => return Some(p),
-            Some(kn) => {
-                if let Some(u) = unknown_key(val, kn, &p) {
-                    return Some(u);
-                }
-            }
-        }
-    }
-    None
-}
-
 impl RunConfig {
     /// Parse a config file; `"model": "tiny"` (a preset name) or an object of overrides on the
     /// paper defaults (`"preset": "tiny"` inside the object starts from that preset).
-    pub fn load(path: &Path) -> Result<RunConfig, String> {
-        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-        Self::parse(&text).map_err(|e| format!("{}: {e}", path.display()))
+    pub fn load(path: &Path) -> Result<RunConfig> {
+        let text = std::fs::read_to_string(path).map_err(ModelError::io(path))?;
+        Self::parse(&text).map_err(|e| e.in_file(path))
     }
 
-    pub fn parse(text: &str) -> Result<RunConfig, String> {
+    pub fn parse(text: &str) -> Result<RunConfig> {
+        let bad = |msg: String| ModelError::Config(msg);
         let mut v: serde_json::Value =
-            serde_json::from_str(text).map_err(|e| format!("not valid JSON: {e}"))?;
-        let model = v.get_mut("model").ok_or("missing section 'model'")?;
+            serde_json::from_str(text).map_err(|e| bad(format!("not valid JSON: {e}")))?;
+        let model = v.get_mut("model").ok_or(bad("missing section 'model'".into()))?;
         let base = match model {
             serde_json::Value::String(name) => DiffKfcConfig::preset(name)
-                .ok_or(format!("model: unknown preset '{name}' (tiny, small, paper)"))?,
+                .ok_or(bad(format!("model: unknown preset '{name}' (tiny, small, paper)")))?,
             serde_json::Value::Object(m) => match m.remove("preset") {
-                Some(serde_json::Value::String(name)) => DiffKfcConfig::preset(&name)
-                    .ok_or(format!("model.preset: unknown preset '{name}' (tiny, small, paper)"))?,
+                Some(serde_json::Value::String(name)) => DiffKfcConfig::preset(&name).ok_or(
+                    bad(format!("model.preset: unknown preset '{name}' (tiny, small, paper)")),
+                )?,
                 Some(other) => {
-                    return Err(format!("model.preset: expected a preset name, got {other}"))
+                    return Err(bad(format!("model.preset: expected a preset name, got {other}")))
                 }
                 None => DiffKfcConfig::paper(),
             },
             other => {
-                return Err(format!("model: expected a preset name or an object, got {other}"))
+                return Err(bad(format!("model: expected a preset name or an object, got {other}")))
             }
         };
         // Overlay the given model keys on the preset.
@@ -174,36 +157,34 @@ impl RunConfig {
         {
             for (k, val) in m {
                 if !out.contains_key(k) {
-                    return Err(format!("unknown key 'model.{k}'"));
+                    return Err(bad(format!("unknown key 'model.{k}'")));
                 }
                 out.insert(k.clone(), val.clone());
             }
         }
         *model = merged;
-        let known = serde_json::to_value(RunConfig {
-            model: base,
-            diffusion: Default::default(),
-            data: DataConfig { dir: Some(String::new()), ..Default::default() },
-            keyframes: Default::default(),
-            training: Default::default(),
-        })
-        .expect("config serialises");
-        if let Some(k) = unknown_key(&v, &known, "") {
-            return Err(format!("unknown key '{k}'"));
-        }
-        let cfg: RunConfig = serde_json::from_value(v).map_err(|e| format!("bad value: {e}"))?;
+        // Every section denies unknown fields: the path names the key at fault.
+        let cfg: RunConfig = serde_path_to_error::deserialize(v).map_err(|e| {
+            let what = if e.inner().to_string().starts_with("unknown field") {
+                "unknown key"
+            } else {
+                "bad value"
+            };
+            bad(format!("{}: {what}: {}", e.path(), e.inner()))
+        })?;
         cfg.validate()?;
         Ok(cfg)
     }
 
     /// Every value in its range, checked before anything is built from it (a zero width or
     /// batch would divide by zero, a huge one exhaust memory, a NaN train silently).
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<()> {
         let m = &self.model;
         let t = &self.training;
         let k = &self.keyframes;
-        let bad =
-            |key: &str, v: &dyn std::fmt::Display, want: &str| Err(format!("{key}: {v} {want}"));
+        let bad = |key: &str, v: &dyn std::fmt::Display, want: &str| {
+            Err(ModelError::Config(format!("{key}: {v} {want}")))
+        };
         let positive = [
             ("model.feat_dim", m.feat_dim),
             ("model.text_dim", m.text_dim),
@@ -220,16 +201,16 @@ impl RunConfig {
             }
         }
         if crate::diffusion::Schedule::by_name(&self.diffusion.schedule, 2).is_none() {
-            return Err(format!(
+            return Err(ModelError::Config(format!(
                 "diffusion.schedule: unknown '{}' (cosine, linear)",
                 self.diffusion.schedule
-            ));
+            )));
         }
         if !m.d_model.is_multiple_of(m.heads) {
-            return Err(format!(
+            return Err(ModelError::Config(format!(
                 "model.heads: {} does not divide model.d_model ({})",
                 m.heads, m.d_model
-            ));
+            )));
         }
         // Sizes whose products would not fit in memory on any machine this runs on.
         let limits = [
@@ -316,13 +297,16 @@ mod tests {
         let c = RunConfig::parse(r#"{"model": {"preset": "small", "dec_layers": 2}}"#).unwrap();
         assert_eq!(c.model.dec_layers, 2);
         assert_eq!(c.model.d_model, 256);
-        let e =
-            RunConfig::parse(r#"{"model": "tiny", "training": {"learning_rate": 1}}"#).unwrap_err();
-        assert!(e.contains("training.learning_rate"), "{e}");
-        let e = RunConfig::parse(r#"{"model": {"d_modle": 3}}"#).unwrap_err();
+        let e = RunConfig::parse(r#"{"model": "tiny", "training": {"learning_rate": 1}}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("training.learning_rate: unknown key"), "{e}");
+        let e = RunConfig::parse(r#"{"model": {"d_modle": 3}}"#).unwrap_err().to_string();
         assert!(e.contains("model.d_modle"), "{e}");
-        let e = RunConfig::parse(r#"{"model": "tiny", "training": {"lr": "fast"}}"#).unwrap_err();
-        assert!(e.contains("bad value"), "{e}");
+        let e = RunConfig::parse(r#"{"model": "tiny", "training": {"lr": "fast"}}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("training.lr: bad value"), "{e}");
         for (body, needle) in [
             (r#""training": {"batch_size": 0}"#, "training.batch_size: 0"),
             (r#""diffusion": {"steps": 0}"#, "diffusion.steps: 0"),
@@ -333,7 +317,9 @@ mod tests {
             (r#""keyframes": {"rate": 2}"#, "keyframes.rate: 2"),
             (r#""diffusion": {"schedule": "foo"}"#, "diffusion.schedule: unknown 'foo'"),
         ] {
-            let e = RunConfig::parse(&format!(r#"{{"model": "tiny", {body}}}"#)).unwrap_err();
+            let e = RunConfig::parse(&format!(r#"{{"model": "tiny", {body}}}"#))
+                .unwrap_err()
+                .to_string();
             assert!(e.contains(needle), "{body}: {e}");
         }
         for (model, needle) in [
@@ -342,13 +328,14 @@ mod tests {
             (r#"{"preset": "tiny", "dropout": 1.5}"#, "model.dropout: 1.5"),
             (r#"{"preset": "tiny", "temporal_kernel": 4}"#, "model.temporal_kernel: 4"),
         ] {
-            let e = RunConfig::parse(&format!(r#"{{"model": {model}}}"#)).unwrap_err();
+            let e = RunConfig::parse(&format!(r#"{{"model": {model}}}"#)).unwrap_err().to_string();
             assert!(e.contains(needle), "{model}: {e}");
         }
-        let e = RunConfig::parse(r#"{"model": "huge"}"#).unwrap_err();
+        let e = RunConfig::parse(r#"{"model": "huge"}"#).unwrap_err().to_string();
         assert!(e.contains("unknown preset 'huge'"), "{e}");
         let e = RunConfig::parse(r#"{"model": "tiny", "keyframes": {"strategy": "sometimes"}}"#)
-            .unwrap_err();
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("bad value") && e.contains("sometimes"), "{e}");
     }
 

@@ -6,6 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use crate::checkpoint::Checkpoint;
+use crate::error::{ModelError, Result};
 use crate::run_config::RunConfig;
 
 /// One line of metrics.jsonl, as far as readers need it.
@@ -66,52 +67,45 @@ impl RunDir {
 
     /// A resumed run must keep its model and its normalisation: checked before any run file is
     /// rewritten, so a refused resume leaves the run as it was.
-    pub fn check_resumable(&self, cfg: &RunConfig, mean: &[f32]) -> Result<(), String> {
+    pub fn check_resumable(&self, cfg: &RunConfig, mean: &[f32]) -> Result<()> {
         let stored = self.config_path();
         if let Ok(old) = RunConfig::load(&stored) {
             if old.model != cfg.model {
-                return Err(format!("--resume: {} describes another model than --config (model section differs); pass the run's own config or choose another --out", stored.display()));
+                return Err(ModelError::Refused(format!("--resume: {} describes another model than --config (model section differs); pass the run's own config or choose another --out", stored.display())));
             }
         }
         let path = self.path.join("Mean.npy");
         if let Ok(m) = diffkfc_data::npy::read_f32(&path) {
             if m.data != mean {
-                return Err(format!(
+                return Err(ModelError::Refused(format!(
                     "--resume: {} differs from the dataset's Mean.npy: the run was trained on another normalisation; resume on its own dataset or choose another --out",
                     path.display()
-                ));
+                )));
             }
         }
         Ok(())
     }
 
     /// Create the directory and write the config and the normalisation sampling will need.
-    pub fn prepare(&self, cfg: &RunConfig, mean: &[f32], std: &[f32]) -> Result<(), String> {
-        std::fs::create_dir_all(&self.path)
-            .map_err(|e| format!("creating {}: {e}", self.path.display()))?;
-        diffkfc_data::write_atomic(&self.config_path(), cfg.to_json().as_bytes())
-            .map_err(|e| e.to_string())?;
+    pub fn prepare(&self, cfg: &RunConfig, mean: &[f32], std: &[f32]) -> Result<()> {
+        std::fs::create_dir_all(&self.path).map_err(ModelError::io(&self.path))?;
+        diffkfc_data::write_atomic(&self.config_path(), cfg.to_json().as_bytes())?;
         for (name, v) in [("Mean.npy", mean), ("Std.npy", std)] {
-            diffkfc_data::npy::write(self.path.join(name), &[v.len()], v)
-                .map_err(|e| e.to_string())?;
+            diffkfc_data::npy::write(self.path.join(name), &[v.len()], v)?;
         }
         Ok(())
     }
 
     /// Mean/Std the model was trained with: the run's own copy, or the dataset's the config names.
-    pub fn normalisation(&self, cfg: &RunConfig) -> Result<(Vec<f32>, Vec<f32>), String> {
+    pub fn normalisation(&self, cfg: &RunConfig) -> Result<(Vec<f32>, Vec<f32>)> {
         let dir = if self.path.join("Mean.npy").exists() {
             self.path.clone()
         } else {
             PathBuf::from(cfg.data.dir.clone().ok_or_else(|| {
-                format!(
-                    "{}: no Mean.npy/Std.npy and no data.dir in its config",
-                    self.path.display()
-                )
+                ModelError::file(&self.path, "no Mean.npy/Std.npy and no data.dir in its config")
             })?)
         };
-        diffkfc_data::dataset::read_normalisation(&dir, Some(cfg.model.feat_dim))
-            .map_err(|e| e.to_string())
+        Ok(diffkfc_data::dataset::read_normalisation(&dir, Some(cfg.model.feat_dim))?)
     }
 
     /// Every metrics line so far.
@@ -121,7 +115,7 @@ impl RunDir {
     }
 
     /// Keep only the metrics lines of steps <= `step` (a resumed run rewrites what follows).
-    pub fn truncate_metrics(&self, step: usize) -> Result<(), String> {
+    pub fn truncate_metrics(&self, step: usize) -> Result<()> {
         let path = self.metrics_path();
         let Ok(text) = std::fs::read_to_string(&path) else {
             return Ok(());
@@ -135,14 +129,12 @@ impl RunDir {
         if !out.is_empty() {
             out.push('\n');
         }
-        diffkfc_data::write_atomic(&path, out.as_bytes())
-            .map_err(|e| format!("{}: {e}", path.display()))
+        Ok(diffkfc_data::write_atomic(&path, out.as_bytes())?)
     }
 
     /// Write loss.svg from metrics.jsonl.
-    pub fn write_loss_plot(&self) -> Result<(), String> {
-        diffkfc_data::write_atomic(&self.plot_path(), loss_svg(&self.metrics()).as_bytes())
-            .map_err(|e| e.to_string())
+    pub fn write_loss_plot(&self) -> Result<()> {
+        Ok(diffkfc_data::write_atomic(&self.plot_path(), loss_svg(&self.metrics()).as_bytes())?)
     }
 }
 

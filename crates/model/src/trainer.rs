@@ -19,6 +19,7 @@ use diffkfc_data::rng::Rng;
 use crate::batch::to_tensors;
 use crate::checkpoint::Checkpoint;
 use crate::diffusion::Schedule;
+use crate::error::{ModelError, Result};
 use crate::losses::{losses, Kinematic};
 use crate::optim::{descend, ema_update, learning_rate, Adam};
 use crate::params;
@@ -166,14 +167,17 @@ impl Trainer<'_> {
         max_steps: usize,
         stop: &dyn Fn() -> bool,
         on_event: &mut dyn FnMut(Event),
-    ) -> Result<Outcome, String> {
+    ) -> Result<Outcome> {
         let tc = &self.cfg.training;
         let dm = &self.cfg.diffusion;
         tc.check_stop(max_steps)?;
-        let schedule = Schedule::by_name(&dm.schedule, dm.steps)
-            .ok_or(format!("diffusion.schedule: unknown '{}' (cosine, linear)", dm.schedule))?;
-        std::fs::create_dir_all(&self.run_dir)
-            .map_err(|e| format!("{}: {e}", self.run_dir.display()))?;
+        let schedule = Schedule::by_name(&dm.schedule, dm.steps).ok_or_else(|| {
+            ModelError::Config(format!(
+                "diffusion.schedule: unknown '{}' (cosine, linear)",
+                dm.schedule
+            ))
+        })?;
+        std::fs::create_dir_all(&self.run_dir).map_err(ModelError::io(&self.run_dir))?;
         let device = self.device.clone().autodiff();
         device.seed(tc.seed);
         let mut model = self.cfg.model.init(&device);
@@ -187,9 +191,9 @@ impl Trainer<'_> {
             if let Some(ck) = Checkpoint::latest(&self.run_dir) {
                 let ck = ck?;
                 if ck.shapes != shapes {
-                    return Err(format!(
-                        "{}: checkpoint does not match the model in the config (different shapes; runs made before keyframes had root channels cannot be resumed: start a new --out)",
-                        self.run_dir.display()
+                    return Err(ModelError::file(
+                        &self.run_dir,
+                        "checkpoint does not match the model in the config (different shapes; runs made before keyframes had root channels cannot be resumed: start a new --out)",
                     ));
                 }
                 start = ck.step;
@@ -210,7 +214,7 @@ impl Trainer<'_> {
             .create(true)
             .append(true)
             .open(&metrics_path)
-            .map_err(|e| format!("{}: {e}", metrics_path.display()))?;
+            .map_err(ModelError::io(&metrics_path))?;
         let loader =
             Loader::new(self.ds, self.train, tc.batch_size, tc.seed, self.cfg.keyframes.clone());
         let per_epoch = loader.batches_per_epoch().max(1);
@@ -222,7 +226,7 @@ impl Trainer<'_> {
                     vals: &[Vec<f32>],
                     ema: &Option<Vec<Vec<f32>>>,
                     adam: &Adam|
-         -> Result<PathBuf, String> {
+         -> Result<PathBuf> {
             // Never write (and so never rotate older checkpoints away for) non-finite weights.
             if let Some(x) = vals
                 .iter()
@@ -254,12 +258,11 @@ impl Trainer<'_> {
                         vals: &[Vec<f32>],
                         ema: &Option<Vec<Vec<f32>>>,
                         metrics: &mut std::fs::File|
-         -> Result<Option<f64>, String> {
+         -> Result<Option<f64>> {
             let v = self.validate(ema.as_deref().unwrap_or(vals), &schedule);
             if let Some(v) = v {
                 let line = serde_json::json!({"step": step, "val_loss": v, "wall_s": t0.elapsed().as_secs_f64()});
-                writeln!(metrics, "{line}")
-                    .map_err(|e| format!("{}: {e}", metrics_path.display()))?;
+                writeln!(metrics, "{line}").map_err(ModelError::io(&metrics_path))?;
             }
             Ok(v)
         };
@@ -323,7 +326,7 @@ impl Trainer<'_> {
                 rec.val_loss = self.validate(ema.as_deref().unwrap_or(&vals), &schedule);
             }
             writeln!(metrics, "{}", serde_json::to_string(&rec).expect("json"))
-                .map_err(|e| format!("{}: {e}", metrics_path.display()))?;
+                .map_err(ModelError::io(&metrics_path))?;
             on_event(Event::Step(&rec));
             if step % tc.checkpoint_every.max(1) == 0 || step == max_steps {
                 let p = save(step, &vals, &ema, &adam)?;
@@ -343,20 +346,17 @@ impl Trainer<'_> {
 }
 
 /// The error of a training run that went non-finite (no checkpoint is written for that step).
-fn non_finite(step: usize, what: &str, value: f64, run_dir: &Path) -> String {
+fn non_finite(step: usize, what: &str, value: f64, run_dir: &Path) -> ModelError {
     let kept = Checkpoint::list(run_dir)
         .last()
         .map(|(s, _)| format!("the newest checkpoint (step {s}) is kept"))
         .unwrap_or_else(|| "no checkpoint was written".into());
-    format!("{}: step {step}: {what} is {value} (not finite): training stopped; {kept}. Lower training.lr, check the data with `diffkfc data check`, or resume from the checkpoint", run_dir.display())
+    ModelError::Diverged(format!("{}: step {step}: {what} is {value} (not finite): training stopped; {kept}. Lower training.lr, check the data with `diffkfc data check`, or resume from the checkpoint", run_dir.display()))
 }
 
 /// Load the weights of a run for inference: the EMA when present, else the raw model. `run_dir`
 /// is a run directory (its newest checkpoint) or one checkpoint file of it.
-pub fn load_for_inference(
-    run_dir: &Path,
-    device: &Device,
-) -> Result<(RunConfig, Denoiser, usize), String> {
+pub fn load_for_inference(run_dir: &Path, device: &Device) -> Result<(RunConfig, Denoiser, usize)> {
     let exported = run_dir.join(crate::checkpoint::WEIGHTS_FILE);
     let ck = if run_dir.is_file() {
         Checkpoint::load(run_dir)?
@@ -365,10 +365,10 @@ pub fn load_for_inference(
     } else if exported.is_file() {
         Checkpoint::load(&exported)?
     } else {
-        return Err(format!("{}: no checkpoint found (train first, or pass a run directory, a model directory or a ckpt-*.safetensors file)", run_dir.display()));
+        return Err(ModelError::file(run_dir, "no checkpoint found (train first, or pass a run directory, a model directory or a ckpt-*.safetensors file)"));
     };
     let mut cfg = RunConfig::parse(&ck.config)
-        .map_err(|e| format!("{}: stored config: {e}", run_dir.display()))?;
+        .map_err(|e| ModelError::file(run_dir, format!("stored config: {e}")))?;
     // Inference: no dropout (it has no parameters, so the weights load the same).
     cfg.model.dropout = 0.0;
     let mut model = cfg.model.init(device);
@@ -377,9 +377,9 @@ pub fn load_for_inference(
         let old = cfg.model.clone().with_root_channels(0);
         model = old.init(device);
         if params::shapes(&model) != ck.shapes {
-            return Err(format!(
-                "{}: checkpoint tensors do not match its stored config",
-                run_dir.display()
+            return Err(ModelError::file(
+                run_dir,
+                "checkpoint tensors do not match its stored config",
             ));
         }
         cfg.model = old;

@@ -73,7 +73,7 @@ fn model_config(spec: &str) -> Result<DiffKfcConfig> {
         return Ok(c);
     }
     if std::path::Path::new(spec).exists() {
-        return Ok(RunConfig::load(std::path::Path::new(spec)).map_err(anyhow::Error::msg)?.model);
+        return Ok(RunConfig::load(std::path::Path::new(spec))?.model);
     }
     bail!("--config: '{spec}' is neither a preset (paper, small, tiny) nor a file")
 }

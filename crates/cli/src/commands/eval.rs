@@ -217,12 +217,10 @@ pub fn run(a: EvalArgs) -> Result<()> {
                 lr,
                 seed,
             };
-            let r = job
-                .run(|s, l| {
-                    pb.set_position(s as u64);
-                    pb.set_message(format!("InfoNCE {l:.3}"));
-                })
-                .map_err(anyhow::Error::msg)?;
+            let r = job.run(|s, l| {
+                pb.set_position(s as u64);
+                pb.set_message(format!("InfoNCE {l:.3}"));
+            })?;
             pb.finish_and_clear();
             let report = serde_json::json!({"steps": r.steps, "seconds": t0.elapsed().as_secs_f64(), "first_loss": r.first_loss, "last_loss": r.last_loss,
                 "split": split, "items": r.items, "r_precision_top1": r.r_precision[0], "r_precision_top2": r.r_precision[1], "r_precision_top3": r.r_precision[2],
@@ -302,10 +300,8 @@ fn evaluate(a: RunArgs) -> Result<()> {
         .parse()
         .map_err(|e: String| anyhow::anyhow!("--keyframe-strategy: {e}"))?;
     let device = crate::device::parse(&a.device)?;
-    let (cfg, model, step) = load_for_inference(&run_dir, &device).map_err(anyhow::Error::msg)?;
-    let (mean, std) = diffkfc_model::run_dir::RunDir::of(&run_dir)
-        .normalisation(&cfg)
-        .map_err(anyhow::Error::msg)?;
+    let (cfg, model, step) = load_for_inference(&run_dir, &device)?;
+    let (mean, std) = diffkfc_model::run_dir::RunDir::of(&run_dir).normalisation(&cfg)?;
     let ds = Dataset::open(&data)?;
     if ds.dim() != cfg.model.feat_dim {
         bail!(
@@ -323,7 +319,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
         bail!("--num-items: {num_items} items (split '{}' of {} has {}); R-precision needs at least {}", a.split, data.display(), split.items.len(), protocol::R_BATCH);
     }
     let text = embed_captions(&ds, &[&split], crate::progress::bar("embedding"))?;
-    let ev = ContrastiveEvaluator::load(&eval_dir, &text, &device).map_err(anyhow::Error::msg)?;
+    let ev = ContrastiveEvaluator::load(&eval_dir, &text, &device)?;
     if ev.mean.len() != ds.dim() {
         bail!(
             "--evaluator: {} was trained on {}-d features, {} has {}",
@@ -333,7 +329,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
             ds.dim()
         );
     }
-    let (_, real) = embed_split(&ev, &ds, &split).map_err(anyhow::Error::msg)?;
+    let (_, real) = embed_split(&ev, &ds, &split)?;
     let reference = Gaussian::fit(&real);
     let schedule =
         Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps).with_context(|| {
@@ -387,7 +383,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
             .progress_chars("=> "),
     );
     let t0 = std::time::Instant::now();
-    let rows = p.run(&settings, &reference, &mut || pb.inc(1)).map_err(anyhow::Error::msg)?;
+    let rows = p.run(&settings, &reference, &mut || pb.inc(1))?;
     pb.finish_and_clear();
     let secs = t0.elapsed().as_secs_f64();
     let meta = serde_json::json!({

@@ -58,7 +58,7 @@ pub struct TextEmbedArgs {
 pub fn run(a: ModelArgs) -> Result<()> {
     match a.command {
         ModelCommand::Summary { config } => {
-            let cfg = RunConfig::load(&config).map_err(anyhow::Error::msg)?;
+            let cfg = RunConfig::load(&config)?;
             let model = cfg.model.init(&Device::flex());
             println!(
                 "{}: d_model {}, heads {}, ffn {}, decoder layers {}, DMA sizes {:?}",
@@ -78,8 +78,7 @@ pub fn run(a: ModelArgs) -> Result<()> {
             Ok(())
         }
         ModelCommand::Export { checkpoint, out, dtype } => {
-            let e = diffkfc_model::checkpoint::export(&checkpoint, &out, dtype == "f16")
-                .map_err(anyhow::Error::msg)?;
+            let e = diffkfc_model::checkpoint::export(&checkpoint, &out, dtype == "f16")?;
             println!(
                 "{}: step {} as {dtype}, {:.2} MB; wrote {}",
                 out.display(),

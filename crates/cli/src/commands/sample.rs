@@ -328,10 +328,8 @@ impl Generator {
         let device = crate::device::parse(&a.device)?;
         // Exact transition guidance differentiates through the denoiser.
         let device = if matches!(a.tg_mode, TgModeArg::Exact) { device.autodiff() } else { device };
-        let (cfg, model, step) =
-            load_for_inference(&a.checkpoint, &device).map_err(anyhow::Error::msg)?;
-        let (mean, std) =
-            RunDir::of(&a.checkpoint).normalisation(&cfg).map_err(anyhow::Error::msg)?;
+        let (cfg, model, step) = load_for_inference(&a.checkpoint, &device)?;
+        let (mean, std) = RunDir::of(&a.checkpoint).normalisation(&cfg)?;
         let schedule = Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps)
             .with_context(|| format!("{}: unknown diffusion schedule '{}' in the checkpoint's config (cosine, linear)", a.checkpoint.display(), cfg.diffusion.schedule))?;
         if a.steps > schedule.steps {

@@ -86,7 +86,7 @@ fn check_memory(cfg: &RunConfig, device: &str) -> Result<()> {
 pub const INTERRUPTED_EXIT: i32 = 130;
 
 pub fn run(a: TrainArgs) -> Result<()> {
-    let mut cfg = RunConfig::load(&a.config).map_err(anyhow::Error::msg)?;
+    let mut cfg = RunConfig::load(&a.config)?;
     if let Some(s) = a.seed {
         cfg.training.seed = s;
     }
@@ -97,7 +97,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         "--data: no dataset given (make one with `diffkfc data synth --out work/synth`)",
     )?;
     let max_steps = a.max_steps.unwrap_or(cfg.training.max_steps);
-    cfg.training.check_stop(max_steps).map_err(anyhow::Error::msg)?;
+    cfg.training.check_stop(max_steps)?;
     let stem = a
         .config
         .file_stem()
@@ -150,9 +150,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
         bail!("model.text_dim is {} but the text encoder gives {}", cfg.model.text_dim, text.dim);
     }
     if a.resume {
-        run.check_resumable(&cfg, &ds.mean).map_err(anyhow::Error::msg)?;
+        run.check_resumable(&cfg, &ds.mean)?;
     }
-    run.prepare(&cfg, &ds.mean, &ds.std).map_err(anyhow::Error::msg)?;
+    run.prepare(&cfg, &ds.mean, &ds.std)?;
 
     let interrupted = Arc::new(AtomicBool::new(false));
     {
@@ -179,20 +179,18 @@ pub fn run(a: TrainArgs) -> Result<()> {
         run_dir: run_dir.clone(),
     };
     let mut first: Option<(usize, f64)> = None;
-    let outcome = trainer
-        .run(a.resume, max_steps, &stop, &mut |e| match e {
-            Event::Step(r) => {
-                first.get_or_insert((r.step, r.loss));
-                pb.set_position(r.step as u64);
-                pb.set_message(format!("loss {:.4}", r.loss));
-            }
-            Event::Checkpoint(_, _) => {}
-        })
-        .map_err(anyhow::Error::msg)?;
+    let outcome = trainer.run(a.resume, max_steps, &stop, &mut |e| match e {
+        Event::Step(r) => {
+            first.get_or_insert((r.step, r.loss));
+            pb.set_position(r.step as u64);
+            pb.set_message(format!("loss {:.4}", r.loss));
+        }
+        Event::Checkpoint(_, _) => {}
+    })?;
     pb.finish_and_clear();
     let vals: Vec<(usize, f64)> =
         run.metrics().iter().filter_map(|m| Some((m.step, m.val_loss?))).collect();
-    run.write_loss_plot().map_err(anyhow::Error::msg)?;
+    run.write_loss_plot()?;
     let secs = started.elapsed().as_secs_f64();
     let steps = outcome.end_step - outcome.start_step;
     let why = if interrupted.load(Ordering::SeqCst) {
