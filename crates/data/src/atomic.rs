@@ -30,6 +30,8 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DataError> {
         std::fs::create_dir_all(dir).map_err(io)?;
     }
     let file_name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    // Named by process id (not tempfile's random names) so `remove_stale_temps` can tell a
+    // dead writer's leftover from a live one's.
     let tmp = path.with_file_name(format!(".{file_name}.tmp{}", std::process::id()));
     let result = (|| {
         let mut f = std::fs::File::create(&tmp)?;

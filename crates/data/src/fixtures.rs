@@ -28,3 +28,30 @@ pub fn require(rel: &str) -> Option<PathBuf> {
     }
     found
 }
+
+/// Run a Python script (with `args`) as an independent reference: `Some(stdout)`, or `None`
+/// (after a printed notice) when `python3` with `modules` is not installed. Panics when absent
+/// and `DIFFKFC_REQUIRE_PYTHON=1` (set by `.ci/run`, which installs numpy and scipy), and when
+/// the script itself fails.
+pub fn python(modules: &[&str], script: &str, args: &[&std::path::Path]) -> Option<String> {
+    let probe = format!("import {}", modules.join(", "));
+    let have = std::process::Command::new("python3")
+        .args(["-c", &probe])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !have {
+        if std::env::var("DIFFKFC_REQUIRE_PYTHON").is_ok_and(|v| v == "1") {
+            panic!("python3 with {} not found (DIFFKFC_REQUIRE_PYTHON=1)", modules.join(", "));
+        }
+        eprintln!("SKIPPED: python3 with {} not found", modules.join(", "));
+        return None;
+    }
+    let o = std::process::Command::new("python3")
+        .arg("-c")
+        .arg(script)
+        .args(args)
+        .output()
+        .expect("python3 runs");
+    assert!(o.status.success(), "python reference failed: {}", String::from_utf8_lossy(&o.stderr));
+    Some(String::from_utf8(o.stdout).expect("utf-8"))
+}

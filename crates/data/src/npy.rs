@@ -3,6 +3,10 @@
 //!
 //! Every failure names the file and what is wrong with it, because users point diffkfc at
 //! datasets with tens of thousands of files and need to find the bad one.
+//!
+//! Hand-written rather than npyz: npyz 0.8 writes `'shape': (3, 4, )` where numpy writes
+//! `(3, 4)`, so every file we write would change bytes; ours equals `np.save` byte for byte and
+//! reads numpy's files exactly (crates/data/tests/numpy.rs).
 
 use std::path::{Path, PathBuf};
 

@@ -23,10 +23,19 @@ impl Rng {
         self.0
     }
 
+    #[inline]
     pub fn from_state(state: u64) -> Self {
         Rng(state)
     }
 
+    /// The generator as a counter-based hash: the output of state `z` (SplitMix64's mixer),
+    /// for streams drawn in parallel by index (dropout masks).
+    #[inline]
+    pub fn hash(z: u64) -> u64 {
+        Rng::from_state(z).next_u64()
+    }
+
+    #[inline]
     pub fn next_u64(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.0;

@@ -1,13 +1,14 @@
-//! Dropout whose mask comes from a counter-based hash (SplitMix64 of the seed, the call number
-//! and the element index), made on the host in parallel with the 1 / keep scale folded in:
-//! Burn's dropout draws every element through ChaCha and a generic sampler and multiplies
-//! twice, about 5% of a paper training step. Active only on an autodiff device (training), as
-//! Burn's. `seed` (the trainer calls it every step) makes the masks reproducible, so resumed
-//! runs repeat the same masks.
+//! Dropout whose mask comes from a counter-based hash (`Rng::hash`, SplitMix64, of the seed,
+//! the call number and the element index), made on the host in parallel with the 1 / keep scale
+//! folded in: Burn's dropout draws every element through ChaCha and a generic sampler and
+//! multiplies twice, about 5% of a paper training step. Active only on an autodiff device
+//! (training), as Burn's. `seed` (the trainer calls it every step) makes the masks reproducible,
+//! so resumed runs repeat the same masks.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use burn::prelude::*;
+use diffkfc_data::rng::Rng;
 use rayon::prelude::*;
 
 static SEED: AtomicU64 = AtomicU64::new(0);
@@ -19,13 +20,6 @@ pub fn seed(seed: u64) {
     CALLS.store(0, Ordering::SeqCst);
 }
 
-fn splitmix(mut z: u64) -> u64 {
-    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
-
 /// The mask of `n` elements: 1 / keep where kept, 0 where dropped.
 fn mask(n: usize, prob: f64, key: u64) -> Vec<f32> {
     let keep = 1.0 - prob;
@@ -34,7 +28,7 @@ fn mask(n: usize, prob: f64, key: u64) -> Vec<f32> {
     let mut m = vec![0f32; n];
     m.par_chunks_mut(1 << 16).enumerate().for_each(|(c, chunk)| {
         for (i, v) in chunk.iter_mut().enumerate() {
-            let h = splitmix(key ^ ((c << 16) + i) as u64);
+            let h = Rng::hash(key ^ ((c << 16) + i) as u64);
             *v = if h < threshold { scale } else { 0.0 };
         }
     });
@@ -67,7 +61,7 @@ impl Dropout {
             return None;
         }
         let call = CALLS.fetch_add(1, Ordering::SeqCst);
-        let key = splitmix(SEED.load(Ordering::SeqCst) ^ splitmix(call.wrapping_add(1)));
+        let key = Rng::hash(SEED.load(Ordering::SeqCst) ^ Rng::hash(call.wrapping_add(1)));
         Some(mask(x.shape().num_elements(), self.prob, key))
     }
 }

@@ -44,22 +44,19 @@ pub struct TrainArgs {
     seed: Option<u64>,
 }
 
-/// Caption embeddings of the given splits with the frozen text encoder, computed once and cached
-/// beside the dataset's packed features.
+/// `--time-budget`: humantime's durations (90s, 10m, 1h30m, 2h) or a bare number of seconds.
 pub fn parse_duration(s: &str) -> Result<Duration, String> {
-    let (num, unit) =
-        s.trim().split_at(s.trim().find(|c: char| c.is_alphabetic()).unwrap_or(s.trim().len()));
-    let v: f64 = num.parse().map_err(|_| format!("'{s}' is not a duration like 90s, 10m or 2h"))?;
-    let secs = match unit {
-        "" | "s" => v,
-        "m" | "min" => v * 60.0,
-        "h" => v * 3600.0,
-        _ => return Err(format!("'{s}': unknown unit '{unit}' (s, m, h)")),
+    let t = s.trim();
+    let d = match t.parse::<f64>() {
+        Ok(secs) if secs.is_finite() && secs > 0.0 => Duration::from_secs_f64(secs),
+        Ok(_) => return Err(format!("'{s}' must be positive")),
+        Err(_) => humantime::parse_duration(t)
+            .map_err(|e| format!("'{s}' is not a duration like 90s, 10m or 2h ({e})"))?,
     };
-    if !(secs.is_finite() && secs > 0.0) {
+    if d.is_zero() {
         return Err(format!("'{s}' must be positive"));
     }
-    Ok(Duration::from_secs_f64(secs))
+    Ok(d)
 }
 
 /// Refuse a CPU run whose estimated peak memory exceeds what the machine has free.
@@ -226,4 +223,22 @@ pub fn run(a: TrainArgs) -> Result<()> {
         std::process::exit(INTERRUPTED_EXIT);
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_duration;
+    use std::time::Duration;
+
+    #[test]
+    fn durations_with_units_or_bare_seconds() {
+        assert_eq!(parse_duration("90s"), Ok(Duration::from_secs(90)));
+        assert_eq!(parse_duration("10m"), Ok(Duration::from_secs(600)));
+        assert_eq!(parse_duration("1h 30m"), Ok(Duration::from_secs(5400)));
+        assert_eq!(parse_duration(" 2.5 "), Ok(Duration::from_secs_f64(2.5)));
+        for bad in ["soon", "-3", "0", "0s", "10 parsecs", "nan"] {
+            let e = parse_duration(bad).unwrap_err();
+            assert!(e.contains(&format!("'{bad}'")), "{bad}: {e}");
+        }
+    }
 }
