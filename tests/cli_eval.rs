@@ -206,6 +206,40 @@ fn evaluate_tiny_checkpoint(
     let row =
         r["rows"].as_array().unwrap().iter().find(|x| x["name"] == "DiffKFC w/o TG").expect("row");
     assert!(metric(row, "k_err_local") > 1e-3, "{row}");
+    // The official T2M evaluator's layout (here the small converted copy of tests/t2m, random
+    // weights): the tables run on it and the report names it.
+    let t2m = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../eval/tests/t2m/converted");
+    let t2m_arg = format!("t2m:{}", t2m.display());
+    let t2m_out = d.join("t2m");
+    let o = diffkfc(&[
+        "eval",
+        "--checkpoint",
+        s(&run),
+        "--evaluator",
+        &t2m_arg,
+        "--data",
+        s(data),
+        "--replications",
+        "1",
+        "--steps",
+        "2",
+        "--num-items",
+        "32",
+        "--out",
+        s(&t2m_out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(t2m_out.join("report.json")).unwrap()).unwrap();
+    assert!(
+        r["meta"]["evaluator_name"].as_str().unwrap().contains("T2M evaluator"),
+        "{}",
+        r["meta"]
+    );
+    let md = std::fs::read_to_string(t2m_out.join("report.md")).unwrap();
+    assert!(md.contains("the T2M evaluator of Guo et al. 2022"), "{md}");
+    let row = r["rows"].as_array().unwrap().iter().find(|x| x["name"] == "DiffKFC").expect("row");
+    assert!(metric(row, "fid").is_finite() && metric(row, "r_top3") >= 0.0, "{row}");
     let none = d.join("none");
     let bad = |evaluator: &std::path::Path, extra: &[&str], needles: &[&str]| {
         let mut a = vec![
@@ -226,4 +260,10 @@ fn evaluate_tiny_checkpoint(
     bad(evaluator, &["--replications", "0"], &["--replications", "at least 1"]);
     bad(evaluator, &["--keyframe-strategy", "odd"], &["--keyframe-strategy", "odd"]);
     bad(&none, &[], &["none", "train-evaluator"]);
+    let no_t2m = format!("t2m:{}", none.display());
+    bad(
+        std::path::Path::new(&no_t2m),
+        &[],
+        &["missing evaluator.safetensors", "convert-t2m-evaluator.py"],
+    );
 }

@@ -152,6 +152,10 @@ pub trait TextMotionEvaluator {
     fn embed_motions(&self, motions: &[&[f32]]) -> Vec<Vec<f64>>;
     /// Captions -> one row each.
     fn embed_texts(&self, captions: &[&str]) -> Result<Vec<Vec<f64>>>;
+    /// Width of the raw motion features it reads (foot contacts included).
+    fn feature_dim(&self) -> usize;
+    /// Which evaluator this is, as the reports name it.
+    fn name(&self) -> String;
 }
 
 /// The trained contrastive evaluator with the normalisation it was trained with.
@@ -265,5 +269,13 @@ impl TextMotionEvaluator for ContrastiveEvaluator<'_> {
             out.extend(rows(self.model.encode_text(text_tensor(self.text, chunk, &self.device)?)));
         }
         Ok(out)
+    }
+
+    fn feature_dim(&self) -> usize {
+        self.mean.len()
+    }
+
+    fn name(&self) -> String {
+        "diffkfc's contrastive evaluator (trained on the dataset; not comparable with published numbers)".into()
     }
 }

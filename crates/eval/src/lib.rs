@@ -13,5 +13,6 @@ pub mod keyframe_metrics;
 pub(crate) mod linalg;
 pub mod protocol;
 pub mod report;
+pub mod t2m;
 pub mod text_motion;
 pub mod train_evaluator;

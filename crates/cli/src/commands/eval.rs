@@ -8,9 +8,10 @@ use clap::{Args, Subcommand};
 use diffkfc_data::cache::{default_cache_dir, PackedSplit};
 use diffkfc_data::dataset::Dataset;
 use diffkfc_data::keyframes::Strategy;
-use diffkfc_eval::evaluator::{ContrastiveEvaluator, EvaluatorConfig};
+use diffkfc_eval::evaluator::{ContrastiveEvaluator, EvaluatorConfig, TextMotionEvaluator};
 use diffkfc_eval::protocol::{self, Protocol, Setting};
 use diffkfc_eval::report;
+use diffkfc_eval::t2m::{split_captions, T2mEvaluator};
 use diffkfc_eval::text_motion::Gaussian;
 use diffkfc_eval::train_evaluator::{embed_split, EvaluatorTraining};
 use diffkfc_model::diffusion::Schedule;
@@ -51,7 +52,8 @@ struct RunArgs {
     /// Run directory of `diffkfc train` (newest checkpoint, EMA weights when present).
     #[arg(long, required = true)]
     checkpoint: Option<PathBuf>,
-    /// Output directory of `diffkfc eval train-evaluator`.
+    /// Output directory of `diffkfc eval train-evaluator`, or `t2m:DIR`: the official T2M
+    /// evaluator converted by scripts/convert-t2m-evaluator.py (numbers comparable with papers).
     #[arg(long, required = true)]
     evaluator: Option<PathBuf>,
     /// Dataset root (HumanML3D layout).
@@ -86,9 +88,9 @@ struct RunArgs {
     kf_guidance: f64,
     /// ddim or dpm (DPM-Solver++(2M)) over --steps evenly spaced steps, or ddpm (every step of
     /// the schedule).
-    #[arg(long, value_enum, default_value = "ddim")]
+    #[arg(long, value_enum, default_value = "dpm")]
     sampler: SamplerArg,
-    /// DDIM steps (DDPM runs every step of the schedule).
+    /// Steps of ddim and dpm (DDPM runs every step of the schedule).
     #[arg(long, default_value_t = sampler::DEFAULT_STEPS)]
     steps: usize,
     /// Generations per item for ADE (the minimum over them is kept).
@@ -319,17 +321,25 @@ fn evaluate(a: RunArgs) -> Result<()> {
         bail!("--num-items: {num_items} items (split '{}' of {} has {}); R-precision needs at least {}", a.split, data.display(), split.items.len(), protocol::R_BATCH);
     }
     let text = embed_captions(&ds, &[&split], crate::progress::bar("embedding"))?;
-    let ev = ContrastiveEvaluator::load(&eval_dir, &text, &device)?;
-    if ev.mean.len() != ds.dim() {
+    let ev: Box<dyn TextMotionEvaluator + '_> =
+        match eval_dir.to_str().and_then(|s| s.strip_prefix("t2m:")) {
+            Some(dir) => Box::new(T2mEvaluator::load(
+                std::path::Path::new(dir),
+                &split_captions(&ds, &a.split)?,
+                &device,
+            )?),
+            None => Box::new(ContrastiveEvaluator::load(&eval_dir, &text, &device)?),
+        };
+    if ev.feature_dim() != ds.dim() {
         bail!(
-            "--evaluator: {} was trained on {}-d features, {} has {}",
+            "--evaluator: {} reads {}-d features, {} has {}",
             eval_dir.display(),
-            ev.mean.len(),
+            ev.feature_dim(),
             data.display(),
             ds.dim()
         );
     }
-    let (_, real) = embed_split(&ev, &ds, &split)?;
+    let (_, real) = embed_split(ev.as_ref(), &ds, &split)?;
     let reference = Gaussian::fit(&real);
     let schedule =
         Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps).with_context(|| {
@@ -363,7 +373,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
         ds: &ds,
         split: &split,
         text: &text,
-        evaluator: &ev,
+        evaluator: ev.as_ref(),
         opts,
     };
     let total = p.planned_steps(&settings);
@@ -387,16 +397,16 @@ fn evaluate(a: RunArgs) -> Result<()> {
     pb.finish_and_clear();
     let secs = t0.elapsed().as_secs_f64();
     let meta = serde_json::json!({
-        "checkpoint": run_dir.display().to_string(), "checkpoint_step": step, "evaluator": eval_dir.display().to_string(),
+        "checkpoint": run_dir.display().to_string(), "checkpoint_step": step, "evaluator": eval_dir.display().to_string(), "evaluator_name": ev.name(),
         "data": data.display().to_string(), "split": a.split, "replications": a.replications, "num_items": num_items,
         "samples_for_ade": a.samples_for_ade, "sampler": format!("{sampler:?}"), "kf_guidance": a.kf_guidance, "place_guidance": a.place_guidance,
         "keyframe_strategy": a.keyframe_strategy, "keyframe_fit": fit.keyframes, "foot_lock": fit.foot_lock, "root_keys": !a.no_root_keys, "multimodality_texts": if a.multimodality { a.mm_texts } else { 0 },
         "seed": a.seed, "seconds": secs, "reference_motions": real.len(),
     });
     let header = format!(
-        "Checkpoint `{}` (step {step}), evaluator `{}`, split `{}` of `{}`: {} replication(s) x {num_items} items, {sampler:?}, keyframe guidance {}, {} keyframes, ADE over {} sample(s), keyframe fit {:?}, foot lock {}, root keyframes {}; {:.0} s.",
+        "Checkpoint `{}` (step {step}), evaluator: {}, split `{}` of `{}`: {} replication(s) x {num_items} items, {sampler:?}, keyframe guidance {}, {} keyframes, ADE over {} sample(s), keyframe fit {:?}, foot lock {}, root keyframes {}; {:.0} s.",
         run_dir.display(),
-        eval_dir.display(),
+        ev.name(),
         a.split,
         data.display(),
         a.replications,
