@@ -36,6 +36,7 @@ VIP = {
 # Small sizes for the recorded test (the real evaluator: word 300, text hidden 512, movement 512,
 # motion hidden 1024, embedding 512).
 SIZES = dict(word=12, text_hidden=16, move_hidden=16, move_latent=12, motion_hidden=20, embed=8)
+FULL = dict(word=300, text_hidden=512, move_hidden=512, move_latent=512, motion_hidden=1024, embed=512)
 # HumanML3D-style captions: a VIP word tagged otherwise, an out-of-vocabulary word ("zigzags",
 # left out of the vocabulary below) and one caption past 20 tokens.
 CAPTIONS = [
@@ -91,8 +92,9 @@ def build(s):
            "text_encoder": TextEncoder(s["word"], s["text_hidden"], s["embed"]),
            "motion_encoder": BiGruEncoder(s["move_latent"], s["motion_hidden"], s["embed"])}
     for m in enc.values():
-        for p in m.parameters():  # larger than PyTorch's default init, so that every part matters
-            nn.init.uniform_(p, -0.5, 0.5)
+        if s is SIZES:  # small: larger than PyTorch's default init, so that every part matters
+            for p in m.parameters():
+                nn.init.uniform_(p, -0.5, 0.5)
         m.eval()
     return enc
 
@@ -134,14 +136,14 @@ def embed_motions(enc, mean, std, motions):
         return enc["motion_encoder"](codes, [l // 4 for l in lens]).numpy()
 
 
-def record(out, fixtures):
+def record(out, fixtures, sizes=SIZES):
     src = os.path.join(out, "source")
     os.makedirs(os.path.join(out, "motions"), exist_ok=True)
     os.makedirs(src, exist_ok=True)
-    enc = build(SIZES)
+    enc = build(sizes)
     torch.save({k: m.state_dict() for k, m in enc.items()} | {"epoch": 0, "iter": 0}, os.path.join(src, "finest.tar"))
     words = sorted({w for c in CAPTIONS for w, _ in tokens(c)} - {"zigzags"}) + ["unk", "sos", "eos"]
-    vectors = np.random.default_rng(1).uniform(-1, 1, (len(words), SIZES["word"])).astype(np.float32)
+    vectors = np.random.default_rng(1).uniform(-1, 1, (len(words), sizes["word"])).astype(np.float32)
     np.save(os.path.join(src, "our_vab_data.npy"), vectors)
     with open(os.path.join(src, "our_vab_words.pkl"), "wb") as f:
         pickle.dump(words, f)
@@ -176,5 +178,6 @@ if __name__ == "__main__":
     ap.add_argument("command", choices=["record"])
     ap.add_argument("out")
     ap.add_argument("--fixtures", required=True)
+    ap.add_argument("--full-size", action="store_true", help="the real evaluator's sizes (for timing)")
     a = ap.parse_args()
-    record(a.out, a.fixtures)
+    record(a.out, a.fixtures, FULL if a.full_size else SIZES)
