@@ -27,7 +27,7 @@ ev() { # name, then eval flags
   "$bin" eval --checkpoint "$model" --evaluator "$evaluator" --data "$data" --out "$out/$name" "$@" >/dev/null
   echo "done: $name ($(( $(date +%s) - t0 )) s)" >&2
 }
-# Table 2 and Table 4 in one run: defaults (DDIM-10, s = 1, r = 10, warp, foot lock) at 5%,
+# Table 2 and Table 4 in one run: defaults (DPM-Solver++(2M)-10, s = 1, r = 10, warp, foot lock) at 5%,
 # the same without transition guidance, MDM-inp, and the defaults at 0, 2 and 10%.
 ev tables --num-items "$items" --replications "$reps" --samples-for-ade "$ade" --compare --sweep-rates 0,0.02,0.05,0.1
 # Guidance: transition guidance strengths and the paper's keyframe guidance scale against the
@@ -40,16 +40,20 @@ done
 ev s2.5-r0 --num-items "$half" --replications 1 --samples-for-ade "$ade" --kf-guidance 2.5 --transition-guidance 0
 ev s2.5-r100 --num-items "$half" --replications 1 --samples-for-ade "$ade" --kf-guidance 2.5 --transition-guidance 100
 # Post-processing: the defaults without foot locking, and without any fit (one replication).
+ev fit-default --num-items "$items" --replications 1 --samples-for-ade "$ade"
 ev no-foot-lock --num-items "$items" --replications 1 --samples-for-ade "$ade" --no-foot-lock
 ev fit-none --num-items "$items" --replications 1 --samples-for-ade "$ade" --keyframe-fit none --no-foot-lock
-# Steps: DDIM 5, 10, 20 and 50 on one replication of the tables' items; DDPM-1000 and its
-# DDIM-10 twin on 32 items.
+# Quality against denoiser calls: DDIM 5, 10, 20, 50 and DPM-Solver++(2M) 5, 8, 10 (the
+# default) on the tables' items and replications; DDPM-1000 and its default twin on 32 items.
 for k in 5 10 20 50; do
-  ev ddim$k --num-items "$items" --replications 1 --samples-for-ade "$ade" --steps $k
+  ev ddim$k --num-items "$items" --replications "$reps" --samples-for-ade "$ade" --sampler ddim --steps $k
+done
+for k in 5 8 10; do
+  ev dpm$k --num-items "$items" --replications "$reps" --samples-for-ade "$ade" --sampler dpm --steps $k
 done
 few=32 # DDPM runs all 1000 steps: about 4 s per motion here
 ev ddpm1000-32 --num-items "$few" --replications 1 --samples-for-ade 1 --sampler ddpm
-ev ddim10-32 --num-items "$few" --replications 1 --samples-for-ade 1
+ev dpm10-32 --num-items "$few" --replications 1 --samples-for-ade 1
 python3 - "$out" <<'PY'
 import json, os, sys
 out = sys.argv[1]
@@ -95,10 +99,11 @@ def section(title, label, runs, timed=False):
     if rows:
         print(title + "\n")
         table(rows, label)
-section("Sampling steps (defaults s = 1, r = 10, warp, foot lock, 5% keyframes; one replication):", "sampler",
-        [("ddim5", "DDIM-5"), ("ddim10", "DDIM-10 (default)"), ("ddim20", "DDIM-20"), ("ddim50", "DDIM-50"), ("ddim10-32", "DDIM-10 (32 items)"), ("ddpm1000-32", "DDPM-1000 (32 items)")], timed=True)
-section("Keyframe guidance s and transition guidance r (DDIM-10, 5% keyframes, warp, foot lock):", "guidance",
+section("Quality against denoiser calls (s = 1, r = 10, warp, foot lock, 5% keyframes; calls = steps):", "sampler",
+        [("ddim5", "DDIM-5"), ("dpm5", "DPM-Solver++(2M)-5"), ("dpm8", "DPM-Solver++(2M)-8"), ("ddim10", "DDIM-10"), ("dpm10", "DPM-Solver++(2M)-10 (default)"),
+         ("ddim20", "DDIM-20"), ("ddim50", "DDIM-50"), ("dpm10-32", "DPM-Solver++(2M)-10 (32 items)"), ("ddpm1000-32", "DDPM-1000 (32 items)")], timed=True)
+section("Keyframe guidance s and transition guidance r (DPM-10, 5% keyframes, warp, foot lock):", "guidance",
         [("s1-r10-half", "s = 1, r = 10 (default)"), ("s1-r0-half", "s = 1, r = 0"), ("s1-r30-half", "s = 1, r = 30"), ("s1-r100-half", "s = 1, r = 100"), ("s2.5-r0", "s = 2.5, r = 0"), ("s2.5-r100", "s = 2.5, r = 100 (paper)")])
-section("After the last step (DDIM-10, 5% keyframes; one replication):", "fit",
-        [("ddim10", "warp + foot lock (default)"), ("no-foot-lock", "warp"), ("fit-none", "none (the network's output)")])
+section("After the last step (DPM-10, 5% keyframes; one replication):", "fit",
+        [("fit-default", "warp + foot lock (default)"), ("no-foot-lock", "warp"), ("fit-none", "none (the network's output)")])
 PY

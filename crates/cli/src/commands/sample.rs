@@ -104,12 +104,12 @@ pub struct SampleArgs {
     /// Random seed: the same seed and inputs give the same bytes.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// ddim: deterministic, --steps evenly spaced steps; dpm: DPM-Solver++(2M), second-order
-    /// multistep over --steps steps; ddpm: ancestral over every step of the schedule (the
-    /// paper's 1000).
-    #[arg(long, value_enum, default_value = "ddim")]
+    /// dpm (the default): DPM-Solver++(2M), second-order multistep over --steps steps; ddim:
+    /// deterministic, --steps evenly spaced steps; ddpm: ancestral over every step of the
+    /// schedule (the paper's 1000).
+    #[arg(long, value_enum, default_value = "dpm")]
     sampler: SamplerArg,
-    /// DDIM steps (DDPM always runs every step of the schedule).
+    /// Steps of ddim and dpm (DDPM always runs every step of the schedule).
     #[arg(long, default_value_t = sampler::DEFAULT_STEPS)]
     steps: usize,
     /// Keyframe guidance scale s: X(C, none) + s (X(C, kf) - X(C, none)); 1 = the keyframe

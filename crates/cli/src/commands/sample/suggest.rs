@@ -51,7 +51,7 @@ struct SuggestArgs {
     /// Random seed of the generated motion (and of the random strategy).
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// DDIM steps of the generated motion.
+    /// Sampler steps of the generated motion (the sample command's default sampler).
     #[arg(long, default_value_t = diffkfc_model::sampler::DEFAULT_STEPS)]
     steps: usize,
     /// Output keyframe file (the JSON `sample --keyframes` reads).
