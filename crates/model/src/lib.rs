@@ -26,6 +26,7 @@ pub mod place;
 pub mod run_config;
 pub mod run_dir;
 pub mod sampler;
+pub mod scheduler;
 pub(crate) mod temporal;
 pub mod text;
 pub mod trainer;

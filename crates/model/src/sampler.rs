@@ -1,6 +1,7 @@
-//! Reverse diffusion with keyframe classifier-free guidance (`guidance`: one batched forward of
-//! the conditional and keyframe-free branches), transition guidance (x0 mode), DDPM over all
-//! steps or DDIM over a few. Meeting the keyframes exactly afterwards is `fit`'s job.
+//! Reverse diffusion: each step one decoder call (keyframe classifier-free guidance batches its
+//! two branches, `guidance`), the guidance shift (transition and place guidance), and the
+//! sampler's update (`scheduler`: DDPM, DDIM, DPM-Solver++(2M)). Meeting the keyframes exactly
+//! afterwards is `fit`'s job.
 
 use burn::prelude::*;
 use diffkfc_data::rng::Rng;
@@ -10,6 +11,7 @@ use crate::diffusion::Schedule;
 use crate::guidance;
 use crate::params::host;
 use crate::place::PlaceGuidance;
+use crate::scheduler;
 use crate::transition;
 use crate::{Condition, Denoiser};
 
@@ -202,15 +204,13 @@ pub fn sample(
     let mut rng = Rng::new(opts.seed);
     let mut x: Vec<f32> = (0..b * n * d).map(|_| rng.normal() as f32).collect();
     let ts = timesteps(schedule, opts.sampler);
-    // DPM-Solver++: the previous step's x0 and its log signal-to-noise half-ratio lambda.
-    let lambda = |ab: f64| 0.5 * (ab / (1.0 - ab)).ln();
-    let mut last_x0: Option<(Vec<f32>, f64)> = None;
+    let mut scheduler = scheduler::for_sampler(opts.sampler, schedule, rng);
     for (k, &t) in ts.iter().enumerate() {
         let mut xt = Tensor::<1>::from_floats(x.as_slice(), &device).reshape([b, n, d]);
         if exact {
             xt = xt.require_grad();
         }
-        let x0_t = if guided {
+        let mut x0_t = if guided {
             guidance::combine(
                 model.decode(Tensor::cat(vec![xt.clone(), xt.clone()], 0), &vec![t; 2 * b], &enc),
                 opts.kf_guidance,
@@ -218,102 +218,20 @@ pub fn sample(
         } else {
             model.decode(xt.clone(), &vec![t; b], &enc)
         };
-        // MDM-inp: the observed features replace the prediction at every step.
-        let x0_t = if opts.inpaint {
-            x0_t.clone() * (mask_t.ones_like() - mask_t.clone()) + kf_t.clone() * mask_t.clone()
-        } else {
-            x0_t
-        };
+        if opts.inpaint {
+            // MDM-inp: the observed features replace the prediction at every step.
+            x0_t = x0_t * (mask_t.ones_like() - mask_t.clone()) + kf_t.clone() * mask_t.clone();
+        }
         let x0 = host(x0_t.clone().detach());
-        let prev = ts.get(k + 1).copied();
-        let ab = schedule.alphas_cumprod[t];
-        let ab_prev = prev.map(|p| schedule.alphas_cumprod[p]).unwrap_or(1.0);
-        // Posterior variance of the jump t -> prev.
-        let var =
-            if prev.is_some() { (1.0 - ab_prev) / (1.0 - ab) * (1.0 - ab / ab_prev) } else { 0.0 };
-        let mut shift = vec![0f32; x.len()];
-        if opts.transition > 0.0 && var > 0.0 {
-            let mut grad = vec![0f32; x.len()];
-            for (i, key) in keys.iter().enumerate() {
-                let r = i * n * d..(i + 1) * n * d;
-                let (_, g) = transition::loss_and_grad(
-                    &x0[r.clone()],
-                    &req.kf[r.clone()],
-                    &req.mask[r.clone()],
-                    key,
-                    req.lengths[i],
-                    d,
-                    opts.window,
-                    opts.dct_bases,
-                );
-                grad[r].copy_from_slice(&g);
-            }
-            if exact {
-                // Chain rule through the denoiser: d L / d x_t = J^T (d L / d x0).
-                let g = Tensor::<1>::from_floats(grad.as_slice(), &device).reshape([b, n, d]);
-                let grads = (x0_t * g).sum().backward();
-                grad = xt.grad(&grads).map(host).unwrap_or(grad);
-            }
-            for (s, gv) in shift.iter_mut().zip(grad) {
-                *s = (opts.transition * var) as f32 * gv;
-            }
-        }
-        if let (Some(pg), true) = (&opts.place, var > 0.0) {
-            for i in 0..b {
-                let (r, rr) = (
-                    i * n * d..(i + 1) * n * d,
-                    i * n * ROOT_CHANNELS..(i + 1) * n * ROOT_CHANNELS,
-                );
-                let (_, g) = pg.loss_and_grad(
-                    &x0[r.clone()],
-                    &req.root[rr.clone()],
-                    &req.root_mask[rr],
-                    req.lengths[i],
-                    d,
-                );
-                for (s, gv) in shift[r].iter_mut().zip(g) {
-                    *s += (pg.strength * var) as f32 * gv;
-                }
-            }
-        }
-        match (opts.sampler, prev) {
-            (_, None) => x = x0.clone(),
-            (Sampler::Ddpm, Some(_)) => {
-                let (c0, ct, pvar) = schedule.posterior(t);
-                let sd = pvar.sqrt() as f32;
-                for ((xi, &x0i), &si) in x.iter_mut().zip(&x0).zip(&shift) {
-                    let mu = c0 as f32 * x0i + ct as f32 * *xi - si;
-                    *xi = mu + sd * rng.normal() as f32;
-                }
-            }
-            (Sampler::Ddim(_), Some(_)) => {
-                let (sa, s1a) = (ab.sqrt() as f32, (1.0 - ab).sqrt() as f32);
-                let (sp, s1p) = (ab_prev.sqrt() as f32, (1.0 - ab_prev).sqrt() as f32);
-                for ((xi, &x0i), &si) in x.iter_mut().zip(&x0).zip(&shift) {
-                    let eps = (*xi - sa * x0i) / s1a;
-                    *xi = sp * x0i + s1p * eps - si;
-                }
-            }
-            (Sampler::DpmSolver(_), Some(_)) => {
-                // x_next = (sigma_next / sigma) x - alpha_next (e^-h - 1) D, with D the x0 of this
-                // step (first order) or extrapolated with the last one (second order).
-                let (l, l_next) = (lambda(ab), lambda(ab_prev));
-                let h = l_next - l;
-                let ratio = ((1.0 - ab_prev) / (1.0 - ab)).sqrt() as f32;
-                let c = (-(ab_prev.sqrt()) * ((-h).exp() - 1.0)) as f32;
-                let (w0, w1) = match &last_x0 {
-                    Some((_, l_last)) => {
-                        let r = (l - l_last) / h;
-                        ((1.0 + 0.5 / r) as f32, (-0.5 / r) as f32)
-                    }
-                    None => (1.0, 0.0),
-                };
-                let before = last_x0.as_ref().map(|(v, _)| v.as_slice());
-                for (e, ((xi, &x0i), &si)) in x.iter_mut().zip(&x0).zip(&shift).enumerate() {
-                    let dv = w0 * x0i + before.map_or(0.0, |b| w1 * b[e]);
-                    *xi = ratio * *xi + c * dv - si;
-                }
-                last_x0 = Some((x0.clone(), l));
+        match ts.get(k + 1).copied() {
+            None => x = x0,
+            Some(prev) => {
+                let (ab, ab_prev) = (schedule.alphas_cumprod[t], schedule.alphas_cumprod[prev]);
+                // Posterior variance of the jump t -> prev: guidance moves x_t by it.
+                let var = (1.0 - ab_prev) / (1.0 - ab) * (1.0 - ab / ab_prev);
+                let step = Step { x0: &x0, x0_t, xt: &xt, var, exact };
+                let shift = guidance_shift(req, opts, &keys, step);
+                scheduler.step(&mut x, &x0, &shift, t, prev);
             }
         }
         progress(k + 1, ts.len());
@@ -324,4 +242,69 @@ pub fn sample(
         }
     }
     x
+}
+
+/// One step's prediction, for the guidance terms.
+struct Step<'a> {
+    /// Predicted x0 on the host, [B * N * D].
+    x0: &'a [f32],
+    /// The same as a tensor (differentiable with respect to `xt` in exact mode).
+    x0_t: Tensor<3>,
+    xt: &'a Tensor<3>,
+    /// Posterior variance of the jump to the next timestep.
+    var: f64,
+    /// Transition guidance through the denoiser (the paper's Eq. 5) rather than on x0.
+    exact: bool,
+}
+
+/// What guidance subtracts from a step's update: r * var * dL_tr/dx for transition guidance
+/// (the x0 gradient, or chained through the denoiser in exact mode) plus place guidance's
+/// strength * var * dL_place/dx on the root channels.
+fn guidance_shift(req: &Request, opts: &Options, keys: &[Vec<usize>], step: Step) -> Vec<f32> {
+    let (b, n, d) = (req.batch, req.frames, req.dim);
+    let mut shift = vec![0f32; step.x0.len()];
+    if opts.transition > 0.0 && step.var > 0.0 {
+        let mut grad = vec![0f32; step.x0.len()];
+        for (i, key) in keys.iter().enumerate() {
+            let r = i * n * d..(i + 1) * n * d;
+            let (_, g) = transition::loss_and_grad(
+                &step.x0[r.clone()],
+                &req.kf[r.clone()],
+                &req.mask[r.clone()],
+                key,
+                req.lengths[i],
+                d,
+                opts.window,
+                opts.dct_bases,
+            );
+            grad[r].copy_from_slice(&g);
+        }
+        if step.exact {
+            // Chain rule through the denoiser: d L / d x_t = J^T (d L / d x0).
+            let device = step.xt.device();
+            let g = Tensor::<1>::from_floats(grad.as_slice(), &device).reshape([b, n, d]);
+            let grads = (step.x0_t * g).sum().backward();
+            grad = step.xt.grad(&grads).map(host).unwrap_or(grad);
+        }
+        for (s, gv) in shift.iter_mut().zip(grad) {
+            *s = (opts.transition * step.var) as f32 * gv;
+        }
+    }
+    if let (Some(pg), true) = (&opts.place, step.var > 0.0) {
+        for i in 0..b {
+            let (r, rr) =
+                (i * n * d..(i + 1) * n * d, i * n * ROOT_CHANNELS..(i + 1) * n * ROOT_CHANNELS);
+            let (_, g) = pg.loss_and_grad(
+                &step.x0[r.clone()],
+                &req.root[rr.clone()],
+                &req.root_mask[rr],
+                req.lengths[i],
+                d,
+            );
+            for (s, gv) in shift[r].iter_mut().zip(g) {
+                *s += (pg.strength * step.var) as f32 * gv;
+            }
+        }
+    }
+    shift
 }
