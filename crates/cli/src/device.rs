@@ -10,10 +10,11 @@ pub fn parse(name: &str) -> Result<Device> {
         #[allow(deprecated)]
         "ndarray" => Ok(Device::ndarray()),
         #[cfg(feature = "wgpu")]
-        "wgpu" => Ok(Device::wgpu(0)),
+        "wgpu" => Ok(Device::wgpu(burn::tensor::DeviceKind::DefaultDevice)),
         #[cfg(feature = "cuda")]
         "cuda" => Ok(Device::cuda(0)),
-        "ndarray" | "wgpu" | "cuda" => bail!("--device {name}: this build lacks it; rebuild with `cargo build --release --features {name}`"),
+        // A guard, not a pattern: in builds with a backend its name is matched above.
+        n if matches!(n, "ndarray" | "wgpu" | "cuda") => bail!("--device {name}: this build lacks it; rebuild with `cargo build --release --features {name}`"),
         other => bail!("--device: unknown device '{other}' (flex, ndarray, wgpu, cuda)"),
     }
 }

@@ -57,6 +57,28 @@ pub struct Batch {
     pub items: Vec<usize>,
 }
 
+impl Batch {
+    /// The samples `range` of this batch, as their own batch (same frame count): one device's
+    /// share in data-parallel training.
+    pub fn shard(&self, range: std::ops::Range<usize>) -> Batch {
+        let (n, d, r) = (self.frames, self.dim, ROOT_CHANNELS);
+        let rows = |v: &[f32], w: usize| v[range.start * w..range.end * w].to_vec();
+        Batch {
+            batch_size: range.len(),
+            frames: n,
+            dim: d,
+            x0: rows(&self.x0, n * d),
+            valid: rows(&self.valid, n),
+            kf_mask: rows(&self.kf_mask, n * d),
+            root: rows(&self.root, n * r),
+            root_mask: rows(&self.root_mask, n * r),
+            lengths: self.lengths[range.clone()].to_vec(),
+            captions: self.captions[range.clone()].to_vec(),
+            items: self.items[range].to_vec(),
+        }
+    }
+}
+
 /// One drawn sample.
 struct Sample {
     x0: Vec<f32>,

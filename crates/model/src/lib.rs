@@ -21,6 +21,7 @@ pub(crate) mod kinematics;
 pub(crate) mod losses;
 pub mod memory;
 pub mod optim;
+pub mod parallel;
 pub mod params;
 pub mod place;
 pub mod run_config;

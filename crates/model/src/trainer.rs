@@ -22,6 +22,7 @@ use crate::diffusion::Schedule;
 use crate::error::{ModelError, Result};
 use crate::losses::{losses, Kinematic};
 use crate::optim::{descend, ema_update, learning_rate, Adam};
+use crate::parallel::{shard_objective, Combine, Counts};
 use crate::params;
 use crate::run_config::RunConfig;
 use crate::text::cache::EmbeddingCache;
@@ -133,6 +134,48 @@ impl Trainer<'_> {
         let x_t = schedule.q_sample(tb.x0.clone(), t, noise);
         let pred = model.forward(x_t, t, &tb.cond);
         losses(tb.x0, pred, tb.cond.kf_mask, tb.valid, &self.kinematic())
+    }
+
+    /// Gradients (on the host, one vector per parameter) of `model` (on an autodiff device) on
+    /// batch `b` at timesteps `t` and `noise` [B * N * D], computed as `shards` devices would:
+    /// each shard's objective backward on its own, the gradients summed (`crate::parallel`).
+    /// One shard is the single-device gradient.
+    pub fn shard_gradients(
+        &self,
+        model: &Denoiser,
+        b: &Batch,
+        t: &[usize],
+        noise: &[f32],
+        shards: usize,
+        combine: Combine,
+    ) -> Vec<Vec<f32>> {
+        let dm = &self.cfg.diffusion;
+        let schedule = Schedule::by_name(&dm.schedule, dm.steps).expect("a validated config");
+        let device = model.devices().first().cloned().expect("a model device");
+        let (n, d) = (b.frames, b.dim);
+        let per = b.batch_size.div_ceil(shards.max(1));
+        let ranges: Vec<_> =
+            (0..b.batch_size).step_by(per.max(1)).map(|s| s..(s + per).min(b.batch_size)).collect();
+        let parts: Vec<Batch> = ranges.iter().map(|r| b.shard(r.clone())).collect();
+        let counts: Vec<Counts> = parts.iter().map(Counts::of).collect();
+        let all = Counts::sum(&counts);
+        let mut sum: Vec<Vec<f32>> = Vec::new();
+        for ((part, r), mine) in parts.iter().zip(&ranges).zip(&counts) {
+            let nz = Tensor::<1>::from_floats(&noise[r.start * n * d..r.end * n * d], &device)
+                .reshape([r.len(), n, d]);
+            let l = self.batch_loss(model, &schedule, part, &t[r.clone()], nz, &device);
+            let obj = shard_objective(&l, &self.kinematic(), mine, &all, ranges.len(), combine);
+            let grads = burn::optim::GradientsParams::from_grads(obj.backward(), model);
+            let g = params::grads(model, &grads);
+            if sum.is_empty() {
+                sum = g;
+            } else {
+                sum.iter_mut()
+                    .zip(g)
+                    .for_each(|(a, b)| a.iter_mut().zip(b).for_each(|(x, y)| *x += y));
+            }
+        }
+        sum
     }
 
     /// Mean validation loss (L_simple + weighted kinematic terms) over fixed batches, for the

@@ -227,3 +227,55 @@ fn checkpoint_without_root_channels_loads() {
     );
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// Data parallelism simulated on the CPU (`diffkfc_model::parallel`): a batch of 12 samples of
+/// different lengths and keyframes split over 3 "devices", every loss term on (L_simple, the
+/// keyframe, smoothness, position, velocity and foot losses), no dropout. Shard gradients
+/// weighted by each term's count and summed equal the single-device gradient; the plain mean of
+/// the shards' own losses does not.
+#[test]
+fn shard_gradients_weighted_by_counts_equal_the_batch_gradient() {
+    use diffkfc_model::parallel::{Combine, Counts};
+    let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let (root, ds, train, val, text) = prepared("shards", 24);
+    let mut cfg = config();
+    cfg.model.dropout = 0.0;
+    cfg.training.keyframe_loss = 1.0;
+    cfg.training.smooth_loss = 1.0;
+    cfg.keyframes.rate = 0.1;
+    let tr = Trainer {
+        cfg: &cfg,
+        ds: &ds,
+        train: &train,
+        val: Some(&val),
+        text: &text,
+        device: Device::flex(),
+        run_dir: root.join("run"),
+    };
+    let device = Device::flex().autodiff();
+    device.seed(5);
+    let model = cfg.model.init(&device);
+    let loader = diffkfc_data::batch::Loader::new(&ds, &train, 12, 3, cfg.keyframes.clone());
+    let b = loader.batch(0, 0);
+    let parts: Vec<Counts> = (0..3).map(|k| Counts::of(&b.shard(4 * k..4 * k + 4))).collect();
+    assert!(parts.windows(2).any(|w| w[0] != w[1]), "shards should differ: {parts:?}");
+    let mut r = diffkfc_data::rng::Rng::new(9);
+    let t: Vec<usize> = (0..12).map(|_| r.below(1000)).collect();
+    let noise: Vec<f32> = (0..b.x0.len()).map(|_| r.normal() as f32).collect();
+    let one = tr.shard_gradients(&model, &b, &t, &noise, 1, Combine::ByCounts);
+    let three = tr.shard_gradients(&model, &b, &t, &noise, 3, Combine::ByCounts);
+    let mean = tr.shard_gradients(&model, &b, &t, &noise, 3, Combine::Mean);
+    let diff = |a: &[Vec<f32>], b: &[Vec<f32>]| {
+        let (mut num, mut den) = (0f64, 0f64);
+        for (x, y) in a.iter().flatten().zip(b.iter().flatten()) {
+            num += ((x - y) as f64).powi(2);
+            den += (*y as f64).powi(2);
+        }
+        (num / den).sqrt()
+    };
+    let (by_counts, by_mean) = (diff(&three, &one), diff(&mean, &one));
+    eprintln!("relative gradient error over 3 shards: by counts {by_counts:.2e}, plain mean {by_mean:.2e}");
+    assert!(by_counts < 1e-5, "{by_counts}");
+    assert!(by_mean > 1e-3, "{by_mean}");
+    std::fs::remove_dir_all(root).unwrap();
+}
