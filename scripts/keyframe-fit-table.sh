@@ -9,7 +9,7 @@ if [ $# -lt 4 ]; then
 fi
 run=$1 evaluator=$2 data=$3 out=$4
 shift 4
-bin=${DIFFKFC_BIN:-target/release/diffkfc}
+bin=${DIFFKFC_BIN:-${CARGO_TARGET_DIR:-target}/release/diffkfc}
 for fit in warp paste none; do
   for root in on off; do
     flags=()

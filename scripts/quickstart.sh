@@ -13,7 +13,7 @@ while [ $# -gt 0 ]; do
   esac
 done
 work="${DIFFKFC_WORK:-work}"
-bin=target/release/diffkfc
+bin=${DIFFKFC_BIN:-${CARGO_TARGET_DIR:-target}/release/diffkfc}
 # The reference model (README, "Reference model"): trained on this same synthetic set.
 model="${DIFFKFC_MODEL:-models/tiny-synth}"
 t0=$(date +%s)

@@ -19,7 +19,7 @@ while [ $# -gt 0 ]; do
     *) echo "error: unknown argument '$1'" >&2; exit 2 ;;
   esac
 done
-bin=${DIFFKFC_BIN:-target/release/diffkfc}
+bin=${DIFFKFC_BIN:-${CARGO_TARGET_DIR:-target}/release/diffkfc}
 ev() { # name, then eval flags
   local name=$1; shift
   if [ -f "$out/$name/report.json" ]; then echo "present: $out/$name" >&2; return; fi
