@@ -203,7 +203,7 @@ impl<'a> ContrastiveEvaluator<'a> {
         text: &'a diffkfc_model::text::cache::EmbeddingCache,
         device: &Device,
     ) -> Result<Self> {
-        let ck = diffkfc_model::checkpoint::Checkpoint::latest(dir).ok_or_else(|| {
+        let mut ck = diffkfc_model::checkpoint::Checkpoint::latest(dir).ok_or_else(|| {
             EvalError::file(
                 dir,
                 "no evaluator checkpoint (run `diffkfc eval train-evaluator` first)",
@@ -232,8 +232,10 @@ impl<'a> ContrastiveEvaluator<'a> {
                 ),
             ));
         }
+        let model = cfg.init(device);
+        ck.align(&diffkfc_model::params::names(&model), dir)?;
         Ok(ContrastiveEvaluator {
-            model: diffkfc_model::params::load(cfg.init(device), &ck.model),
+            model: diffkfc_model::params::load(model, &ck.model),
             mean,
             std,
             text,

@@ -108,6 +108,7 @@ impl EvaluatorTraining<'_> {
             adam_v: adam.v,
             config: serde_json::to_string(&self.cfg).expect("config serialises"),
             seed: self.seed,
+            names: params::names(&model),
         };
         ck.save(&self.out)?;
         Checkpoint::prune(&self.out, 1);

@@ -1,6 +1,8 @@
 //! Checkpoints: model, EMA, Adam state, step and the resolved config in one safetensors file,
 //! written to a temporary name and renamed, so a run killed at any moment leaves either the
-//! previous checkpoint or the new one, never half of one.
+//! previous checkpoint or the new one, never half of one. Tensors are stored by the parameter's
+//! module path (`model/decoder.layers.0.ffn.weight`); files from before names (`model/0000`,
+//! format 1) still load, by position.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -21,11 +23,17 @@ pub struct Checkpoint {
     /// The resolved run config (JSON).
     pub config: String,
     pub seed: u64,
+    /// Module path of every parameter, in the order of the vectors above (`params::names`);
+    /// empty for checkpoints written before names, which are read by position.
+    pub names: Vec<String>,
 }
 
-const FORMAT: &str = "diffkfc-checkpoint-1";
+/// Tensors by name (format 2) and by position (format 1, read only).
+const FORMAT: &str = "diffkfc-checkpoint-2";
+const FORMAT_1: &str = "diffkfc-checkpoint-1";
 /// Inference weights alone (`diffkfc model export`): no optimiser state, optionally f16.
-const WEIGHTS_FORMAT: &str = "diffkfc-weights-1";
+const WEIGHTS_FORMAT: &str = "diffkfc-weights-2";
+const WEIGHTS_FORMAT_1: &str = "diffkfc-weights-1";
 /// File name of exported weights inside a model directory.
 pub const WEIGHTS_FILE: &str = "model.safetensors";
 
@@ -68,11 +76,12 @@ impl Checkpoint {
     pub fn save(&self, dir: &Path) -> Result<PathBuf> {
         let mut owned: Vec<(String, Vec<usize>, Vec<u8>)> = Vec::new();
         for (i, shape) in self.shapes.iter().enumerate() {
-            owned.push((format!("model/{i:04}"), shape.clone(), bytes(&self.model[i])));
-            owned.push((format!("adam_m/{i:04}"), shape.clone(), bytes(&self.adam_m[i])));
-            owned.push((format!("adam_v/{i:04}"), shape.clone(), bytes(&self.adam_v[i])));
+            let key = self.key(i);
+            owned.push((format!("model/{key}"), shape.clone(), bytes(&self.model[i])));
+            owned.push((format!("adam_m/{key}"), shape.clone(), bytes(&self.adam_m[i])));
+            owned.push((format!("adam_v/{key}"), shape.clone(), bytes(&self.adam_v[i])));
             if let Some(e) = &self.ema {
-                owned.push((format!("ema/{i:04}"), shape.clone(), bytes(&e[i])));
+                owned.push((format!("ema/{key}"), shape.clone(), bytes(&e[i])));
             }
         }
         let views: Vec<(String, TensorView)> = owned
@@ -80,12 +89,13 @@ impl Checkpoint {
             .map(|(n, s, b)| (n.clone(), TensorView::new(Dtype::F32, s.clone(), b).expect("view")))
             .collect();
         let meta = HashMap::from([
-            ("format".to_string(), FORMAT.to_string()),
+            ("format".to_string(), self.format(FORMAT, FORMAT_1).to_string()),
             ("step".to_string(), self.step.to_string()),
             ("adam_step".to_string(), self.adam_step.to_string()),
             ("seed".to_string(), self.seed.to_string()),
             ("params".to_string(), self.shapes.len().to_string()),
             ("config".to_string(), self.config.clone()),
+            ("names".to_string(), self.names_json()),
         ]);
         let path = dir.join(Self::file_name(self.step));
         let data =
@@ -114,18 +124,19 @@ impl Checkpoint {
             .enumerate()
             .map(|(i, b)| {
                 (
-                    format!("weights/{i:04}"),
+                    format!("weights/{}", self.key(i)),
                     TensorView::new(dtype, self.shapes[i].clone(), b).expect("view"),
                 )
             })
             .collect();
         let meta = HashMap::from([
-            ("format".to_string(), WEIGHTS_FORMAT.to_string()),
+            ("format".to_string(), self.format(WEIGHTS_FORMAT, WEIGHTS_FORMAT_1).to_string()),
             ("step".to_string(), self.step.to_string()),
             ("seed".to_string(), self.seed.to_string()),
             ("params".to_string(), self.shapes.len().to_string()),
             ("weights".to_string(), if self.ema.is_some() { "ema" } else { "model" }.to_string()),
             ("config".to_string(), self.config.clone()),
+            ("names".to_string(), self.names_json()),
         ]);
         let path = dir.join(WEIGHTS_FILE);
         let data =
@@ -142,9 +153,11 @@ impl Checkpoint {
         let (_, meta) = safetensors::SafeTensors::read_metadata(&data)
             .map_err(|e| err(format!("not a checkpoint ({e})")))?;
         let meta = meta.metadata().clone().unwrap_or_default();
-        let weights_only = match meta.get("format").map(String::as_str) {
-            Some(FORMAT) => false,
-            Some(WEIGHTS_FORMAT) => true,
+        let (weights_only, named) = match meta.get("format").map(String::as_str) {
+            Some(FORMAT) => (false, true),
+            Some(FORMAT_1) => (false, false),
+            Some(WEIGHTS_FORMAT) => (true, true),
+            Some(WEIGHTS_FORMAT_1) => (true, false),
             _ => return Err(err("not a diffkfc checkpoint".into())),
         };
         let num = |k: &str| -> Result<u64> {
@@ -153,11 +166,25 @@ impl Checkpoint {
                 .ok_or_else(|| err(format!("metadata '{k}' missing")))
         };
         let n = num("params")? as usize;
+        let names: Vec<String> = if named {
+            let v: Vec<String> = meta
+                .get("names")
+                .and_then(|t| serde_json::from_str(t).ok())
+                .ok_or_else(|| err("metadata 'names' missing".into()))?;
+            if v.len() != n {
+                return Err(err(format!("{} names for {n} parameters", v.len())));
+            }
+            v
+        } else {
+            Vec::new()
+        };
+        // Format 2 stores tensors by name, format 1 by position.
+        let key = |i: usize| names.get(i).cloned().unwrap_or_else(|| format!("{i:04}"));
         let st = safetensors::SafeTensors::deserialize(&data).map_err(|e| err(e.to_string()))?;
         if weights_only {
             let (mut shapes, mut model) = (vec![], vec![]);
             for i in 0..n {
-                let (shape, values) = tensor_values(&st, &format!("weights/{i:04}"), path)?;
+                let (shape, values) = tensor_values(&st, &format!("weights/{}", key(i)), path)?;
                 shapes.push(shape);
                 model.push(values);
             }
@@ -171,6 +198,7 @@ impl Checkpoint {
                 adam_v: Vec::new(),
                 config: meta.get("config").cloned().unwrap_or_default(),
                 seed: num("seed")?,
+                names,
             });
         }
         let get = |name: String| tensor_values(&st, &name, path);
@@ -178,13 +206,14 @@ impl Checkpoint {
             (vec![], vec![], vec![], vec![], vec![]);
         let has_ema = st.names().iter().any(|k| k.starts_with("ema/"));
         for i in 0..n {
-            let (s, p) = get(format!("model/{i:04}"))?;
+            let k = key(i);
+            let (s, p) = get(format!("model/{k}"))?;
             shapes.push(s);
             model.push(p);
-            m.push(get(format!("adam_m/{i:04}"))?.1);
-            v.push(get(format!("adam_v/{i:04}"))?.1);
+            m.push(get(format!("adam_m/{k}"))?.1);
+            v.push(get(format!("adam_v/{k}"))?.1);
             if has_ema {
-                ema.push(get(format!("ema/{i:04}"))?.1);
+                ema.push(get(format!("ema/{k}"))?.1);
             }
         }
         Ok(Checkpoint {
@@ -197,7 +226,64 @@ impl Checkpoint {
             adam_v: v,
             config: meta.get("config").cloned().unwrap_or_default(),
             seed: num("seed")?,
+            names,
         })
+    }
+
+    /// The stored name of parameter `i`: its module path, or its position for unnamed ones.
+    fn key(&self, i: usize) -> String {
+        self.names.get(i).cloned().unwrap_or_else(|| format!("{i:04}"))
+    }
+
+    /// Named checkpoints are format 2; one without names is written as format 1 (by position).
+    fn format(&self, named: &'static str, positional: &'static str) -> &'static str {
+        if self.names.is_empty() {
+            positional
+        } else {
+            named
+        }
+    }
+
+    fn names_json(&self) -> String {
+        serde_json::to_string(&self.names).expect("names serialise")
+    }
+
+    /// Put the parameters in the order of a model's `names` (`params::names`), by name; a
+    /// checkpoint without names is taken to be in that order already. Errors name the first
+    /// parameter the checkpoint lacks, or the first it has that the model does not.
+    pub fn align(&mut self, names: &[String], path: &Path) -> Result<()> {
+        if self.names.is_empty() || self.names == names {
+            self.names = names.to_vec();
+            return Ok(());
+        }
+        let at: HashMap<&str, usize> =
+            self.names.iter().enumerate().map(|(i, n)| (n.as_str(), i)).collect();
+        let order: Vec<usize> = names
+            .iter()
+            .map(|n| {
+                at.get(n.as_str()).copied().ok_or_else(|| {
+                    ModelError::file(path, format!("checkpoint has no tensor for parameter {n}"))
+                })
+            })
+            .collect::<Result<_>>()?;
+        if let Some(extra) = self.names.iter().find(|n| !names.contains(n)) {
+            return Err(ModelError::file(
+                path,
+                format!("checkpoint has tensor {extra}, which the model lacks"),
+            ));
+        }
+        let pick = |v: &[Vec<f32>]| order.iter().map(|&i| v[i].clone()).collect::<Vec<_>>();
+        self.shapes = order.iter().map(|&i| self.shapes[i].clone()).collect();
+        self.model = pick(&self.model);
+        if !self.adam_m.is_empty() {
+            self.adam_m = pick(&self.adam_m);
+            self.adam_v = pick(&self.adam_v);
+        }
+        if let Some(e) = &self.ema {
+            self.ema = Some(pick(e));
+        }
+        self.names = names.to_vec();
+        Ok(())
     }
 
     /// Checkpoint files of a run directory, by step.

@@ -99,3 +99,26 @@ pub fn load<M: Module>(m: M, vals: &[Vec<f32>]) -> M {
     assert_eq!(l.i, vals.len(), "parameter count mismatch");
     m
 }
+
+struct Names {
+    path: Vec<String>,
+    out: Vec<String>,
+}
+impl ModuleVisitor for Names {
+    fn enter_module(&mut self, name: &str, _container: &str) {
+        self.path.push(name.to_string());
+    }
+    fn exit_module(&mut self, _name: &str, _container: &str) {
+        self.path.pop();
+    }
+    fn visit_float<const D: usize>(&mut self, _p: &Param<Tensor<D>>) {
+        self.out.push(self.path.join("."));
+    }
+}
+
+/// The module path of every float parameter (visit order), e.g. `decoder.layers.0.ffn.weight`.
+pub fn names<M: Module>(m: &M) -> Vec<String> {
+    let mut v = Names { path: Vec::new(), out: Vec::new() };
+    m.visit(&mut v);
+    v.out
+}

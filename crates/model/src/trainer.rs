@@ -226,13 +226,15 @@ impl Trainer<'_> {
         let mut model = self.cfg.model.init(&device);
         let init = params::values(&model);
         let shapes: Vec<Vec<usize>> = init.iter().map(|(s, _)| s.clone()).collect();
+        let names = params::names(&model);
         let mut vals: Vec<Vec<f32>> = init.into_iter().map(|(_, v)| v).collect();
         let mut adam = Adam::new(&vals.iter().map(Vec::len).collect::<Vec<_>>());
         let mut ema = (tc.ema_decay > 0.0).then(|| vals.clone());
         let mut start = 0;
         if resume {
             if let Some(ck) = Checkpoint::latest(&self.run_dir) {
-                let ck = ck?;
+                let mut ck = ck?;
+                ck.align(&names, &self.run_dir)?;
                 if ck.shapes != shapes {
                     return Err(ModelError::file(
                         &self.run_dir,
@@ -289,6 +291,7 @@ impl Trainer<'_> {
                 adam_v: adam.v.clone(),
                 config: self.cfg.to_json(),
                 seed: tc.seed,
+                names: names.clone(),
             };
             let p = ck.save(&self.run_dir)?;
             Checkpoint::prune(&self.run_dir, tc.keep_checkpoints);
@@ -414,12 +417,16 @@ pub fn load_for_inference(run_dir: &Path, device: &Device) -> Result<(RunConfig,
         .map_err(|e| ModelError::file(run_dir, format!("stored config: {e}")))?;
     // Inference: no dropout (it has no parameters, so the weights load the same).
     cfg.model.dropout = 0.0;
+    let mut ck = ck;
     let mut model = cfg.model.init(device);
-    if params::shapes(&model) != ck.shapes {
+    let fits = |m: &Denoiser, ck: &mut Checkpoint| {
+        ck.align(&params::names(m), run_dir).is_ok() && params::shapes(m) == ck.shapes
+    };
+    if !fits(&model, &mut ck) {
         // Checkpoints from before root channels: their configs do not name them.
         let old = cfg.model.clone().with_root_channels(0);
         model = old.init(device);
-        if params::shapes(&model) != ck.shapes {
+        if !fits(&model, &mut ck) {
             return Err(ModelError::file(
                 run_dir,
                 "checkpoint tensors do not match its stored config",

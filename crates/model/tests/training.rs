@@ -199,6 +199,7 @@ fn checkpoint_without_root_channels_loads() {
         adam_v: zeros,
         config: json.to_string(),
         seed: 0,
+        names: Vec::new(), // written by position, as checkpoints were before names
     };
     ck.save(&dir).unwrap();
     let (loaded, denoiser, step) = load_for_inference(&dir, &device).unwrap();

@@ -1,0 +1,67 @@
+//! Checkpoints store tensors by module path: unique paths for every preset, a checkpoint whose
+//! tensors come in another order loads into the right parameters, and a missing one is named.
+
+use burn::prelude::*;
+use diffkfc_model::checkpoint::Checkpoint;
+use diffkfc_model::{params, DiffKfcConfig};
+
+#[test]
+fn every_parameter_has_a_unique_path() {
+    for (name, cfg) in [("tiny", DiffKfcConfig::tiny()), ("paper", DiffKfcConfig::paper())] {
+        let m = cfg.with_temporal_kernel(9).init(&Device::flex());
+        let names = params::names(&m);
+        assert_eq!(names.len(), params::shapes(&m).len(), "{name}");
+        let mut sorted = names.clone();
+        sorted.sort();
+        sorted.dedup();
+        assert_eq!(sorted.len(), names.len(), "{name}: duplicate paths in {names:?}");
+        assert_eq!(
+            (names[0].as_str(), names[names.len() - 1].as_str()),
+            ("x_in.weight", "out.bias")
+        );
+    }
+}
+
+#[test]
+fn named_tensors_load_in_any_order() {
+    let m = DiffKfcConfig::tiny().init(&Device::flex());
+    let names = params::names(&m);
+    let vals = params::values(&m);
+    // Stored in reverse order, as another version of the code might visit them.
+    let rev = |v: Vec<Vec<f32>>| v.into_iter().rev().collect::<Vec<_>>();
+    let model: Vec<Vec<f32>> = vals.iter().map(|(_, v)| v.clone()).collect();
+    let ck = Checkpoint {
+        step: 3,
+        shapes: vals.iter().rev().map(|(s, _)| s.clone()).collect(),
+        model: rev(model.clone()),
+        ema: Some(rev(model.clone())),
+        adam_step: 3,
+        adam_m: rev(model.iter().map(|v| vec![0.5; v.len()]).collect()),
+        adam_v: rev(model.iter().map(|v| vec![0.25; v.len()]).collect()),
+        config: String::new(),
+        seed: 1,
+        names: names.iter().rev().cloned().collect(),
+    };
+    let dir = std::env::temp_dir().join(format!("diffkfc-ckpt-names-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = ck.save(&dir).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let has = |s: &str| bytes.windows(s.len()).any(|w| w == s.as_bytes());
+    assert!(has("model/x_in.weight") && has("adam_m/out.bias") && !has("model/0000"));
+    let mut back = Checkpoint::load(&path).unwrap();
+    back.align(&names, &path).unwrap();
+    assert_eq!(back.model, model);
+    assert_eq!(back.ema.as_ref(), Some(&model));
+    assert_eq!(back.shapes, vals.iter().map(|(s, _)| s.clone()).collect::<Vec<_>>());
+    // The inference weights keep their names too.
+    let w = back.save_weights(&dir, false).unwrap();
+    let mut again = Checkpoint::load(&w).unwrap();
+    again.align(&names, &w).unwrap();
+    assert_eq!(again.model, model);
+    // A model with a parameter the checkpoint lacks: the error names it.
+    let mut other = names.clone();
+    other[5] = "decoder.extra.weight".into();
+    let e = Checkpoint::load(&path).unwrap().align(&other, &path).unwrap_err().to_string();
+    assert!(e.contains("no tensor for parameter decoder.extra.weight"), "{e}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
