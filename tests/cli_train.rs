@@ -165,6 +165,10 @@ fn bad_train_arguments() {
         &diffkfc(&["train", "--config", s(&cfg), "--time-budget", "soon"]),
         &["soon"],
     );
+    assert_one_line_error(
+        &diffkfc(&["train", "--config", s(&cfg), "--optimiser-state", "gpu"]),
+        &["--optimiser-state", "gpu", "host or device"],
+    );
     // Past max_steps a cosine schedule is at lr 0: refused rather than trained for nothing.
     let cos = d.join("cos.json");
     std::fs::write(

@@ -151,7 +151,13 @@ fn read6(row: &[f64], at: usize) -> Quat {
 /// Lock the planted feet of de-normalised features `feats` [T, D] in place. `hold[f]` marks
 /// frames that must not change (pose keyframes). Positions, local velocities and the leg's
 /// rotations are updated together; the root and the contact labels are not touched.
-pub fn lock_feet(skel: &Skeleton, feats: &mut [f32], hold: &[bool], blend: usize) -> LockReport {
+pub fn lock_feet(
+    skel: &Skeleton,
+    feats: &mut [f32],
+    hold: &[bool],
+    blend: usize,
+    max_shift_m: f64,
+) -> LockReport {
     let layout = Layout::of(skel);
     let d = layout.dim();
     let t = feats.len() / d;
@@ -168,7 +174,7 @@ pub fn lock_feet(skel: &Skeleton, feats: &mut [f32], hold: &[bool], blend: usize
             .map(|f| feats[f * d + layout.contacts().start + leg.contact] > CONTACT)
             .collect();
         let toe: Vec<Vec3> = joints.iter().map(|j| j[leg.toe]).collect();
-        let (o, dragged) = offsets(&toe, &planted, hold, blend, MAX_SHIFT_M / unit);
+        let (o, dragged) = offsets(&toe, &planted, hold, blend, max_shift_m / unit);
         report.dragged += dragged;
         // New knee, ankle and toe positions where the foot moves (deltas, zero elsewhere).
         let mut delta = vec![[[0.0; 3]; 3]; t];
@@ -301,10 +307,10 @@ mod tests {
             none[r * d + layout.contacts().start..(r + 1) * d].iter_mut().for_each(|v| *v = 0.0);
         }
         let before = none.clone();
-        assert_eq!(lock_feet(&T2M, &mut none, &vec![false; t], BLEND).frames, 0);
+        assert_eq!(lock_feet(&T2M, &mut none, &vec![false; t], BLEND, MAX_SHIFT_M).frames, 0);
         assert_eq!(none, before);
         let mut held = f.clone();
-        lock_feet(&T2M, &mut held, &vec![true; t], BLEND);
+        lock_feet(&T2M, &mut held, &vec![true; t], BLEND, MAX_SHIFT_M);
         assert_eq!(held, f);
     }
 
@@ -334,7 +340,7 @@ mod tests {
         let before_j = joints(&T2M, &sliding);
         let skate0 = foot_skating_ratio(&T2M, &before_j);
         let mut locked = sliding.clone();
-        let rep = lock_feet(&T2M, &mut locked, &hold, BLEND);
+        let rep = lock_feet(&T2M, &mut locked, &hold, BLEND, MAX_SHIFT_M);
         let after_j = joints(&T2M, &locked);
         let skate1 = foot_skating_ratio(&T2M, &after_j);
         assert!(

@@ -8,7 +8,7 @@ use diffkfc_data::batch::{Batch, KeyframeConfig, Loader};
 use diffkfc_data::cache::PackedSplit;
 use diffkfc_data::dataset::Dataset;
 use diffkfc_model::checkpoint::Checkpoint;
-use diffkfc_model::optim::{descend, Adam};
+use diffkfc_model::optim::{Home, Optimiser};
 use diffkfc_model::params;
 use diffkfc_model::text::cache::EmbeddingCache;
 
@@ -72,10 +72,8 @@ impl EvaluatorTraining<'_> {
         let device = self.device.clone().autodiff();
         device.seed(self.seed);
         let mut model = self.cfg.init(&device);
-        let init = params::values(&model);
-        let shapes: Vec<Vec<usize>> = init.iter().map(|(s, _)| s.clone()).collect();
-        let mut vals: Vec<Vec<f32>> = init.into_iter().map(|(_, v)| v).collect();
-        let mut adam = Adam::new(&vals.iter().map(Vec::len).collect::<Vec<_>>());
+        let shapes = params::shapes(&model);
+        let mut optim = Optimiser::new(&model, Home::for_device(&device), false);
         let kf = KeyframeConfig { rate: 0.0, drop_prob: 0.0, ..Default::default() };
         let loader = Loader::new(self.ds, self.train, self.batch_size, self.seed, kf);
         let per_epoch = loader.batches_per_epoch().max(1);
@@ -91,21 +89,23 @@ impl EvaluatorTraining<'_> {
             let loss = info_nce(m, t, self.cfg.temperature, &same_caption(&b));
             let l: f64 =
                 loss.clone().into_data().convert::<f64>().try_to_vec::<f64>().expect("scalar")[0];
-            model = descend(model, loss, &mut vals, &mut adam, 1.0, self.lr).0;
+            model = optim.descend(model, loss, 1.0, self.lr).0;
             if step == 0 {
                 first = l;
             }
             last = l;
             on_step(step + 1, l);
         }
+        let snap = optim.snapshot(&model);
+        let vals = snap.model.clone();
         let ck = Checkpoint {
             step: self.steps,
             shapes,
-            model: vals.clone(),
+            model: snap.model,
             ema: None,
-            adam_step: adam.step,
-            adam_m: adam.m,
-            adam_v: adam.v,
+            adam_step: snap.step,
+            adam_m: snap.m,
+            adam_v: snap.v,
             config: serde_json::to_string(&self.cfg).expect("config serialises"),
             seed: self.seed,
             names: params::names(&model),

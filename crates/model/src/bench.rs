@@ -8,7 +8,7 @@ use diffkfc_data::keyframes;
 use diffkfc_data::rng::Rng;
 
 use crate::diffusion::Schedule;
-use crate::optim::{descend_timed, Adam};
+use crate::optim::{Home, Optimiser};
 use crate::sampler::{self, Options, Request, Sampler};
 use crate::{params, Denoiser, DiffKfcConfig, Encoded};
 
@@ -37,11 +37,10 @@ fn normal_tensor(r: &mut Rng, shape: [usize; 3], device: &Device) -> Tensor<3> {
     Tensor::<1>::from_floats(v.as_slice(), device).reshape(shape)
 }
 
-/// The training-step workload: model on an autodiff device, host parameters and Adam state.
+/// The training-step workload: model on an autodiff device and its optimiser.
 pub struct TrainStep {
     model: Option<Denoiser>,
-    vals: Vec<Vec<f32>>,
-    adam: Adam,
+    optim: Optimiser,
     req: Request,
     x0: Tensor<3>,
     noise: Tensor<3>,
@@ -58,8 +57,7 @@ impl TrainStep {
         device.seed(0);
         crate::dropout::seed(0);
         let model = cfg.init(&device);
-        let vals: Vec<Vec<f32>> = params::values(&model).into_iter().map(|(_, v)| v).collect();
-        let adam = Adam::new(&vals.iter().map(Vec::len).collect::<Vec<_>>());
+        let optim = Optimiser::new(&model, Home::for_device(&device), false);
         let req = request(cfg, batch, frames, 1);
         let mut r = Rng::new(2);
         let shape = [batch, frames, cfg.feat_dim];
@@ -68,8 +66,7 @@ impl TrainStep {
         let t = (0..batch).map(|i| (97 * i + 500) % 1000).collect();
         TrainStep {
             model: Some(model),
-            vals,
-            adam,
+            optim,
             req,
             x0,
             noise,
@@ -89,8 +86,7 @@ impl TrainStep {
         let loss = (model.forward(x_t, &self.t, &cond) - self.x0.clone()).powf_scalar(2.0).mean();
         let value = params::host(loss.clone())[0] as f64;
         let forward = t0.elapsed().as_secs_f64();
-        let (model, _, [backward, update]) =
-            descend_timed(model, loss, &mut self.vals, &mut self.adam, 1.0, 1e-4);
+        let (model, _, [backward, update]) = self.optim.descend_timed(model, loss, 1.0, 1e-4);
         self.phases = [forward, backward, update];
         self.model = Some(model);
         value

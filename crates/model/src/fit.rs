@@ -39,16 +39,19 @@ impl std::str::FromStr for KeyframeFit {
 }
 
 /// What follows the last denoising step.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Fit {
     pub keyframes: KeyframeFit,
     /// Hold planted feet still after the keyframe fit (`diffkfc_data::footlock`).
     pub foot_lock: bool,
+    /// Largest move of a planted foot the lock makes (metres; `footlock::MAX_SHIFT_M` by
+    /// default): spans that slide further are left as dragged.
+    pub lock_reach: f64,
 }
 
 impl Default for Fit {
     fn default() -> Self {
-        Fit { keyframes: KeyframeFit::Warp, foot_lock: true }
+        Fit { keyframes: KeyframeFit::Warp, foot_lock: true, lock_reach: footlock::MAX_SHIFT_M }
     }
 }
 
@@ -77,7 +80,7 @@ pub fn finish(
     if fit.foot_lock {
         let mut hold = vec![false; req.lengths[i]];
         req.key_frames(i).into_iter().for_each(|f| hold[f] = true);
-        feet = footlock::lock_feet(skel, &mut features, &hold, footlock::BLEND);
+        feet = footlock::lock_feet(skel, &mut features, &hold, footlock::BLEND, fit.lock_reach);
     }
     Fitted { features, corrections, feet }
 }

@@ -21,7 +21,7 @@ use crate::checkpoint::Checkpoint;
 use crate::diffusion::Schedule;
 use crate::error::{ModelError, Result};
 use crate::losses::{losses, Kinematic};
-use crate::optim::{descend, ema_update, learning_rate, Adam};
+use crate::optim::{learning_rate, Home, Optimiser, Snapshot};
 use crate::parallel::{shard_objective, Combine, Counts};
 use crate::params;
 use crate::run_config::RunConfig;
@@ -64,6 +64,8 @@ pub struct Trainer<'a> {
     pub text: &'a EmbeddingCache,
     pub device: Device,
     pub run_dir: PathBuf,
+    /// Where the optimiser's state lives (`Home::for_device(&device)` unless overridden).
+    pub optimiser: Home,
 }
 
 /// How a training call ended.
@@ -224,12 +226,10 @@ impl Trainer<'_> {
         let device = self.device.clone().autodiff();
         device.seed(tc.seed);
         let mut model = self.cfg.model.init(&device);
-        let init = params::values(&model);
-        let shapes: Vec<Vec<usize>> = init.iter().map(|(s, _)| s.clone()).collect();
+        let shapes = params::shapes(&model);
         let names = params::names(&model);
-        let mut vals: Vec<Vec<f32>> = init.into_iter().map(|(_, v)| v).collect();
-        let mut adam = Adam::new(&vals.iter().map(Vec::len).collect::<Vec<_>>());
-        let mut ema = (tc.ema_decay > 0.0).then(|| vals.clone());
+        let keep_ema = tc.ema_decay > 0.0;
+        let mut optim = None;
         let mut start = 0;
         if resume {
             if let Some(ck) = Checkpoint::latest(&self.run_dir) {
@@ -242,16 +242,20 @@ impl Trainer<'_> {
                     ));
                 }
                 start = ck.step;
-                vals = ck.model;
-                adam.step = ck.adam_step;
-                adam.m = ck.adam_m;
-                adam.v = ck.adam_v;
-                if ema.is_some() {
-                    ema = Some(ck.ema.unwrap_or_else(|| vals.clone()));
-                }
+                let ema = keep_ema.then(|| ck.ema.unwrap_or_else(|| ck.model.clone()));
+                let snap = Snapshot {
+                    model: ck.model,
+                    ema,
+                    step: ck.adam_step,
+                    m: ck.adam_m,
+                    v: ck.adam_v,
+                };
+                let (m, o) = Optimiser::restore(model, snap, self.optimiser);
+                model = m;
+                optim = Some(o);
             }
         }
-        model = params::load(model, &vals);
+        let mut optim = optim.unwrap_or_else(|| Optimiser::new(&model, self.optimiser, keep_ema));
         let run = crate::run_dir::RunDir::new(&self.run_dir);
         let metrics_path = run.metrics_path();
         run.truncate_metrics(start)?;
@@ -267,15 +271,12 @@ impl Trainer<'_> {
         let t0 = Instant::now();
         let mut last = None;
         let mut step = start;
-        let save = |step: usize,
-                    vals: &[Vec<f32>],
-                    ema: &Option<Vec<Vec<f32>>>,
-                    adam: &Adam|
-         -> Result<PathBuf> {
+        let save = |step: usize, snap: Snapshot| -> Result<PathBuf> {
             // Never write (and so never rotate older checkpoints away for) non-finite weights.
-            if let Some(x) = vals
+            if let Some(x) = snap
+                .model
                 .iter()
-                .chain(ema.iter().flatten())
+                .chain(snap.ema.iter().flatten())
                 .flat_map(|v| v.iter())
                 .find(|x| !x.is_finite())
             {
@@ -284,11 +285,11 @@ impl Trainer<'_> {
             let ck = Checkpoint {
                 step,
                 shapes: shapes.clone(),
-                model: vals.to_vec(),
-                ema: ema.clone(),
-                adam_step: adam.step,
-                adam_m: adam.m.clone(),
-                adam_v: adam.v.clone(),
+                model: snap.model,
+                ema: snap.ema,
+                adam_step: snap.step,
+                adam_m: snap.m,
+                adam_v: snap.v,
                 config: self.cfg.to_json(),
                 seed: tc.seed,
                 names: names.clone(),
@@ -301,11 +302,10 @@ impl Trainer<'_> {
         // Validation lines without a training loss: before the first step of a fresh run, and
         // where a run is stopped early, so start and end are always measured.
         let val_line = |step: usize,
-                        vals: &[Vec<f32>],
-                        ema: &Option<Vec<Vec<f32>>>,
+                        weights: &[Vec<f32>],
                         metrics: &mut std::fs::File|
          -> Result<Option<f64>> {
-            let v = self.validate(ema.as_deref().unwrap_or(vals), &schedule);
+            let v = self.validate(weights, &schedule);
             if let Some(v) = v {
                 let line = serde_json::json!({"step": step, "val_loss": v, "wall_s": t0.elapsed().as_secs_f64()});
                 writeln!(metrics, "{line}").map_err(ModelError::io(&metrics_path))?;
@@ -313,13 +313,13 @@ impl Trainer<'_> {
             Ok(v)
         };
         if start == 0 && tc.val_every > 0 && step < max_steps {
-            val_line(0, &vals, &ema, &mut metrics)?;
+            val_line(0, &optim.eval_weights(&model), &mut metrics)?;
         }
         while step < max_steps {
             if stop() {
                 stopped = true;
                 if tc.val_every > 0 && step > start {
-                    val_line(step, &vals, &ema, &mut metrics)?;
+                    val_line(step, &optim.eval_weights(&model), &mut metrics)?;
                 }
                 break;
             }
@@ -342,17 +342,14 @@ impl Trainer<'_> {
                 // Stop before the step is taken: the weights and every checkpoint stay finite.
                 return Err(non_finite(step + 1, "loss", loss, &self.run_dir));
             }
-            let (updated, grad_norm) =
-                descend(model, total, &mut vals, &mut adam, tc.grad_clip, lr);
+            let (updated, grad_norm) = optim.descend(model, total, tc.grad_clip, lr);
             if !grad_norm.is_finite() {
                 return Err(non_finite(step + 1, "gradient norm", grad_norm, &self.run_dir));
             }
             model = updated;
-            if let Some(e) = ema.as_mut() {
-                // Early in training the EMA follows closely (as in common EMA warm-ups).
-                let decay = tc.ema_decay.min((1.0 + step as f64) / (10.0 + step as f64));
-                ema_update(e, &vals, decay);
-            }
+            // Early in training the EMA follows closely (as in common EMA warm-ups).
+            let decay = tc.ema_decay.min((1.0 + step as f64) / (10.0 + step as f64));
+            optim.update_ema(&model, decay);
             step += 1;
             let mut rec = StepRecord {
                 step,
@@ -369,13 +366,13 @@ impl Trainer<'_> {
                 val_loss: None,
             };
             if tc.val_every > 0 && (step % tc.val_every == 0 || step == max_steps) {
-                rec.val_loss = self.validate(ema.as_deref().unwrap_or(&vals), &schedule);
+                rec.val_loss = self.validate(&optim.eval_weights(&model), &schedule);
             }
             writeln!(metrics, "{}", serde_json::to_string(&rec).expect("json"))
                 .map_err(ModelError::io(&metrics_path))?;
             on_event(Event::Step(&rec));
             if step % tc.checkpoint_every.max(1) == 0 || step == max_steps {
-                let p = save(step, &vals, &ema, &adam)?;
+                let p = save(step, optim.snapshot(&model))?;
                 on_event(Event::Checkpoint(step, &p));
             }
             last = Some(rec);
@@ -384,7 +381,7 @@ impl Trainer<'_> {
             && step > start
             && !Checkpoint::list(&self.run_dir).iter().any(|(s, _)| *s == step)
         {
-            let p = save(step, &vals, &ema, &adam)?;
+            let p = save(step, optim.snapshot(&model))?;
             on_event(Event::Checkpoint(step, &p));
         }
         Ok(Outcome { start_step: start, end_step: step, stopped_early: stopped, last })

@@ -7,7 +7,7 @@
 
 use burn::prelude::*;
 use diffkfc_model::diffusion::Schedule;
-use diffkfc_model::optim::{clip_grad_norm, Adam};
+use diffkfc_model::optim::{clip_grad_norm, Adam, Home, Optimiser};
 use diffkfc_model::params;
 use diffkfc_model::sampler::{sample, Options, Request, Sampler};
 use diffkfc_model::{Denoiser, DiffKfcConfig};
@@ -61,13 +61,18 @@ fn flex_and_ndarray_agree() {
     eprintln!("forward: relative difference {e:.2e}");
     assert!(e < 1e-5, "forward differs by {e}");
 
-    // One training step: MSE to x0, backward, gradients to the host, clipping, Adam.
-    let step = |device: &Device| {
+    // The model on an autodiff device and its MSE to x0.
+    let loss_on = |device: &Device| {
         let device = device.clone().autodiff();
         let m = model_on(&device, &weights);
         let xt = Tensor::<1>::from_floats(x.as_slice(), &device).reshape([b, n, d]);
         let target = Tensor::<1>::from_floats(x0.as_slice(), &device).reshape([b, n, d]);
         let loss = (m.forward(xt, &t, &req.condition(&device)) - target).powf_scalar(2.0).mean();
+        (m, loss)
+    };
+    // One training step: backward, gradients to the host, clipping, Adam.
+    let step = |device: &Device| {
+        let (m, loss) = loss_on(device);
         let grads = burn::optim::GradientsParams::from_grads(loss.backward(), &m);
         let mut g = params::grads(&m, &grads);
         let raw = g.clone();
@@ -98,6 +103,16 @@ fn flex_and_ndarray_agree() {
     // Measured 4.4e-5 and 1.0e-5: float32 summation orders and the fused kernels' polynomial exp
     // and erf, spread over every parameter (no one op off; a wrong backward would be O(1)).
     assert!(eg < 1e-4 && ew < 1e-4, "gradients {eg}, weights {ew}");
+
+    // The device-resident optimiser (the GPU backends' path) in Burn's ops on ndarray: the same
+    // step as the host path on ndarray, and as flex's.
+    let (m, loss) = loss_on(&nd);
+    let mut o = Optimiser::new(&m, Home::Device, false);
+    let (m, norm) = o.descend(m, loss, 1.0, 1e-3);
+    let vd: Vec<f32> = params::values(&m).into_iter().flat_map(|(_, v)| v).collect();
+    let (ed, edf) = (rel(&vd, &vb), rel(&vd, &va));
+    eprintln!("device-state Adam on ndarray: weights differ from ndarray's host Adam by {ed:.2e}, from flex's by {edf:.2e} (norm {norm:.6})");
+    assert!((norm - nb).abs() <= 1e-5 * nb && ed < 1e-6 && edf < 1e-4, "{ed} {edf} {norm} {nb}");
 
     // A DDIM sample with keyframe and transition guidance (5 steps).
     let opts = Options {

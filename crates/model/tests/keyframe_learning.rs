@@ -13,6 +13,7 @@ use diffkfc_data::dataset::{Dataset, MAX_FRAMES};
 use diffkfc_data::keyframes;
 use diffkfc_data::rng::Rng;
 use diffkfc_model::diffusion::Schedule;
+use diffkfc_model::optim::Home;
 use diffkfc_model::run_config::RunConfig;
 use diffkfc_model::sampler::{sample, Options, Request, Sampler};
 use diffkfc_model::text::cache::EmbeddingCache;
@@ -86,6 +87,7 @@ fn keyframes_reproduce_a_clip_far_better_than_text() {
         val: None,
         text: &text,
         device: Device::flex(),
+        optimiser: Home::Host,
         run_dir: run_dir.clone(),
     };
     tr.run(false, steps, &|| false, &mut |_| {}).unwrap();

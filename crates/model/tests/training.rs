@@ -8,6 +8,7 @@ use burn::prelude::*;
 use diffkfc_data::cache::PackedSplit;
 use diffkfc_data::dataset::Dataset;
 use diffkfc_model::checkpoint::Checkpoint;
+use diffkfc_model::optim::Home;
 use diffkfc_model::run_config::RunConfig;
 use diffkfc_model::text::cache::EmbeddingCache;
 use diffkfc_model::trainer::{Event, Trainer};
@@ -82,6 +83,7 @@ fn resume_is_exact_and_checkpoints_rotate() {
         val: Some(&val),
         text: &text,
         device: Device::flex(),
+        optimiser: Home::Host,
         run_dir: root.join(dir),
     };
     let never = || false;
@@ -132,6 +134,74 @@ fn resume_is_exact_and_checkpoints_rotate() {
     std::fs::remove_dir_all(root).unwrap();
 }
 
+/// Relative L2 distance of two lists of vectors.
+fn rel(a: &[Vec<f32>], b: &[Vec<f32>]) -> f64 {
+    let (mut d, mut n) = (0.0, 0.0);
+    for (x, y) in a.iter().flatten().zip(b.iter().flatten()) {
+        d += ((x - y) as f64).powi(2);
+        n += (*x as f64).powi(2);
+    }
+    assert_eq!(a.iter().map(Vec::len).sum::<usize>(), b.iter().map(Vec::len).sum::<usize>());
+    (d / n.max(1e-30)).sqrt()
+}
+
+/// The optimiser state kept as device tensors (the GPU path, here on flex) trains like the host
+/// path, with clipping and the EMA on, and its checkpoints resume exactly.
+#[test]
+fn device_resident_optimiser_matches_host_and_resumes_exactly() {
+    let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let (root, ds, train, val, text) = prepared("device-optim", 24);
+    let cfg = config();
+    let mk = |dir: &str, optimiser: Home| Trainer {
+        cfg: &cfg,
+        ds: &ds,
+        train: &train,
+        val: Some(&val),
+        text: &text,
+        device: Device::flex(),
+        optimiser,
+        run_dir: root.join(dir),
+    };
+    let never = || false;
+    let mut norms = Vec::new();
+    mk("host", Home::Host).run(false, 6, &never, &mut |_| {}).unwrap();
+    mk("device", Home::Device)
+        .run(false, 6, &never, &mut |e| {
+            if let Event::Step(r) = e {
+                norms.push(r.grad_norm)
+            }
+        })
+        .unwrap();
+    assert!(norms.iter().any(|&n| n > 1.0), "clipping never acted: {norms:?}");
+    let (h, d) = (losses(&root.join("host")), losses(&root.join("device")));
+    for ((s, a), (_, b)) in h.iter().zip(&d) {
+        assert!((a - b).abs() <= 1e-5 * a.abs(), "step {s}: host loss {a}, device loss {b}");
+    }
+    let last = |dir: &str| Checkpoint::latest(&root.join(dir)).unwrap().unwrap();
+    let (ch, cd) = (last("host"), last("device"));
+    assert_eq!((ch.step, cd.step, ch.adam_step, cd.adam_step), (6, 6, 6, 6));
+    for (what, a, b) in [
+        ("weights", &ch.model, &cd.model),
+        ("ema", ch.ema.as_ref().unwrap(), cd.ema.as_ref().unwrap()),
+        ("adam m", &ch.adam_m, &cd.adam_m),
+        ("adam v", &ch.adam_v, &cd.adam_v),
+    ] {
+        let r = rel(a, b);
+        eprintln!("{what}: host vs device after 6 steps: relative L2 {r:e}");
+        assert!(r < 1e-5, "{what}: host and device differ by {r:e} (relative L2)");
+    }
+    // 3 + 3 steps on the device path equal 6, and a host checkpoint resumes on the device.
+    mk("split", Home::Device).run(false, 3, &never, &mut |_| {}).unwrap();
+    mk("split", Home::Device).run(true, 6, &never, &mut |_| {}).unwrap();
+    assert_eq!(losses(&root.join("split")), d, "resumed device run differs");
+    assert_eq!(last("split").model, cd.model);
+    mk("mixed", Home::Host).run(false, 3, &never, &mut |_| {}).unwrap();
+    mk("mixed", Home::Device).run(true, 6, &never, &mut |_| {}).unwrap();
+    let r = rel(&last("mixed").model, &cd.model);
+    assert!(r < 1e-5, "host-then-device run differs by {r:e}");
+    std::fs::remove_dir_all(root).unwrap();
+}
+
 /// configs/tiny.json (smaller batches and a short budget) lowers the validation loss.
 #[test]
 fn tiny_config_lowers_validation_loss() {
@@ -153,6 +223,7 @@ fn tiny_config_lowers_validation_loss() {
         val: Some(&val),
         text: &text,
         device: Device::flex(),
+        optimiser: Home::Host,
         run_dir: root.join("run"),
     };
     tr.run(false, 120, &|| false, &mut |_| {}).unwrap();
@@ -251,6 +322,7 @@ fn shard_gradients_weighted_by_counts_equal_the_batch_gradient() {
         val: Some(&val),
         text: &text,
         device: Device::flex(),
+        optimiser: Home::Host,
         run_dir: root.join("run"),
     };
     let device = Device::flex().autodiff();

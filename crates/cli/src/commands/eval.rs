@@ -287,6 +287,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
         bail!("eval: needs --checkpoint, --evaluator and --data")
     };
     let settings = settings(&a)?;
+    a.fit.check()?;
     for (v, flag) in [
         (a.replications, "--replications"),
         (a.samples_for_ade, "--samples-for-ade"),
@@ -400,7 +401,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
         "checkpoint": run_dir.display().to_string(), "checkpoint_step": step, "evaluator": eval_dir.display().to_string(), "evaluator_name": ev.name(),
         "data": data.display().to_string(), "split": a.split, "replications": a.replications, "num_items": num_items,
         "samples_for_ade": a.samples_for_ade, "sampler": format!("{sampler:?}"), "kf_guidance": a.kf_guidance, "place_guidance": a.place_guidance,
-        "keyframe_strategy": a.keyframe_strategy, "keyframe_fit": fit.keyframes, "foot_lock": fit.foot_lock, "root_keys": !a.no_root_keys, "multimodality_texts": if a.multimodality { a.mm_texts } else { 0 },
+        "keyframe_strategy": a.keyframe_strategy, "keyframe_fit": fit.keyframes, "foot_lock": fit.foot_lock, "foot_lock_reach_m": fit.lock_reach, "root_keys": !a.no_root_keys, "multimodality_texts": if a.multimodality { a.mm_texts } else { 0 },
         "seed": a.seed, "seconds": secs, "reference_motions": real.len(),
     });
     let header = format!(

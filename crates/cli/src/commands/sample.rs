@@ -230,6 +230,7 @@ fn check_flags(a: &SampleArgs) -> Result<()> {
     if a.tg_bases == 0 {
         bail!("--tg-bases: must be at least 1");
     }
+    a.fit.check()?;
     if a.num_samples == 0 || a.num_samples > 256 {
         bail!("--num-samples: {} must be 1 to 256", a.num_samples);
     }

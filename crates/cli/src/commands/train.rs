@@ -9,6 +9,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use diffkfc_data::cache::{default_cache_dir, PackedSplit};
 use diffkfc_data::dataset::Dataset;
+use diffkfc_model::optim::Home;
 use diffkfc_model::run_config::RunConfig;
 use diffkfc_model::run_dir::RunDir;
 use diffkfc_model::text::cache::embed_captions;
@@ -39,6 +40,11 @@ pub struct TrainArgs {
     /// cargo feature.
     #[arg(long, default_value = "flex", value_name = "flex|ndarray|wgpu|cuda")]
     device: String,
+    /// Where Adam's moments and the EMA live: host (one fused pass over host vectors: the
+    /// default for flex and ndarray) or device (tensor operations on the device, weights never
+    /// leave it: the default for wgpu and cuda). Checkpoints are the same either way.
+    #[arg(long, value_name = "host|device")]
+    optimiser_state: Option<Home>,
     /// Overrides training.seed.
     #[arg(long)]
     seed: Option<u64>,
@@ -172,6 +178,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         train: &train,
         val: val.as_ref(),
         text: &text,
+        optimiser: a.optimiser_state.unwrap_or_else(|| Home::for_device(&device)),
         device,
         run_dir: run_dir.clone(),
     };

@@ -101,6 +101,7 @@ pub(super) fn write_outputs(
         "transition_guidance": opts.transition,
         "keyframe_fit": fit.keyframes,
         "foot_lock": fit.foot_lock,
+        "foot_lock_reach_m": fit.lock_reach,
         "root_keys": keys.root.iter().enumerate().filter(|(_, k)| **k != RootKey::default()).map(|(f, k)| json!({"frame": f, "place": k.place, "heading_deg": k.heading.map(f64::to_degrees)})).collect::<Vec<_>>(),
         "keyframe_mode": format!("{:?}", a.keyframe_mode).to_lowercase(),
         "tg_mode": format!("{:?}", a.tg_mode).to_lowercase(),

@@ -1,5 +1,6 @@
-//! Adam with gradient-norm clipping, a warm-up / cosine learning-rate schedule and an EMA of the
-//! weights, on host-side flat parameters (see `params`).
+//! The optimiser on host-side flat parameters (see `params`): for the CPU backends, where the
+//! device's memory is the host's, one fused multithreaded pass per step beats a chain of tensor
+//! ops (each a pass over every weight).
 
 /// One chunk of Adam's work: parameters, gradients, first and second moments.
 type AdamChunk<'a> = (&'a mut [f32], &'a [f32], &'a mut [f32], &'a mut [f32]);
@@ -84,18 +85,6 @@ pub fn clip_grad_norm(grads: &mut [Vec<f32>], max: f64) -> f64 {
     norm
 }
 
-/// Learning rate at `step` (0-based): linear warm-up, then constant or cosine decay to 0.
-pub fn learning_rate(base: f64, step: usize, warmup: usize, cosine: bool, max_steps: usize) -> f64 {
-    if step < warmup {
-        return base * (step + 1) as f64 / warmup as f64;
-    }
-    if cosine && max_steps > warmup {
-        let p = (step - warmup) as f64 / (max_steps - warmup) as f64;
-        return base * 0.5 * (1.0 + (std::f64::consts::PI * p.min(1.0)).cos());
-    }
-    base
-}
-
 /// ema = decay * ema + (1 - decay) * params.
 pub fn ema_update(ema: &mut [Vec<f32>], params: &[Vec<f32>], decay: f64) {
     use rayon::prelude::*;
@@ -110,40 +99,22 @@ pub fn ema_update(ema: &mut [Vec<f32>], params: &[Vec<f32>], decay: f64) {
         .for_each(|(e, p)| e.iter_mut().zip(p).for_each(|(x, y)| *x = d * *x + (1.0 - d) * y));
 }
 
-/// One optimiser step as the trainers take it: backward of `loss`, gradients to the host,
-/// global-norm clipping, Adam on the flat host values, the new values loaded into `model`.
-/// Returns the updated model and the gradient norm before clipping.
-pub fn descend<M: burn::module::Module>(
+/// The update after the backward pass: gradients to the host, global-norm clipping, Adam on the
+/// flat host values, the new values loaded into `model`. Returns the model and the gradient norm
+/// before clipping.
+pub(super) fn descend<M: burn::module::Module>(
     model: M,
-    loss: burn::tensor::Tensor<1>,
+    grads: burn::optim::GradientsParams,
     vals: &mut [Vec<f32>],
     adam: &mut Adam,
     clip: f64,
     lr: f64,
 ) -> (M, f64) {
-    let (m, norm, _) = descend_timed(model, loss, vals, adam, clip, lr);
-    (m, norm)
-}
-
-/// `descend`, also returning the seconds spent in the backward pass and in the host-side update
-/// (gradients out, clipping, Adam, weights in): the benchmark's breakdown of a step.
-pub fn descend_timed<M: burn::module::Module>(
-    model: M,
-    loss: burn::tensor::Tensor<1>,
-    vals: &mut [Vec<f32>],
-    adam: &mut Adam,
-    clip: f64,
-    lr: f64,
-) -> (M, f64, [f64; 2]) {
-    let t0 = std::time::Instant::now();
-    let grads = burn::optim::GradientsParams::from_grads(loss.backward(), &model);
-    let t1 = std::time::Instant::now();
     let mut g = crate::params::grads(&model, &grads);
     drop(grads);
     let norm = clip_grad_norm(&mut g, clip);
     adam.update(vals, &g, lr);
-    let model = crate::params::load(model, vals);
-    (model, norm, [(t1 - t0).as_secs_f64(), t1.elapsed().as_secs_f64()])
+    (crate::params::load(model, vals), norm)
 }
 
 #[cfg(test)]
@@ -160,7 +131,5 @@ mod tests {
         let mut g = vec![vec![3.0f32, 4.0]];
         assert_eq!(clip_grad_norm(&mut g, 1.0), 5.0);
         assert!((g[0][0] - 0.6).abs() < 1e-6 && (g[0][1] - 0.8).abs() < 1e-6);
-        assert_eq!(learning_rate(1.0, 0, 10, false, 100), 0.1);
-        assert!((learning_rate(1.0, 55, 10, true, 100) - 0.5).abs() < 1e-9);
     }
 }
