@@ -65,7 +65,7 @@ fn bench_suite_smoke() {
     let o = diffkfc(&[
         "bench",
         "--config",
-        "tiny",
+        "torch-tiny",
         "--frames",
         "40",
         "--batch",
@@ -93,7 +93,7 @@ fn bench_suite_smoke() {
     let o = diffkfc(&[
         "bench",
         "--config",
-        "tiny",
+        "torch-tiny",
         "--frames",
         "40",
         "--batch",
@@ -139,11 +139,16 @@ fn bench_suite_smoke() {
         &diffkfc(&["bench", "--config", "tiny", "--cases", "call", "--rounds", "0"]),
         &["--rounds"],
     );
+    // The reference has no counterpart of our tiny preset: a ratio would compare two networks.
+    assert_one_line_error(
+        &diffkfc(&["bench", "--config", "tiny", "--quick", "--torch", "python3"]),
+        &["--torch", "torch-tiny", "'tiny'"],
+    );
     assert_one_line_error(
         &diffkfc(&[
             "bench",
             "--config",
-            "tiny",
+            "torch-tiny",
             "--cases",
             "call",
             "--torch",
@@ -158,7 +163,7 @@ fn bench_suite_smoke() {
         &diffkfc(&[
             "bench",
             "--config",
-            "tiny",
+            "torch-tiny",
             "--quick",
             "--cases",
             "call",

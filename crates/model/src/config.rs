@@ -62,11 +62,19 @@ impl DiffKfcConfig {
             .with_dma_sizes(vec![2, 4, 0])
     }
 
+    /// The PyTorch timing reference's own small network (`../shared/bench`, `--config tiny`
+    /// there): d 128, 4 heads, FFN 256, 4 decoder layers, DMA {2,4,8,N}; for like-for-like
+    /// timings of a small model (`diffkfc bench --config torch-tiny --torch PY`).
+    pub fn torch_tiny() -> Self {
+        Self::small().with_d_model(128).with_ffn(256)
+    }
+
     pub fn preset(name: &str) -> Option<Self> {
         match name {
             "paper" => Some(Self::paper()),
             "small" => Some(Self::small()),
             "tiny" => Some(Self::tiny()),
+            "torch-tiny" => Some(Self::torch_tiny()),
             _ => None,
         }
     }

@@ -46,7 +46,20 @@ fn fused_attention_matches_composed_with_gradients() {
     let keys: Vec<bool> = (0..b * lk).map(|i| i % lk > 9 || i % 5 == 3).collect();
     // Every query keeps key 0 open (as the models guarantee), the rest is a pseudo-random pattern.
     let full: Vec<bool> = (0..b * lq * lk).map(|i| i % lk != 0 && (i * 7919) % 3 == 0).collect();
-    for mask in [Mask::None, Mask::Keys(Arc::new(keys)), Mask::Full(Arc::new(full))] {
+    // DMA-like: besides key 0, each sample's queries see a few keys of their own (some rows
+    // not all of them), so the kernel runs on the 4 seen keys instead of 13.
+    let sparse: Vec<bool> = (0..b * lq * lk)
+        .map(|i| {
+            let (s, qi, j) = (i / (lq * lk), i / lk % lq, i % lk);
+            !(j == 0 || (j % 4 == s + 1 && (qi + j) % 3 != 0))
+        })
+        .collect();
+    for mask in [
+        Mask::None,
+        Mask::Keys(Arc::new(keys)),
+        Mask::Full(Arc::new(full)),
+        Mask::Full(Arc::new(sparse)),
+    ] {
         let inputs = [
             random([b, lq, d], &dev),
             random([b, lk, d], &dev),

@@ -148,7 +148,7 @@ impl Backward<Flex, 3> for AttentionBackward {
         let dout = grads.consume::<Flex>(&ops.node);
         let (q, k, v, args) = ops.state;
         let s = attn_shape(&q, &k, args.heads);
-        let (dq, dk, dv) = host::attention_backward(
+        let (dq, dk, dv) = super::mha::attention_backward(
             &slice(&q),
             &slice(&k),
             &slice(&v),

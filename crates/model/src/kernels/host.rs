@@ -1,25 +1,22 @@
-//! The fused kernels on host slices: multi-head attention and LayerNorm, forward and backward,
-//! parallel over heads / rows with rayon. Burn's flex backend runs elementwise ops on one
+//! The fused kernels on host slices: Linear, GELU and LayerNorm, forward and backward, parallel
+//! over rows with rayon, and the single-threaded products the attention kernel (`mha.rs`) runs
+//! per head. Burn's flex backend runs elementwise ops on one
 //! thread and materialises every intermediate ([B, H, L, L] scores, masked scores, exp, sums,
 //! ...); these do each in one pass per row, with the small per-head products on `gemm`.
 
-use std::sync::Arc;
-
 use rayon::prelude::*;
-
-use super::softmax::{self, Open};
 
 /// A strided read-only matrix: element (r, c) at `ptr + r * rs + c * cs`.
 #[derive(Clone, Copy)]
-struct View {
-    ptr: *const f32,
-    rs: isize,
-    cs: isize,
+pub(super) struct View {
+    pub ptr: *const f32,
+    pub rs: isize,
+    pub cs: isize,
 }
 
 /// A destination pointer shared by tasks that write disjoint elements.
 #[derive(Clone, Copy)]
-struct Out(*mut f32);
+pub(super) struct Out(pub *mut f32);
 // SAFETY: every task writes a disjoint set of elements (one head's columns, one row chunk).
 unsafe impl Send for Out {}
 unsafe impl Sync for Out {}
@@ -31,7 +28,15 @@ unsafe impl Sync for View {}
 ///
 /// # Safety
 /// The views must cover the [m, k] and [k, n] elements they describe and `dst` the [m, n] ones.
-unsafe fn matmul(m: usize, n: usize, k: usize, dst: *mut f32, dst_rs: usize, lhs: View, rhs: View) {
+pub(super) unsafe fn matmul(
+    m: usize,
+    n: usize,
+    k: usize,
+    dst: *mut f32,
+    dst_rs: usize,
+    lhs: View,
+    rhs: View,
+) {
     matmul_scaled(m, n, k, dst, dst_rs, lhs, rhs, 1.0)
 }
 
@@ -40,7 +45,7 @@ unsafe fn matmul(m: usize, n: usize, k: usize, dst: *mut f32, dst_rs: usize, lhs
 /// # Safety
 /// As [`matmul`].
 #[allow(clippy::too_many_arguments)]
-unsafe fn matmul_scaled(
+pub(super) unsafe fn matmul_scaled(
     m: usize,
     n: usize,
     k: usize,
@@ -198,163 +203,6 @@ pub fn gelu_backward(h: &[f32], dy: &[f32]) -> Vec<f32> {
         },
     );
     dh
-}
-
-/// Which keys each query may not see (true = blocked).
-#[derive(Clone, Debug)]
-pub enum Mask {
-    None,
-    /// [B * Lk]: key padding, the same for every query.
-    Keys(Arc<Vec<bool>>),
-    /// [B * Lq * Lk]: per query and key.
-    Full(Arc<Vec<bool>>),
-}
-
-/// Shapes of one attention call: queries [B, Lq, d], keys and values [B, Lk, d], d = heads x dh;
-/// head h owns channels h*dh .. (h+1)*dh of every row.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct AttnShape {
-    pub batch: usize,
-    pub lq: usize,
-    pub lk: usize,
-    pub heads: usize,
-    pub d: usize,
-}
-
-impl AttnShape {
-    fn dh(&self) -> usize {
-        self.d / self.heads
-    }
-
-    fn scale(&self) -> f32 {
-        1.0 / (self.dh() as f32).sqrt()
-    }
-
-    /// Head h of sample b of a [B, L, d] tensor as an [L, dh] view.
-    fn head(&self, x: &[f32], l: usize, b: usize, h: usize) -> View {
-        View { ptr: x[(b * l) * self.d + h * self.dh()..].as_ptr(), rs: self.d as isize, cs: 1 }
-    }
-}
-
-/// softmax(Q K^T * scale, masked) of head (b, h) into `p` [Lq, Lk]; fully blocked rows are 0.
-fn probabilities(
-    q: &[f32],
-    k: &[f32],
-    s: &AttnShape,
-    open: &Open,
-    b: usize,
-    h: usize,
-    p: &mut [f32],
-) {
-    let (lq, lk, dh) = (s.lq, s.lk, s.dh());
-    let kt = s.head(k, lk, b, h);
-    // SAFETY: q and k hold [B, L, d]; p holds lq * lk.
-    unsafe {
-        matmul_scaled(
-            lq,
-            lk,
-            dh,
-            p.as_mut_ptr(),
-            lk,
-            s.head(q, lq, b, h),
-            View { ptr: kt.ptr, rs: kt.cs, cs: kt.rs },
-            s.scale(),
-        )
-    };
-    softmax::rows(p, s, open, b);
-}
-
-/// softmax(Q K^T / sqrt(dh) + mask) V per head -> [B, Lq, d].
-pub fn attention_forward(q: &[f32], k: &[f32], v: &[f32], s: &AttnShape, mask: &Mask) -> Vec<f32> {
-    let (lq, lk, dh) = (s.lq, s.lk, s.dh());
-    let open = Open::new(mask);
-    // Not zeroed: the heads together write every element (set_len below).
-    let mut out: Vec<f32> = Vec::with_capacity(s.batch * lq * s.d);
-    let dst = Out(out.as_mut_ptr());
-    (0..s.batch * s.heads).into_par_iter().for_each_init(
-        || vec![0f32; lq * lk],
-        |p, bh| {
-            let (b, h) = (bh / s.heads, bh % s.heads);
-            probabilities(q, k, s, &open, b, h, p);
-            let pv = View { ptr: p.as_ptr(), rs: lk as isize, cs: 1 };
-            let d = dst;
-            // SAFETY: head (b, h) writes only its own dh columns of sample b's rows.
-            unsafe {
-                matmul(lq, dh, lk, d.0.add(b * lq * s.d + h * dh), s.d, pv, s.head(v, lk, b, h))
-            };
-        },
-    );
-    // SAFETY: every (b, h) wrote its [lq, dh] block; the blocks tile [B, Lq, d].
-    unsafe { out.set_len(s.batch * lq * s.d) };
-    out
-}
-
-/// Gradients (dQ, dK, dV) of [`attention_forward`] for the output gradient `dout` [B, Lq, d];
-/// the probabilities are recomputed (cheaper than keeping [B, H, Lq, Lk] per layer).
-pub fn attention_backward(
-    q: &[f32],
-    k: &[f32],
-    v: &[f32],
-    dout: &[f32],
-    s: &AttnShape,
-    mask: &Mask,
-) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
-    let (lq, lk, dh) = (s.lq, s.lk, s.dh());
-    // Not zeroed: every (b, h) writes its blocks of all three (set_len below).
-    let (mut dq, mut dk, mut dv): (Vec<f32>, Vec<f32>, Vec<f32>) = (
-        Vec::with_capacity(s.batch * lq * s.d),
-        Vec::with_capacity(s.batch * lk * s.d),
-        Vec::with_capacity(s.batch * lk * s.d),
-    );
-    let (dqp, dkp, dvp) = (Out(dq.as_mut_ptr()), Out(dk.as_mut_ptr()), Out(dv.as_mut_ptr()));
-    let open = Open::new(mask);
-    let scale = s.scale();
-    (0..s.batch * s.heads).into_par_iter().for_each_init(
-        || (vec![0f32; lq * lk], vec![0f32; lq * lk]),
-        |(p, dp), bh| {
-            let (b, h) = (bh / s.heads, bh % s.heads);
-            let (dqp, dkp, dvp) = (dqp, dkp, dvp);
-            probabilities(q, k, s, &open, b, h, p);
-            let pt = View { ptr: p.as_ptr(), rs: 1, cs: lk as isize };
-            let go = s.head(dout, lq, b, h);
-            let vh = s.head(v, lk, b, h);
-            let (qh, kh) = (s.head(q, lq, b, h), s.head(k, lk, b, h));
-            let col = h * dh;
-            // SAFETY: all buffers hold [B, L, d] or [Lq, Lk]; head (b, h) writes only its own
-            // columns of sample b's rows in dq, dk, dv.
-            unsafe {
-                // dV = P^T dO; dP = dO V^T.
-                matmul(lk, dh, lq, dvp.0.add(b * lk * s.d + col), s.d, pt, go);
-                matmul(
-                    lq,
-                    lk,
-                    dh,
-                    dp.as_mut_ptr(),
-                    lk,
-                    go,
-                    View { ptr: vh.ptr, rs: vh.cs, cs: vh.rs },
-                );
-            }
-            // dS = P o (dP - rowsum(P o dP)), times the score scale.
-            for (pr, gr) in p.chunks(lk).zip(dp.chunks_mut(lk)) {
-                let dot: f32 = pr.iter().zip(gr.iter()).map(|(a, b)| a * b).sum();
-                gr.iter_mut().zip(pr).for_each(|(g, &pv)| *g = pv * (*g - dot) * scale);
-            }
-            let ds = View { ptr: dp.as_ptr(), rs: lk as isize, cs: 1 };
-            let dst_t = View { ptr: dp.as_ptr(), rs: 1, cs: lk as isize };
-            unsafe {
-                matmul(lq, dh, lk, dqp.0.add(b * lq * s.d + col), s.d, ds, kh);
-                matmul(lk, dh, lq, dkp.0.add(b * lk * s.d + col), s.d, dst_t, qh);
-            }
-        },
-    );
-    // SAFETY: the [Lq or Lk, dh] blocks of all (b, h) tile the three outputs.
-    unsafe {
-        dq.set_len(s.batch * lq * s.d);
-        dk.set_len(s.batch * lk * s.d);
-        dv.set_len(s.batch * lk * s.d);
-    }
-    (dq, dk, dv)
 }
 
 /// Rows per parallel work item of the LayerNorm kernels (fixed, so the parameter-gradient sums

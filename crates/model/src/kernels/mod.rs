@@ -8,6 +8,7 @@
 
 mod grad;
 pub mod host;
+mod mha;
 mod softmax;
 
 use std::sync::{Arc, OnceLock};
@@ -22,7 +23,7 @@ use burn::tensor::TensorData;
 
 use crate::dropout::Dropout;
 
-pub use host::{AttnShape, Mask};
+pub use mha::{AttnShape, Mask};
 
 /// LayerNorm's epsilon (Burn's `LayerNormConfig` default, which every LayerNorm here uses).
 pub const LN_EPS: f32 = 1e-5;
@@ -131,7 +132,7 @@ impl FusedOps for Flex {
 
     fn fused_attention(q: FlexTensor, k: FlexTensor, v: FlexTensor, args: AttnArgs) -> FlexTensor {
         let s = attn_shape(&q, &k, args.heads);
-        let out = host::attention_forward(&slice(&q), &slice(&k), &slice(&v), &s, &args.mask);
+        let out = mha::attention_forward(&slice(&q), &slice(&k), &slice(&v), &s, &args.mask);
         tensor(out, q.layout().shape().clone())
     }
 }

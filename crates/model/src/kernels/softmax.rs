@@ -3,7 +3,7 @@
 //! scalar expf (together they were a sixth of the sampling call's kernel-thread time).
 //! Compiled twice, for the baseline target and for AVX2 + FMA, chosen at run time.
 
-use super::host::{AttnShape, Mask};
+use super::mha::{AttnShape, Mask};
 
 /// The mask as 0/1 floats (1 = the key may be seen), one row per query (Full) or per sample
 /// (Keys), or none.

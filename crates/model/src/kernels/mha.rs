@@ -1,0 +1,283 @@
+//! The fused multi-head attention kernel on host slices, forward and backward, parallel over
+//! (sample, head) with rayon: the [B, H, Lq, Lk] scores never become tensors (the backward
+//! recomputes them). Where a mask leaves most of a sample's keys unseen by every query (the
+//! early, small-window DMA blocks see only the few keyframe tokens valid so far), the kernel
+//! gathers the keys that some query may see and runs on those alone: the same softmax over the
+//! same open entries, on a fraction of the products.
+
+use std::sync::Arc;
+
+use rayon::prelude::*;
+
+use super::host::{matmul, matmul_scaled, Out, View};
+use super::softmax::{self, Open};
+
+/// Which keys each query may not see (true = blocked).
+#[derive(Clone, Debug)]
+pub enum Mask {
+    None,
+    /// [B * Lk]: key padding, the same for every query.
+    Keys(Arc<Vec<bool>>),
+    /// [B * Lq * Lk]: per query and key.
+    Full(Arc<Vec<bool>>),
+}
+
+/// Shapes of one attention call: queries [B, Lq, d], keys and values [B, Lk, d], d = heads x dh;
+/// head h owns channels h*dh .. (h+1)*dh of every row.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AttnShape {
+    pub batch: usize,
+    pub lq: usize,
+    pub lk: usize,
+    pub heads: usize,
+    pub d: usize,
+}
+
+impl AttnShape {
+    fn dh(&self) -> usize {
+        self.d / self.heads
+    }
+
+    fn scale(&self) -> f32 {
+        1.0 / (self.dh() as f32).sqrt()
+    }
+
+    /// Head h of sample b of a [B, L, d] tensor as an [L, dh] view.
+    fn head(&self, x: &[f32], l: usize, b: usize, h: usize) -> View {
+        View { ptr: x[(b * l) * self.d + h * self.dh()..].as_ptr(), rs: self.d as isize, cs: 1 }
+    }
+}
+
+/// The keys of one sample that some query may see, and the mask restricted to them.
+struct Compact {
+    cols: Vec<usize>,
+    /// [Lq, cols] per query (Full masks) or nothing blocked (Keys masks).
+    open: Open,
+}
+
+/// Per sample: its seen keys where they are under 3/4 of all (below that the gather costs less
+/// than the products it saves), else None (the kernel runs on every key).
+fn compact(mask: &Mask, s: &AttnShape) -> Vec<Option<Compact>> {
+    let (lq, lk) = (s.lq, s.lk);
+    let worth = |cols: &[usize]| cols.len() * 4 < lk * 3;
+    (0..s.batch)
+        .map(|b| match mask {
+            Mask::None => None,
+            Mask::Keys(m) => {
+                let cols: Vec<usize> = (0..lk).filter(|&j| !m[b * lk + j]).collect();
+                worth(&cols).then(|| Compact { cols, open: Open::new(&Mask::None) })
+            }
+            Mask::Full(m) => {
+                let m = &m[b * lq * lk..(b + 1) * lq * lk];
+                let cols: Vec<usize> =
+                    (0..lk).filter(|&j| (0..lq).any(|i| !m[i * lk + j])).collect();
+                worth(&cols).then(|| {
+                    let sub = (0..lq).flat_map(|i| cols.iter().map(move |&j| m[i * lk + j]));
+                    let open = Open::new(&Mask::Full(Arc::new(sub.collect())));
+                    Compact { cols, open }
+                })
+            }
+        })
+        .collect()
+}
+
+/// Keys and values of head (b, h) as the core sees them: the sample's own rows, or the
+/// compacted ones gathered into `buf` ([Lc, dh] each, row-major).
+struct HeadKeys<'a> {
+    k: View,
+    v: View,
+    lk: usize,
+    open: &'a Open,
+    /// The row of `open` that belongs to this sample.
+    sample: usize,
+}
+
+impl<'a> HeadKeys<'a> {
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        k: &[f32],
+        v: &[f32],
+        s: &AttnShape,
+        open: &'a Open,
+        compact: &'a Option<Compact>,
+        b: usize,
+        h: usize,
+        buf: &'a mut (Vec<f32>, Vec<f32>),
+    ) -> HeadKeys<'a> {
+        let Some(c) = compact else {
+            let (k, v) = (s.head(k, s.lk, b, h), s.head(v, s.lk, b, h));
+            return HeadKeys { k, v, lk: s.lk, open, sample: b };
+        };
+        let dh = s.dh();
+        buf.0.clear();
+        buf.1.clear();
+        for &j in &c.cols {
+            let at = (b * s.lk + j) * s.d + h * dh;
+            buf.0.extend_from_slice(&k[at..at + dh]);
+            buf.1.extend_from_slice(&v[at..at + dh]);
+        }
+        let view = |x: &Vec<f32>| View { ptr: x.as_ptr(), rs: dh as isize, cs: 1 };
+        HeadKeys { k: view(&buf.0), v: view(&buf.1), lk: c.cols.len(), open: &c.open, sample: 0 }
+    }
+
+    /// softmax(Q K^T * scale, masked) of the head's queries `q` into `p` [Lq, lk]; fully blocked
+    /// rows are 0.
+    fn probabilities(&self, q: View, s: &AttnShape, p: &mut [f32]) {
+        let (lq, lk, dh) = (s.lq, self.lk, s.dh());
+        let kt = View { ptr: self.k.ptr, rs: self.k.cs, cs: self.k.rs };
+        // SAFETY: q is [lq, dh], k [lk, dh]; p holds lq * lk.
+        unsafe { matmul_scaled(lq, lk, dh, p.as_mut_ptr(), lk, q, kt, s.scale()) };
+        softmax::rows(&mut p[..lq * lk], &AttnShape { lk, ..*s }, self.open, self.sample);
+    }
+}
+
+/// softmax(Q K^T / sqrt(dh) + mask) V per head -> [B, Lq, d].
+pub fn attention_forward(q: &[f32], k: &[f32], v: &[f32], s: &AttnShape, mask: &Mask) -> Vec<f32> {
+    let (lq, lk, dh) = (s.lq, s.lk, s.dh());
+    let open = Open::new(mask);
+    let compact = compact(mask, s);
+    // Not zeroed: the heads together write every element (set_len below).
+    let mut out: Vec<f32> = Vec::with_capacity(s.batch * lq * s.d);
+    let dst = Out(out.as_mut_ptr());
+    (0..s.batch * s.heads).into_par_iter().for_each_init(
+        || (vec![0f32; lq * lk], (Vec::new(), Vec::new())),
+        |(p, buf), bh| {
+            let (b, h) = (bh / s.heads, bh % s.heads);
+            let keys = HeadKeys::new(k, v, s, &open, &compact[b], b, h, buf);
+            let d = dst;
+            // SAFETY: head (b, h) writes only its own dh columns of sample b's rows.
+            let at = unsafe { d.0.add(b * lq * s.d + h * dh) };
+            if keys.lk == 0 {
+                // No query sees any key: every row is blocked, so 0 (as the softmax gives).
+                (0..lq).for_each(|i| unsafe { std::ptr::write_bytes(at.add(i * s.d), 0, dh) });
+                return;
+            }
+            keys.probabilities(s.head(q, lq, b, h), s, p);
+            let pv = View { ptr: p.as_ptr(), rs: keys.lk as isize, cs: 1 };
+            // SAFETY: p is [lq, lk'], the values [lk', dh]; the destination as above.
+            unsafe { matmul(lq, dh, keys.lk, at, s.d, pv, keys.v) };
+        },
+    );
+    // SAFETY: every (b, h) wrote its [lq, dh] block; the blocks tile [B, Lq, d].
+    unsafe { out.set_len(s.batch * lq * s.d) };
+    out
+}
+
+/// Gradients (dQ, dK, dV) of [`attention_forward`] for the output gradient `dout` [B, Lq, d];
+/// the probabilities are recomputed (cheaper than keeping [B, H, Lq, Lk] per layer).
+pub fn attention_backward(
+    q: &[f32],
+    k: &[f32],
+    v: &[f32],
+    dout: &[f32],
+    s: &AttnShape,
+    mask: &Mask,
+) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+    let (lq, lk, dh) = (s.lq, s.lk, s.dh());
+    // dQ is written whole by the heads; dK and dV start at 0, as keys that no query sees get
+    // no gradient and compacted heads write only the keys they saw.
+    let mut dq: Vec<f32> = Vec::with_capacity(s.batch * lq * s.d);
+    let (mut dk, mut dv) = (vec![0f32; s.batch * lk * s.d], vec![0f32; s.batch * lk * s.d]);
+    let (dqp, dkp, dvp) = (Out(dq.as_mut_ptr()), Out(dk.as_mut_ptr()), Out(dv.as_mut_ptr()));
+    let open = Open::new(mask);
+    let compact = compact(mask, s);
+    let scale = s.scale();
+    (0..s.batch * s.heads).into_par_iter().for_each_init(
+        || (vec![0f32; lq * lk], vec![0f32; lq * lk], (Vec::new(), Vec::new()), vec![0f32; 0]),
+        |(p, dp, buf, grads), bh| {
+            let (b, h) = (bh / s.heads, bh % s.heads);
+            let (dqp, dkp, dvp) = (dqp, dkp, dvp);
+            let col = h * dh;
+            let keys = HeadKeys::new(k, v, s, &open, &compact[b], b, h, buf);
+            let n = keys.lk;
+            // SAFETY (all blocks below): the buffers hold [B, L, d] or [Lq, Lk]; head (b, h)
+            // writes only its own dh columns of sample b's rows in dq, dk and dv.
+            let dq_at = unsafe { dqp.0.add(b * lq * s.d + col) };
+            if n == 0 {
+                (0..lq).for_each(|i| unsafe { std::ptr::write_bytes(dq_at.add(i * s.d), 0, dh) });
+                return;
+            }
+            let (qh, go) = (s.head(q, lq, b, h), s.head(dout, lq, b, h));
+            keys.probabilities(qh, s, p);
+            let (p, dp) = (&mut p[..lq * n], &mut dp[..lq * n]);
+            // dK and dV of the compacted keys go to a scratch [2, n, dh] first, then to their rows.
+            let compacted = compact[b].as_ref();
+            let (dk_at, dv_at, rs) = match compacted {
+                None => unsafe {
+                    (dkp.0.add(b * lk * s.d + col), dvp.0.add(b * lk * s.d + col), s.d)
+                },
+                Some(_) => {
+                    grads.resize(2 * n * dh, 0.0);
+                    let at = grads.as_mut_ptr();
+                    (at, unsafe { at.add(n * dh) }, dh)
+                }
+            };
+            let pt = View { ptr: p.as_ptr(), rs: 1, cs: n as isize };
+            let vt = View { ptr: keys.v.ptr, rs: keys.v.cs, cs: keys.v.rs };
+            unsafe {
+                // dV = P^T dO; dP = dO V^T.
+                matmul(n, dh, lq, dv_at, rs, pt, go);
+                matmul(lq, n, dh, dp.as_mut_ptr(), n, go, vt);
+            }
+            // dS = P o (dP - rowsum(P o dP)), times the score scale.
+            for (pr, gr) in p.chunks(n).zip(dp.chunks_mut(n)) {
+                let dot: f32 = pr.iter().zip(gr.iter()).map(|(a, b)| a * b).sum();
+                gr.iter_mut().zip(pr).for_each(|(g, &pv)| *g = pv * (*g - dot) * scale);
+            }
+            let ds = View { ptr: dp.as_ptr(), rs: n as isize, cs: 1 };
+            let dst_t = View { ptr: dp.as_ptr(), rs: 1, cs: n as isize };
+            unsafe {
+                matmul(lq, dh, n, dq_at, s.d, ds, keys.k);
+                matmul(n, dh, lq, dk_at, rs, dst_t, qh);
+            }
+            if let Some(c) = compacted {
+                for (r, &j) in c.cols.iter().enumerate() {
+                    let at = (b * lk + j) * s.d + col;
+                    unsafe {
+                        std::ptr::copy_nonoverlapping(grads[r * dh..].as_ptr(), dkp.0.add(at), dh);
+                        std::ptr::copy_nonoverlapping(
+                            grads[(n + r) * dh..].as_ptr(),
+                            dvp.0.add(at),
+                            dh,
+                        );
+                    }
+                }
+            }
+        },
+    );
+    // SAFETY: the [Lq, dh] blocks of all (b, h) tile dQ.
+    unsafe { dq.set_len(s.batch * lq * s.d) };
+    (dq, dk, dv)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A sample whose every key is blocked (which the models never make) gives zeros, forward and
+    /// backward, beside a sample computed on its seen keys.
+    #[test]
+    fn fully_blocked_sample_is_zero() {
+        let s = AttnShape { batch: 2, lq: 3, lk: 8, heads: 2, d: 4 };
+        let x = |n: usize, k: usize| (0..n).map(|i| ((i * k) % 17) as f32 / 8.0 - 1.0).collect();
+        let (q, k, v, g): (Vec<f32>, Vec<f32>, Vec<f32>, Vec<f32>) =
+            (x(24, 5), x(64, 7), x(64, 3), x(24, 11));
+        let keys: Vec<bool> = (0..16).map(|i| i < 8 || i % 3 != 0).collect();
+        let mask = Mask::Keys(Arc::new(keys));
+        let out = attention_forward(&q, &k, &v, &s, &mask);
+        let (dq, dk, dv) = attention_backward(&q, &k, &v, &g, &s, &mask);
+        assert!(out[..12]
+            .iter()
+            .chain(&dq[..12])
+            .chain(&dk[..32])
+            .chain(&dv[..32])
+            .all(|&x| x == 0.0));
+        // Sample 1 sees keys 1, 4 and 7 only: its output mixes their values, its dK/dV elsewhere 0.
+        assert!(
+            out[12..].iter().any(|&x| x != 0.0) && dv[32 + 4..32 + 2 * 4].iter().any(|&x| x != 0.0)
+        );
+        for j in [0, 2, 3, 5, 6] {
+            assert!(dk[32 + j * 4..32 + (j + 1) * 4].iter().all(|&x| x == 0.0));
+        }
+    }
+}
