@@ -90,7 +90,8 @@ fn sample_outputs_errors_and_determinism() {
     assert_eq!(report["foot_lock"], true);
     assert!(
         report["samples"][0]["foot_lock"]["frames"].is_u64()
-            && report["samples"][0]["foot_lock"]["dragged"].is_u64(),
+            && report["samples"][0]["foot_lock"]["dragged"].is_u64()
+            && report["samples"][0]["foot_lock"]["out_of_reach"].is_u64(),
         "{}",
         report["samples"][0]
     );

@@ -86,9 +86,8 @@ pub(crate) struct FitArgs {
     #[arg(long)]
     no_foot_lock: bool,
     /// Largest move of a planted foot the lock makes, in metres; a contact span whose foot
-    /// slides further is left as it is (a dragged foot). Larger values remove more sliding at
-    /// some cost in naturalness (README, "Foot lock": 0.5 on the reference model gives foot
-    /// skating 0.182 against 0.228, FID +5%).
+    /// slides further is left as it is (a dragged foot), as is one whose leg cannot reach the
+    /// held foot to within 2 cm at every frame (README, "Foot lock").
     #[arg(long, default_value_t = diffkfc_data::footlock::MAX_SHIFT_M, value_name = "METRES")]
     foot_lock_reach: f64,
 }

@@ -13,9 +13,17 @@ pub const CONTACT: f32 = 0.5;
 /// Frames over which a lock's offset fades out before and after a planted span (0.2 s).
 pub const BLEND: usize = 4;
 /// Largest move of a planted foot (metres): a span that slides further than twice this is not
-/// a planted step but a dragged foot, which locking would stretch the leg to follow; it is left
-/// as it is and counted in [`LockReport::dragged`].
-pub const MAX_SHIFT_M: f64 = 0.15;
+/// a planted step but a dragged foot; it is left as it is and counted in
+/// [`LockReport::dragged`]. What keeps a lock from stretching the leg is the reach test
+/// ([`REACH_SLACK_M`]); on the reference model caps of 0.5 and 1.0 m lock the same spans.
+pub const MAX_SHIFT_M: f64 = 0.5;
+
+/// How far short of its anchor a held foot may stay (metres): a span is locked only if at every
+/// frame the leg, straightened if need be, reaches within this of the anchor (two-bone IK pulls
+/// an out-of-reach foot in along the hip-ankle line, which is a slide of that size). Spans
+/// needing more are left as they are and counted in [`LockReport::out_of_reach`]: holding them
+/// would stretch the leg straight and still slide.
+pub const REACH_SLACK_M: f64 = 0.02;
 
 /// What locking did to one motion.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
@@ -26,6 +34,8 @@ pub struct LockReport {
     pub max_shift_m: f64,
     /// Planted spans left unlocked because their foot slides more than a step can absorb.
     pub dragged: usize,
+    /// Planted spans left unlocked because the leg could reach the held foot only straight.
+    pub out_of_reach: usize,
 }
 
 /// One leg's joints, from the hip to the toe.
@@ -62,17 +72,19 @@ fn smoothstep(x: f64) -> f64 {
 /// Horizontal offset of one foot per frame: inside a planted span, from its toe to the span's
 /// anchor (the toe's mean place, or its place at the nearest held frame, so held frames get 0);
 /// outside, the span-end offsets fading over up to `blend` free frames. Spans needing a move
-/// over `max_shift` are skipped; returns the offsets and how many spans were.
+/// over `max_shift`, or a move `reachable(frame, offset)` refuses, are skipped; returns the
+/// offsets and how many spans were skipped for each reason.
 fn offsets(
     toe: &[Vec3],
     planted: &[bool],
     hold: &[bool],
     blend: usize,
     max_shift: f64,
-) -> (Vec<Vec3>, usize) {
+    reachable: impl Fn(usize, Vec3) -> bool,
+) -> (Vec<Vec3>, usize, usize) {
     let t = toe.len();
     let mut o = vec![[0.0; 3]; t];
-    let mut dragged = 0;
+    let (mut dragged, mut out_of_reach) = (0, 0);
     let mut s = 0;
     while s < t {
         if !planted[s] {
@@ -98,6 +110,11 @@ fn offsets(
             s = e + 1;
             continue;
         }
+        if span.iter().enumerate().any(|(i, v)| !hold[s + i] && !reachable(s + i, *v)) {
+            out_of_reach += 1;
+            s = e + 1;
+            continue;
+        }
         o[s..=e].copy_from_slice(&span);
         // Fade out into the free frames on each side, stopping short of held and planted ones.
         let free = |f: usize| !planted[f] && !hold[f];
@@ -113,7 +130,7 @@ fn offsets(
         }
         s = e + 1;
     }
-    (o, dragged)
+    (o, dragged, out_of_reach)
 }
 
 /// Knee position for a hip `h`, a moved ankle target `a` and the frame's own thigh and shin
@@ -174,8 +191,19 @@ pub fn lock_feet(
             .map(|f| feats[f * d + layout.contacts().start + leg.contact] > CONTACT)
             .collect();
         let toe: Vec<Vec3> = joints.iter().map(|j| j[leg.toe]).collect();
-        let (o, dragged) = offsets(&toe, &planted, hold, blend, max_shift_m / unit);
+        let slack = REACH_SLACK_M / unit;
+        // The frame's own bone lengths: generated motions stretch them a little.
+        let reachable = |f: usize, o: Vec3| {
+            let j = &joints[f];
+            let leg_len = quat::norm(quat::sub(j[leg.knee], j[leg.hip]))
+                + quat::norm(quat::sub(j[leg.ankle], j[leg.knee]));
+            let wanted = quat::norm(quat::sub(quat::add(j[leg.ankle], o), j[leg.hip]));
+            wanted <= leg_len + slack
+        };
+        let (o, dragged, out_of_reach) =
+            offsets(&toe, &planted, hold, blend, max_shift_m / unit, reachable);
         report.dragged += dragged;
+        report.out_of_reach += out_of_reach;
         // New knee, ankle and toe positions where the foot moves (deltas, zero elsewhere).
         let mut delta = vec![[[0.0; 3]; 3]; t];
         let mut moved = vec![false; t];
@@ -397,7 +425,8 @@ mod tests {
         let toe: Vec<Vec3> = (0..20).map(|f| [0.0, 0.0, 0.05 * f as f64]).collect();
         let planted: Vec<bool> = (0..20).map(|f| (5..=10).contains(&f)).collect();
         let mut hold = vec![false; 20];
-        let (o, dragged) = offsets(&toe, &planted, &hold, 4, 1.0);
+        let any = |_: usize, _: Vec3| true;
+        let (o, dragged, _) = offsets(&toe, &planted, &hold, 4, 1.0, any);
         assert_eq!(dragged, 0);
         // Planted frames land on their mean place; the fade is monotone and ends at zero.
         for f in 5..=10 {
@@ -410,11 +439,47 @@ mod tests {
                 && o[0] == [0.0; 3]
         );
         hold[8] = true;
-        let (o, _) = offsets(&toe, &planted, &hold, 4, 1.0);
+        let (o, _, _) = offsets(&toe, &planted, &hold, 4, 1.0, any);
         assert_eq!(o[8], [0.0; 3]);
         assert!((toe[5][2] + o[5][2] - toe[8][2]).abs() < 1e-12);
         // A foot dragged 25 cm over the span is not a planted step: left alone.
-        let (o, dragged) = offsets(&toe, &planted, &[false; 20], 4, 0.1);
+        let (o, dragged, _) = offsets(&toe, &planted, &[false; 20], 4, 0.1, any);
         assert_eq!((dragged, o), (1, vec![[0.0; 3]; 20]));
+        // A span the leg cannot reach at one of its frames is left alone; held frames are not
+        // asked (they do not move).
+        let short = |f: usize, _: Vec3| f != 9;
+        let (o, dragged, out) = offsets(&toe, &planted, &[false; 20], 4, 1.0, short);
+        assert_eq!((dragged, out, o), (0, 1, vec![[0.0; 3]; 20]));
+        let mut hold9 = vec![false; 20];
+        hold9[9] = true;
+        let (_, _, out) = offsets(&toe, &planted, &hold9, 4, 1.0, short);
+        assert_eq!(out, 0);
+    }
+
+    /// A stance leg pulled past its reach: the lock leaves the span rather than straighten it.
+    #[test]
+    fn unreachable_spans_are_left_alone() {
+        let clean = walk();
+        let layout = Layout::of(&T2M);
+        let d = layout.dim();
+        let t = clean.len() / d;
+        // Slide the whole lower legs 40 cm back and forth: to hold the feet, the legs would
+        // have to reach far past their length.
+        let mut j = joints(&T2M, &clean);
+        for (f, frame) in j.iter_mut().enumerate() {
+            for &k in &[4usize, 5, 7, 8, 10, 11] {
+                frame[k][2] += 0.4 * (std::f64::consts::TAU * f as f64 / 20.0).sin();
+            }
+        }
+        let mut sliding =
+            features_from_joints(&T2M, &j, crate::representation::FOOT_CONTACT_THRESHOLD).unwrap();
+        let t1 = sliding.len() / d;
+        for r in 0..t1.min(t) {
+            let c = layout.contacts();
+            sliding[r * d + c.start..r * d + c.end]
+                .copy_from_slice(&clean[r * d + c.start..r * d + c.end]);
+        }
+        let rep = lock_feet(&T2M, &mut sliding.clone(), &vec![false; t1], BLEND, 2.0);
+        assert!(rep.out_of_reach > 0, "{rep:?}");
     }
 }

@@ -6,7 +6,7 @@
 use burn::prelude::*;
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use diffkfc_model::bench::{Sampling, TrainStep};
-use diffkfc_model::{flops, DiffKfcConfig};
+use diffkfc_model::DiffKfcConfig;
 
 const FRAMES: usize = 60;
 
@@ -17,11 +17,11 @@ fn denoiser(c: &mut Criterion) {
     g.sample_size(10);
     let mut train = TrainStep::new(&cfg, 8, FRAMES, &device);
     // Throughput in "elements" = FLOPs, so criterion reports FLOP/s.
-    g.throughput(Throughput::Elements(flops::train_step(&cfg, 8, FRAMES) as u64));
+    g.throughput(Throughput::Elements(train.flops(&cfg) as u64));
     g.bench_function("train_step_b8", |b| b.iter(|| train.step()));
     let model = cfg.init(&device);
     let s = Sampling::new(&model, &cfg, 1, FRAMES);
-    let f = flops::forward(&cfg, 2, FRAMES);
+    let f = s.flops(&cfg);
     g.throughput(Throughput::Elements(f.total() as u64));
     g.bench_function("sampling_call", |b| b.iter(|| s.call(true)));
     g.throughput(Throughput::Elements(f.decoder as u64));

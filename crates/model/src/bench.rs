@@ -31,6 +31,12 @@ pub fn request(cfg: &DiffKfcConfig, batch: usize, frames: usize, seed: u64) -> R
     Request { kf, mask, ..Request::text_only(n, d, text, cfg.text_dim, vec![n; batch]) }
 }
 
+/// The encoder blocks' work for `cond` (see `flops::forward_planned`).
+fn block_work(cfg: &DiffKfcConfig, cond: &crate::Condition) -> Vec<crate::dma::BlockWork> {
+    let [b, n, _] = cond.kf.dims();
+    crate::dma::DmaPlan::new(&cond.kf_frames, &cond.real, b, n, &cfg.dma_sizes).work()
+}
+
 /// A [B, N, D] tensor of standard normals from `r`.
 fn normal_tensor(r: &mut Rng, shape: [usize; 3], device: &Device) -> Tensor<3> {
     let v: Vec<f32> = (0..shape.iter().product::<usize>()).map(|_| r.normal() as f32).collect();
@@ -77,6 +83,13 @@ impl TrainStep {
         }
     }
 
+    /// Matrix-product FLOPs of one step as computed (encoder blocks on their gathered rows).
+    pub fn flops(&self, cfg: &DiffKfcConfig) -> f64 {
+        let cond = self.req.condition(&self.device);
+        let [b, n, _] = cond.kf.dims();
+        crate::flops::train_step_planned(cfg, b, n, &block_work(cfg, &cond))
+    }
+
     /// One step; returns the loss (its value forces the work to finish).
     pub fn step(&mut self) -> f64 {
         let model = self.model.take().expect("model");
@@ -115,6 +128,13 @@ impl<'a> Sampling<'a> {
         let mut r = Rng::new(4);
         let x = normal_tensor(&mut r, [2 * batch, frames, cfg.feat_dim], &device);
         Sampling { model, req, encoded, x, t: vec![500; 2 * batch] }
+    }
+
+    /// Matrix-product FLOPs of one guided call as computed (see `TrainStep::flops`).
+    pub fn flops(&self, cfg: &DiffKfcConfig) -> crate::flops::Flops {
+        let cond = crate::guidance::pair(&self.req.condition(&self.x.device()));
+        let [b, n, _] = cond.kf.dims();
+        crate::flops::forward_planned(cfg, b, n, &block_work(cfg, &cond))
     }
 
     /// One guided denoising call: decoder only (encoder output cached, as in every step after

@@ -15,7 +15,7 @@ use burn::tensor::IndexingUpdateOp;
 
 use crate::attention::Attention;
 use crate::denoiser::Condition;
-use crate::kernels::{linear, linear_gelu, Mask};
+use crate::kernels::{linear, linear_gelu, worth_gathering, Mask};
 
 /// Per-block validity and attention masks of a batch, computed on the host from the keyframe
 /// frames and the padding (they do not depend on any tensor value).
@@ -97,9 +97,53 @@ impl DmaPlan {
         &self.valid[k + 1]
     }
 
+    /// The rows and attention scores each block runs on the fused CPU path, after its gathers
+    /// (for the FLOP count of what is computed rather than of the dense shapes).
+    pub fn work(&self) -> Vec<BlockWork> {
+        let (b, l) = (self.batch, self.frames + 1);
+        let rows = |m: &[bool]| {
+            let count = m.iter().filter(|&&v| v).count();
+            if worth_gathering(count, m.len()) {
+                count
+            } else {
+                m.len()
+            }
+        };
+        (0..self.active.len())
+            .map(|k| {
+                let valid = self.valid_before(k);
+                // Every query sees y_c; the text query sees every valid token, the others a
+                // subset: a sample's seen keys are its valid tokens (what the kernel gathers).
+                let scores = (0..b)
+                    .map(|s| {
+                        let seen = valid[s * l..(s + 1) * l].iter().filter(|&&v| v).count();
+                        l * if worth_gathering(seen, l) { seen } else { l }
+                    })
+                    .sum();
+                BlockWork { queries: rows(&self.active[k]), keys: rows(valid), scores }
+            })
+            .collect()
+    }
+
     /// Valid tokens at the encoder output (text token included): what the decoder may attend.
     pub fn final_valid(&self) -> &[bool] {
         self.valid.last().expect("the initial validity is always there")
+    }
+}
+
+/// What one DMA block computes, summed over the batch: rows through the query, output, concat-FC
+/// and MLP layers; rows through the key and value layers; query-key pairs scored.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BlockWork {
+    pub queries: usize,
+    pub keys: usize,
+    pub scores: usize,
+}
+
+impl BlockWork {
+    /// Every token of `batch` sequences of `tokens` as query and key.
+    pub fn dense(batch: usize, tokens: usize) -> BlockWork {
+        BlockWork { queries: batch * tokens, keys: batch * tokens, scores: batch * tokens * tokens }
     }
 }
 
@@ -169,8 +213,7 @@ impl Rows {
         let rows: Vec<i64> =
             mask.iter().enumerate().filter(|(_, &v)| v).map(|(i, _)| i as i64).collect();
         let (count, total) = (rows.len(), mask.len());
-        // Above ~3/4 of the rows the saved products no longer pay for the gather and scatter.
-        let index = (count * 4 < total * 3)
+        let index = worth_gathering(count, total)
             .then(|| Tensor::<1, Int>::from_data(TensorData::new(rows, [count]), device));
         Rows { count, total, index }
     }

@@ -1,7 +1,11 @@
 //! Matrix-multiply FLOPs of one forward pass (2 per multiply-add), counted from the shapes of
 //! our implementation, for the GFLOP/s the benchmarks report. Elementwise work, softmax and
-//! normalisation are not counted (they are a few percent of the total).
+//! normalisation are not counted (they are a few percent of the total). The keyframe encoder's
+//! blocks are counted either dense ([`forward`]) or as the rows and scores their gathers leave
+//! ([`forward_planned`] with `DmaPlan::work`: what the fused CPU path computes, so a rate from
+//! it is never above what the machine did).
 
+use crate::dma::BlockWork;
 use crate::DiffKfcConfig;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -29,19 +33,34 @@ fn attend(b: usize, lq: usize, lk: usize, d: usize) -> f64 {
     2.0 * 2.0 * b as f64 * lq as f64 * lk as f64 * d as f64
 }
 
-/// One forward of `batch` motions of `frames` frames.
+/// One forward of `batch` motions of `frames` frames, every encoder block dense.
 pub fn forward(c: &DiffKfcConfig, batch: usize, frames: usize) -> Flops {
+    let dense = vec![BlockWork::dense(batch, frames + 1); c.dma_sizes.len()];
+    forward_planned(c, batch, frames, &dense)
+}
+
+/// One forward with the encoder blocks' work given (`DmaPlan::work`, one entry per block).
+pub fn forward_planned(
+    c: &DiffKfcConfig,
+    batch: usize,
+    frames: usize,
+    work: &[BlockWork],
+) -> Flops {
     let (b, n, d, f) = (batch, frames, c.d_model, c.ffn);
     let (le, ld) = (n + 1, n + 2);
-    let block = linear(b * le, d, 3 * d)
-        + attend(b, le, le, d)
-        + linear(b * le, d, d)
-        + linear(b * le, 2 * d, d)
-        + linear(b * le, d, f)
-        + linear(b * le, f, d);
+    let block = |w: &BlockWork| {
+        let (q, k) = (w.queries, w.keys);
+        linear(q, d, d)
+            + linear(k, d, 2 * d)
+            + 2.0 * 2.0 * w.scores as f64 * d as f64
+            + linear(q, d, d)
+            + linear(q, 2 * d, d)
+            + linear(q, d, f)
+            + linear(q, f, d)
+    };
     let encoder = linear(b, c.text_dim, d)
-        + linear(b * n, 2 * c.feat_dim, d)
-        + c.dma_sizes.len() as f64 * block
+        + linear(b * n, 2 * (c.feat_dim + c.root_channels), d)
+        + work.iter().map(block).sum::<f64>()
         + c.dec_layers as f64 * linear(b * le, d, 2 * d);
     let layer = linear(b * ld, d, 3 * d)
         + attend(b, ld, ld, d)
@@ -62,6 +81,16 @@ pub fn forward(c: &DiffKfcConfig, batch: usize, frames: usize) -> Flops {
 /// both the inputs and the weights of every matmul).
 pub fn train_step(c: &DiffKfcConfig, batch: usize, frames: usize) -> f64 {
     3.0 * forward(c, batch, frames).total()
+}
+
+/// A training step with the encoder blocks' work given.
+pub fn train_step_planned(
+    c: &DiffKfcConfig,
+    batch: usize,
+    frames: usize,
+    work: &[BlockWork],
+) -> f64 {
+    3.0 * forward_planned(c, batch, frames, work).total()
 }
 
 #[cfg(test)]
@@ -92,5 +121,33 @@ mod tests {
         // weights = 16.6 GFLOP, attention products 8 x 0.32 = 2.6, input/output 0.2: 19.4.
         let dec = forward(&c, 2, 196).decoder / 1e9;
         assert!((dec - 19.4).abs() < 0.1, "{dec}");
+    }
+
+    /// With no keyframe each block updates only the text token and attends only to it: the
+    /// encoder's blocks shrink to one row per sample, counted by hand for the tiny config.
+    #[test]
+    fn planned_count_follows_the_gathers() {
+        let c = DiffKfcConfig::tiny();
+        let (b, n) = (2, 40);
+        let plan =
+            crate::dma::DmaPlan::new(&vec![false; b * n], &vec![true; b * n], b, n, &c.dma_sizes);
+        let work = plan.work();
+        let l = n + 1;
+        for w in &work {
+            assert_eq!(*w, BlockWork { queries: b, keys: b, scores: b * l });
+        }
+        let (d, f) = (c.d_model as f64, c.ffn as f64);
+        let rows = b as f64;
+        let per_block = 2.0 * rows * (d * d + 2.0 * d * d + d * d + 2.0 * d * d + 2.0 * d * f)
+            + 4.0 * (b * l) as f64 * d;
+        let saved = forward(&c, b, n).encoder - forward_planned(&c, b, n, &work).encoder;
+        let dense_block =
+            2.0 * (b * l) as f64 * (6.0 * d * d + 2.0 * d * f) + 4.0 * (b * l * l) as f64 * d;
+        let want = c.dma_sizes.len() as f64 * (dense_block - per_block);
+        assert!((saved - want).abs() < 1e-6 * want, "{saved} vs {want}");
+        // Every frame a keyframe: nothing to gather, the dense count.
+        let all =
+            crate::dma::DmaPlan::new(&vec![true; b * n], &vec![true; b * n], b, n, &c.dma_sizes);
+        assert_eq!(forward_planned(&c, b, n, &all.work()), forward(&c, b, n));
     }
 }

@@ -11,7 +11,7 @@ use burn::prelude::Device;
 use clap::Args;
 use diffkfc_model::bench::{Sampling, TrainStep};
 use diffkfc_model::run_config::RunConfig;
-use diffkfc_model::{flops, DiffKfcConfig};
+use diffkfc_model::DiffKfcConfig;
 use serde_json::{json, Value};
 
 pub const AFTER_HELP: &str = "\
@@ -247,7 +247,7 @@ fn model_cases(
             "train_step",
             ms,
             &r,
-            flops::train_step(cfg, b, n) / 1e9,
+            w.flops(cfg) / 1e9,
             json!({"batch": b, "last_step_phases_ms": {"forward": f, "backward": bw, "host_update": up}, "common": common}),
         ));
     }
@@ -257,7 +257,7 @@ fn model_cases(
     }
     let model = cfg.init(device);
     let s = Sampling::new(&model, cfg, 1, n);
-    let f = flops::forward(cfg, 2, n);
+    let f = s.flops(cfg);
     if cases.contains(&"call") {
         let (ms, r) = time_ms(runs * 3, || s.call(true));
         ours.insert("sampling_call", ms);

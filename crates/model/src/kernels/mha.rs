@@ -55,11 +55,11 @@ struct Compact {
     open: Open,
 }
 
-/// Per sample: its seen keys where they are under 3/4 of all (below that the gather costs less
-/// than the products it saves), else None (the kernel runs on every key).
+/// Per sample: its seen keys where gathering them is worth it (`worth_gathering`), else None
+/// (the kernel runs on every key).
 fn compact(mask: &Mask, s: &AttnShape) -> Vec<Option<Compact>> {
     let (lq, lk) = (s.lq, s.lk);
-    let worth = |cols: &[usize]| cols.len() * 4 < lk * 3;
+    let worth = |cols: &[usize]| super::worth_gathering(cols.len(), lk);
     (0..s.batch)
         .map(|b| match mask {
             Mask::None => None,

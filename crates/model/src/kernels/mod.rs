@@ -25,6 +25,13 @@ use crate::dropout::Dropout;
 
 pub use mha::{AttnShape, Mask};
 
+/// Whether running on `count` of `total` rows (or keys) through a gather is worth it: above ~3/4
+/// the saved products no longer pay for the gather and scatter. One rule for the DMA blocks' row
+/// subsets, the attention kernel's key compaction and the FLOP count of what they run.
+pub fn worth_gathering(count: usize, total: usize) -> bool {
+    count * 4 < total * 3
+}
+
 /// LayerNorm's epsilon (Burn's `LayerNormConfig` default, which every LayerNorm here uses).
 pub const LN_EPS: f32 = 1e-5;
 

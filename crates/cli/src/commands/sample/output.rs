@@ -151,8 +151,8 @@ pub(super) fn write_outputs(
         };
         let lock_note = match s["foot_lock"]["frames"].as_u64() {
             Some(frames) => format!(
-                "; foot lock moved {frames} frame(s) (left {} dragged span(s))",
-                s["foot_lock"]["dragged"]
+                "; foot lock moved {frames} frame(s) (left {} dragged span(s), {} out of the leg's reach)",
+                s["foot_lock"]["dragged"], s["foot_lock"]["out_of_reach"]
             ),
             None => String::new(),
         };

@@ -81,6 +81,7 @@ pub(super) fn run(a: SampleArgs, spec_arg: &str) -> Result<()> {
             );
             feet[i].frames += f.feet.frames;
             feet[i].dragged += f.feet.dragged;
+            feet[i].out_of_reach += f.feet.out_of_reach;
             feet[i].max_shift_m = feet[i].max_shift_m.max(f.feet.max_shift_m);
         }
     }
