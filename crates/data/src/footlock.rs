@@ -342,28 +342,36 @@ mod tests {
         assert_eq!(held, f);
     }
 
-    #[test]
-    fn sliding_planted_feet_are_held_and_stay_consistent() {
+    /// The synthetic walk with its lower legs swung back and forth along z by `amplitude`
+    /// metres over `period` frames, keeping the clean clip's contact labels (the slide would
+    /// erase them): its planted feet skate.
+    fn sliding_walk(amplitude: f64, period: f64) -> Vec<f32> {
         let clean = walk();
         let layout = Layout::of(&T2M);
         let d = layout.dim();
-        // Swing the lower legs back and forth along z by 6 cm at 2 Hz: planted feet now
-        // skate at up to 0.75 m/s.
         let mut j = joints(&T2M, &clean);
         for (f, frame) in j.iter_mut().enumerate() {
             for &k in &[4usize, 5, 7, 8, 10, 11] {
-                frame[k][2] += 0.06 * (std::f64::consts::TAU * f as f64 / 10.0).sin();
+                frame[k][2] += amplitude * (std::f64::consts::TAU * f as f64 / period).sin();
             }
         }
         let mut sliding =
             features_from_joints(&T2M, &j, crate::representation::FOOT_CONTACT_THRESHOLD).unwrap();
-        // Keep the clean clip's contact labels (the slide would erase them).
-        let t1 = sliding.len() / d;
-        for r in 0..t1 {
-            let c = layout.contacts();
+        let c = layout.contacts();
+        for r in 0..(sliding.len() / d).min(clean.len() / d) {
             sliding[r * d + c.start..r * d + c.end]
                 .copy_from_slice(&clean[r * d + c.start..r * d + c.end]);
         }
+        sliding
+    }
+
+    #[test]
+    fn sliding_planted_feet_are_held_and_stay_consistent() {
+        let layout = Layout::of(&T2M);
+        let d = layout.dim();
+        // 6 cm at 2 Hz: planted feet skate at up to 0.75 m/s.
+        let sliding = sliding_walk(0.06, 10.0);
+        let t1 = sliding.len() / d;
         let hold: Vec<bool> = (0..t1).map(|f| f == t1 / 2).collect();
         let before_j = joints(&T2M, &sliding);
         let skate0 = foot_skating_ratio(&T2M, &before_j);
@@ -459,27 +467,10 @@ mod tests {
     /// A stance leg pulled past its reach: the lock leaves the span rather than straighten it.
     #[test]
     fn unreachable_spans_are_left_alone() {
-        let clean = walk();
-        let layout = Layout::of(&T2M);
-        let d = layout.dim();
-        let t = clean.len() / d;
-        // Slide the whole lower legs 40 cm back and forth: to hold the feet, the legs would
-        // have to reach far past their length.
-        let mut j = joints(&T2M, &clean);
-        for (f, frame) in j.iter_mut().enumerate() {
-            for &k in &[4usize, 5, 7, 8, 10, 11] {
-                frame[k][2] += 0.4 * (std::f64::consts::TAU * f as f64 / 20.0).sin();
-            }
-        }
-        let mut sliding =
-            features_from_joints(&T2M, &j, crate::representation::FOOT_CONTACT_THRESHOLD).unwrap();
-        let t1 = sliding.len() / d;
-        for r in 0..t1.min(t) {
-            let c = layout.contacts();
-            sliding[r * d + c.start..r * d + c.end]
-                .copy_from_slice(&clean[r * d + c.start..r * d + c.end]);
-        }
-        let rep = lock_feet(&T2M, &mut sliding.clone(), &vec![false; t1], BLEND, 2.0);
+        // 40 cm: to hold the feet, the legs would have to reach far past their length.
+        let mut sliding = sliding_walk(0.4, 20.0);
+        let t1 = sliding.len() / Layout::of(&T2M).dim();
+        let rep = lock_feet(&T2M, &mut sliding, &vec![false; t1], BLEND, 2.0);
         assert!(rep.out_of_reach > 0, "{rep:?}");
     }
 }
