@@ -186,12 +186,12 @@ pub fn lock_feet(
     let joints = recover_from_ric(skel, &f64s);
     let (rq, _) = recover_root_rot_pos(&f64s, d);
     let unit = skel.metres_per_unit;
+    let slack = REACH_SLACK_M / unit;
     for leg in legs(skel) {
         let planted: Vec<bool> = (0..t)
             .map(|f| feats[f * d + layout.contacts().start + leg.contact] > CONTACT)
             .collect();
         let toe: Vec<Vec3> = joints.iter().map(|j| j[leg.toe]).collect();
-        let slack = REACH_SLACK_M / unit;
         // The frame's own bone lengths: generated motions stretch them a little.
         let reachable = |f: usize, o: Vec3| {
             let j = &joints[f];

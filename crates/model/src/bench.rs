@@ -87,7 +87,7 @@ impl TrainStep {
     pub fn flops(&self, cfg: &DiffKfcConfig) -> f64 {
         let cond = self.req.condition(&self.device);
         let [b, n, _] = cond.kf.dims();
-        crate::flops::train_step_planned(cfg, b, n, &block_work(cfg, &cond))
+        crate::flops::train_step(cfg, b, n, &block_work(cfg, &cond))
     }
 
     /// One step; returns the loss (its value forces the work to finish).

@@ -15,7 +15,7 @@ use burn::tensor::IndexingUpdateOp;
 
 use crate::attention::Attention;
 use crate::denoiser::Condition;
-use crate::kernels::{linear, linear_gelu, worth_gathering, Mask};
+use crate::kernels::{linear, linear_gelu, rows_run, worth_gathering, Mask};
 
 /// Per-block validity and attention masks of a batch, computed on the host from the keyframe
 /// frames and the padding (they do not depend on any tensor value).
@@ -101,25 +101,13 @@ impl DmaPlan {
     /// (for the FLOP count of what is computed rather than of the dense shapes).
     pub fn work(&self) -> Vec<BlockWork> {
         let (b, l) = (self.batch, self.frames + 1);
-        let rows = |m: &[bool]| {
-            let count = m.iter().filter(|&&v| v).count();
-            if worth_gathering(count, m.len()) {
-                count
-            } else {
-                m.len()
-            }
-        };
+        let rows = |m: &[bool]| rows_run(m.iter().filter(|&&v| v).count(), m.len());
         (0..self.active.len())
             .map(|k| {
                 let valid = self.valid_before(k);
                 // Every query sees y_c; the text query sees every valid token, the others a
                 // subset: a sample's seen keys are its valid tokens (what the kernel gathers).
-                let scores = (0..b)
-                    .map(|s| {
-                        let seen = valid[s * l..(s + 1) * l].iter().filter(|&&v| v).count();
-                        l * if worth_gathering(seen, l) { seen } else { l }
-                    })
-                    .sum();
+                let scores = (0..b).map(|s| l * rows(&valid[s * l..(s + 1) * l])).sum();
                 BlockWork { queries: rows(&self.active[k]), keys: rows(valid), scores }
             })
             .collect()

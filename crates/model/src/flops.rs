@@ -77,19 +77,9 @@ pub fn forward_planned(
     Flops { encoder, decoder }
 }
 
-/// A training step: forward plus backward (about twice the forward: gradients with respect to
-/// both the inputs and the weights of every matmul).
-pub fn train_step(c: &DiffKfcConfig, batch: usize, frames: usize) -> f64 {
-    3.0 * forward(c, batch, frames).total()
-}
-
-/// A training step with the encoder blocks' work given.
-pub fn train_step_planned(
-    c: &DiffKfcConfig,
-    batch: usize,
-    frames: usize,
-    work: &[BlockWork],
-) -> f64 {
+/// A training step with the encoder blocks' work given: forward plus backward (about twice the
+/// forward: gradients with respect to both the inputs and the weights of every matmul).
+pub fn train_step(c: &DiffKfcConfig, batch: usize, frames: usize, work: &[BlockWork]) -> f64 {
     3.0 * forward_planned(c, batch, frames, work).total()
 }
 

@@ -32,6 +32,16 @@ pub fn worth_gathering(count: usize, total: usize) -> bool {
     count * 4 < total * 3
 }
 
+/// How many of `total` rows (or keys) a gathered op runs on: the `count` it needs when
+/// gathering them is worth it, else all of them.
+pub fn rows_run(count: usize, total: usize) -> usize {
+    if worth_gathering(count, total) {
+        count
+    } else {
+        total
+    }
+}
+
 /// LayerNorm's epsilon (Burn's `LayerNormConfig` default, which every LayerNorm here uses).
 pub const LN_EPS: f32 = 1e-5;
 
