@@ -191,6 +191,16 @@ fn sample_outputs_errors_and_determinism() {
             && !out2.join("sample_01.npy").exists()
     );
 
+    // A foot-lock reach outside 0..2 m: one line naming the flag and the value.
+    for bad in ["-1", "3", "NaN"] {
+        let mut v = args(&d.join("reach"));
+        v.push(format!("--foot-lock-reach={bad}"));
+        assert_one_line_error(
+            &diffkfc(&v.iter().map(String::as_str).collect::<Vec<_>>()),
+            &["--foot-lock-reach", bad],
+        );
+    }
+
     // The BVH reads back as keyframe source and as a picture.
     let bvh = out.join("sample_00.bvh");
     let out4 = d.join("out4");
