@@ -79,6 +79,32 @@ fn train_resume_and_outputs() {
         !run.join("ckpt-00000002.safetensors").exists()
             && run.join("ckpt-00000006.safetensors").exists()
     );
+    // A model grown by the root path hint starts from this run's weights (--init): every
+    // shared tensor taken, the hint's projection initialised.
+    let grown_cfg = d.join("grown.json");
+    std::fs::write(
+        &grown_cfg,
+        CFG.replace("\"preset\": \"tiny\"", "\"preset\": \"tiny\", \"root_path\": true"),
+    )
+    .unwrap();
+    let grown = d.join("grown");
+    let o = diffkfc(&[
+        "train",
+        "--config",
+        s(&grown_cfg),
+        "--data",
+        s(&data),
+        "--out",
+        s(&grown),
+        "--max-steps",
+        "2",
+        "--init",
+        s(&run),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let said = format!("{}{}", stdout(&o), stderr(&o));
+    assert!(said.contains("initialised: path_in.weight, path_in.bias"), "{said}");
+    assert_eq!(steps(&grown), vec![1, 2]);
     // A time budget stops cleanly with a checkpoint.
     let run2 = d.join("budget");
     let o = diffkfc(&[
@@ -164,6 +190,10 @@ fn bad_train_arguments() {
     assert_one_line_error(
         &diffkfc(&["train", "--config", s(&cfg), "--time-budget", "soon"]),
         &["soon"],
+    );
+    assert_one_line_error(
+        &diffkfc(&["train", "--config", s(&cfg), "--data", s(&d), "--init", "no/such/run"]),
+        &["--init", "no/such/run", "does not exist"],
     );
     assert_one_line_error(
         &diffkfc(&["train", "--config", s(&cfg), "--optimiser-state", "gpu"]),

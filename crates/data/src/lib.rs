@@ -21,6 +21,7 @@ pub mod render;
 pub mod representation;
 pub mod rig;
 pub mod rng;
+pub mod root_path;
 pub mod skeleton;
 pub mod synth;
 pub mod texts;

@@ -35,6 +35,10 @@ pub struct DiffKfcConfig {
     /// extension, `crate::temporal`); 0 = none (the paper, and checkpoints made before it).
     #[config(default = 0)]
     pub temporal_kernel: usize,
+    /// The decoder also reads, per frame, the velocity the keyed places imply
+    /// (`diffkfc_data::root_path`; our extension); false for checkpoints made before it.
+    #[config(default = false)]
+    pub root_path: bool,
 }
 
 impl DiffKfcConfig {

@@ -4,7 +4,9 @@
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 
+use diffkfc_data::root_path::{path_channels, PATH_CHANNELS};
 use diffkfc_data::warp::ROOT_CHANNELS;
+use diffkfc_data::T2M;
 
 use crate::config::DiffKfcConfig;
 use crate::decoder::DecoderLayer;
@@ -25,6 +27,9 @@ pub struct Condition {
     /// zero where unobserved, and its mask.
     pub root: Tensor<3>,
     pub root_mask: Tensor<3>,
+    /// [B, N, PATH_CHANNELS] the velocity the keyed places imply for each frame
+    /// (`diffkfc_data::root_path`), read by the decoder of models with path channels.
+    pub path: Tensor<3>,
     /// [B*N] frames with any observed feature.
     pub kf_frames: Vec<bool>,
     /// [B*N] real (non-padding) frames.
@@ -61,7 +66,14 @@ impl Condition {
             })
             .collect();
         let root_t = |v: &[f32]| Tensor::<1>::from_floats(v, device).reshape([b, n, r]);
+        let path: Vec<f32> = (0..b)
+            .flat_map(|i| {
+                let s = i * n * r..(i + 1) * n * r;
+                path_channels(&root[s.clone()], &root_mask[s], n, T2M.fps)
+            })
+            .collect();
         Condition {
+            path: Tensor::<1>::from_floats(path.as_slice(), device).reshape([b, n, PATH_CHANNELS]),
             text,
             kf,
             kf_mask,
@@ -80,6 +92,7 @@ impl Condition {
             kf_mask: self.kf_mask.zeros_like(),
             root: self.root.zeros_like(),
             root_mask: self.root_mask.zeros_like(),
+            path: self.path.zeros_like(),
             kf_frames: vec![false; self.kf_frames.len()],
             real: self.real.clone(),
         }
@@ -103,6 +116,9 @@ pub struct Encoded {
     pub pos: Tensor<3>,
     /// [B, N, 1] 1 on real frames, 0 on padding (what the temporal convolution may read).
     pub real: Tensor<3>,
+    /// [B, N, d] the root path hint's embedding, added to the decoder's frame tokens (models
+    /// with path channels).
+    pub path: Option<Tensor<3>>,
 }
 
 #[derive(Module, Debug)]
@@ -115,6 +131,9 @@ pub struct Denoiser {
     out: Linear,
     d_model: usize,
     dma_sizes: Vec<usize>,
+    /// The root path hint's projection (last, so positional checkpoints of models without it
+    /// are a prefix of its parameters).
+    path_in: Option<Linear>,
 }
 
 impl DiffKfcConfig {
@@ -148,6 +167,12 @@ impl DiffKfcConfig {
             out: LinearConfig::new(d, self.feat_dim).init(device),
             d_model: d,
             dma_sizes: self.dma_sizes.clone(),
+            // Zero at first: a model fine-tuned from one without the hint starts as that model.
+            path_in: self.root_path.then(|| {
+                LinearConfig::new(PATH_CHANNELS, d)
+                    .with_initializer(burn::nn::Initializer::Zeros)
+                    .init(device)
+            }),
         }
     }
 }
@@ -168,7 +193,9 @@ impl Denoiser {
             .collect();
         let cross_kv = self.layers.iter().map(|l| l.cross_kv(tokens.clone())).collect();
         let real: Vec<f32> = c.real.iter().map(|&r| if r { 1.0 } else { 0.0 }).collect();
+        let path = self.path_in.as_ref().map(|l| linear(l, c.path.clone()));
         Encoded {
+            path,
             real: Tensor::<1>::from_floats(real.as_slice(), &device).reshape([b, n, 1]),
             cross_kv,
             tokens,
@@ -183,7 +210,10 @@ impl Denoiser {
     pub fn decode(&self, x_t: Tensor<3>, t: &[usize], e: &Encoded) -> Tensor<3> {
         let device = x_t.device();
         let [b, n, _] = x_t.dims();
-        let frames = linear(&self.x_in, x_t) + e.pos.clone();
+        let mut frames = linear(&self.x_in, x_t) + e.pos.clone();
+        if let Some(p) = &e.path {
+            frames = frames + p.clone();
+        }
         let y_t = self.time.forward(t, &device);
         let mut h = Tensor::cat(vec![y_t, e.text_tok.clone(), frames], 1);
         for (layer, kv) in self.layers.iter().zip(&e.cross_kv) {
@@ -204,7 +234,8 @@ impl Denoiser {
         let emb = self.x_in.num_params()
             + self.text_in.num_params()
             + self.time.num_params()
-            + self.out.num_params();
+            + self.out.num_params()
+            + self.path_in.as_ref().map_or(0, |l| l.num_params());
         vec![
             ("keyframe encoder (DMA)", enc),
             ("decoder layers", dec),

@@ -32,6 +32,7 @@ pub(crate) mod temporal;
 pub mod text;
 pub mod trainer;
 pub(crate) mod transition;
+pub(crate) mod warm_start;
 
 pub use config::DiffKfcConfig;
 pub use denoiser::{Condition, Denoiser, Encoded};

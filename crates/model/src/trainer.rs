@@ -54,6 +54,9 @@ pub struct StepRecord {
 pub enum Event<'a> {
     Step(&'a StepRecord),
     Checkpoint(usize, &'a Path),
+    /// A fresh run took its weights from `Trainer::init`; these parameters it had no tensor
+    /// for keep their initialisation.
+    WarmStart(Vec<String>),
 }
 
 pub struct Trainer<'a> {
@@ -66,6 +69,8 @@ pub struct Trainer<'a> {
     pub run_dir: PathBuf,
     /// Where the optimiser's state lives (`Home::for_device(&device)` unless overridden).
     pub optimiser: Home,
+    /// A fresh run starts from these weights (`warm_start`) instead of the initialisation.
+    pub init: Option<PathBuf>,
 }
 
 /// How a training call ended.
@@ -255,6 +260,11 @@ impl Trainer<'_> {
                 optim = Some(o);
             }
         }
+        if let (None, Some(path)) = (&optim, &self.init) {
+            let (m, fresh) = crate::warm_start::warm_start(model, &checkpoint_at(path)?, path)?;
+            model = m;
+            on_event(Event::WarmStart(fresh));
+        }
         let mut optim = optim.unwrap_or_else(|| Optimiser::new(&model, self.optimiser, keep_ema));
         let run = crate::run_dir::RunDir::new(&self.run_dir);
         let metrics_path = run.metrics_path();
@@ -397,19 +407,25 @@ fn non_finite(step: usize, what: &str, value: f64, run_dir: &Path) -> ModelError
     ModelError::Diverged(format!("{}: step {step}: {what} is {value} (not finite): training stopped; {kept}. Lower training.lr, check the data with `diffkfc data check`, or resume from the checkpoint", run_dir.display()))
 }
 
+/// The checkpoint a path names: a checkpoint file, a run directory (its newest checkpoint) or a
+/// model directory (`diffkfc model export`).
+pub fn checkpoint_at(path: &Path) -> Result<Checkpoint> {
+    let exported = path.join(crate::checkpoint::WEIGHTS_FILE);
+    if path.is_file() {
+        Checkpoint::load(path)
+    } else if let Some(ck) = Checkpoint::latest(path) {
+        ck
+    } else if exported.is_file() {
+        Checkpoint::load(&exported)
+    } else {
+        Err(ModelError::file(path, "no checkpoint found (train first, or pass a run directory, a model directory or a ckpt-*.safetensors file)"))
+    }
+}
+
 /// Load the weights of a run for inference: the EMA when present, else the raw model. `run_dir`
 /// is a run directory (its newest checkpoint) or one checkpoint file of it.
 pub fn load_for_inference(run_dir: &Path, device: &Device) -> Result<(RunConfig, Denoiser, usize)> {
-    let exported = run_dir.join(crate::checkpoint::WEIGHTS_FILE);
-    let ck = if run_dir.is_file() {
-        Checkpoint::load(run_dir)?
-    } else if let Some(ck) = Checkpoint::latest(run_dir) {
-        ck?
-    } else if exported.is_file() {
-        Checkpoint::load(&exported)?
-    } else {
-        return Err(ModelError::file(run_dir, "no checkpoint found (train first, or pass a run directory, a model directory or a ckpt-*.safetensors file)"));
-    };
+    let ck = checkpoint_at(run_dir)?;
     let mut cfg = RunConfig::parse(&ck.config)
         .map_err(|e| ModelError::file(run_dir, format!("stored config: {e}")))?;
     // Inference: no dropout (it has no parameters, so the weights load the same).

@@ -89,6 +89,7 @@ fn keyframes_reproduce_a_clip_far_better_than_text() {
         device: Device::flex(),
         optimiser: Home::Host,
         run_dir: run_dir.clone(),
+        init: None,
     };
     tr.run(false, steps, &|| false, &mut |_| {}).unwrap();
     let train_s = t0.elapsed().as_secs_f64();

@@ -85,6 +85,7 @@ fn resume_is_exact_and_checkpoints_rotate() {
         device: Device::flex(),
         optimiser: Home::Host,
         run_dir: root.join(dir),
+        init: None,
     };
     let never = || false;
 
@@ -161,6 +162,7 @@ fn device_resident_optimiser_matches_host_and_resumes_exactly() {
         device: Device::flex(),
         optimiser,
         run_dir: root.join(dir),
+        init: None,
     };
     let never = || false;
     let mut norms = Vec::new();
@@ -225,6 +227,7 @@ fn tiny_config_lowers_validation_loss() {
         device: Device::flex(),
         optimiser: Home::Host,
         run_dir: root.join("run"),
+        init: None,
     };
     tr.run(false, 120, &|| false, &mut |_| {}).unwrap();
     let vals: Vec<(u64, f64)> = std::fs::read_to_string(root.join("run/metrics.jsonl"))
@@ -324,6 +327,7 @@ fn shard_gradients_weighted_by_counts_equal_the_batch_gradient() {
         device: Device::flex(),
         optimiser: Home::Host,
         run_dir: root.join("run"),
+        init: None,
     };
     let device = Device::flex().autodiff();
     device.seed(5);

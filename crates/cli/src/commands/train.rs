@@ -30,6 +30,11 @@ pub struct TrainArgs {
     /// Continue from the run directory's latest checkpoint.
     #[arg(long)]
     resume: bool,
+    /// Start a new run from these weights (a run or model directory, or a checkpoint file):
+    /// every parameter it has with the same name and shape is taken, the model's others
+    /// (an extension the source lacks, such as model.root_path) start as initialised.
+    #[arg(long, value_name = "CHECKPOINT")]
+    init: Option<PathBuf>,
     /// Stop at this step (default: training.max_steps of the config).
     #[arg(long)]
     max_steps: Option<usize>,
@@ -111,6 +116,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
     if !a.resume && run.has_checkpoints() {
         bail!("--out: {} already holds checkpoints; pass --resume to continue it or choose another --out", run_dir.display());
     }
+    if let Some(p) = a.init.as_ref().filter(|p| !p.exists()) {
+        bail!("--init: {} does not exist", p.display());
+    }
     let device = crate::device::parse(&a.device)?;
     check_memory(&cfg, &a.device)?;
     let ds = Dataset::open(&data)?;
@@ -181,6 +189,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         optimiser: a.optimiser_state.unwrap_or_else(|| Home::for_device(&device)),
         device,
         run_dir: run_dir.clone(),
+        init: a.init.clone(),
     };
     let mut first: Option<(usize, f64)> = None;
     let outcome = trainer.run(a.resume, max_steps, &stop, &mut |e| match e {
@@ -190,6 +199,13 @@ pub fn run(a: TrainArgs) -> Result<()> {
             pb.set_message(format!("loss {:.4}", r.loss));
         }
         Event::Checkpoint(_, _) => {}
+        Event::WarmStart(fresh) => pb.suspend(|| {
+            eprintln!(
+                "started from {}; initialised: {}",
+                a.init.as_ref().map_or(String::new(), |p| p.display().to_string()),
+                if fresh.is_empty() { "none".to_string() } else { fresh.join(", ") }
+            )
+        }),
     })?;
     pb.finish_and_clear();
     let vals: Vec<(usize, f64)> =
