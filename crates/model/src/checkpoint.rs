@@ -147,6 +147,29 @@ impl Checkpoint {
 
     /// Read a training checkpoint, or exported weights (then `model` holds them, in f32, and
     /// there is no optimiser state: such a file serves inference only).
+    /// Weights alone (no optimiser state, no EMA), as `diffkfc model export` stores them.
+    pub fn weights(
+        step: usize,
+        shapes: Vec<Vec<usize>>,
+        model: Vec<Vec<f32>>,
+        config: String,
+        seed: u64,
+        names: Vec<String>,
+    ) -> Checkpoint {
+        Checkpoint {
+            step,
+            shapes,
+            model,
+            ema: None,
+            adam_step: 0,
+            adam_m: Vec::new(),
+            adam_v: Vec::new(),
+            config,
+            seed,
+            names,
+        }
+    }
+
     pub fn load(path: &Path) -> Result<Checkpoint> {
         let err = |m: String| ModelError::file(path, m);
         let data = std::fs::read(path).map_err(ModelError::io(path))?;
@@ -188,18 +211,15 @@ impl Checkpoint {
                 shapes.push(shape);
                 model.push(values);
             }
-            return Ok(Checkpoint {
-                step: num("step")? as usize,
+            let config = meta.get("config").cloned().unwrap_or_default();
+            return Ok(Checkpoint::weights(
+                num("step")? as usize,
                 shapes,
                 model,
-                ema: None,
-                adam_step: 0,
-                adam_m: Vec::new(),
-                adam_v: Vec::new(),
-                config: meta.get("config").cloned().unwrap_or_default(),
-                seed: num("seed")?,
+                config,
+                num("seed")?,
                 names,
-            });
+            ));
         }
         let get = |name: String| tensor_values(&st, &name, path);
         let (mut shapes, mut model, mut m, mut v, mut ema) =

@@ -58,18 +58,8 @@ mod tests {
 
     fn checkpoint_of(m: &Denoiser, named: bool) -> Checkpoint {
         let (shapes, model) = params::values(m).into_iter().unzip();
-        Checkpoint {
-            step: 7,
-            shapes,
-            model,
-            ema: None,
-            adam_step: 0,
-            adam_m: Vec::new(),
-            adam_v: Vec::new(),
-            config: String::new(),
-            seed: 0,
-            names: if named { params::names(m) } else { Vec::new() },
-        }
+        let names = if named { params::names(m) } else { Vec::new() };
+        Checkpoint::weights(7, shapes, model, String::new(), 0, names)
     }
 
     /// Two motions of 30 frames, the first with keyed places far ahead.
