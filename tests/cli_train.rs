@@ -105,6 +105,75 @@ fn train_resume_and_outputs() {
     let said = format!("{}{}", stdout(&o), stderr(&o));
     assert!(said.contains("initialised: path_in.weight, path_in.bias"), "{said}");
     assert_eq!(steps(&grown), vec![1, 2]);
+    // An absolute-root run records the data's velocity statistics, and its samples come back
+    // as HumanML3D features that stand on keyed places only through the network.
+    let abs_cfg = d.join("abs.json");
+    std::fs::write(
+        &abs_cfg,
+        CFG.replace("\"preset\": \"tiny\"", "\"preset\": \"tiny\", \"absolute_root\": true"),
+    )
+    .unwrap();
+    let abs = d.join("abs");
+    let o = diffkfc(&[
+        "train",
+        "--config",
+        s(&abs_cfg),
+        "--data",
+        s(&data),
+        "--out",
+        s(&abs),
+        "--max-steps",
+        "2",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let stored = std::fs::read_to_string(abs.join("config.json")).unwrap();
+    assert!(stored.contains("\"velocity_stats\""), "{stored}");
+    let keys = d.join("keys.json");
+    std::fs::write(
+        &keys,
+        r#"{"length": 40, "keyframes": [{"frame": 30, "root": [0.5, 0.9, 2.0]}]}"#,
+    )
+    .unwrap();
+    let out = d.join("abs-sample");
+    let o = diffkfc(&[
+        "sample",
+        "--checkpoint",
+        s(&abs),
+        "--text",
+        "a person walks.",
+        "--keyframes",
+        s(&keys),
+        "--keyframe-fit",
+        "none",
+        "--no-foot-lock",
+        "--steps",
+        "2",
+        "--out",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let feats = diffkfc_data::npy::read_f32(out.join("sample_00.npy")).unwrap().data;
+    assert_eq!(feats.len(), 40 * 263);
+    assert!(feats.iter().all(|v| v.is_finite()));
+    let o = diffkfc(&[
+        "sample",
+        "--checkpoint",
+        s(&abs),
+        "--text",
+        "a person walks.",
+        "--keyframes",
+        s(&keys),
+        "--place-guidance",
+        "10",
+        "--out",
+        s(&out),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("--place-guidance 10: the model sees an absolute root"),
+        "{}",
+        stderr(&o)
+    );
     // A time budget stops cleanly with a checkpoint.
     let run2 = d.join("budget");
     let o = diffkfc(&[

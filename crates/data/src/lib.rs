@@ -1,5 +1,6 @@
 //! diffkfc-data: the HumanML3D / KIT-ML file formats, skeletons and motion representation.
 
+pub mod absolute_root;
 mod atomic;
 pub mod batch;
 pub mod bvh;

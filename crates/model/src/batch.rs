@@ -1,7 +1,9 @@
 //! Data batches (flat host buffers from `diffkfc-data`) to Burn tensors.
 
 use burn::prelude::*;
+use diffkfc_data::absolute_root::{self, VelocityStats, CHANNELS};
 use diffkfc_data::batch::Batch;
+use diffkfc_data::warp::ROOT_CHANNELS;
 
 use crate::denoiser::Condition;
 
@@ -14,16 +16,35 @@ pub struct TensorBatch {
     pub cond: Condition,
 }
 
-/// `text` holds one embedding of width `text_dim` per sample, row-major.
-pub fn to_tensors(b: &Batch, text: &[f32], text_dim: usize, device: &Device) -> TensorBatch {
+/// `text` holds one embedding of width `text_dim` per sample, row-major. `absolute`: the model
+/// sees an absolute root (`diffkfc_data::absolute_root`): the motion's root channels become
+/// angle and place, observed at a keyframe where the keyframe observes its heading / place.
+pub fn to_tensors(
+    b: &Batch,
+    text: &[f32],
+    text_dim: usize,
+    absolute: Option<&VelocityStats>,
+    device: &Device,
+) -> TensorBatch {
     let (bs, n, d) = (b.batch_size, b.frames, b.dim);
     assert_eq!(text.len(), bs * text_dim, "one text embedding per sample");
-    let x0 = Tensor::<1>::from_floats(b.x0.as_slice(), device).reshape([bs, n, d]);
-    let kf_mask = Tensor::<1>::from_floats(b.kf_mask.as_slice(), device).reshape([bs, n, d]);
-    let kf = x0.clone() * kf_mask.clone();
+    let (mut x0, mut kf_mask) = (b.x0.clone(), b.kf_mask.clone());
+    if let Some(stats) = absolute {
+        let r = ROOT_CHANNELS;
+        for i in 0..bs {
+            absolute_root::to_absolute(&mut x0[i * n * d..(i + 1) * n * d], b.lengths[i], d, stats);
+            for f in 0..n {
+                let (m, rm) = (&mut kf_mask[(i * n + f) * d..], &b.root_mask[(i * n + f) * r..]);
+                m[..CHANNELS].copy_from_slice(&[rm[2], rm[0], rm[1]]);
+            }
+        }
+    }
+    let x0 = Tensor::<1>::from_floats(x0.as_slice(), device).reshape([bs, n, d]);
+    let kf_mask_t = Tensor::<1>::from_floats(kf_mask.as_slice(), device).reshape([bs, n, d]);
+    let kf = x0.clone() * kf_mask_t.clone();
     let real = b.valid.iter().map(|&v| v > 0.0).collect();
     let text = Tensor::<1>::from_floats(text, device).reshape([bs, text_dim]);
-    let cond = Condition::new(text, kf, kf_mask, &b.kf_mask, &b.root, &b.root_mask, real, device);
+    let cond = Condition::new(text, kf, kf_mask_t, &kf_mask, &b.root, &b.root_mask, real, device);
     TensorBatch {
         x0,
         valid: Tensor::<1>::from_floats(b.valid.as_slice(), device).reshape([bs, n]),

@@ -1,6 +1,7 @@
 //! Network configuration: the paper's, and smaller ones for CPU work.
 
 use burn::prelude::*;
+use diffkfc_data::absolute_root::VelocityStats;
 
 /// DiffKFC denoiser hyper-parameters.
 #[derive(Config, Debug, PartialEq)]
@@ -39,9 +40,26 @@ pub struct DiffKfcConfig {
     /// (`diffkfc_data::root_path`; our extension); false for checkpoints made before it.
     #[config(default = false)]
     pub root_path: bool,
+    /// The network sees the root as yaw angle and place instead of velocities
+    /// (`diffkfc_data::absolute_root`; our extension); false for checkpoints made before it.
+    #[config(default = false)]
+    pub absolute_root: bool,
+    /// The dataset's mean and std of the three velocity root channels (means, then stds), which
+    /// an absolute-root model needs to give HumanML3D features back; set by training.
+    #[config(default = "Vec::new()")]
+    pub velocity_stats: Vec<f32>,
 }
 
 impl DiffKfcConfig {
+    /// The velocity statistics of an absolute-root model; None for a velocity-root model.
+    /// Panics on an absolute-root config without them (`RunConfig::bind_dataset` sets them).
+    pub fn absolute(&self) -> Option<VelocityStats> {
+        self.absolute_root.then(|| {
+            VelocityStats::from_flat(&self.velocity_stats)
+                .expect("an absolute-root model carries the dataset's velocity statistics")
+        })
+    }
+
     /// The paper: d 512, 8 heads, FFN 1024, 8 decoder layers, 8 DMA blocks {2,2,4,4,6,6,8,N}.
     pub fn paper() -> Self {
         Self::new()

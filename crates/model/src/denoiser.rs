@@ -4,6 +4,7 @@
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 
+use diffkfc_data::absolute_root::VelocityStats;
 use diffkfc_data::root_path::{path_channels, PATH_CHANNELS};
 use diffkfc_data::warp::ROOT_CHANNELS;
 use diffkfc_data::T2M;
@@ -134,6 +135,9 @@ pub struct Denoiser {
     /// The root path hint's projection (last, so positional checkpoints of models without it
     /// are a prefix of its parameters).
     path_in: Option<Linear>,
+    /// The dataset's velocity statistics of an absolute-root model (`DiffKfcConfig::absolute`,
+    /// flat); empty for a velocity root. No parameters.
+    velocity_stats: Vec<f32>,
 }
 
 impl DiffKfcConfig {
@@ -173,6 +177,7 @@ impl DiffKfcConfig {
                     .with_initializer(burn::nn::Initializer::Zeros)
                     .init(device)
             }),
+            velocity_stats: if self.absolute_root { self.velocity_stats.clone() } else { vec![] },
         }
     }
 }
@@ -221,6 +226,11 @@ impl Denoiser {
         }
         let d = self.d_model;
         linear(&self.out, h.slice([0..b, 2..n + 2, 0..d]))
+    }
+
+    /// The velocity statistics of a model that sees an absolute root; None for a velocity root.
+    pub fn absolute_root(&self) -> Option<VelocityStats> {
+        VelocityStats::from_flat(&self.velocity_stats)
     }
 
     pub fn forward(&self, x_t: Tensor<3>, t: &[usize], c: &Condition) -> Tensor<3> {

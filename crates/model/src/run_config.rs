@@ -3,6 +3,7 @@
 
 use std::path::Path;
 
+use diffkfc_data::absolute_root::VelocityStats;
 use diffkfc_data::batch::KeyframeConfig;
 use serde::{Deserialize, Serialize};
 
@@ -276,7 +277,22 @@ impl RunConfig {
         if !(t.lr.is_finite() && t.lr > 0.0) {
             return bad("training.lr", &t.lr, "must be a finite number > 0");
         }
+        if m.absolute_root && t.lambda_pos + t.lambda_vel + t.lambda_foot > 0.0 {
+            return bad(
+                "model.absolute_root",
+                &m.absolute_root,
+                "the kinematic losses (training.lambda_pos, lambda_vel, lambda_foot) read velocity roots; set them to 0",
+            );
+        }
         Ok(())
+    }
+
+    /// Record the dataset's velocity statistics in an absolute-root model's config (its
+    /// checkpoints then give HumanML3D features back on their own); no change otherwise.
+    pub fn bind_dataset(&mut self, mean: &[f32], std: &[f32]) {
+        if self.model.absolute_root {
+            self.model.velocity_stats = VelocityStats::of(mean, std).flat();
+        }
     }
 
     pub fn to_json(&self) -> String {
@@ -331,6 +347,12 @@ mod tests {
             let e = RunConfig::parse(&format!(r#"{{"model": {model}}}"#)).unwrap_err().to_string();
             assert!(e.contains(needle), "{model}: {e}");
         }
+        let e = RunConfig::parse(
+            r#"{"model": {"preset": "tiny", "absolute_root": true}, "training": {"lambda_pos": 1}}"#,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("model.absolute_root: true") && e.contains("lambda_pos"), "{e}");
         let e = RunConfig::parse(r#"{"model": "huge"}"#).unwrap_err().to_string();
         assert!(e.contains("unknown preset 'huge'"), "{e}");
         let e = RunConfig::parse(r#"{"model": "tiny", "keyframes": {"strategy": "sometimes"}}"#)

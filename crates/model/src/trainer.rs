@@ -11,6 +11,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use burn::prelude::*;
+use diffkfc_data::absolute_root::VelocityStats;
 use diffkfc_data::batch::{Batch, Loader};
 use diffkfc_data::cache::PackedSplit;
 use diffkfc_data::dataset::Dataset;
@@ -137,7 +138,8 @@ impl Trainer<'_> {
         noise: Tensor<3>,
         device: &Device,
     ) -> crate::losses::Losses {
-        let tb = to_tensors(b, &self.text_of(b), self.text.dim, device);
+        let abs = self.cfg.model.absolute();
+        let tb = to_tensors(b, &self.text_of(b), self.text.dim, abs.as_ref(), device);
         let x_t = schedule.q_sample(tb.x0.clone(), t, noise);
         let pred = model.forward(x_t, t, &tb.cond);
         losses(tb.x0, pred, tb.cond.kf_mask, tb.valid, &self.kinematic())
@@ -227,6 +229,13 @@ impl Trainer<'_> {
                 dm.schedule
             ))
         })?;
+        if self.cfg.model.absolute_root
+            && VelocityStats::from_flat(&self.cfg.model.velocity_stats).is_none()
+        {
+            return Err(ModelError::Config(
+                "model.absolute_root: the config lacks the dataset's velocity statistics (RunConfig::bind_dataset)".into(),
+            ));
+        }
         std::fs::create_dir_all(&self.run_dir).map_err(ModelError::io(&self.run_dir))?;
         let device = self.device.clone().autodiff();
         device.seed(tc.seed);

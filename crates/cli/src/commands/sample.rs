@@ -340,6 +340,12 @@ impl Generator {
                 schedule.steps
             );
         }
+        if a.place_guidance > 0.0 && model.absolute_root().is_some() {
+            bail!(
+                "--place-guidance {}: the model sees an absolute root (model.absolute_root), so keyed places are already observed features; leave it at 0",
+                a.place_guidance
+            );
+        }
         let opts = Options {
             sampler: a.sampler.sampler(a.steps),
             kf_guidance: a.kf_guidance,

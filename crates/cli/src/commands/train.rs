@@ -160,6 +160,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
     if text.dim != cfg.model.text_dim {
         bail!("model.text_dim is {} but the text encoder gives {}", cfg.model.text_dim, text.dim);
     }
+    cfg.bind_dataset(&ds.mean, &ds.std);
     if a.resume {
         run.check_resumable(&cfg, &ds.mean)?;
     }
