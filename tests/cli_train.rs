@@ -31,6 +31,26 @@ fn steps(run: &Path) -> Vec<u64> {
         .collect()
 }
 
+/// Two training steps of the test config with `model_key` added to its model section, into
+/// `d/name`, with `extra` arguments.
+fn train_variant(
+    d: &Path,
+    data: &Path,
+    name: &str,
+    model_key: &str,
+    extra: &[&str],
+) -> (std::path::PathBuf, std::process::Output) {
+    let cfg = d.join(format!("{name}.json"));
+    let with = format!("\"preset\": \"tiny\", {model_key}");
+    std::fs::write(&cfg, CFG.replace("\"preset\": \"tiny\"", &with)).unwrap();
+    let out = d.join(name);
+    let mut args = vec!["train", "--config", s(&cfg), "--data", s(data), "--out", s(&out)];
+    args.extend(["--max-steps", "2"]);
+    args.extend(extra);
+    let o = diffkfc(&args);
+    (out, o)
+}
+
 #[test]
 fn train_resume_and_outputs() {
     if !have_text_encoder() {
@@ -81,50 +101,14 @@ fn train_resume_and_outputs() {
     );
     // A model grown by the root path hint starts from this run's weights (--init): every
     // shared tensor taken, the hint's projection initialised.
-    let grown_cfg = d.join("grown.json");
-    std::fs::write(
-        &grown_cfg,
-        CFG.replace("\"preset\": \"tiny\"", "\"preset\": \"tiny\", \"root_path\": true"),
-    )
-    .unwrap();
-    let grown = d.join("grown");
-    let o = diffkfc(&[
-        "train",
-        "--config",
-        s(&grown_cfg),
-        "--data",
-        s(&data),
-        "--out",
-        s(&grown),
-        "--max-steps",
-        "2",
-        "--init",
-        s(&run),
-    ]);
+    let (grown, o) = train_variant(&d, &data, "grown", "\"root_path\": true", &["--init", s(&run)]);
     assert!(o.status.success(), "{}", stderr(&o));
     let said = format!("{}{}", stdout(&o), stderr(&o));
     assert!(said.contains("initialised: path_in.weight, path_in.bias"), "{said}");
     assert_eq!(steps(&grown), vec![1, 2]);
     // An absolute-root run records the data's velocity statistics, and its samples come back
-    // as HumanML3D features that stand on keyed places only through the network.
-    let abs_cfg = d.join("abs.json");
-    std::fs::write(
-        &abs_cfg,
-        CFG.replace("\"preset\": \"tiny\"", "\"preset\": \"tiny\", \"absolute_root\": true"),
-    )
-    .unwrap();
-    let abs = d.join("abs");
-    let o = diffkfc(&[
-        "train",
-        "--config",
-        s(&abs_cfg),
-        "--data",
-        s(&data),
-        "--out",
-        s(&abs),
-        "--max-steps",
-        "2",
-    ]);
+    // as HumanML3D features.
+    let (abs, o) = train_variant(&d, &data, "abs", "\"absolute_root\": true", &[]);
     assert!(o.status.success(), "{}", stderr(&o));
     let stored = std::fs::read_to_string(abs.join("config.json")).unwrap();
     assert!(stored.contains("\"velocity_stats\""), "{stored}");
