@@ -44,6 +44,25 @@ impl VelocityStats {
     pub fn flat(&self) -> Vec<f32> {
         self.mean.iter().chain(&self.std).copied().collect()
     }
+
+    /// The de-normalised velocity root channels of a normalised motion's first `len` frames
+    /// as rows of four (the fourth, height, zero), the layout `recover_root_rot_pos` reads
+    /// with `dim` 4.
+    pub fn raw_rows(&self, x: &[f32], len: usize, dim: usize) -> Vec<f64> {
+        let mut raw = vec![0f64; len * 4];
+        for f in 0..len {
+            for c in 0..CHANNELS {
+                raw[f * 4 + c] = (x[f * dim + c] * self.std[c] + self.mean[c]) as f64;
+            }
+        }
+        raw
+    }
+}
+
+/// Mask of the absolute channels (yaw angle, place x, place z) from one frame's root-key mask
+/// (`RootKey::channels`: place x, place z, heading sin, cos).
+pub fn observed(root_mask: &[f32]) -> [f32; CHANNELS] {
+    [root_mask[2], root_mask[0], root_mask[1]]
 }
 
 /// One normalised motion [frames, dim] (its first `len` frames real): velocity root channels
@@ -52,16 +71,7 @@ pub fn to_absolute(x: &mut [f32], len: usize, dim: usize, s: &VelocityStats) {
     if len == 0 {
         return;
     }
-    let raw: Vec<f64> = (0..len)
-        .flat_map(|f| {
-            let row = &x[f * dim..f * dim + 4];
-            let mut r = [0.0; 4];
-            for c in 0..CHANNELS {
-                r[c] = (row[c] * s.std[c] + s.mean[c]) as f64;
-            }
-            r
-        })
-        .collect();
+    let raw = s.raw_rows(x, len, dim);
     let (_, pos) = recover_root_rot_pos(&raw, 4);
     let mut angle = 0.0;
     for f in 0..len {
@@ -117,24 +127,21 @@ pub fn keyframes(
     let r = ROOT_CHANNELS;
     let mut last_heading = 0.0f64;
     for f in 0..frames {
-        let key = RootKey::from_channels(&root[f * r..(f + 1) * r], &root_mask[f * r..(f + 1) * r]);
-        let (row, m) =
-            (&mut kf[f * dim..f * dim + CHANNELS], &mut mask[f * dim..f * dim + CHANNELS]);
+        let rm = &root_mask[f * r..(f + 1) * r];
+        let key = RootKey::from_channels(&root[f * r..(f + 1) * r], rm);
+        mask[f * dim..f * dim + CHANNELS].copy_from_slice(&observed(rm));
+        let row = &mut kf[f * dim..f * dim + CHANNELS];
         row.fill(0.0);
-        m.fill(0.0);
         if let Some(h) = key.heading {
             let turns = ((last_heading - h) / std::f64::consts::TAU).round();
             let h = h + turns * std::f64::consts::TAU;
             last_heading = h;
             // HumanML3D's yaw angle is minus half the heading (`warp::heading_of_angle`).
             row[0] = (-h / 2.0) as f32 / ANGLE_SCALE;
-            m[0] = 1.0;
         }
         if let Some([x, z]) = key.place {
             row[1] = x as f32 / PLACE_SCALE;
             row[2] = z as f32 / PLACE_SCALE;
-            m[1] = 1.0;
-            m[2] = 1.0;
         }
     }
 }

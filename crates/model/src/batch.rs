@@ -34,8 +34,9 @@ pub fn to_tensors(
         for i in 0..bs {
             absolute_root::to_absolute(&mut x0[i * n * d..(i + 1) * n * d], b.lengths[i], d, stats);
             for f in 0..n {
-                let (m, rm) = (&mut kf_mask[(i * n + f) * d..], &b.root_mask[(i * n + f) * r..]);
-                m[..CHANNELS].copy_from_slice(&[rm[2], rm[0], rm[1]]);
+                let rm = &b.root_mask[(i * n + f) * r..(i * n + f + 1) * r];
+                kf_mask[(i * n + f) * d..][..CHANNELS]
+                    .copy_from_slice(&absolute_root::observed(rm));
             }
         }
     }

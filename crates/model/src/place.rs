@@ -4,23 +4,43 @@
 //! step makes the hit exact; this asks the network for a walk that covers the keyed ground
 //! itself, so the warp has less to stretch.
 
+use diffkfc_data::absolute_root::VelocityStats;
 use diffkfc_data::quat;
 use diffkfc_data::representation::recover_root_rot_pos;
 use diffkfc_data::warp::{ROOT_CHANNELS, ROOT_POS_SCALE};
+
+use crate::error::ModelError;
+use crate::Denoiser;
 
 /// Strength and the de-normalisation of the root channels 0..3 (angular velocity, linear
 /// velocity x and z).
 #[derive(Clone, Debug)]
 pub struct PlaceGuidance {
     pub strength: f64,
-    pub mean: [f32; 3],
-    pub std: [f32; 3],
+    pub velocity: VelocityStats,
 }
 
 impl PlaceGuidance {
     /// From a dataset's feature mean and std.
     pub fn new(strength: f64, mean: &[f32], std: &[f32]) -> Self {
-        PlaceGuidance { strength, mean: [mean[0], mean[1], mean[2]], std: [std[0], std[1], std[2]] }
+        PlaceGuidance { strength, velocity: VelocityStats::of(mean, std) }
+    }
+
+    /// Place guidance of `strength` for `model`: none at 0; an error for a model that sees an
+    /// absolute root, whose keyed places are observed features and whose root channels hold no
+    /// velocities to move.
+    pub fn for_model(
+        strength: f64,
+        model: &Denoiser,
+        mean: &[f32],
+        std: &[f32],
+    ) -> Result<Option<Self>, ModelError> {
+        if strength > 0.0 && model.absolute_root().is_some() {
+            return Err(ModelError::Config(format!(
+                "--place-guidance {strength}: the model sees an absolute root (model.absolute_root), so keyed places are already observed features; leave it at 0"
+            )));
+        }
+        Ok((strength > 0.0).then(|| PlaceGuidance::new(strength, mean, std)))
     }
 
     /// Mean over keyed places of the squared distance (m^2) between the root path of one
@@ -42,12 +62,7 @@ impl PlaceGuidance {
             return (0.0, grad);
         }
         // The root channels de-normalised; row 3 (height) does not enter the path.
-        let mut feats = vec![0f64; len * 4];
-        for f in 0..len {
-            for c in 0..3 {
-                feats[f * 4 + c] = (x0[f * dim + c] * self.std[c] + self.mean[c]) as f64;
-            }
-        }
+        let feats = self.velocity.raw_rows(x0, len, dim);
         let (q, pos) = recover_root_rot_pos(&feats, 4);
         let k = keys.len() as f64;
         let mut loss = 0.0;
@@ -64,8 +79,8 @@ impl PlaceGuidance {
         for g in (1..len).rev() {
             suffix = quat::add(suffix, residual[g]);
             let d = quat::qrot(q[g], suffix);
-            grad[(g - 1) * dim + 1] = (2.0 / k * d[0]) as f32 * self.std[1];
-            grad[(g - 1) * dim + 2] = (2.0 / k * d[2]) as f32 * self.std[2];
+            grad[(g - 1) * dim + 1] = (2.0 / k * d[0]) as f32 * self.velocity.std[1];
+            grad[(g - 1) * dim + 2] = (2.0 / k * d[2]) as f32 * self.velocity.std[2];
         }
         (loss, grad)
     }
@@ -92,7 +107,7 @@ mod tests {
             mask[f * 4] = 1.0;
             mask[f * 4 + 1] = 1.0;
         }
-        let pg = PlaceGuidance { strength: 1.0, mean: [0.0, 0.0, 0.05], std: [0.05, 0.03, 0.04] };
+        let pg = PlaceGuidance::new(1.0, &[0.0, 0.0, 0.05], &[0.05, 0.03, 0.04]);
         let (l0, g) = pg.loss_and_grad(&x0, &root, &mask, n, d);
         assert!(l0 > 0.0);
         for (f, c) in [(0usize, 1usize), (3, 2), (7, 1), (10, 2)] {

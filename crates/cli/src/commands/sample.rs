@@ -340,12 +340,7 @@ impl Generator {
                 schedule.steps
             );
         }
-        if a.place_guidance > 0.0 && model.absolute_root().is_some() {
-            bail!(
-                "--place-guidance {}: the model sees an absolute root (model.absolute_root), so keyed places are already observed features; leave it at 0",
-                a.place_guidance
-            );
-        }
+        let place = PlaceGuidance::for_model(a.place_guidance, &model, &mean, &std)?;
         let opts = Options {
             sampler: a.sampler.sampler(a.steps),
             kf_guidance: a.kf_guidance,
@@ -358,8 +353,7 @@ impl Generator {
                 TgModeArg::Exact => sampler::TgMode::Exact,
             },
             inpaint: matches!(a.keyframe_mode, KeyframeMode::Inpaint),
-            place: (a.place_guidance > 0.0)
-                .then(|| PlaceGuidance::new(a.place_guidance, &mean, &std)),
+            place,
         };
         let enc = MiniLm::load(&text::default_dir(), &Device::flex())?;
         Ok(Generator { model, schedule, mean, std, enc, opts, fit: a.fit.fit(), step })
