@@ -106,6 +106,24 @@ fn train_resume_and_outputs() {
     let said = format!("{}{}", stdout(&o), stderr(&o));
     assert!(said.contains("initialised: path_in.weight, path_in.bias"), "{said}");
     assert_eq!(steps(&grown), vec![1, 2]);
+    // Likewise the per-frame key input, whose run then samples with a keyframe.
+    let (ki, o) = train_variant(&d, &data, "ki", "\"key_input\": true", &["--init", s(&run)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let said = format!("{}{}", stdout(&o), stderr(&o));
+    assert!(said.contains("initialised: key_in.weight, key_in.bias"), "{said}");
+    let keys = d.join("ki-keys.json");
+    std::fs::write(
+        &keys,
+        r#"{"length": 40, "keyframes": [{"frame": 20, "root": [0.3, 0.9, 1.0]}]}"#,
+    )
+    .unwrap();
+    let ki_out = d.join("ki-sample");
+    let mut args = vec!["sample", "--checkpoint", s(&ki), "--text", "a person walks."];
+    args.extend(["--keyframes", s(&keys), "--out", s(&ki_out), "--steps", "2"]);
+    let o = diffkfc(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let feats = diffkfc_data::npy::read_f32(ki_out.join("sample_00.npy")).unwrap().data;
+    assert!(feats.len() == 40 * 263 && feats.iter().all(|v| v.is_finite()));
     // An absolute-root run records the data's velocity statistics, and its samples come back
     // as HumanML3D features.
     let (abs, o) = train_variant(&d, &data, "abs", "\"absolute_root\": true", &[]);

@@ -40,6 +40,12 @@ pub struct DiffKfcConfig {
     /// (`diffkfc_data::root_path`; our extension); false for checkpoints made before it.
     #[config(default = false)]
     pub root_path: bool,
+    /// The decoder's frame tokens also read their own frame's keyframe values and masks (pose
+    /// features and root channels) through a zero-initialised projection, beside the keyframe
+    /// encoder's cross-attention (our extension, as CondMDI feeds observations with the noisy
+    /// input); false for checkpoints made before it.
+    #[config(default = false)]
+    pub key_input: bool,
     /// The network sees the root as yaw angle and place instead of velocities
     /// (`diffkfc_data::absolute_root`; our extension); false for checkpoints made before it.
     #[config(default = false)]

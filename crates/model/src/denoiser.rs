@@ -120,6 +120,8 @@ pub struct Encoded {
     /// [B, N, d] the root path hint's embedding, added to the decoder's frame tokens (models
     /// with path channels).
     pub path: Option<Tensor<3>>,
+    /// [B, N, d] each frame's own keyframe values and masks, embedded (models with key input).
+    pub key: Option<Tensor<3>>,
 }
 
 #[derive(Module, Debug)]
@@ -138,6 +140,8 @@ pub struct Denoiser {
     /// The dataset's velocity statistics of an absolute-root model (`DiffKfcConfig::absolute`,
     /// flat); empty for a velocity root. No parameters.
     velocity_stats: Vec<f32>,
+    /// The per-frame keyframe input's projection (last, like `path_in`).
+    key_in: Option<Linear>,
 }
 
 impl DiffKfcConfig {
@@ -178,6 +182,11 @@ impl DiffKfcConfig {
                     .init(device)
             }),
             velocity_stats: if self.absolute_root { self.velocity_stats.clone() } else { vec![] },
+            key_in: self.key_input.then(|| {
+                LinearConfig::new(2 * (self.feat_dim + ROOT_CHANNELS), d)
+                    .with_initializer(burn::nn::Initializer::Zeros)
+                    .init(device)
+            }),
         }
     }
 }
@@ -199,8 +208,16 @@ impl Denoiser {
         let cross_kv = self.layers.iter().map(|l| l.cross_kv(tokens.clone())).collect();
         let real: Vec<f32> = c.real.iter().map(|&r| if r { 1.0 } else { 0.0 }).collect();
         let path = self.path_in.as_ref().map(|l| linear(l, c.path.clone()));
+        let key = self.key_in.as_ref().map(|l| {
+            let obs = Tensor::cat(
+                vec![c.kf.clone(), c.kf_mask.clone(), c.root.clone(), c.root_mask.clone()],
+                2,
+            );
+            linear(l, obs)
+        });
         Encoded {
             path,
+            key,
             real: Tensor::<1>::from_floats(real.as_slice(), &device).reshape([b, n, 1]),
             cross_kv,
             tokens,
@@ -218,6 +235,9 @@ impl Denoiser {
         let mut frames = linear(&self.x_in, x_t) + e.pos.clone();
         if let Some(p) = &e.path {
             frames = frames + p.clone();
+        }
+        if let Some(k) = &e.key {
+            frames = frames + k.clone();
         }
         let y_t = self.time.forward(t, &device);
         let mut h = Tensor::cat(vec![y_t, e.text_tok.clone(), frames], 1);
@@ -245,7 +265,8 @@ impl Denoiser {
             + self.text_in.num_params()
             + self.time.num_params()
             + self.out.num_params()
-            + self.path_in.as_ref().map_or(0, |l| l.num_params());
+            + self.path_in.as_ref().map_or(0, |l| l.num_params())
+            + self.key_in.as_ref().map_or(0, |l| l.num_params());
         vec![
             ("keyframe encoder (DMA)", enc),
             ("decoder layers", dec),

@@ -1,7 +1,8 @@
 //! Starting a run from another run's weights: a model grown by an extension (the root path
-//! hint) is fine-tuned from one trained without it. Every parameter the checkpoint has, by
-//! name (or by position, for checkpoints written before names, whose parameters are a prefix
-//! of the grown model's), with the same shape, is taken; the rest keep their initialisation.
+//! hint, the per-frame key input) is fine-tuned from one trained without it. Every parameter
+//! the checkpoint has, by name (or by position, for checkpoints written before names, whose
+//! parameters are a prefix of the grown model's), with the same shape, is taken; the rest keep
+//! their initialisation.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -82,13 +83,18 @@ mod tests {
         let cond = request().condition(&dev);
         let x = Tensor::<3>::random([2, 30, 263], burn::tensor::Distribution::Default, &dev);
         let want = params::host(old.forward(x.clone(), &[10, 500], &cond));
-        for named in [true, false] {
-            let ck = checkpoint_of(&old, named);
-            let grown = base.clone().with_root_path(true).init(&dev);
-            let (grown, fresh) = warm_start(grown, &ck, Path::new("ck")).unwrap();
-            assert_eq!(fresh, ["path_in.weight", "path_in.bias"], "named {named}");
-            let got = params::host(grown.forward(x.clone(), &[10, 500], &cond));
-            assert_eq!(got, want, "named {named}: the zero hint projection changes nothing");
+        let grown_by = [
+            (base.clone().with_root_path(true), ["path_in.weight", "path_in.bias"]),
+            (base.clone().with_key_input(true), ["key_in.weight", "key_in.bias"]),
+        ];
+        for (cfg, new) in grown_by {
+            for named in [true, false] {
+                let ck = checkpoint_of(&old, named);
+                let (grown, fresh) = warm_start(cfg.init(&dev), &ck, Path::new("ck")).unwrap();
+                assert_eq!(fresh, new, "named {named}");
+                let got = params::host(grown.forward(x.clone(), &[10, 500], &cond));
+                assert_eq!(got, want, "named {named}: the zero projection {new:?} changes nothing");
+            }
         }
         // Tensors of another width are an error naming the tensor, not a silent skip.
         let narrow = DiffKfcConfig::tiny().with_d_model(32).init(&dev);
@@ -99,28 +105,37 @@ mod tests {
     }
 
     #[test]
-    fn the_hint_reaches_the_decoder_only_where_places_are_keyed() {
+    fn the_hint_and_key_input_reach_the_decoder_only_where_keys_are() {
         let dev = Device::flex();
-        let m0 = DiffKfcConfig::tiny().with_root_path(true).init(&dev);
-        // The hint's weights made nonzero (its bias stays zero).
-        let names = params::names(&m0);
-        let vals: Vec<Vec<f32>> = params::values(&m0)
-            .into_iter()
-            .zip(&names)
-            .map(|((_, v), n)| if n == "path_in.weight" { vec![0.3; v.len()] } else { v })
-            .collect();
-        let m1 = params::load(m0.clone(), &vals);
-        let x = Tensor::<3>::zeros([2, 30, 263], &dev);
-        let run = |m: &Denoiser, r: &Request| {
-            params::host(m.forward(x.clone(), &[10, 10], &r.condition(&dev)))
-        };
-        let keyed = request();
-        let n = 30 * 263;
-        let (a, b) = (run(&m0, &keyed), run(&m1, &keyed));
-        assert!(a[..n].iter().zip(&b[..n]).any(|(a, b)| (a - b).abs() > 1e-3), "keyed places");
-        // The second motion has no keyed place: no hint, the same output.
-        assert_eq!(a[n..], b[n..]);
-        let plain = Request::text_only(30, 263, vec![0.1; 2 * 384], 384, vec![30, 24]);
-        assert_eq!(run(&m0, &plain), run(&m1, &plain));
+        let grown = [
+            (DiffKfcConfig::tiny().with_root_path(true), "path_in.weight"),
+            (DiffKfcConfig::tiny().with_key_input(true), "key_in.weight"),
+        ];
+        for (cfg, weight) in grown {
+            let m0 = cfg.init(&dev);
+            // The projection's weights made nonzero (its bias stays zero).
+            let names = params::names(&m0);
+            let vals: Vec<Vec<f32>> = params::values(&m0)
+                .into_iter()
+                .zip(&names)
+                .map(|((_, v), n)| if n == weight { vec![0.3; v.len()] } else { v })
+                .collect();
+            let m1 = params::load(m0.clone(), &vals);
+            let x = Tensor::<3>::zeros([2, 30, 263], &dev);
+            let run = |m: &Denoiser, r: &Request| {
+                params::host(m.forward(x.clone(), &[10, 10], &r.condition(&dev)))
+            };
+            let keyed = request();
+            let n = 30 * 263;
+            let (a, b) = (run(&m0, &keyed), run(&m1, &keyed));
+            assert!(
+                a[..n].iter().zip(&b[..n]).any(|(a, b)| (a - b).abs() > 1e-3),
+                "{weight}: keyed places"
+            );
+            // The second motion has no key: nothing read, the same output.
+            assert_eq!(a[n..], b[n..], "{weight}");
+            let plain = Request::text_only(30, 263, vec![0.1; 2 * 384], 384, vec![30, 24]);
+            assert_eq!(run(&m0, &plain), run(&m1, &plain), "{weight}");
+        }
     }
 }
