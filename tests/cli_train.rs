@@ -51,6 +51,21 @@ fn train_variant(
     (out, o)
 }
 
+/// A keyframe file of a 40-frame motion with the one keyframe `key` (JSON), as `d/name`.
+fn write_keys(d: &Path, name: &str, key: &str) -> std::path::PathBuf {
+    let keys = d.join(name);
+    std::fs::write(&keys, format!(r#"{{"length": 40, "keyframes": [{key}]}}"#)).unwrap();
+    keys
+}
+
+/// `sample` of "a person walks." from `ckpt` with the keyframe file `keys` into `out`.
+fn sample_keyed(ckpt: &Path, keys: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
+    let mut args = vec!["sample", "--checkpoint", s(ckpt), "--text", "a person walks."];
+    args.extend(["--keyframes", s(keys), "--out", s(out)]);
+    args.extend(extra);
+    diffkfc(&args)
+}
+
 #[test]
 fn train_resume_and_outputs() {
     if !have_text_encoder() {
@@ -111,16 +126,9 @@ fn train_resume_and_outputs() {
     assert!(o.status.success(), "{}", stderr(&o));
     let said = format!("{}{}", stdout(&o), stderr(&o));
     assert!(said.contains("initialised: key_in.weight, key_in.bias"), "{said}");
-    let keys = d.join("ki-keys.json");
-    std::fs::write(
-        &keys,
-        r#"{"length": 40, "keyframes": [{"frame": 20, "root": [0.3, 0.9, 1.0]}]}"#,
-    )
-    .unwrap();
+    let keys = write_keys(&d, "ki-keys.json", r#"{"frame": 20, "root": [0.3, 0.9, 1.0]}"#);
     let ki_out = d.join("ki-sample");
-    let mut args = vec!["sample", "--checkpoint", s(&ki), "--text", "a person walks."];
-    args.extend(["--keyframes", s(&keys), "--out", s(&ki_out), "--steps", "2"]);
-    let o = diffkfc(&args);
+    let o = sample_keyed(&ki, &keys, &ki_out, &["--steps", "2"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let feats = diffkfc_data::npy::read_f32(ki_out.join("sample_00.npy")).unwrap().data;
     assert!(feats.len() == 40 * 263 && feats.iter().all(|v| v.is_finite()));
@@ -130,19 +138,9 @@ fn train_resume_and_outputs() {
     assert!(o.status.success(), "{}", stderr(&o));
     let stored = std::fs::read_to_string(abs.join("config.json")).unwrap();
     assert!(stored.contains("\"velocity_stats\""), "{stored}");
-    let keys = d.join("keys.json");
-    std::fs::write(
-        &keys,
-        r#"{"length": 40, "keyframes": [{"frame": 30, "root": [0.5, 0.9, 2.0]}]}"#,
-    )
-    .unwrap();
+    let keys = write_keys(&d, "keys.json", r#"{"frame": 30, "root": [0.5, 0.9, 2.0]}"#);
     let out = d.join("abs-sample");
-    let sample = |extra: &[&str]| {
-        let mut args = vec!["sample", "--checkpoint", s(&abs), "--text", "a person walks."];
-        args.extend(["--keyframes", s(&keys), "--out", s(&out)]);
-        args.extend(extra);
-        diffkfc(&args)
-    };
+    let sample = |extra: &[&str]| sample_keyed(&abs, &keys, &out, extra);
     let o = sample(&["--keyframe-fit", "none", "--no-foot-lock", "--steps", "2"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let feats = diffkfc_data::npy::read_f32(out.join("sample_00.npy")).unwrap().data;
