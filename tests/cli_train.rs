@@ -51,6 +51,30 @@ fn train_variant(
     (out, o)
 }
 
+/// [`train_variant`] started from `run`'s weights (`--init`), into `d/<projection>`: it must
+/// succeed and name the projection's two tensors as the ones initialised.
+fn train_grown(
+    d: &Path,
+    data: &Path,
+    run: &Path,
+    model_key: &str,
+    projection: &str,
+) -> std::path::PathBuf {
+    let (grown, o) = train_variant(d, data, projection, model_key, &["--init", s(run)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let said = format!("{}{}", stdout(&o), stderr(&o));
+    let fresh = format!("initialised: {projection}.weight, {projection}.bias");
+    assert!(said.contains(&fresh), "{said}");
+    grown
+}
+
+/// The first sample in `out` is 40 frames of 263 finite HumanML3D features.
+fn assert_finite_sample(out: &Path) {
+    let feats = diffkfc_data::npy::read_f32(out.join("sample_00.npy")).unwrap().data;
+    assert_eq!(feats.len(), 40 * 263);
+    assert!(feats.iter().all(|v| v.is_finite()));
+}
+
 /// A keyframe file of a 40-frame motion with the one keyframe `key` (JSON), as `d/name`.
 fn write_keys(d: &Path, name: &str, key: &str) -> std::path::PathBuf {
     let keys = d.join(name);
@@ -116,22 +140,15 @@ fn train_resume_and_outputs() {
     );
     // A model grown by the root path hint starts from this run's weights (--init): every
     // shared tensor taken, the hint's projection initialised.
-    let (grown, o) = train_variant(&d, &data, "grown", "\"root_path\": true", &["--init", s(&run)]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let said = format!("{}{}", stdout(&o), stderr(&o));
-    assert!(said.contains("initialised: path_in.weight, path_in.bias"), "{said}");
+    let grown = train_grown(&d, &data, &run, "\"root_path\": true", "path_in");
     assert_eq!(steps(&grown), vec![1, 2]);
     // Likewise the per-frame key input, whose run then samples with a keyframe.
-    let (ki, o) = train_variant(&d, &data, "ki", "\"key_input\": true", &["--init", s(&run)]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let said = format!("{}{}", stdout(&o), stderr(&o));
-    assert!(said.contains("initialised: key_in.weight, key_in.bias"), "{said}");
+    let ki = train_grown(&d, &data, &run, "\"key_input\": true", "key_in");
     let keys = write_keys(&d, "ki-keys.json", r#"{"frame": 20, "root": [0.3, 0.9, 1.0]}"#);
     let ki_out = d.join("ki-sample");
     let o = sample_keyed(&ki, &keys, &ki_out, &["--steps", "2"]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let feats = diffkfc_data::npy::read_f32(ki_out.join("sample_00.npy")).unwrap().data;
-    assert!(feats.len() == 40 * 263 && feats.iter().all(|v| v.is_finite()));
+    assert_finite_sample(&ki_out);
     // An absolute-root run records the data's velocity statistics, and its samples come back
     // as HumanML3D features.
     let (abs, o) = train_variant(&d, &data, "abs", "\"absolute_root\": true", &[]);
@@ -143,9 +160,7 @@ fn train_resume_and_outputs() {
     let sample = |extra: &[&str]| sample_keyed(&abs, &keys, &out, extra);
     let o = sample(&["--keyframe-fit", "none", "--no-foot-lock", "--steps", "2"]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let feats = diffkfc_data::npy::read_f32(out.join("sample_00.npy")).unwrap().data;
-    assert_eq!(feats.len(), 40 * 263);
-    assert!(feats.iter().all(|v| v.is_finite()));
+    assert_finite_sample(&out);
     // Place guidance moves velocity channels such a model does not have: refused by sample
     // and eval alike, before any work.
     let refused = "--place-guidance 10: the model sees an absolute root";

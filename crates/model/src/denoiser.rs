@@ -120,7 +120,8 @@ pub struct Encoded {
     /// [B, N, d] the root path hint's embedding, added to the decoder's frame tokens (models
     /// with path channels).
     pub path: Option<Tensor<3>>,
-    /// [B, N, d] each frame's own keyframe values and masks, embedded (models with key input).
+    /// [B, N, d] each frame's own keyframe observation (`KeyframeEncoder::observations`),
+    /// embedded (models with key input).
     pub key: Option<Tensor<3>>,
 }
 
@@ -183,7 +184,7 @@ impl DiffKfcConfig {
             }),
             velocity_stats: if self.absolute_root { self.velocity_stats.clone() } else { vec![] },
             key_in: self.key_input.then(|| {
-                LinearConfig::new(2 * (self.feat_dim + ROOT_CHANNELS), d)
+                LinearConfig::new(2 * (self.feat_dim + self.root_channels), d)
                     .with_initializer(burn::nn::Initializer::Zeros)
                     .init(device)
             }),
@@ -200,7 +201,9 @@ impl Denoiser {
         let text_tok = linear(&self.text_in, c.text.clone()).unsqueeze_dim::<3>(1);
         let plan = DmaPlan::new(&c.kf_frames, &c.real, b, n, &self.dma_sizes);
         let pos = positions(n, self.d_model, &device);
-        let tokens = self.encoder.forward(text_tok.clone(), c, pos.clone(), &plan);
+        let obs = self.encoder.observations(c);
+        let key = self.key_in.as_ref().map(|l| linear(l, obs.clone()));
+        let tokens = self.encoder.forward(text_tok.clone(), obs, pos.clone(), &plan);
         let key_pad = plan.final_valid().iter().map(|v| !v).collect();
         let self_pad = (0..b * (n + 2))
             .map(|k| k % (n + 2) >= 2 && !c.real[k / (n + 2) * n + k % (n + 2) - 2])
@@ -208,13 +211,6 @@ impl Denoiser {
         let cross_kv = self.layers.iter().map(|l| l.cross_kv(tokens.clone())).collect();
         let real: Vec<f32> = c.real.iter().map(|&r| if r { 1.0 } else { 0.0 }).collect();
         let path = self.path_in.as_ref().map(|l| linear(l, c.path.clone()));
-        let key = self.key_in.as_ref().map(|l| {
-            let obs = Tensor::cat(
-                vec![c.kf.clone(), c.kf_mask.clone(), c.root.clone(), c.root_mask.clone()],
-                2,
-            );
-            linear(l, obs)
-        });
         Encoded {
             path,
             key,

@@ -254,15 +254,10 @@ impl KeyframeEncoder {
         }
     }
 
-    /// `text_tok` [B,1,d]; the condition's keyframes `kf`/`kf_mask` [B,N,D] and root channels
-    /// [B,N,R]; `pos` [1,N,d] -> [B, 1+N, d].
-    pub fn forward(
-        &self,
-        text_tok: Tensor<3>,
-        c: &Condition,
-        pos: Tensor<3>,
-        plan: &DmaPlan,
-    ) -> Tensor<3> {
+    /// The observation each frame token is built from: the condition's keyframes `kf`/`kf_mask`
+    /// [B,N,D] and the model's root channels [B,N,R], each value masked, beside its mask ->
+    /// [B, N, 2(D+R)]. The decoder's per-frame key input reads the same vector.
+    pub fn observations(&self, c: &Condition) -> Tensor<3> {
         let mut parts = vec![c.kf.clone() * c.kf_mask.clone(), c.kf_mask.clone()];
         if self.root_channels > 0 {
             let [b, n, _] = c.root.dims();
@@ -270,7 +265,19 @@ impl KeyframeEncoder {
             parts.push((c.root.clone() * c.root_mask.clone()).slice([0..b, 0..n, 0..r]));
             parts.push(c.root_mask.clone().slice([0..b, 0..n, 0..r]));
         }
-        let frames = linear(&self.kf_in, Tensor::cat(parts, 2)) + pos;
+        Tensor::cat(parts, 2)
+    }
+
+    /// `text_tok` [B,1,d]; `obs` [B,N,2(D+R)] ([`Self::observations`]); `pos` [1,N,d]
+    /// -> [B, 1+N, d].
+    pub fn forward(
+        &self,
+        text_tok: Tensor<3>,
+        obs: Tensor<3>,
+        pos: Tensor<3>,
+        plan: &DmaPlan,
+    ) -> Tensor<3> {
+        let frames = linear(&self.kf_in, obs) + pos;
         let z0 = Tensor::cat(vec![text_tok, frames], 1);
         let mut z = z0.clone();
         for (k, block) in self.blocks.iter().enumerate() {
