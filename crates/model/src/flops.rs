@@ -5,6 +5,8 @@
 //! ([`forward_planned`] with `DmaPlan::work`: what the fused CPU path computes, so a rate from
 //! it is never above what the machine did).
 
+use diffkfc_data::root_path::PATH_CHANNELS;
+
 use crate::dma::BlockWork;
 use crate::DiffKfcConfig;
 
@@ -70,7 +72,13 @@ pub fn forward_planned(
         + linear(b * ld, d, d)
         + linear(b * ld, d, f)
         + linear(b * ld, f, d);
+    // The extensions' per-frame projections added to the decoder's frame tokens.
+    let path_in = if c.root_path { linear(b * n, PATH_CHANNELS, d) } else { 0.0 };
+    let key_in =
+        if c.key_input { linear(b * n, 2 * (c.feat_dim + c.root_channels), d) } else { 0.0 };
     let decoder = linear(b * n, c.feat_dim, d)
+        + path_in
+        + key_in
         + 2.0 * linear(b, d, d)
         + c.dec_layers as f64 * layer
         + linear(b * n, d, c.feat_dim);
@@ -111,6 +119,24 @@ mod tests {
         // weights = 16.6 GFLOP, attention products 8 x 0.32 = 2.6, input/output 0.2: 19.4.
         let dec = forward(&c, 2, 196).decoder / 1e9;
         assert!((dec - 19.4).abs() < 0.1, "{dec}");
+    }
+
+    /// The extensions' frame projections cost twice their weights per frame, the weights
+    /// counted on the built model (its parameter count less the base model's, less the bias).
+    #[test]
+    fn extensions_cost_their_projections() {
+        use burn::prelude::*;
+        let dev = Device::flex();
+        let base = DiffKfcConfig::tiny();
+        let params = |c: &DiffKfcConfig| c.init(&dev).num_params() as f64;
+        let d = base.d_model as f64;
+        for grown in [base.clone().with_root_path(true), base.clone().with_key_input(true)] {
+            let weights = params(&grown) - params(&base) - d;
+            let per_frame =
+                |c: &DiffKfcConfig| (forward(c, 1, 11).total() - forward(c, 1, 1).total()) / 10.0;
+            let added = per_frame(&grown) - per_frame(&base);
+            assert!((added - 2.0 * weights).abs() < 1e-6 * added, "{added} vs 2 x {weights}");
+        }
     }
 
     /// With no keyframe each block updates only the text token and attends only to it: the
