@@ -44,8 +44,11 @@ fn synth_check_and_render() {
         (0..3).map(|i| s(&out.join(format!("new_joints/{i:06}.npy"))).to_string()).collect();
     let mut args = vec!["render", "--sheet", "--columns", "2", "-o", s(&sheet)];
     args.extend(clips.iter().map(String::as_str));
+    args.extend(["--label", "walk", "--label", "jump", "--label", "wave"]);
     let o = diffkfc(&args);
     assert!(o.status.success(), "{}", stderr(&o));
+    // The sheet's cells are numbered; stdout says which is which.
+    assert!(stdout(&o).contains("cell 0: walk\n  cell 1: jump\n  cell 2: wave"), "{}", stdout(&o));
     let info = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&sheet).unwrap()))
         .read_info()
         .unwrap()

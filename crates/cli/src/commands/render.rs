@@ -29,8 +29,8 @@ pub struct RenderArgs {
     /// Cells per row of the contact sheet.
     #[arg(long, default_value_t = 4)]
     columns: usize,
-    /// Labels of the inputs on the page or sheet, one --label per input in order (default: the
-    /// file names).
+    /// Labels of the inputs, one --label per input in order (default: the file names): shown on
+    /// the 3D page; a sheet numbers its cells and lists each cell's label on stdout.
     #[arg(long = "label")]
     labels: Vec<String>,
     /// Title of the .html page.
@@ -91,6 +91,9 @@ pub fn run(a: RenderArgs) -> Result<()> {
         let clips: Vec<_> = motions.into_iter().map(|j| (j, a.keyframes.clone())).collect();
         render::sheet(&T2M, &clips, a.columns, 240, &a.output)?;
         println!("{}: contact sheet of {} motion(s)", a.output.display(), clips.len());
+        for i in 0..clips.len() {
+            println!("  cell {i}: {}", label(i));
+        }
     } else {
         if motions.len() != 1 {
             bail!(
