@@ -70,11 +70,14 @@ impl BvhInputArgs {
 /// What follows the last denoising step (shared by `sample` and `eval`).
 #[derive(Args, Clone, Debug)]
 pub(crate) struct FitArgs {
-    /// How the motion meets its keyframes after the last step: warp (the residual at each key
-    /// spread smoothly over its neighbours and the root re-integrated to the keyed places and
-    /// headings: exact, no seam), paste (observed features written into the key frames alone:
-    /// the pose jumps there), none (the network's output as it is).
-    #[arg(long, default_value = "warp", value_name = "warp|paste|none")]
+    /// How the motion meets its keyframes after the last step: track (root first, then the
+    /// body: the keyed sample's root warped through the keyed places and headings becomes a
+    /// root track, the motion is denoised again with it observed on every frame, then warped;
+    /// twice the denoising), warp (the residual at each key spread smoothly over its neighbours
+    /// and the root re-integrated to the keyed places and headings: exact, no seam), paste
+    /// (observed features written into the key frames alone: the pose jumps there), none (the
+    /// network's output as it is).
+    #[arg(long, default_value = "track", value_name = "track|warp|paste|none")]
     keyframe_fit: KeyframeFit,
     /// Same as --keyframe-fit none (kept for older scripts).
     #[arg(long, hide = true)]
@@ -90,6 +93,11 @@ pub(crate) struct FitArgs {
     /// held foot to within 2 cm at every frame (README, "Foot lock").
     #[arg(long, default_value_t = diffkfc_data::footlock::MAX_SHIFT_M, value_name = "METRES")]
     foot_lock_reach: f64,
+    /// Keep the network's joint positions as they are. By default every frame is refitted to
+    /// one skeleton (bone directions kept, lengths the skeleton's) before the foot lock, so the
+    /// BVH reproduces the motion the page shows; generated bones otherwise stretch.
+    #[arg(long)]
+    no_rigid: bool,
 }
 
 impl FitArgs {
@@ -98,6 +106,7 @@ impl FitArgs {
             keyframes: if self.no_snap { KeyframeFit::None } else { self.keyframe_fit },
             foot_lock: !self.no_foot_lock,
             lock_reach: self.foot_lock_reach,
+            rigid: !self.no_rigid,
         }
     }
 

@@ -8,6 +8,7 @@ use crate::cache::PackedSplit;
 use crate::dataset::{crop, Dataset, MAX_FRAMES};
 use crate::keyframes::{self, Strategy};
 use crate::rng::Rng;
+use crate::root_track::{self, TrackSchedule};
 use crate::warp::{self, ROOT_CHANNELS};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -21,6 +22,17 @@ pub struct KeyframeConfig {
     /// Probability that a training keyframe does not observe its root place, and, drawn
     /// independently, its heading (so pose-only keyframes stay learned).
     pub root_drop_prob: f64,
+    /// Probability that a sample (whose keyframes are not dropped) also observes its dense root
+    /// track (`root_track`); 0 keeps the sparse schedule and its random draws unchanged.
+    pub dense_root_prob: f64,
+    /// Smallest fraction of frames a dense root track observes (`root_track::TrackSchedule`).
+    pub dense_root_min_density: f64,
+}
+
+impl KeyframeConfig {
+    pub fn track_schedule(&self) -> TrackSchedule {
+        TrackSchedule { prob: self.dense_root_prob, min_density: self.dense_root_min_density }
+    }
 }
 
 impl Default for KeyframeConfig {
@@ -30,6 +42,8 @@ impl Default for KeyframeConfig {
             rate: 0.05,
             drop_prob: 0.1,
             root_drop_prob: 0.5,
+            dense_root_prob: 0.0,
+            dense_root_min_density: 0.25,
         }
     }
 }
@@ -84,6 +98,8 @@ struct Sample {
     x0: Vec<f32>,
     len: usize,
     kf: Vec<usize>,
+    /// Frames observing the dense root track.
+    track: Vec<usize>,
     /// [len, ROOT_CHANNELS] channels and mask.
     root: Vec<f32>,
     root_mask: Vec<f32>,
@@ -163,7 +179,8 @@ impl<'a> Loader<'a> {
         let root = warp::root_channels(&x0, dim);
         self.ds.normalise(&mut x0);
         let kc = &self.keyframes;
-        let kf = if rng.chance(kc.drop_prob) {
+        let dropped = rng.chance(kc.drop_prob);
+        let kf = if dropped {
             vec![]
         } else {
             keyframes::select(kc.strategy, len, kc.rate, &x0, dim, &mut rng)
@@ -176,7 +193,12 @@ impl<'a> Loader<'a> {
                 }
             }
         }
-        Sample { x0, len, kf, root, root_mask, caption }
+        // Drawn last, so that the sparse keys of a seed stay those of the sparse schedule.
+        let track = if dropped { vec![] } else { kc.track_schedule().draw(len, &mut rng) };
+        for &f in &track {
+            root_mask[f * ROOT_CHANNELS..(f + 1) * ROOT_CHANNELS].iter_mut().for_each(|m| *m = 1.0);
+        }
+        Sample { x0, len, kf, track, root, root_mask, caption }
     }
 
     fn assemble(&self, samples: Vec<Sample>, items: Vec<usize>) -> Batch {
@@ -193,8 +215,11 @@ impl<'a> Loader<'a> {
         for (i, s) in samples.into_iter().enumerate() {
             x0[i * n * d..i * n * d + s.len * d].copy_from_slice(&s.x0);
             valid[i * n..i * n + s.len].iter_mut().for_each(|v| *v = 1.0);
-            kf_mask[i * n * d..(i + 1) * n * d]
-                .copy_from_slice(&keyframes::frame_mask(n, &s.kf, &all_dims));
+            let mask = &mut kf_mask[i * n * d..(i + 1) * n * d];
+            mask.copy_from_slice(&keyframes::frame_mask(n, &s.kf, &all_dims));
+            for &f in &s.track {
+                mask[f * d..][root_track::TRACK_DIMS].iter_mut().for_each(|m| *m = 1.0);
+            }
             root[i * n * r..i * n * r + s.len * r].copy_from_slice(&s.root);
             root_mask[i * n * r..i * n * r + s.len * r].copy_from_slice(&s.root_mask);
             lengths.push(s.len);

@@ -24,7 +24,7 @@ use crate::DataError;
 const CM: f64 = 100.0;
 
 /// Names and T-pose bone directions of a skeleton's rig.
-struct Rig {
+pub(crate) struct Rig {
     names: Vec<&'static str>,
     tpose: Vec<Vec3>,
 }
@@ -110,7 +110,7 @@ fn convention_names(changes: &[(usize, &'static str)]) -> Vec<&'static str> {
     names
 }
 
-fn rig(skel: &Skeleton) -> Rig {
+pub(crate) fn rig(skel: &Skeleton) -> Rig {
     if skel.name == "t2m" {
         Rig { names: T2M_NAMES.to_vec(), tpose: T2M_TPOSE.to_vec() }
     } else {
@@ -118,7 +118,7 @@ fn rig(skel: &Skeleton) -> Rig {
     }
 }
 
-fn children(parents: &[i64], j: usize) -> Vec<usize> {
+pub(crate) fn children(parents: &[i64], j: usize) -> Vec<usize> {
     (0..parents.len()).filter(|&c| parents[c] == j as i64).collect()
 }
 
@@ -187,7 +187,7 @@ pub fn best_rotation(from: &[Vec3], to: &[Vec3]) -> Quat {
 
 /// Rest offsets (metres) of every joint: T-pose direction times the motion's mean bone length,
 /// and at branching joints the motion's own child configuration turned to the T-pose.
-fn rest_offsets(skel: &Skeleton, rig: &Rig, joints: &Joints) -> Vec<Vec3> {
+pub(crate) fn rest_offsets(skel: &Skeleton, rig: &Rig, joints: &Joints) -> Vec<Vec3> {
     let parents = skel.parents();
     let t = joints.len() as f64;
     let mut rest: Vec<Vec3> = (0..skel.num_joints())
@@ -229,7 +229,7 @@ fn rest_offsets(skel: &Skeleton, rig: &Rig, joints: &Joints) -> Vec<Vec3> {
 }
 
 /// Global rotation of every joint of one frame, given the rest offsets.
-fn global_rotations(
+pub(crate) fn global_rotations(
     parents: &[i64],
     kids: &[Vec<usize>],
     rest: &[Vec3],
@@ -259,7 +259,7 @@ fn global_rotations(
 }
 
 /// Joints with every parent before its children.
-fn topological(parents: &[i64]) -> Vec<usize> {
+pub(crate) fn topological(parents: &[i64]) -> Vec<usize> {
     let mut order: Vec<usize> = (0..parents.len()).filter(|&j| parents[j] < 0).collect();
     let mut i = 0;
     while i < order.len() {

@@ -202,3 +202,39 @@ fn batches_are_normalised_padded_and_deterministic() {
     assert!(drop.batch(0, 0).kf_mask.iter().all(|&v| v == 0.0));
     std::fs::remove_dir_all(root).unwrap();
 }
+
+#[test]
+fn dense_root_tracks_keep_the_sparse_keys_and_observe_the_root() {
+    let Some((root, _)) = small_dataset("dense_root") else {
+        return;
+    };
+    let ds = Dataset::open(&root).unwrap();
+    let split = PackedSplit::open(&ds, "train", &root.join(".cache"), |_, _| {}).unwrap();
+    let sparse = KeyframeConfig { drop_prob: 0.0, ..Default::default() };
+    let dense = KeyframeConfig { dense_root_prob: 1.0, ..sparse.clone() };
+    let a = Loader::new(&ds, &split, 4, 7, sparse).batch(0, 0);
+    let b = Loader::new(&ds, &split, 4, 7, dense.clone()).batch(0, 0);
+    assert_eq!(b, Loader::new(&ds, &split, 4, 7, dense).batch(0, 0), "reproducible by seed");
+    let (n, d, r) = (a.frames, a.dim, diffkfc_data::warp::ROOT_CHANNELS);
+    assert_eq!((&a.x0, &a.root, &a.lengths), (&b.x0, &b.root, &b.lengths));
+    for i in 0..4 {
+        let len = b.lengths[i];
+        let mut tracked = 0;
+        for f in 0..n {
+            let (ma, mb) = (&a.kf_mask[(i * n + f) * d..][..d], &b.kf_mask[(i * n + f) * d..][..d]);
+            // The sparse pose keys are the same keys; the track adds dims 0..3 only.
+            assert_eq!(&ma[3..], &mb[3..], "sample {i} frame {f}");
+            let on = mb[..3].iter().all(|&m| m == 1.0);
+            assert!(on || ma[..3] == mb[..3]);
+            if on && ma[0] == 0.0 {
+                tracked += 1;
+                assert!(f < len, "no track on padding");
+                let rm = &b.root_mask[(i * n + f) * r..][..r];
+                assert!(rm.iter().all(|&m| m == 1.0), "track frames observe place and heading");
+            }
+        }
+        let keys = a.kf_mask[i * n * d..(i + 1) * n * d].iter().step_by(d).filter(|&&m| m > 0.0);
+        assert!(tracked + keys.count() >= len / 4, "sample {i}: {tracked} of {len} tracked");
+    }
+    std::fs::remove_dir_all(root).unwrap();
+}

@@ -14,7 +14,8 @@ use diffkfc_data::representation::{recover_from_ric, Joints};
 use diffkfc_data::rng::Rng;
 use diffkfc_data::warp::{self, ROOT_CHANNELS};
 use diffkfc_model::diffusion::Schedule;
-use diffkfc_model::fit::{finish, Fit};
+use diffkfc_model::fit::Fit;
+use diffkfc_model::pipeline::Generator;
 use diffkfc_model::place::PlaceGuidance;
 use diffkfc_model::sampler::{self, Request, Sampler, TgMode};
 use diffkfc_model::text::cache::EmbeddingCache;
@@ -350,11 +351,16 @@ impl Protocol<'_> {
                     .then(|| PlaceGuidance::new(self.opts.place_guidance, self.mean, self.std)),
                 ..Default::default()
             };
-            let x = sampler::sample(self.model, self.schedule, &req, &opts, |_, _| tick());
-            for (r, &(p, j)) in chunk.iter().enumerate() {
-                out[p][j] =
-                    finish(&x, &req, r, self.mean, self.std, self.ds.skeleton, self.opts.fit)
-                        .features;
+            let generator = Generator {
+                model: self.model,
+                schedule: self.schedule,
+                mean: self.mean,
+                std: self.std,
+                skel: self.ds.skeleton,
+            };
+            let fitted = generator.generate(&req, &opts, self.opts.fit, |_, _| tick());
+            for (f, &(p, j)) in fitted.into_iter().zip(chunk) {
+                out[p][j] = f.features;
             }
         }
         out

@@ -3,6 +3,7 @@
 use diffkfc_data::dataset::denormalise;
 use diffkfc_data::footlock::{self, LockReport};
 use diffkfc_data::representation::Layout;
+use diffkfc_data::rigid::{self, RigidReport};
 use diffkfc_data::warp::{self, Correction, RootKey, ROOT_CHANNELS};
 use diffkfc_data::Skeleton;
 
@@ -15,9 +16,13 @@ pub const FALLOFF: usize = 20;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum KeyframeFit {
+    /// Root first, then the body (`pipeline`): the keyed sample's root warped to the keyed
+    /// places and headings gives a dense root track; the motion is denoised again with that
+    /// track observed on every frame, so the legs step at the path's speed; then warped.
+    #[default]
+    Track,
     /// Motion warping: the residual at each key spread smoothly over its neighbours, the root
     /// re-integrated to the keyed places and headings (`diffkfc_data::warp`).
-    #[default]
     Warp,
     /// The observed features written into the keyframe frames alone (the paper's implied
     /// behaviour; the pose jumps at the key).
@@ -30,10 +35,11 @@ impl std::str::FromStr for KeyframeFit {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
         match s {
+            "track" => Ok(KeyframeFit::Track),
             "warp" => Ok(KeyframeFit::Warp),
             "paste" => Ok(KeyframeFit::Paste),
             "none" => Ok(KeyframeFit::None),
-            _ => Err(format!("unknown keyframe fit '{s}' (warp, paste, none)")),
+            _ => Err(format!("unknown keyframe fit '{s}' (track, warp, paste, none)")),
         }
     }
 }
@@ -47,20 +53,33 @@ pub struct Fit {
     /// Largest move of a planted foot the lock makes (metres; `footlock::MAX_SHIFT_M` by
     /// default): spans that slide further are left as dragged.
     pub lock_reach: f64,
+    /// Refit every frame to one skeleton before the foot lock (`diffkfc_data::rigid`), so the
+    /// BVH export reproduces the motion.
+    pub rigid: bool,
 }
 
 impl Default for Fit {
     fn default() -> Self {
-        Fit { keyframes: KeyframeFit::Warp, foot_lock: true, lock_reach: footlock::MAX_SHIFT_M }
+        Fit {
+            keyframes: KeyframeFit::Track,
+            foot_lock: true,
+            lock_reach: footlock::MAX_SHIFT_M,
+            rigid: true,
+        }
     }
 }
 
 /// A finished motion: de-normalised features [len, D], the correction made at each keyed
-/// frame, and what foot locking moved.
+/// frame, what making it rigid and foot locking moved, and (track fit) the first stage's root
+/// path.
+#[derive(Clone, Debug, Default)]
 pub struct Fitted {
     pub features: Vec<f32>,
     pub corrections: Vec<Correction>,
     pub feet: LockReport,
+    pub rigid: Option<RigidReport>,
+    /// [len, 3] the root positions (metres) of the track the second stage observed.
+    pub root_path: Option<Vec<f32>>,
 }
 
 /// Sample `i` of the sampler's normalised output `x` [B, N, D], de-normalised, fitted to the
@@ -76,13 +95,14 @@ pub fn finish(
 ) -> Fitted {
     let layout = Layout::of(skel);
     let (mut features, corrections) = fit_keys(x, req, i, mean, std, &layout, fit.keyframes);
+    let mut hold = vec![false; req.lengths[i]];
+    req.key_frames(i).into_iter().for_each(|f| hold[f] = true);
+    let rigid = fit.rigid.then(|| rigid::make_rigid(skel, &mut features, &hold));
     let mut feet = LockReport::default();
     if fit.foot_lock {
-        let mut hold = vec![false; req.lengths[i]];
-        req.key_frames(i).into_iter().for_each(|f| hold[f] = true);
         feet = footlock::lock_feet(skel, &mut features, &hold, footlock::BLEND, fit.lock_reach);
     }
-    Fitted { features, corrections, feet }
+    Fitted { features, corrections, feet, rigid, root_path: None }
 }
 
 fn fit_keys(
@@ -122,7 +142,7 @@ fn fit_keys(
             }
             (out, corr)
         }
-        KeyframeFit::Warp => {
+        KeyframeFit::Warp | KeyframeFit::Track => {
             let (rv, rm) = (span(&req.root, r), span(&req.root_mask, r));
             let root: Vec<RootKey> = (0..len)
                 .map(|f| RootKey::from_channels(&rv[f * r..(f + 1) * r], &rm[f * r..(f + 1) * r]))

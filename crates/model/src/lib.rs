@@ -23,6 +23,7 @@ pub mod memory;
 pub mod optim;
 pub mod parallel;
 pub mod params;
+pub mod pipeline;
 pub mod place;
 pub mod run_config;
 pub mod run_dir;

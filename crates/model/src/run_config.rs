@@ -254,6 +254,8 @@ impl RunConfig {
             ("keyframes.rate", k.rate),
             ("keyframes.drop_prob", k.drop_prob),
             ("keyframes.root_drop_prob", k.root_drop_prob),
+            ("keyframes.dense_root_prob", k.dense_root_prob),
+            ("keyframes.dense_root_min_density", k.dense_root_min_density),
             ("training.ema_decay", t.ema_decay),
         ];
         for (key, v) in unit {

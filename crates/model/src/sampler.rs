@@ -6,6 +6,7 @@
 use burn::prelude::*;
 use diffkfc_data::absolute_root;
 use diffkfc_data::rng::Rng;
+use diffkfc_data::root_track;
 use diffkfc_data::warp::ROOT_CHANNELS;
 
 use crate::diffusion::Schedule;
@@ -132,11 +133,11 @@ impl Request {
         }
     }
 
-    /// Frames of sample `b` whose pose (any feature) is observed.
-    pub(crate) fn key_frames(&self, b: usize) -> Vec<usize> {
+    /// Frames of sample `b` whose pose is observed (any feature but a root track's).
+    pub fn key_frames(&self, b: usize) -> Vec<usize> {
         let (n, d) = (self.frames, self.dim);
         (0..self.lengths[b])
-            .filter(|&f| self.mask[(b * n + f) * d..(b * n + f + 1) * d].iter().any(|&m| m > 0.0))
+            .filter(|&f| root_track::is_pose_key(&self.mask[(b * n + f) * d..(b * n + f + 1) * d]))
             .collect()
     }
 

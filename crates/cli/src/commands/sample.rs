@@ -13,7 +13,8 @@ use diffkfc_data::{npy, render, representation as rep, T2M};
 use diffkfc_eval::keyframe_metrics::{k_err_global, k_err_local, k_trans};
 use diffkfc_model::denoiser::Denoiser;
 use diffkfc_model::diffusion::Schedule;
-use diffkfc_model::fit::{finish, Fit, Fitted};
+use diffkfc_model::fit::{Fit, Fitted};
+use diffkfc_model::pipeline;
 use diffkfc_model::place::PlaceGuidance;
 use diffkfc_model::run_dir::RunDir;
 use diffkfc_model::sampler::{self, Options, Request};
@@ -413,17 +414,16 @@ impl Generator {
     /// diverged sampler (extreme guidance) gives an error, not NaN files with exit 0.
     fn generate(&self, req: &Request, a: &SampleArgs) -> Result<(Vec<Fitted>, f64)> {
         let t0 = std::time::Instant::now();
-        let x = sampler::sample(
-            &self.model,
-            &self.schedule,
-            req,
-            &self.opts,
-            crate::progress::bar("denoising"),
-        );
+        let generator = pipeline::Generator {
+            model: &self.model,
+            schedule: &self.schedule,
+            mean: &self.mean,
+            std: &self.std,
+            skel: &T2M,
+        };
+        let fitted =
+            generator.generate(req, &self.opts, self.fit, crate::progress::bar("denoising"));
         let secs = t0.elapsed().as_secs_f64();
-        let fitted: Vec<_> = (0..req.batch)
-            .map(|i| finish(&x, req, i, &self.mean, &self.std, &T2M, self.fit))
-            .collect();
         for (i, f) in fitted.iter().map(|s| &s.features).enumerate() {
             let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
             if let Err(e) = render::check_drawable(&j).map_err(|e| e.to_string()).and(
