@@ -81,7 +81,21 @@ fn sample_outputs_errors_and_determinism() {
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("results.json")).unwrap()).unwrap();
     assert_eq!(report["keyframes"], serde_json::json!([0, 20, 39]));
-    assert_eq!(report["keyframe_fit"], "warp");
+    assert_eq!(report["keyframe_fit"], "track");
+    // The track fit: the first stage's root path beside the sample, the second stage's distance
+    // from it; one rigid motion, which the BVH reproduces; every planted span with its drift.
+    let s0 = &report["samples"][0];
+    let path = npy::read_f32(out.join("sample_00_root_path.npy")).unwrap();
+    assert_eq!(
+        (path.shape.clone(), s0["root_path"].as_str()),
+        (vec![40, 3], Some("sample_00_root_path.npy"))
+    );
+    assert!(s0["track"]["raw_distance_m"].as_f64().unwrap().is_finite(), "{s0}");
+    assert!(s0["bone_length_std_m"].as_f64().unwrap() < 1e-3, "{s0}");
+    assert!(s0["bvh_error_m"]["max"].as_f64().unwrap() < 1e-3, "{s0}");
+    assert!(s0["foot_lock"]["spans"].is_array(), "{s0}");
+    let page = std::fs::read_to_string(out.join("index.html")).unwrap();
+    assert!(page.contains("\"root_path\":[") && page.contains("\"planted\":"));
     assert!(report["samples"][0]["k_err_root_relative_m"].as_f64().unwrap() < 1e-4);
     // Keyed places too: the global joint error at the keys is under a millimetre.
     assert!(report["samples"][0]["k_err_m"].as_f64().unwrap() < 1e-3, "{}", report["samples"][0]);

@@ -36,6 +36,30 @@ pub struct LockReport {
     pub dragged: usize,
     /// Planted spans left unlocked because the leg could reach the held foot only straight.
     pub out_of_reach: usize,
+    /// Every planted span, with how far its toe slid before and after locking.
+    pub spans: Vec<PlantSpan>,
+}
+
+/// What became of one planted span.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Outcome {
+    Locked,
+    Dragged,
+    OutOfReach,
+}
+
+/// One planted span of one foot: frames `start..=end` whose toe the motion labels in contact.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct PlantSpan {
+    pub foot: &'static str,
+    pub start: usize,
+    pub end: usize,
+    pub outcome: Outcome,
+    /// Largest horizontal distance of the toe from its place at the span's first frame
+    /// (metres), before and after locking.
+    pub drift_before_m: f64,
+    pub drift_after_m: f64,
 }
 
 /// One leg's joints, from the hip to the toe.
@@ -73,7 +97,7 @@ fn smoothstep(x: f64) -> f64 {
 /// anchor (the toe's mean place, or its place at the nearest held frame, so held frames get 0);
 /// outside, the span-end offsets fading over up to `blend` free frames. Spans needing a move
 /// over `max_shift`, or a move `reachable(frame, offset)` refuses, are skipped; returns the
-/// offsets and how many spans were skipped for each reason.
+/// offsets and every span (first frame, last frame, outcome).
 fn offsets(
     toe: &[Vec3],
     planted: &[bool],
@@ -81,10 +105,10 @@ fn offsets(
     blend: usize,
     max_shift: f64,
     reachable: impl Fn(usize, Vec3) -> bool,
-) -> (Vec<Vec3>, usize, usize) {
+) -> (Vec<Vec3>, Vec<(usize, usize, Outcome)>) {
     let t = toe.len();
     let mut o = vec![[0.0; 3]; t];
-    let (mut dragged, mut out_of_reach) = (0, 0);
+    let mut spans = Vec::new();
     let mut s = 0;
     while s < t {
         if !planted[s] {
@@ -106,15 +130,16 @@ fn offsets(
             })
             .collect();
         if span.iter().any(|v| quat::norm(*v) > max_shift) {
-            dragged += 1;
+            spans.push((s, e, Outcome::Dragged));
             s = e + 1;
             continue;
         }
         if span.iter().enumerate().any(|(i, v)| !hold[s + i] && !reachable(s + i, *v)) {
-            out_of_reach += 1;
+            spans.push((s, e, Outcome::OutOfReach));
             s = e + 1;
             continue;
         }
+        spans.push((s, e, Outcome::Locked));
         o[s..=e].copy_from_slice(&span);
         // Fade out into the free frames on each side, stopping short of held and planted ones.
         let free = |f: usize| !planted[f] && !hold[f];
@@ -130,7 +155,16 @@ fn offsets(
         }
         s = e + 1;
     }
-    (o, dragged, out_of_reach)
+    (o, spans)
+}
+
+/// Largest horizontal distance (metres) of `toe` over `start..=end` from its place at `start`.
+fn drift(toe: impl Fn(usize) -> Vec3, start: usize, end: usize, unit: f64) -> f64 {
+    let a = toe(start);
+    (start..=end)
+        .map(|f| toe(f))
+        .map(|p| (p[0] - a[0]).hypot(p[2] - a[2]) * unit)
+        .fold(0.0, f64::max)
 }
 
 /// Knee position for a hip `h`, a moved ankle target `a` and the frame's own thigh and shin
@@ -200,10 +234,9 @@ pub fn lock_feet(
             let wanted = quat::norm(quat::sub(quat::add(j[leg.ankle], o), j[leg.hip]));
             wanted <= leg_len + slack
         };
-        let (o, dragged, out_of_reach) =
-            offsets(&toe, &planted, hold, blend, max_shift_m / unit, reachable);
-        report.dragged += dragged;
-        report.out_of_reach += out_of_reach;
+        let (o, spans) = offsets(&toe, &planted, hold, blend, max_shift_m / unit, reachable);
+        report.dragged += spans.iter().filter(|s| s.2 == Outcome::Dragged).count();
+        report.out_of_reach += spans.iter().filter(|s| s.2 == Outcome::OutOfReach).count();
         // New knee, ankle and toe positions where the foot moves (deltas, zero elsewhere).
         let mut delta = vec![[[0.0; 3]; 3]; t];
         let mut moved = vec![false; t];
@@ -225,6 +258,15 @@ pub fn lock_feet(
             report.frames += 1;
             report.max_shift_m = report.max_shift_m.max(quat::norm(delta[f][1]) * unit);
         }
+        let foot = if leg.contact == 1 { "left" } else { "right" };
+        report.spans.extend(spans.iter().map(|&(start, end, outcome)| PlantSpan {
+            foot,
+            start,
+            end,
+            outcome,
+            drift_before_m: drift(|f| toe[f], start, end, unit),
+            drift_after_m: drift(|f| quat::add(toe[f], delta[f][2]), start, end, unit),
+        }));
         let chain = [leg.knee, leg.ankle, leg.toe];
         // Held rows stay as they are, velocities included.
         for f in (0..t).filter(|&f| !hold[f] && (moved[f] || (f + 1 < t && moved[f + 1]))) {
@@ -383,6 +425,38 @@ mod tests {
             rep.frames > 0 && rep.dragged == 0 && skate0 > 0.3 && skate1 < 0.1,
             "skating {skate0} -> {skate1}, {rep:?}"
         );
+        // Locked spans are pinned where the leg reaches (to 1 mm) and within the reach slack
+        // where it reaches only straight, from a slide of centimetres; joint velocities stay
+        // continuous at the spans' ends (the toe's acceleration no larger than the slide's).
+        let locked_spans: Vec<&PlantSpan> =
+            rep.spans.iter().filter(|s| s.outcome == Outcome::Locked).collect();
+        assert!(
+            !locked_spans.is_empty() && locked_spans.len() + rep.out_of_reach == rep.spans.len()
+        );
+        for s in &locked_spans {
+            assert!(s.drift_after_m < REACH_SLACK_M, "{s:?}");
+        }
+        // This walk's stance legs are nearly straight, so the reach (not the anchor) bounds the
+        // pin: on average the slide shrinks more than tenfold.
+        let mean = |f: fn(&PlantSpan) -> f64| {
+            locked_spans.iter().map(|s| f(s)).sum::<f64>() / locked_spans.len() as f64
+        };
+        let (before, after) = (mean(|s| s.drift_before_m), mean(|s| s.drift_after_m));
+        assert!(after * 10.0 < before, "drift {before} -> {after} m");
+        assert!(locked_spans.iter().any(|s| s.drift_before_m > 0.02), "{locked_spans:?}");
+        let accel = |j: &[Vec<Vec3>], f: usize, k: usize| {
+            let v = |f: usize| quat::sub(j[f + 1][k], j[f][k]);
+            quat::norm(quat::sub(v(f + 1), v(f)))
+        };
+        for s in &locked_spans {
+            for f in [s.start.saturating_sub(2), s.start, s.end.saturating_sub(1), s.end] {
+                if f + 2 < t1 {
+                    let k = if s.foot == "left" { 10 } else { 11 };
+                    let worst = (0..t1 - 2).map(|g| accel(&before_j, g, k)).fold(0.0, f64::max);
+                    assert!(accel(&after_j, f, k) <= worst * 1.05, "{s:?} frame {f}");
+                }
+            }
+        }
         // The held frame, the root and the upper body are untouched.
         let row = |v: &[f32], f: usize| v[f * d..(f + 1) * d].to_vec();
         assert_eq!(row(&locked, t1 / 2), row(&sliding, t1 / 2));
@@ -434,8 +508,8 @@ mod tests {
         let planted: Vec<bool> = (0..20).map(|f| (5..=10).contains(&f)).collect();
         let mut hold = vec![false; 20];
         let any = |_: usize, _: Vec3| true;
-        let (o, dragged, _) = offsets(&toe, &planted, &hold, 4, 1.0, any);
-        assert_eq!(dragged, 0);
+        let (o, spans) = offsets(&toe, &planted, &hold, 4, 1.0, any);
+        assert_eq!(spans, vec![(5, 10, Outcome::Locked)]);
         // Planted frames land on their mean place; the fade is monotone and ends at zero.
         for f in 5..=10 {
             assert!((toe[f][2] + o[f][2] - 0.375).abs() < 1e-12);
@@ -447,21 +521,21 @@ mod tests {
                 && o[0] == [0.0; 3]
         );
         hold[8] = true;
-        let (o, _, _) = offsets(&toe, &planted, &hold, 4, 1.0, any);
+        let (o, _) = offsets(&toe, &planted, &hold, 4, 1.0, any);
         assert_eq!(o[8], [0.0; 3]);
         assert!((toe[5][2] + o[5][2] - toe[8][2]).abs() < 1e-12);
         // A foot dragged 25 cm over the span is not a planted step: left alone.
-        let (o, dragged, _) = offsets(&toe, &planted, &[false; 20], 4, 0.1, any);
-        assert_eq!((dragged, o), (1, vec![[0.0; 3]; 20]));
+        let (o, spans) = offsets(&toe, &planted, &[false; 20], 4, 0.1, any);
+        assert_eq!((spans, o), (vec![(5, 10, Outcome::Dragged)], vec![[0.0; 3]; 20]));
         // A span the leg cannot reach at one of its frames is left alone; held frames are not
         // asked (they do not move).
         let short = |f: usize, _: Vec3| f != 9;
-        let (o, dragged, out) = offsets(&toe, &planted, &[false; 20], 4, 1.0, short);
-        assert_eq!((dragged, out, o), (0, 1, vec![[0.0; 3]; 20]));
+        let (o, spans) = offsets(&toe, &planted, &[false; 20], 4, 1.0, short);
+        assert_eq!((spans, o), (vec![(5, 10, Outcome::OutOfReach)], vec![[0.0; 3]; 20]));
         let mut hold9 = vec![false; 20];
         hold9[9] = true;
-        let (_, _, out) = offsets(&toe, &planted, &hold9, 4, 1.0, short);
-        assert_eq!(out, 0);
+        let (_, spans) = offsets(&toe, &planted, &hold9, 4, 1.0, short);
+        assert_eq!(spans, vec![(5, 10, Outcome::Locked)]);
     }
 
     /// A stance leg pulled past its reach: the lock leaves the span rather than straighten it.

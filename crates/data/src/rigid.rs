@@ -22,24 +22,27 @@ pub struct RigidReport {
     pub max_key_move_m: f64,
 }
 
-/// The bone offsets every frame is refitted to: the skeleton's target offsets where it has them
-/// (HumanML3D's own motions are built on them, so keyed poses stay where they are), else the
-/// motion's own average bones (`rig`'s rest pose).
-fn rest(skel: &Skeleton, joints: &Joints) -> Vec<Vec3> {
-    skel.target_offsets().unwrap_or_else(|| rig::rest_offsets(skel, &rig::rig(skel), joints))
+/// The bone offsets every frame is refitted to: those of the held frames (the pose keyframes:
+/// the keyed character's own bones, so keyed poses stay where they are) or, with none, the
+/// motion's own average bones (`rig`'s rest pose, a Procrustes mean for joints with several
+/// children).
+pub fn rest(skel: &Skeleton, joints: &Joints, hold: &[bool]) -> Vec<Vec3> {
+    let held: Joints =
+        joints.iter().zip(hold).filter(|(_, &h)| h).map(|(j, _)| j.clone()).collect();
+    let from = if held.is_empty() { joints } else { &held };
+    rig::rest_offsets(skel, &rig::rig(skel), from)
 }
 
-/// The joints refitted to one set of bone offsets, frame by frame; the root stays.
-pub fn rigid_joints(skel: &Skeleton, joints: &Joints) -> Joints {
+/// The joints refitted to the bone offsets `rest` ([`rest`]), frame by frame; the root stays.
+pub fn rigid_joints(skel: &Skeleton, joints: &Joints, rest: &[Vec3]) -> Joints {
     let parents = skel.parents();
     let kids: Vec<Vec<usize>> =
         (0..skel.num_joints()).map(|j| rig::children(&parents, j)).collect();
-    let rest = rest(skel, joints);
     let order = rig::topological(&parents);
     joints
         .iter()
         .map(|pose| {
-            let g = rig::global_rotations(&parents, &kids, &rest, pose);
+            let g = rig::global_rotations(&parents, &kids, rest, pose);
             let mut out = pose.clone();
             for &j in &order {
                 for &c in &kids[j] {
@@ -71,8 +74,9 @@ pub fn bone_length_std(skel: &Skeleton, joints: &Joints) -> f64 {
 
 /// Make de-normalised features `feats` [T, D] rigid in place: their joints refitted
 /// ([`rigid_joints`]), the root-relative positions and local velocities rewritten to match
-/// (rotations and contacts unchanged, the root untouched). `hold` marks pose keyframes, whose
-/// moves are reported apart.
+/// (rotations and contacts unchanged, the root untouched). `hold` marks pose keyframes: their
+/// rows stay as given (their bones are the ones every frame is refitted to), and how far they
+/// are from rigid is reported apart.
 pub fn make_rigid(skel: &Skeleton, feats: &mut [f32], hold: &[bool]) -> RigidReport {
     let layout = Layout::of(skel);
     let d = layout.dim();
@@ -80,7 +84,7 @@ pub fn make_rigid(skel: &Skeleton, feats: &mut [f32], hold: &[bool]) -> RigidRep
     let f64s: Vec<f64> = feats.iter().map(|&v| v as f64).collect();
     let joints = recover_from_ric(skel, &f64s);
     let (rq, _) = recover_root_rot_pos(&f64s, d);
-    let fixed = rigid_joints(skel, &joints);
+    let fixed = rigid_joints(skel, &joints, &rest(skel, &joints, hold));
     let unit = skel.metres_per_unit;
     let mut report = RigidReport {
         bone_std_before_m: bone_length_std(skel, &joints) * unit,
@@ -94,14 +98,21 @@ pub fn make_rigid(skel: &Skeleton, feats: &mut [f32], hold: &[bool]) -> RigidRep
     for f in 0..t {
         let next = &delta[(f + 1).min(t - 1)];
         let row = &mut feats[f * d..(f + 1) * d];
+        let held = hold.get(f).copied().unwrap_or(false);
         for j in 1..skel.num_joints() {
             let moved = quat::norm(delta[f][j]) * unit;
             report.max_move_m = report.max_move_m.max(moved);
-            if hold.get(f).copied().unwrap_or(false) {
+            if held {
+                // A keyed row stays as given, velocities included (its bones define the rest).
                 report.max_key_move_m = report.max_key_move_m.max(moved);
+                continue;
             }
             let ric = quat::qrot(rq[f], delta[f][j]);
-            let vel = if f + 1 < t { quat::qrot(rq[f], quat::sub(next[j], delta[f][j])) } else { [0.0; 3] };
+            let vel = if f + 1 < t {
+                quat::qrot(rq[f], quat::sub(next[j], delta[f][j]))
+            } else {
+                [0.0; 3]
+            };
             for k in 0..3 {
                 row[layout.ric().start + (j - 1) * 3 + k] += ric[k] as f32;
                 row[layout.vel().start + j * 3 + k] += vel[k] as f32;
@@ -157,7 +168,8 @@ mod tests {
         let Some(mut feats) = real_features() else {
             return;
         };
-        let before = rep::recover_from_ric(&T2M, &feats.iter().map(|&v| v as f64).collect::<Vec<_>>());
+        let before =
+            rep::recover_from_ric(&T2M, &feats.iter().map(|&v| v as f64).collect::<Vec<_>>());
         assert!(bone_length_std(&T2M, &before) < 1e-4, "the fixture is rigid");
         let hold = vec![true; before.len()];
         let r = make_rigid(&T2M, &mut feats, &hold);
@@ -169,10 +181,11 @@ mod tests {
         let Some(feats) = real_features() else {
             return;
         };
-        let real = rep::recover_from_ric(&T2M, &feats.iter().map(|&v| v as f64).collect::<Vec<_>>());
+        let real =
+            rep::recover_from_ric(&T2M, &feats.iter().map(|&v| v as f64).collect::<Vec<_>>());
         let loose = stretched(&real);
         assert!(bone_length_std(&T2M, &loose) > 0.005, "the test motion stretches");
-        let fixed = rigid_joints(&T2M, &loose);
+        let fixed = rigid_joints(&T2M, &loose, &rest(&T2M, &loose, &[]));
         assert!(bone_length_std(&T2M, &fixed) < 1e-6);
         // Directions are kept, so the refit lands near the unstretched real motion.
         assert!(max_err(&fixed, &real) < 0.05, "{}", max_err(&fixed, &real));
@@ -207,7 +220,8 @@ mod tests {
         }
         let r = make_rigid(&T2M, &mut feats2, &vec![false; real.len()]);
         assert!(r.bone_std_before_m > 0.005 && r.max_key_move_m == 0.0, "{r:?}");
-        let out = rep::recover_from_ric(&T2M, &feats2.iter().map(|&v| v as f64).collect::<Vec<_>>());
+        let out =
+            rep::recover_from_ric(&T2M, &feats2.iter().map(|&v| v as f64).collect::<Vec<_>>());
         assert!(bone_length_std(&T2M, &out) < 1e-5, "{}", bone_length_std(&T2M, &out));
         // The root is untouched.
         for f in 0..out.len() {

@@ -16,7 +16,7 @@
   const J = D.parents.length;
   const T = Math.max(...D.motions.map((m) => m.frames));
   const LANE = 1.3;
-  const COLORS = { left: "#2563eb", right: "#dc2626", centre: "#374151", key: "#f97316" };
+  const COLORS = { left: "#2563eb", right: "#dc2626", centre: "#374151", key: "#f97316", path: "#7c3aed", planted: "#16a34a" };
   const side = D.parents.map((_, j) => (D.left.includes(j) ? "left" : D.right.includes(j) ? "right" : "centre"));
   D.motions.forEach((m, i) => { m.dx = (i - (D.motions.length - 1) / 2) * LANE; });
   const cam = { yaw: 0.6, pitch: 0.25, dist: 2.2 + 0.8 * D.motions.length, zoom: 1, target: [0, 0.9, 0] };
@@ -82,6 +82,24 @@
         if (s) { f === 0 ? ctx.moveTo(s[0], s[1]) : ctx.lineTo(s[0], s[1]); }
       }
       ctx.stroke();
+      // The root path the motion was asked to follow (track fit), whole and dashed.
+      if (m.root_path) {
+        ctx.strokeStyle = COLORS.path;
+        ctx.setLineDash([6, 4]);
+        ctx.beginPath();
+        for (let f = 0; 2 * f + 1 < m.root_path.length; f++) {
+          const s = proj([m.root_path[2 * f] + (m.dx || 0), 0, m.root_path[2 * f + 1]]);
+          if (s) { f === 0 ? ctx.moveTo(s[0], s[1]) : ctx.lineTo(s[0], s[1]); }
+        }
+        ctx.stroke();
+        ctx.setLineDash([]);
+      }
+      // Planted toes: a green disc on the ground under each toe while its span lasts.
+      (m.planted || []).filter(([, s, e]) => s <= frame && frame <= e).forEach(([toe]) => {
+        const p = joint(m, m.joints, frame, toe);
+        const s = proj([p[0], 0, p[2]]);
+        if (s) { ctx.fillStyle = COLORS.planted; ctx.beginPath(); ctx.arc(s[0], s[1], Math.max(3, 0.05 * s[3] / s[2]), 0, 2 * Math.PI); ctx.fill(); }
+      });
       // The nearest keyed pose, drawn in orange at and near its frame (fading over 4 frames):
       // one ghost at a time, also where every frame is keyed.
       const near = (m.key_poses || []).reduce((b, k) => (!b || Math.abs(k[0] - frame) < Math.abs(b[0] - frame) ? k : b), null);
@@ -158,6 +176,9 @@
       const y = 2 + i * rowH;
       tctx.fillStyle = "#e2e8f0";
       tctx.fillRect(x(0), y + rowH / 2 - 1, x(m.frames - 1) - x(0), 2);
+      tctx.fillStyle = COLORS.key;
+      tctx.fillStyle = COLORS.planted;
+      (m.planted || []).forEach(([, s, e]) => tctx.fillRect(x(s), y + rowH / 2 - 2, Math.max(1, x(e) - x(s)), 4));
       tctx.fillStyle = COLORS.key;
       m.keyframes.forEach((k) => tctx.fillRect(x(k) - 1.5, y + 2, 3, rowH - 4));
     });

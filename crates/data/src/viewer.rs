@@ -24,6 +24,12 @@ pub struct ViewMotion {
     pub numbers: String,
     /// Files to link under the view: (text, relative path).
     pub links: Vec<(String, String)>,
+    /// The root path the motion was asked to follow (the track fit's first stage), drawn on the
+    /// ground as a dashed line.
+    pub root_path: Option<Vec<[f64; 3]>>,
+    /// Planted spans: (toe joint, first frame, last frame), marked on the timeline and under
+    /// the toe while it is planted.
+    pub planted: Vec<(usize, usize, usize)>,
 }
 
 /// Text made safe inside HTML.
@@ -62,6 +68,8 @@ pub fn page(
             "keyframes": m.keyframes,
             "key_joints": m.key_joints,
             "key_poses": m.key_poses.iter().map(|(f, p)| json!([f, flat(std::slice::from_ref(p))])).collect::<Vec<_>>(),
+            "root_path": m.root_path.as_ref().map(|p| p.iter().flat_map(|v| [v[0], v[2]]).map(|v| (v * 1000.0).round() / 1000.0).collect::<Vec<_>>()),
+            "planted": m.planted,
         })).collect::<Vec<_>>(),
     });
     let cards: String = motions
@@ -100,7 +108,7 @@ body{{font-family:system-ui,sans-serif;margin:16px;color:#0f172a;max-width:1200p
 <div class=controls><button id=play>pause</button><input id=frame type=range min=0 value=0 step=1><span id=frame-label></span>
 <label><input id=follow type=checkbox checked> follow</label></div>
 <canvas id=timeline></canvas>
-<p class=legend>drag to orbit, wheel to zoom, space to play/pause, arrows step frames;<span style="background:#2563eb"></span>left<span style="background:#dc2626"></span>right<span style="background:#f97316"></span>keyed pose (near its frame; ticks on the timeline) <output id=status></output></p>
+<p class=legend>drag to orbit, wheel to zoom, space to play/pause, arrows step frames;<span style="background:#2563eb"></span>left<span style="background:#dc2626"></span>right<span style="background:#f97316"></span>keyed pose (near its frame; ticks on the timeline)<span style="background:#7c3aed"></span>root path followed<span style="background:#16a34a"></span>planted foot <output id=status></output></p>
 <div class=cards>{cards}</div>
 <script type="application/json" id="motion-data">{data}</script>
 <script>{SCRIPT}</script>

@@ -14,7 +14,7 @@ use diffkfc_data::representation::{recover_from_ric, Joints};
 use diffkfc_data::rng::Rng;
 use diffkfc_data::warp::{self, ROOT_CHANNELS};
 use diffkfc_model::diffusion::Schedule;
-use diffkfc_model::fit::Fit;
+use diffkfc_model::fit::{Fit, KeyframeFit};
 use diffkfc_model::pipeline::Generator;
 use diffkfc_model::place::PlaceGuidance;
 use diffkfc_model::sampler::{self, Request, Sampler, TgMode};
@@ -215,7 +215,14 @@ impl Protocol<'_> {
 
     /// Denoising steps (sampler calls) one generation of `rows` motions costs.
     fn steps_for(&self, rows: usize) -> usize {
-        rows.div_ceil(self.opts.batch.max(1))
+        // The track fit denoises keyed motions twice (an upper bound: text-only rows once).
+        let stages = if self.opts.fit.keyframes == KeyframeFit::Track && self.opts.root_keys {
+            2
+        } else {
+            1
+        };
+        stages
+            * rows.div_ceil(self.opts.batch.max(1))
             * sampler::timesteps(self.schedule, self.opts.sampler).len()
     }
 

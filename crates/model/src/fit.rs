@@ -80,6 +80,44 @@ pub struct Fitted {
     pub rigid: Option<RigidReport>,
     /// [len, 3] the root positions (metres) of the track the second stage observed.
     pub root_path: Option<Vec<f32>>,
+    /// How closely the second stage's own output followed that track.
+    pub track: Option<TrackReport>,
+}
+
+/// The track fit's second stage against the track it observed, before any fit.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct TrackReport {
+    /// Mean ground speed (m/s) of the track and of the network's root.
+    pub track_speed_mps: f64,
+    pub raw_speed_mps: f64,
+    /// Mean and largest ground distance (m) of the network's root from the track.
+    pub raw_distance_m: f64,
+    pub raw_distance_max_m: f64,
+}
+
+impl TrackReport {
+    /// From root positions [T, 3] of the track and of the network's output.
+    pub fn of(track: &[f32], raw: &[f32], fps: f64) -> TrackReport {
+        let ground = |p: &[f32], a: usize, b: usize| {
+            ((p[3 * a] - p[3 * b]) as f64).hypot((p[3 * a + 2] - p[3 * b + 2]) as f64)
+        };
+        let t = track.len() / 3;
+        let speed = |p: &[f32]| {
+            (1..t).map(|f| ground(p, f, f - 1)).sum::<f64>() * fps / (t.max(2) - 1) as f64
+        };
+        let dist: Vec<f64> = (0..t)
+            .map(|f| {
+                ((track[3 * f] - raw[3 * f]) as f64)
+                    .hypot((track[3 * f + 2] - raw[3 * f + 2]) as f64)
+            })
+            .collect();
+        TrackReport {
+            track_speed_mps: speed(track),
+            raw_speed_mps: speed(raw),
+            raw_distance_m: dist.iter().sum::<f64>() / t.max(1) as f64,
+            raw_distance_max_m: dist.iter().copied().fold(0.0, f64::max),
+        }
+    }
 }
 
 /// Sample `i` of the sampler's normalised output `x` [B, N, D], de-normalised, fitted to the
@@ -102,7 +140,7 @@ pub fn finish(
     if fit.foot_lock {
         feet = footlock::lock_feet(skel, &mut features, &hold, footlock::BLEND, fit.lock_reach);
     }
-    Fitted { features, corrections, feet, rigid, root_path: None }
+    Fitted { features, corrections, feet, rigid, root_path: None, track: None }
 }
 
 fn fit_keys(

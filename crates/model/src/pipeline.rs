@@ -9,7 +9,7 @@ use diffkfc_data::warp::{self, ROOT_CHANNELS};
 use diffkfc_data::Skeleton;
 
 use crate::diffusion::Schedule;
-use crate::fit::{finish, Fit, Fitted, KeyframeFit};
+use crate::fit::{finish, Fit, Fitted, KeyframeFit, TrackReport};
 use crate::sampler::{self, Options, Request};
 use crate::Denoiser;
 
@@ -34,13 +34,10 @@ impl Generator<'_> {
     ) -> Vec<Fitted> {
         let two_stage = fit.keyframes == KeyframeFit::Track && has_root_keys(req);
         let stages = if two_stage { 2 } else { 1 };
-        let x = sampler::sample(self.model, self.schedule, req, opts, |k, n| {
-            progress(k, stages * n)
-        });
+        let x =
+            sampler::sample(self.model, self.schedule, req, opts, |k, n| progress(k, stages * n));
         let finish_all = |x: &[f32], fit: Fit| -> Vec<Fitted> {
-            (0..req.batch)
-                .map(|i| finish(x, req, i, self.mean, self.std, self.skel, fit))
-                .collect()
+            (0..req.batch).map(|i| finish(x, req, i, self.mean, self.std, self.skel, fit)).collect()
         };
         if !two_stage {
             return finish_all(&x, fit);
@@ -52,12 +49,21 @@ impl Generator<'_> {
         );
         let tracked = self.track_request(req, &stage1);
         // Stage 2: the whole motion again, with that root observed on every frame.
-        let x2 = sampler::sample(self.model, self.schedule, &tracked, opts, |k, n| {
+        let opts2 =
+            Options { impose_track: std::env::var("DIFFKFC_IMPOSE").is_ok(), ..opts.clone() };
+        let x2 = sampler::sample(self.model, self.schedule, &tracked, &opts2, |k, n| {
             progress(n + k, 2 * n)
         });
+        let raw = finish_all(
+            &x2,
+            Fit { keyframes: KeyframeFit::None, foot_lock: false, rigid: false, ..fit },
+        );
         let mut out = finish_all(&x2, Fit { keyframes: KeyframeFit::Warp, ..fit });
-        for (o, s) in out.iter_mut().zip(&stage1) {
-            o.root_path = Some(root_positions(&s.features, req.dim));
+        for ((o, s), r) in out.iter_mut().zip(&stage1).zip(&raw) {
+            let (path, raw_path) =
+                (root_positions(&s.features, req.dim), root_positions(&r.features, req.dim));
+            o.track = Some(TrackReport::of(&path, &raw_path, self.skel.fps));
+            o.root_path = Some(path);
         }
         out
     }

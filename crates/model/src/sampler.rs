@@ -68,6 +68,9 @@ pub struct Options {
     pub inpaint: bool,
     /// Place guidance: the root path of each step's x0 pulled towards the keyed places.
     pub place: Option<PlaceGuidance>,
+    /// Observed root-track features (`root_track::TRACK_DIMS`) replace the prediction at every
+    /// step, so x_t carries the track the network is asked to follow.
+    pub impose_track: bool,
 }
 
 impl Default for Options {
@@ -84,6 +87,7 @@ impl Default for Options {
             tg_mode: TgMode::X0,
             inpaint: false,
             place: None,
+            impose_track: false,
         }
     }
 }
@@ -233,6 +237,11 @@ pub fn sample(
     enc.cross_kv = enc.cross_kv.into_iter().map(|(k, v)| (k.detach(), v.detach())).collect();
     let kf_t = Tensor::<1>::from_floats(req.kf.as_slice(), &device).reshape([b, n, d]);
     let mask_t = Tensor::<1>::from_floats(req.mask.as_slice(), &device).reshape([b, n, d]);
+    let track_mask = opts.impose_track.then(|| {
+        let dims: Vec<f32> =
+            (0..d).map(|k| if root_track::TRACK_DIMS.contains(&k) { 1.0 } else { 0.0 }).collect();
+        mask_t.clone() * Tensor::<1>::from_floats(dims.as_slice(), &device).reshape([1, 1, d])
+    });
     let mut rng = Rng::new(opts.seed);
     let mut x: Vec<f32> = (0..b * n * d).map(|_| rng.normal() as f32).collect();
     let ts = timesteps(schedule, opts.sampler);
@@ -253,6 +262,8 @@ pub fn sample(
         if opts.inpaint {
             // MDM-inp: the observed features replace the prediction at every step.
             x0_t = x0_t * (mask_t.ones_like() - mask_t.clone()) + kf_t.clone() * mask_t.clone();
+        } else if let Some(tm) = &track_mask {
+            x0_t = x0_t * (tm.ones_like() - tm.clone()) + kf_t.clone() * tm.clone();
         }
         let x0 = host(x0_t.clone().detach());
         match ts.get(k + 1).copied() {

@@ -68,7 +68,7 @@ fn guidance_identities_and_exact_keyframes() {
                 &mean,
                 &std,
                 &diffkfc_data::T2M,
-                Fit { keyframes: fit, foot_lock: false, ..Fit::default() },
+                Fit { keyframes: fit, foot_lock: false, rigid: false, ..Fit::default() },
             );
             let (f, corr) = (done.features, done.corrections);
             // Foot locking leaves the keyed frames as the fit made them.
@@ -79,7 +79,7 @@ fn guidance_identities_and_exact_keyframes() {
                 &mean,
                 &std,
                 &diffkfc_data::T2M,
-                Fit { keyframes: fit, foot_lock: true, ..Fit::default() },
+                Fit { keyframes: fit, foot_lock: true, rigid: false, ..Fit::default() },
             )
             .features;
             for (k, (x, y)) in f.iter().zip(&locked).enumerate() {

@@ -355,6 +355,7 @@ impl Generator {
             },
             inpaint: matches!(a.keyframe_mode, KeyframeMode::Inpaint),
             place,
+            impose_track: false,
         };
         let enc = MiniLm::load(&text::default_dir(), &Device::flex())?;
         Ok(Generator { model, schedule, mean, std, enc, opts, fit: a.fit.fit(), step })

@@ -39,6 +39,9 @@ pub(super) fn write_outputs(
     }
     for (i, done) in fitted.into_iter().enumerate() {
         let (f, corrections) = (done.features, done.corrections);
+        let root_path = done.root_path.as_ref().map(|p| {
+            p.chunks(3).map(|v| [v[0] as f64, v[1] as f64, v[2] as f64]).collect::<Vec<_>>()
+        });
         let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
         let name = format!("sample_{i:02}");
         let stem = a.out.join(&name);
@@ -47,14 +50,24 @@ pub(super) fn write_outputs(
         render::gif(&T2M, &j, &keys.frames, &stem.with_extension("gif"))?;
         let rig = diffkfc_data::rig::export(&T2M, &j);
         diffkfc_data::write_atomic(&stem.with_extension("bvh"), rig.to_text().as_bytes())?;
-        // The BVH is a rigid rig; generated bones stretch a little from frame to frame.
+        // The BVH is a rigid rig: it reproduces the motion when the fit made it rigid.
         let (bvh_mean, bvh_max) = diffkfc_data::rig::export_error(&T2M, &j, &rig);
+        let path_file = format!("{name}_root_path.npy");
+        match &done.root_path {
+            Some(p) => npy::write(a.out.join(&path_file), &[p.len() / 3, 3], p)?,
+            // An earlier run's path would describe another motion.
+            None => drop(std::fs::remove_file(a.out.join(&path_file))),
+        }
         samples.push(json!({
             "features": format!("{name}.npy"),
             "joints": format!("{name}_joints.npy"),
             "gif": format!("{name}.gif"),
             "bvh": format!("{name}.bvh"),
             "bvh_error_m": {"mean": bvh_mean, "max": bvh_max},
+            "bone_length_std_m": diffkfc_data::rigid::bone_length_std(&T2M, &j) * T2M.metres_per_unit,
+            "rigid": done.rigid,
+            "root_path": done.root_path.is_some().then_some(&path_file),
+            "track": done.track,
             "k_err_m": keys.source.as_ref().and_then(|s| k_err_global(&j, s, &keys.frames, &keys.joints)),
             "k_err_root_relative_m": k_err_local(&T2M, &f, &keys.values, &keys.frames, &keys.joints),
             "k_trans": k_trans(&j, &keys.frames, 2),
@@ -84,6 +97,16 @@ pub(super) fn write_outputs(
             links: ["gif", "bvh", "features", "joints"]
                 .iter()
                 .map(|k| (k.to_string(), s[*k].as_str().unwrap_or("").to_string()))
+                .collect(),
+            root_path,
+            planted: done
+                .feet
+                .spans
+                .iter()
+                .map(|s| {
+                    let toe = if s.foot == "left" { T2M.feet_left[1] } else { T2M.feet_right[1] };
+                    (toe, s.start, s.end)
+                })
                 .collect(),
             joints: j,
         });
@@ -221,7 +244,7 @@ fn remove_stale_samples(out: &Path, keep: usize) -> Result<()> {
         };
         let (num, tail) =
             rest.split_at(rest.find(|c: char| !c.is_ascii_digit()).unwrap_or(rest.len()));
-        let ours = [".npy", "_joints.npy", ".gif", ".bvh"].contains(&tail);
+        let ours = [".npy", "_joints.npy", ".gif", ".bvh", "_root_path.npy"].contains(&tail);
         if ours && num.parse::<usize>().is_ok_and(|k| k >= keep) {
             std::fs::remove_file(e.path())
                 .with_context(|| format!("removing the stale {}", e.path().display()))?;

@@ -89,7 +89,12 @@ pub(super) fn run(a: SampleArgs, spec_arg: &str) -> Result<()> {
         .into_iter()
         .zip(corrections)
         .zip(feet)
-        .map(|((features, corrections), feet)| Fitted { features, corrections, feet, ..Default::default() })
+        .map(|((features, corrections), feet)| Fitted {
+            features,
+            corrections,
+            feet,
+            ..Default::default()
+        })
         .collect();
     let joins = joins(&windows);
     let away: Vec<usize> = (5..total.saturating_sub(5))
