@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The keyframe-fit comparison of README ("Keyframe fits"): the same model, keyframes and seeds
-# evaluated with each fit (warp, paste, none), with and without root keyframes.
+# evaluated with each fit (track, warp, paste, none), with and without root keyframes.
 #   scripts/keyframe-fit-table.sh RUN EVALUATOR DATA OUT [extra eval flags...]
 set -euo pipefail
 if [ $# -lt 4 ]; then
@@ -10,7 +10,7 @@ fi
 run=$1 evaluator=$2 data=$3 out=$4
 shift 4
 bin=${DIFFKFC_BIN:-${CARGO_TARGET_DIR:-target}/release/diffkfc}
-for fit in warp paste none; do
+for fit in track warp paste none; do
   for root in on off; do
     flags=()
     [ "$root" = off ] && flags+=(--no-root-keys)
@@ -24,7 +24,7 @@ import json, sys, os
 out = sys.argv[1]
 print("| fit | root keyframes | K-Err global (m) | K-Err root-relative (m) | K-TranS | real K-TranS | foot skating | real foot skating | FID |")
 print("|---|---|---|---|---|---|---|---|---|")
-for fit in ["warp", "paste", "none"]:
+for fit in ["track", "warp", "paste", "none"]:
     for root in ["on", "off"]:
         r = json.load(open(os.path.join(out, f"{fit}-root-{root}", "report.json")))
         rows = r["rows"]

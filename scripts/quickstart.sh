@@ -78,11 +78,14 @@ def section(dirs):
         r = json.load(open(os.path.join(out, d, "results.json")))
         s = r["samples"][0]
         kf = "all frames, lower body" if len(r["keyframes"]) == r["length"] else ", ".join(map(str, r["keyframes"]))
+        place = max([abs(c.get("place_m") or 0) for c in s["corrections"]] or [0])
         rows.append(f"<tr><td><a href='{d}/index.html'>{html.escape(r['text'])}</a></td><td>{kf}</td><td>{f(s['k_err_m'])}</td>"
-                    f"<td>{f(s['k_err_root_relative_m'])}</td><td>{f(s['k_trans'])}</td><td>{f(r['real_k_trans'])}</td><td>{f(s.get('foot_skating'))}</td></tr>")
+                    f"<td>{f(s['k_err_root_relative_m'])}</td><td>{f(s['k_trans'])}</td><td>{f(r['real_k_trans'])}</td><td>{f(s.get('foot_skating'))}</td>"
+                    f"<td>{f(r.get('real_foot_skating'))}</td><td>{place:.3f}</td></tr>")
         figs.append(f"<figure><img src='{d}/{s['gif']}' width=320><figcaption>{html.escape(r['text'])}</figcaption></figure>")
     table = ("<table><tr><th>prompt (folder page)</th><th>keyframes</th><th>K-Err (m)</th><th>K-Err root-relative (m)</th>"
-             "<th>K-TranS</th><th>source K-TranS</th><th>foot skating</th></tr>" + "".join(rows) + "</table>")
+             "<th>K-TranS</th><th>source K-TranS</th><th>foot skating</th><th>source foot skating</th>"
+             "<th>largest place correction (m)</th></tr>" + "".join(rows) + "</table>")
     return "".join(figs) + table, rows
 ref, rows = section(["1-keyframes", "2-sequence", "3-body-part-edit"])
 if os.path.exists(os.path.join(out, "4-demo-run", "results.json")):

@@ -102,8 +102,15 @@ fn page_draws_and_the_slider_moves_the_figures() {
         html.split("<output id=\"status\">").nth(1).and_then(|s| s.split('<').next()).unwrap_or("");
     eprintln!("page at #frame=40: {status}");
     assert!(status.starts_with("frame 40;"), "{status}");
-    let drawn: usize = status.rsplit(' ').next().unwrap().parse().unwrap();
+    let count = |what: &str| -> usize {
+        let tail = status.split(what).nth(1).unwrap_or_else(|| panic!("{what}: {status}"));
+        tail.trim().split(|c: char| !c.is_ascii_digit()).next().unwrap().parse().unwrap()
+    };
+    let drawn = count("left-limb pixels");
     assert!(drawn > 300, "figures cover {drawn} px");
+    // The track fit's root path (dashed violet) and the planted toes (green discs) are drawn.
+    assert!(count("root-path pixels") > 100, "{status}");
+    assert!(count("planted-foot pixels") > 10, "{status}");
     for label in ["source", "sample_00", "sample_01", "sample_00.bvh"] {
         assert!(html.contains(label), "{label} missing from the page");
     }

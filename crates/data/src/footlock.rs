@@ -161,10 +161,7 @@ fn offsets(
 /// Largest horizontal distance (metres) of `toe` over `start..=end` from its place at `start`.
 fn drift(toe: impl Fn(usize) -> Vec3, start: usize, end: usize, unit: f64) -> f64 {
     let a = toe(start);
-    (start..=end)
-        .map(|f| toe(f))
-        .map(|p| (p[0] - a[0]).hypot(p[2] - a[2]) * unit)
-        .fold(0.0, f64::max)
+    (start..=end).map(toe).map(|p| (p[0] - a[0]).hypot(p[2] - a[2]) * unit).fold(0.0, f64::max)
 }
 
 /// Knee position for a hip `h`, a moved ankle target `a` and the frame's own thigh and shin

@@ -85,6 +85,7 @@
       // The root path the motion was asked to follow (track fit), whole and dashed.
       if (m.root_path) {
         ctx.strokeStyle = COLORS.path;
+        ctx.lineWidth = 2.5;
         ctx.setLineDash([6, 4]);
         ctx.beginPath();
         for (let f = 0; 2 * f + 1 < m.root_path.length; f++) {
@@ -93,6 +94,7 @@
         }
         ctx.stroke();
         ctx.setLineDash([]);
+        ctx.lineWidth = 1;
       }
       // Planted toes: a green disc on the ground under each toe while its span lasts.
       (m.planted || []).filter(([, s, e]) => s <= frame && frame <= e).forEach(([toe]) => {
@@ -190,9 +192,14 @@
   // What the page test reads: the frame shown and how many pixels the figures cover.
   function report(w, h, dpr) {
     const img = ctx.getImageData(0, 0, Math.round(w * dpr), Math.round(h * dpr)).data;
-    let n = 0;
-    for (let i = 0; i < img.length; i += 4) if (img[i + 2] > 150 && img[i] < 120) n++; // blue: left limbs
-    status.textContent = `frame ${frame}; left-limb pixels ${n}`;
+    let n = 0, path = 0, planted = 0;
+    for (let i = 0; i < img.length; i += 4) {
+      const [r, g, b] = [img[i], img[i + 1], img[i + 2]];
+      if (b > 150 && r < 120) n++; // blue: left limbs
+      else if (r > 100 && r < 150 && g < 90 && b > 200) path++; // violet: the followed root path
+      else if (g > 130 && r < 60 && b < 110) planted++; // green: planted toes
+    }
+    status.textContent = `frame ${frame}; root-path pixels ${path}; planted-foot pixels ${planted}; left-limb pixels ${n}`;
   }
 
   function setFrame(f) { frame = Math.max(0, Math.min(T - 1, f | 0)); draw(); }

@@ -48,9 +48,11 @@ impl Generator<'_> {
             Fit { keyframes: KeyframeFit::Warp, foot_lock: false, rigid: false, ..fit },
         );
         let tracked = self.track_request(req, &stage1);
-        // Stage 2: the whole motion again, with that root observed on every frame.
-        let opts2 =
-            Options { impose_track: std::env::var("DIFFKFC_IMPOSE").is_ok(), ..opts.clone() };
+        // Stage 2: the whole motion again, with that root observed on every frame. The track
+        // also overwrites the prediction's root velocities at every step (CondMDI's
+        // imputation), so x_t carries it: observed through the condition alone, the fine-tuned
+        // reference model kept much of its own speed (README, "Keyframe fits").
+        let opts2 = Options { impose_track: true, ..opts.clone() };
         let x2 = sampler::sample(self.model, self.schedule, &tracked, &opts2, |k, n| {
             progress(n + k, 2 * n)
         });
