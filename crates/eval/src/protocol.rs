@@ -13,13 +13,11 @@ use diffkfc_data::plausibility::foot_skating_ratio;
 use diffkfc_data::representation::{recover_from_ric, Joints};
 use diffkfc_data::rng::Rng;
 use diffkfc_data::warp::{self, ROOT_CHANNELS};
-use diffkfc_model::diffusion::Schedule;
 use diffkfc_model::fit::{Fit, KeyframeFit};
 use diffkfc_model::pipeline::Generator;
 use diffkfc_model::place::PlaceGuidance;
 use diffkfc_model::sampler::{self, Request, Sampler, TgMode};
 use diffkfc_model::text::cache::EmbeddingCache;
-use diffkfc_model::Denoiser;
 
 use crate::evaluator::{eval_length, TextMotionEvaluator};
 use crate::keyframe_metrics::{displacement_error, k_err_global, k_err_local, k_trans};
@@ -144,11 +142,8 @@ pub struct RowResult {
 }
 
 pub struct Protocol<'a> {
-    pub model: &'a Denoiser,
-    pub schedule: &'a Schedule,
-    /// Normalisation the denoiser was trained with.
-    pub mean: &'a [f32],
-    pub std: &'a [f32],
+    /// The model, its schedule and the normalisation it was trained with.
+    pub gen: Generator<'a>,
     pub ds: &'a Dataset,
     pub split: &'a PackedSplit,
     pub text: &'a EmbeddingCache,
@@ -223,7 +218,7 @@ impl Protocol<'_> {
         };
         stages
             * rows.div_ceil(self.opts.batch.max(1))
-            * sampler::timesteps(self.schedule, self.opts.sampler).len()
+            * sampler::timesteps(self.gen.schedule, self.opts.sampler).len()
     }
 
     /// Denoising steps the whole run takes (for the progress bar and the estimate).
@@ -290,7 +285,7 @@ impl Protocol<'_> {
         probe.generate(&items, &keys, &s, 1, 0, &mut || {});
         let per_unit = t0.elapsed().as_secs_f64() / 2.0 / probe.units(&items, 1, &s).max(1.0);
         let items = self.items(0);
-        let steps = sampler::timesteps(self.schedule, self.opts.sampler).len() as f64;
+        let steps = sampler::timesteps(self.gen.schedule, self.opts.sampler).len() as f64;
         let mm = self.opts.multimodality.min(items.len());
         let text_only = Setting { rate: 0.0, ..s.clone() };
         let proposal =
@@ -331,7 +326,7 @@ impl Protocol<'_> {
                 req.lengths[r] = it.len;
                 let mask = keyframes::frame_mask(it.len, &keys[p], &all_dims);
                 let mut kf: Vec<f32> = it.feats.to_vec();
-                dataset::normalise(&mut kf, self.mean, self.std);
+                dataset::normalise(&mut kf, self.gen.mean, self.gen.std);
                 let o = r * n * d;
                 for (e, (&m, &v)) in mask.iter().zip(&kf).enumerate() {
                     req.mask[o + e] = m;
@@ -354,18 +349,12 @@ impl Protocol<'_> {
                 seed: Rng::derive(seed, 7, c as u64).next_u64(),
                 tg_mode: TgMode::X0,
                 inpaint: s.inpaint,
-                place: (self.opts.place_guidance > 0.0)
-                    .then(|| PlaceGuidance::new(self.opts.place_guidance, self.mean, self.std)),
+                place: (self.opts.place_guidance > 0.0).then(|| {
+                    PlaceGuidance::new(self.opts.place_guidance, self.gen.mean, self.gen.std)
+                }),
                 ..Default::default()
             };
-            let generator = Generator {
-                model: self.model,
-                schedule: self.schedule,
-                mean: self.mean,
-                std: self.std,
-                skel: self.ds.skeleton,
-            };
-            let fitted = generator.generate(&req, &opts, self.opts.fit, |_, _| tick());
+            let fitted = self.gen.generate(&req, &opts, self.opts.fit, |_, _| tick());
             for (f, &(p, j)) in fitted.into_iter().zip(chunk) {
                 out[p][j] = f.features;
             }

@@ -3,6 +3,8 @@
 
 use burn::prelude::*;
 
+use diffkfc_data::root_track::TRACK_DIMS;
+
 use crate::kinematics::recover_from_ric;
 
 /// Loss terms of one batch (scalars on the device).
@@ -70,6 +72,17 @@ impl Kinematic<'_> {
     }
 }
 
+/// The prediction with its observed root velocities (`root_track::TRACK_DIMS` where `kf_mask`
+/// observes them) replaced by the observation, as sampling imposes a root track: the kinematic
+/// losses then teach legs that plant their feet under the observed root, not under the
+/// network's own guess of it (which the imposed track overrides). [B, N, D] each.
+fn with_observed_root(pred: Tensor<3>, x0: Tensor<3>, kf_mask: Tensor<3>) -> Tensor<3> {
+    let d = pred.dims()[2];
+    let dims: Vec<f32> = (0..d).map(|k| if TRACK_DIMS.contains(&k) { 1.0 } else { 0.0 }).collect();
+    let m = kf_mask * Tensor::<1>::from_floats(dims.as_slice(), &pred.device()).reshape([1, 1, d]);
+    pred * (m.ones_like() - m.clone()) + x0 * m
+}
+
 /// All loss terms; the kinematic ones only when their weight is positive.
 pub fn losses(
     x0: Tensor<3>,
@@ -79,14 +92,15 @@ pub fn losses(
     k: &Kinematic,
 ) -> Losses {
     let simple = l_simple(x0.clone(), pred.clone(), kf_mask.clone(), valid.clone());
-    let key =
-        (k.keyframe_loss > 0.0).then(|| l_key(x0.clone(), pred.clone(), kf_mask, valid.clone()));
+    let key = (k.keyframe_loss > 0.0)
+        .then(|| l_key(x0.clone(), pred.clone(), kf_mask.clone(), valid.clone()));
     let smooth = (k.smooth_loss > 0.0).then(|| l_smooth(x0.clone(), pred.clone(), valid.clone()));
     if !k.any() {
         return Losses { simple, key, smooth, pos: None, vel: None, foot: None };
     }
     let device = x0.device();
     let [b, n, d] = x0.dims();
+    let pred = with_observed_root(pred, x0.clone(), kf_mask);
     let mean = Tensor::<1>::from_floats(k.mean, &device).reshape([1, 1, d]);
     let std = Tensor::<1>::from_floats(k.std, &device).reshape([1, 1, d]);
     let gt_feats = x0 * std.clone() + mean.clone();
@@ -151,24 +165,28 @@ impl Losses {
 mod tests {
     use super::*;
 
+    /// The T2M skeleton's kinematic losses, each at weight `w`, the others off.
+    fn kinematic<'a>(mean: &'a [f32], std: &'a [f32], w: f64) -> Kinematic<'a> {
+        Kinematic {
+            mean,
+            std,
+            joints: 22,
+            feet: [7, 10, 8, 11],
+            lambda_pos: w,
+            lambda_vel: w,
+            lambda_foot: w,
+            keyframe_loss: 0.0,
+            smooth_loss: 0.0,
+        }
+    }
+
     #[test]
     fn kinematic_losses_vanish_for_identical_motions() {
         let dev = Device::flex();
         let (b, n, d) = (2, 12, 263);
         let x = Tensor::<3>::random([b, n, d], burn::tensor::Distribution::Normal(0.0, 1.0), &dev);
-        let mean = vec![0.0f32; d];
-        let std = vec![0.1f32; d];
-        let k = Kinematic {
-            mean: &mean,
-            std: &std,
-            joints: 22,
-            feet: [7, 10, 8, 11],
-            lambda_pos: 1.0,
-            lambda_vel: 1.0,
-            lambda_foot: 1.0,
-            keyframe_loss: 0.0,
-            smooth_loss: 0.0,
-        };
+        let (mean, std) = (vec![0.0f32; d], vec![0.1f32; d]);
+        let k = kinematic(&mean, &std, 1.0);
         let valid = Tensor::<2>::ones([b, n], &dev);
         let l = losses(x.clone(), x.clone(), x.zeros_like(), valid.clone(), &k);
         let pos: f32 = l.pos.unwrap().into_scalar();
@@ -178,6 +196,33 @@ mod tests {
         let l = losses(x.clone(), x.clone() + 0.5, x.zeros_like(), valid, &k);
         let pos: f32 = l.pos.unwrap().into_scalar();
         assert!(pos > 1e-4);
+    }
+
+    /// Kinematic losses read the observed root velocities, not the predicted ones: a prediction
+    /// whose only error is its root velocity on observed frames costs nothing there, and costs
+    /// where the root is not observed.
+    #[test]
+    fn kinematic_losses_read_the_observed_root() {
+        let dev = Device::flex();
+        let (b, n, d) = (1, 12, 263);
+        let x = Tensor::<3>::random([b, n, d], burn::tensor::Distribution::Normal(0.0, 1.0), &dev);
+        let (mean, std) = (vec![0.0f32; d], vec![0.1f32; d]);
+        let k = Kinematic { lambda_vel: 0.0, lambda_foot: 0.0, ..kinematic(&mean, &std, 1.0) };
+        let mut wrong = vec![0f32; n * d];
+        (0..n).for_each(|f| wrong[f * d + 2] = 0.5);
+        let wrong = Tensor::<1>::from_floats(wrong.as_slice(), &dev).reshape([b, n, d]);
+        let mut track = vec![0f32; n * d];
+        (0..n).for_each(|f| TRACK_DIMS.for_each(|c| track[f * d + c] = 1.0));
+        let track = Tensor::<1>::from_floats(track.as_slice(), &dev).reshape([b, n, d]);
+        let valid = Tensor::<2>::ones([b, n], &dev);
+        let pos = |m: Tensor<3>| -> f32 {
+            losses(x.clone(), x.clone() + wrong.clone(), m, valid.clone(), &k)
+                .pos
+                .unwrap()
+                .into_scalar()
+        };
+        assert!(pos(track.clone()) < 1e-10, "{}", pos(track));
+        assert!(pos(x.zeros_like()) > 1e-3);
     }
 
     #[test]

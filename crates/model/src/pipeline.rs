@@ -14,6 +14,7 @@ use crate::sampler::{self, Options, Request};
 use crate::Denoiser;
 
 /// A model ready to generate: the network, its noise schedule and the dataset's normalisation.
+#[derive(Clone, Copy)]
 pub struct Generator<'a> {
     pub model: &'a Denoiser,
     pub schedule: &'a Schedule,

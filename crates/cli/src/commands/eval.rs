@@ -15,6 +15,7 @@ use diffkfc_eval::t2m::{split_captions, T2mEvaluator};
 use diffkfc_eval::text_motion::Gaussian;
 use diffkfc_eval::train_evaluator::{embed_split, EvaluatorTraining};
 use diffkfc_model::diffusion::Schedule;
+use diffkfc_model::pipeline::Generator;
 use diffkfc_model::place::PlaceGuidance;
 use diffkfc_model::sampler;
 use diffkfc_model::text::cache::embed_captions;
@@ -369,10 +370,13 @@ fn evaluate(a: RunArgs) -> Result<()> {
         seed: a.seed,
     };
     let p = Protocol {
-        model: &model,
-        schedule: &schedule,
-        mean: &mean,
-        std: &std,
+        gen: Generator {
+            model: &model,
+            schedule: &schedule,
+            mean: &mean,
+            std: &std,
+            skel: ds.skeleton,
+        },
         ds: &ds,
         split: &split,
         text: &text,
