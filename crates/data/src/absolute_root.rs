@@ -2,7 +2,7 @@
 //! carry the root as per-frame velocities (yaw rate, and the ground-plane step in the facing
 //! frame), so a keyed place is the sum of every earlier frame's velocity: a small bias per
 //! frame becomes metres at a key, and the tiny networks never learned to reach keyed places
-//! (root keys on or off gave the same K-Err, README "Reference model"). As CondMDI does, a
+//! (root keys on or off gave the same K-Err, docs/reference-model.md). As CondMDI does, a
 //! model with an absolute root sees instead, in the same three channels, the root's yaw angle
 //! and ground-plane place in the motion's frame (frame 0 at the origin facing +Z); keyed
 //! places and headings are then observed values like any pose feature. The conversion is exact

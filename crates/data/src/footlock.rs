@@ -119,7 +119,10 @@ fn offsets(
         while e + 1 < t && planted[e + 1] {
             e += 1;
         }
-        let held: Vec<usize> = (s..=e).filter(|&f| hold[f]).collect();
+        // Held frames in the span or right beside it: the foot stays where they put it (a span
+        // that starts after a pose key must not snap away from the key's foot).
+        let held: Vec<usize> =
+            (s.saturating_sub(1)..=(e + 1).min(t - 1)).filter(|&f| hold[f]).collect();
         let mean = (s..=e).fold([0.0; 3], |a, f| quat::add(a, toe[f]));
         let mean = quat::scale(mean, 1.0 / (e - s + 1) as f64);
         let span: Vec<Vec3> = (s..=e)
@@ -533,6 +536,13 @@ mod tests {
         hold9[9] = true;
         let (_, spans) = offsets(&toe, &planted, &hold9, 4, 1.0, short);
         assert_eq!(spans, vec![(5, 10, Outcome::Locked)]);
+        // A span right after a held frame keeps the foot where that frame has it: no snap.
+        let mut hold4 = vec![false; 20];
+        hold4[4] = true;
+        let (o, _) = offsets(&toe, &planted, &hold4, 4, 1.0, any);
+        for f in 5..=10 {
+            assert!((toe[f][2] + o[f][2] - toe[4][2]).abs() < 1e-12, "frame {f}");
+        }
     }
 
     /// A stance leg pulled past its reach: the lock leaves the span rather than straighten it.

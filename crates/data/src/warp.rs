@@ -208,10 +208,11 @@ pub fn warp(
     // Pose: every observed channel except the root's velocities (rewritten below from the
     // trajectory) and the foot contacts (labels, not values to blend).
     for c in 3..layout.contacts().start {
-        let anchors: Vec<(usize, f64)> = (0..len)
-            .filter(|&f| targets.mask[f * d + c] > 0.0)
-            .map(|f| (f, (targets.features[f * d + c] - feats[f * d + c]) as f64))
-            .collect();
+        let observed: Vec<bool> = (0..len).map(|f| targets.mask[f * d + c] > 0.0).collect();
+        let key = |f: usize| targets.features[f * d + c] as f64;
+        let raw = |f: usize| feats[f * d + c] as f64;
+        let mut anchors: Vec<(usize, f64)> =
+            (0..len).filter(|&f| observed[f]).map(|f| (f, key(f) - raw(f))).collect();
         if anchors.is_empty() {
             continue;
         }
@@ -220,12 +221,60 @@ pub fn warp(
                 corr[i].pose = corr[i].pose.max(r.abs());
             }
         }
+        anchors.extend(continuity_anchors(&observed, key, raw));
+        anchors.sort_by_key(|a| a.0);
         for (f, v) in displacement(len, &anchors, Ends::Fade(falloff)).into_iter().enumerate() {
             feats[f * d + c] += v as f32;
         }
     }
     warp_root(feats, d, targets.root, &mut corr);
     corr
+}
+
+/// Free frames each side of a run of keys that continue the run's step ([`continuity_anchors`]).
+const CONTINUE: usize = 3;
+
+/// Extra anchors for runs of two or more consecutive observed frames: the [`CONTINUE`] free
+/// frames just before and just after a run continue the run's own step (`key` linearly
+/// extrapolated), so a network that copies a block of keys but jumps on the first frames it is
+/// free (a timeline's join) has that jump spread over the fade instead. `observed` per frame;
+/// `key(f)` the observed value, `raw(f)` the motion's; returns (frame, residual) pairs.
+fn continuity_anchors(
+    observed: &[bool],
+    key: impl Fn(usize) -> f64,
+    raw: impl Fn(usize) -> f64,
+) -> Vec<(usize, f64)> {
+    let len = observed.len();
+    let at = |f: usize| f < len && observed[f];
+    let mut out = Vec::new();
+    let mut claimed = vec![false; len];
+    for b in 1..len {
+        // b ends a run of at least two keys: continue it forwards.
+        if at(b) && at(b - 1) && !at(b + 1) {
+            let step = key(b) - key(b - 1);
+            for (i, f) in (b + 1..len).take(CONTINUE).enumerate() {
+                if at(f) || claimed[f] {
+                    break;
+                }
+                claimed[f] = true;
+                out.push((f, key(b) + step * (i + 1) as f64 - raw(f)));
+            }
+        }
+    }
+    for a in 0..len.saturating_sub(1) {
+        // a starts a run of at least two keys: continue it backwards.
+        if at(a) && at(a + 1) && (a == 0 || !at(a - 1)) {
+            let step = key(a) - key(a + 1);
+            for (i, f) in (0..a).rev().take(CONTINUE).enumerate() {
+                if at(f) || claimed[f] {
+                    break;
+                }
+                claimed[f] = true;
+                out.push((f, key(a) + step * (i + 1) as f64 - raw(f)));
+            }
+        }
+    }
+    out
 }
 
 /// Displace the root's heading, then its place, and rewrite channels 0..3 to integrate to them.
@@ -302,6 +351,33 @@ mod tests {
 
     fn layout() -> Layout {
         Layout::of(&crate::T2M)
+    }
+
+    /// A block of keys the motion already meets, then a jump on the first free frame (what a
+    /// network that copies keyed frames does at a timeline's join): the warp continues the
+    /// block's own step there and spreads the jump over the fade.
+    #[test]
+    fn a_jump_after_a_block_of_keys_is_spread_out() {
+        let len = 60;
+        let x = motion(len, 2);
+        let mut y = x.clone();
+        for f in 20..len {
+            for c in 4..D - 4 {
+                y[f * D + c] += 0.3;
+            }
+        }
+        let mask: Vec<f32> =
+            (0..len * D).map(|k| if (10..20).contains(&(k / D)) { 1.0 } else { 0.0 }).collect();
+        let root = vec![RootKey::default(); len];
+        warp(&layout(), &mut y, &Targets { features: &x, mask: &mask, root: &root }, 20);
+        let c = 100;
+        let step = |v: &[f32], f: usize| (v[(f + 1) * D + c] - v[f * D + c]).abs();
+        assert!((step(&y, 19) - step(&x, 18)).abs() < 0.05, "{} vs {}", step(&y, 19), step(&x, 18));
+        let worst = (19..len - 1).map(|f| (step(&y, f) - step(&x, f)).abs()).fold(0.0, f32::max);
+        assert!(worst < 0.05, "the 0.3 jump is spread: largest extra step {worst}");
+        for f in 10..20 {
+            assert!((y[f * D + c] - x[f * D + c]).abs() < 1e-5, "keys still met");
+        }
     }
 
     #[test]

@@ -30,7 +30,7 @@ pub enum Sampler {
 
 /// Steps by default, with the default sampler [`DEFAULT_SAMPLER`] (DPM-Solver++(2M)): the
 /// fewest denoiser calls whose metrics on the reference model are within 5% of DDIM-50's on
-/// every metric (README, "Reference model", 3 x 256 items: DPM-10 foot skating +3.7%, ADE
+/// every metric (docs/reference-model.md, 3 x 256 items: DPM-10 foot skating +3.7%, ADE
 /// +2.6%, FID and K-TranS better; DPM-8 adds 5.0% foot skating, DDIM-10 5.9%, DPM-5 8.7%).
 pub const DEFAULT_STEPS: usize = 10;
 
@@ -39,7 +39,7 @@ pub const DEFAULT_SAMPLER: Sampler = Sampler::DpmSolver(DEFAULT_STEPS);
 
 /// Transition guidance strength r by default. The paper's 100 overshoots here (its loss is a sum
 /// over the 263 normalised channels): on the reference model at DDIM-10 r = 100 doubles FID,
-/// while r = 10 lowers K-TranS by 5% at equal FID (README, "Reference model").
+/// while r = 10 lowers K-TranS by 5% at equal FID (docs/reference-model.md).
 pub const DEFAULT_TRANSITION: f64 = 10.0;
 
 /// How the transition-guidance gradient is taken.
@@ -76,7 +76,7 @@ pub struct Options {
 impl Default for Options {
     fn default() -> Self {
         // Not the paper's s = 2.5 and r = 100 (tuned for 1000 DDPM steps): on our models both
-        // cost FID, ADE and R-precision (README, "Reference model").
+        // cost FID, ADE and R-precision (docs/reference-model.md).
         Options {
             sampler: DEFAULT_SAMPLER,
             kf_guidance: 1.0,

@@ -7,7 +7,7 @@
 //! It also measures (prints, does not assert) whether keyframes that carry their places bring
 //! the root nearer the clip's path than the same keyframes without them, on a model with the
 //! root path hint: the reference model ignored places, and no configuration has yet passed a
-//! 0.75 ratio here (README "Reference model"), so the check is not an assertion until one does.
+//! 0.75 ratio here (docs/reference-model.md), so the check is not an assertion until one does.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
