@@ -3,6 +3,7 @@
 mod common;
 use common::*;
 use diffkfc_data::{fixtures, npy};
+use std::path::Path;
 
 fn max_abs(a: &[f32], b: &[f32]) -> f32 {
     assert_eq!(a.len(), b.len());
@@ -180,7 +181,7 @@ fn bad_inputs_give_one_line_errors() {
             "collapsed.npy",
             npy::encode(&[3, 22, 3], &[0.5f32; 198]),
             "features",
-            vec!["collapsed.npy", "coincide"],
+            vec!["collapsed.npy", "the leg (ankle to root) is 0.000 m long"],
         ),
     ];
     for (name, bytes, cmd, needles) in cases {
@@ -225,7 +226,8 @@ fn bad_inputs_give_one_line_errors() {
         &["--feet-threshold", "NaN"],
     );
     assert_one_line_error(&diffkfc(&["data", "features", s(&p), "--bogus"]), &["--bogus"]);
-    // A motion that runs off to 1e38 m is refused at once (drawing its ground grid never ended).
+    // A motion that runs off to 1e38 m is refused at once (drawing its ground grid never ended);
+    // so is one whose small steps add up past 1 km.
     let mut f = vec![0.0f32; 4 * 263];
     f[263 + 2] = 3e38;
     let p = d.join("far.npy");
@@ -233,7 +235,16 @@ fn bad_inputs_give_one_line_errors() {
     let t0 = std::time::Instant::now();
     assert_one_line_error(
         &diffkfc(&["render", s(&p), "-o", s(&d.join("far.gif"))]),
-        &["far.gif", "cannot draw"],
+        &["far.npy", "frame 1, feature 2", "root velocity"],
+    );
+    let mut f = vec![0.0f32; 1000 * 263];
+    for t in 0..1000 {
+        f[t * 263 + 2] = 1.5;
+    }
+    npy::write(&p, &[1000, 263], &f).unwrap();
+    assert_one_line_error(
+        &diffkfc(&["render", s(&p), "-o", s(&d.join("far.gif"))]),
+        &["far.npy", "from the origin", "within 1000 m"],
     );
     assert!(t0.elapsed().as_secs() < 10);
     // Nothing half-written is left behind by failures.
@@ -315,6 +326,7 @@ fn bvh_rig_round_trip_and_rig_map() {
     assert!(o.status.success(), "{}", stderr(&o));
     let (a, b) = (npy::read_f32(&real).unwrap(), npy::read_f32(&back).unwrap());
     assert!(max_abs(&a.data, &b.data) < 1e-4);
+    broken_files_are_refused(&d, &bvh, &real);
 
     let renamed = d.join("renamed.bvh");
     std::fs::write(
@@ -335,4 +347,73 @@ fn bvh_rig_round_trip_and_rig_map() {
     assert_one_line_error(&o, &["--rig-map", "map.json", "LeftHand"]);
     let o = diffkfc(&["data", "joints", s(&bvh), "--bvh-units", "furlong", "-o", s(&back)]);
     assert_one_line_error(&o, &["--bvh-units", "furlong"]);
+}
+
+/// Files a broken exporter or a unit mix-up writes: refused with what is wrong, never converted
+/// (each of these used to exit 0, some with non-finite joints); an output naming its input is
+/// refused before the input is read.
+fn broken_files_are_refused(d: &Path, bvh: &Path, joints: &Path) {
+    let text = std::fs::read_to_string(bvh).unwrap();
+    let frames = text.lines().find(|l| l.starts_with("Frames:")).unwrap().to_string();
+    let first_values = text.lines().skip_while(|l| !l.starts_with("Frame Time")).nth(1).unwrap();
+    let big = format!("1e30 {}", first_values.split_once(' ').unwrap().1);
+    let offsets = text
+        .lines()
+        .map(|l| if l.trim_start().starts_with("OFFSET") { "OFFSET 0 0 0" } else { l })
+        .collect::<Vec<_>>()
+        .join("\n");
+    for (name, broken, needle) in [
+        ("negative", text.replace(&frames, "Frames: -3"), "'Frames: -3' is not a frame count"),
+        ("overflow", text.replace(&frames, "Frames: 99999999999999999999"), "not a frame count"),
+        ("words", text.replace(&frames, "Frames: many"), "not a frame count"),
+        ("noframes", text.replace(&format!("{frames}\n"), ""), "no 'Frames:' line"),
+        ("noroot", text.replacen("ROOT", "JOINT", 1), "not a ROOT"),
+        ("zero", offsets, "every OFFSET is zero"),
+        (
+            "far",
+            text.replacen(first_values, &big, 1),
+            "Xposition is 1000000000000000000000000000000",
+        ),
+    ] {
+        let p = d.join(format!("{name}.bvh"));
+        std::fs::write(&p, broken).unwrap();
+        let (npy_out, gif_out) = (d.join("o.npy"), d.join("o.gif"));
+        for args in [
+            vec!["data", "joints", s(&p), "-o", s(&npy_out)],
+            vec!["render", s(&p), "-o", s(&gif_out)],
+        ] {
+            assert_one_line_error(&diffkfc(&args), &[&format!("{name}.bvh"), needle]);
+        }
+    }
+    // Millimetres given as metres.
+    let j = npy::read_f32(joints).unwrap();
+    let mm = d.join("mm.npy");
+    npy::write(&mm, &j.shape, &j.data.iter().map(|v| v * 1000.0).collect::<Vec<_>>()).unwrap();
+    assert_one_line_error(
+        &diffkfc(&["data", "features", s(&mm), "-o", s(&d.join("o.npy"))]),
+        &["mm.npy", "look like millimetres"],
+    );
+    // -o naming the input, in any spelling.
+    let before = std::fs::read(bvh).unwrap();
+    let same = format!("{}/./{}", d.display(), bvh.file_name().unwrap().to_string_lossy());
+    for (cmd, input, out) in [
+        ("bvh", joints.to_path_buf(), joints.to_str().unwrap().to_string()),
+        ("joints", bvh.to_path_buf(), same),
+    ] {
+        assert_one_line_error(
+            &diffkfc(&["data", cmd, s(&input), "-o", &out]),
+            &["-o", "is the input file"],
+        );
+    }
+    assert_eq!(std::fs::read(bvh).unwrap(), before);
+    // A picture under a name that says otherwise, and a sheet with no columns.
+    assert_one_line_error(
+        &diffkfc(&["render", s(joints), "-o", s(&d.join("r.txt"))]),
+        &["-o", "r.txt", "must end in .gif or .html"],
+    );
+    assert_one_line_error(
+        &diffkfc(&["render", s(joints), "--sheet", "--columns", "0", "-o", s(&d.join("r.png"))]),
+        &["--columns", "0 must be 1 to 64"],
+    );
+    assert!(!d.join("r.txt").exists() && !d.join("o.npy").exists());
 }

@@ -67,6 +67,10 @@ fn every_problem_is_listed() {
     clip(&d, "nan", &nan, 170, CAP);
     clip(&d, "width", &vec![0.0; 50 * 100], 50, CAP);
     clip(&d, "short", &feats[..263], 1, CAP);
+    // Finite but absurd: training on it went NaN at step 5.
+    let mut huge = feats.clone();
+    huge[7 * 263 + 1] = 1e30;
+    clip(&d, "huge", &huge, 170, CAP);
     clip(&d, "badcap", &feats, 170, "a caption without tags\n");
     npy::write(d.join("new_joint_vecs/notext.npy"), &[170, 263], &feats).unwrap();
     std::fs::write(d.join("texts/nomotion.txt"), CAP).unwrap();
@@ -75,7 +79,7 @@ fn every_problem_is_listed() {
     std::fs::write(d.join("texts/trunc.txt"), CAP).unwrap();
     std::fs::write(
         d.join("train.txt"),
-        "good\nnan\nwidth\nshort\nbadcap\nnotext\nnomotion\ntrunc\n",
+        "good\nnan\nwidth\nshort\nbadcap\nnotext\nnomotion\ntrunc\nhuge\n",
     )
     .unwrap();
     std::fs::write(d.join("test.txt"), "good\n").unwrap();
@@ -92,6 +96,10 @@ fn every_problem_is_listed() {
         ("notext.txt", "No such file"),
         ("nomotion.npy", "No such file"),
         ("trunc.npy", "truncated data"),
+        (
+            "huge.npy",
+            "frame 7, feature 1 (root velocity (per frame)) is 1000000000000000000000000000000",
+        ),
     ];
     for (file, problem) in expect {
         assert!(
@@ -99,18 +107,37 @@ fn every_problem_is_listed() {
             "{file}: {problem} missing in\n{out}"
         );
     }
-    assert!(out.contains("8 problem(s) found"), "{out}");
+    assert!(out.contains("9 problem(s) found"), "{out}");
     let o = diffkfc(&["data", "check", s(&d), "--json"]);
     assert!(!o.status.success());
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    assert_eq!(v["problems"].as_array().unwrap().len(), 8);
+    assert_eq!(v["problems"].as_array().unwrap().len(), 9);
     assert_eq!(v["splits"][0]["clips"], 1);
 }
 
 #[test]
 fn missing_normalisation_is_reported() {
     let d = scratch("check-empty");
-    let o = diffkfc(&["data", "check", s(&d)]);
-    assert!(!o.status.success());
-    assert!(stdout(&o).contains("Mean.npy"), "{}", stdout(&o));
+    // Each says what is wrong and what a dataset directory holds.
+    let garbage = d.join("garbage");
+    std::fs::create_dir_all(&garbage).unwrap();
+    std::fs::write(garbage.join("notes.txt"), "x").unwrap();
+    let file = d.join("file.npy");
+    std::fs::write(&file, "x").unwrap();
+    let empty = d.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    for (dir, why) in [
+        (d.join("missing"), "dataset directory not found"),
+        (file, "is a file, not a dataset directory"),
+        (empty, "the directory is empty"),
+        (garbage, "no Mean.npy: not a dataset directory"),
+    ] {
+        let o = diffkfc(&["data", "check", s(&dir)]);
+        assert!(!o.status.success());
+        let out = stdout(&o);
+        assert!(
+            out.contains(why) && out.contains("holds Mean.npy, Std.npy, new_joint_vecs/"),
+            "{out}"
+        );
+    }
 }

@@ -36,6 +36,25 @@ fn evaluator_beats_chance() {
     for f in ["Mean.npy", "Std.npy", "ckpt-00000080.safetensors"] {
         assert!(out.join(f).exists(), "{f}");
     }
+    // Training flags that make a broken evaluator are refused before any work.
+    let train_ev = |extra: &[&str]| {
+        let e2 = d.join("e-bad");
+        let mut a = vec!["eval", "train-evaluator", "--data", s(&data), "--out", s(&e2)];
+        a.extend(extra);
+        let o = diffkfc(&a);
+        assert!(!e2.join("Mean.npy").exists(), "a broken evaluator was saved");
+        o
+    };
+    for (flag, v, needle) in [
+        ("--lr", "nan", "--lr: NaN"),
+        ("--lr", "1e30", "--lr: 1000000000000000000000000000000"),
+        ("--lr", "0", "--lr: 0 must be"),
+        ("--batch-size", "0", "--batch-size: 0 must be 2"),
+        ("--batch-size", "100000000", "--batch-size: 100000000"),
+        ("--max-steps", "0", "--max-steps: 0"),
+    ] {
+        assert_one_line_error(&train_ev(&[flag, v]), &[needle]);
+    }
     evaluate_tiny_checkpoint(&d, &data, &out);
     // Too few items to form a batch of 32.
     let small = d.join("small");
@@ -257,7 +276,16 @@ fn evaluate_tiny_checkpoint(
         assert_one_line_error(&diffkfc(&a), needles);
     };
     bad(evaluator, &["--sweep-rates", "0,2"], &["--sweep-rates", "2"]);
-    bad(evaluator, &["--replications", "0"], &["--replications", "at least 1"]);
+    bad(evaluator, &["--replications", "0"], &["--replications", "0 must be 1 to 100"]);
+    // Counts that would run for ever or fail to allocate, and guidance eval used to accept.
+    bad(evaluator, &["--replications", "1000000000"], &["--replications", "1 to 100"]);
+    bad(evaluator, &["--samples-for-ade", "100000000"], &["--samples-for-ade", "1 to 100"]);
+    bad(evaluator, &["--batch-size", "100000000"], &["--batch-size", "1 to 1024"]);
+    bad(evaluator, &["--mm-texts", "0"], &["--mm-texts", "0 must be 1"]);
+    bad(evaluator, &["--kf-guidance", "nan"], &["--kf-guidance", "NaN"]);
+    bad(evaluator, &["--transition-guidance", "inf"], &["--transition-guidance", "inf"]);
+    bad(evaluator, &["--sweep-rates", ""], &["--sweep-rates", "lists no rate"]);
+    bad(evaluator, &["--sweep-rates", " , "], &["--sweep-rates", "lists no rate"]);
     bad(evaluator, &["--keyframe-strategy", "odd"], &["--keyframe-strategy", "odd"]);
     bad(&none, &[], &["none", "train-evaluator"]);
     let no_t2m = format!("t2m:{}", none.display());

@@ -204,6 +204,56 @@ fn sample_outputs_errors_and_determinism() {
             && !out2.join("sample_01.gif").exists()
             && !out2.join("sample_01.npy").exists()
     );
+    // The set is replaced whole; a user's own file in our folder is kept, and nothing partial
+    // is left beside it.
+    std::fs::write(out2.join("notes.txt"), "mine").unwrap();
+    let o = diffkfc(&one.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(o.status.success() && stdout(&o).contains("kept notes.txt"), "{}", stdout(&o));
+    assert_eq!(std::fs::read_to_string(out2.join("notes.txt")).unwrap(), "mine");
+    let siblings: Vec<String> = std::fs::read_dir(&d)
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.contains(".partial") || n.contains(".old"))
+        .collect();
+    assert!(siblings.is_empty(), "{siblings:?}");
+    // A folder diffkfc did not write: refused (its sample_05.npy is the user's), or with --force
+    // only our names are written and nothing is removed.
+    let theirs = d.join("theirs");
+    std::fs::create_dir_all(&theirs).unwrap();
+    std::fs::write(theirs.join("sample_05.npy"), "mine").unwrap();
+    let mut v = args(&theirs);
+    assert_one_line_error(
+        &diffkfc(&v.iter().map(String::as_str).collect::<Vec<_>>()),
+        &["--out", "theirs", "did not write", "sample_05.npy", "--force"],
+    );
+    v.push("--force".into());
+    assert!(diffkfc(&v.iter().map(String::as_str).collect::<Vec<_>>()).status.success());
+    assert_eq!(std::fs::read_to_string(theirs.join("sample_05.npy")).unwrap(), "mine");
+    assert!(theirs.join("sample_01.npy").exists() && theirs.join("results.json").exists());
+    // A checkpoint built for shorter motions is not asked for longer ones.
+    let short = d.join("short-run");
+    std::fs::write(
+        d.join("short.json"),
+        TWO_STEP_RUN.replace("\"dma_sizes\": [2, 0]", "\"dma_sizes\": [2, 0], \"max_frames\": 30"),
+    )
+    .unwrap();
+    let o = diffkfc(&[
+        "train",
+        "--config",
+        s(&d.join("short.json")),
+        "--data",
+        s(&data),
+        "--out",
+        s(&short),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let mut v = args(&d.join("short-out"));
+    v[2] = s(&short).to_string();
+    assert_one_line_error(
+        &diffkfc(&v.iter().map(String::as_str).collect::<Vec<_>>()),
+        &["--length: 40 frames", "at most 30 (model.max_frames)"],
+    );
 
     // A foot-lock reach outside 0..2 m: one line naming the flag and the value.
     for bad in ["-1", "3", "NaN"] {

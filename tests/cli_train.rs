@@ -20,6 +20,14 @@ fn setup(name: &str) -> (std::path::PathBuf, std::path::PathBuf) {
     (d, data)
 }
 
+fn signal(pid: u32, name: &str) {
+    assert!(Command::new("kill")
+        .args([&format!("-{name}"), &pid.to_string()])
+        .status()
+        .unwrap()
+        .success());
+}
+
 fn steps(run: &Path) -> Vec<u64> {
     // Training steps (validation-only lines carry no "loss").
     std::fs::read_to_string(run.join("metrics.jsonl"))
@@ -133,6 +141,23 @@ fn train_resume_and_outputs() {
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stdout(&o).contains("steps 4..6"), "{}", stdout(&o));
     assert_eq!(steps(&run), vec![1, 2, 3, 4, 5, 6]);
+    // Another training recipe is not an exact resume: refused, naming what differs.
+    let other = d.join("other-lr.json");
+    std::fs::write(&other, CFG.replace("\"batch_size\": 4", "\"batch_size\": 4, \"lr\": 0.01"))
+        .unwrap();
+    let o = diffkfc(&[
+        "train",
+        "--config",
+        s(&other),
+        "--data",
+        s(&data),
+        "--out",
+        s(&run),
+        "--resume",
+        "--max-steps",
+        "8",
+    ]);
+    assert_one_line_error(&o, &["--resume", "training.lr 0.0001 -> 0.01", "--init"]);
     // Two checkpoints kept.
     assert!(
         !run.join("ckpt-00000002.safetensors").exists()
@@ -271,6 +296,45 @@ fn bad_train_arguments() {
         &diffkfc(&["train", "--config", s(&cfg), "--optimiser-state", "gpu"]),
         &["--optimiser-state", "gpu", "host or device"],
     );
+    // Nothing to train, or an impossible pair of flags.
+    assert_one_line_error(
+        &diffkfc(&["train", "--config", s(&cfg), "--data", s(&d), "--max-steps", "0"]),
+        &["--max-steps", "0 trains nothing"],
+    );
+    let o = diffkfc(&["train", "--config", s(&cfg), "--resume", "--init", s(&d)]);
+    assert!(!o.status.success() && stderr(&o).contains("cannot be used with"), "{}", stderr(&o));
+    // --resume of a run that is not there is an error, not a new run.
+    let missing = d.join("no-such-run");
+    assert_one_line_error(
+        &diffkfc(&[
+            "train",
+            "--config",
+            s(&cfg),
+            "--data",
+            s(&d),
+            "--out",
+            s(&missing),
+            "--resume",
+        ]),
+        &["--resume", "no-such-run", "does not exist"],
+    );
+    assert!(!missing.exists());
+    // A user's folder and an exported model are never a run's --out.
+    let mine = d.join("mine");
+    std::fs::create_dir_all(&mine).unwrap();
+    std::fs::write(mine.join("config.json"), "my notes").unwrap();
+    assert_one_line_error(
+        &diffkfc(&["train", "--config", s(&cfg), "--data", s(&d), "--out", s(&mine)]),
+        &["--out", "not a diffkfc run", "config.json", "--force"],
+    );
+    assert_eq!(std::fs::read_to_string(mine.join("config.json")).unwrap(), "my notes");
+    let model = d.join("model");
+    std::fs::create_dir_all(&model).unwrap();
+    std::fs::write(model.join("model.safetensors"), "weights").unwrap();
+    assert_one_line_error(
+        &diffkfc(&["train", "--config", s(&cfg), "--data", s(&d), "--out", s(&model), "--force"]),
+        &["--out", "exported model", "--init"],
+    );
     // Past max_steps a cosine schedule is at lr 0: refused rather than trained for nothing.
     let cos = d.join("cos.json");
     std::fs::write(
@@ -297,7 +361,7 @@ fn bad_train_arguments() {
 }
 
 /// SIGTERM (what schedulers and `timeout` send) stops like Ctrl-C: a checkpoint at the step
-/// reached and exit status 130; a resume with another model is refused before any run file is
+/// reached and exit status 143; a resume with another model is refused before any run file is
 /// rewritten; a run that goes non-finite stops with an error and keeps its finite checkpoints.
 #[test]
 fn sigterm_mismatched_resume_and_nan_guard() {
@@ -329,13 +393,17 @@ fn sigterm_mismatched_resume_and_nan_guard() {
     while steps_or_none(&run).is_none_or(|s| s.len() < 3) && t0.elapsed().as_secs() < 120 {
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
-    assert!(Command::new("kill")
-        .args(["-TERM", &child.id().to_string()])
-        .status()
-        .unwrap()
-        .success());
+    // A second training on the same run is refused while the first holds it.
+    assert_one_line_error(
+        &diffkfc(&["train", "--config", s(&cfg), "--data", s(&data), "--out", s(&run)]),
+        &["--out", "being written by another training", "pid"],
+    );
+    signal(child.id(), "TERM");
     let out = child.wait_with_output().unwrap();
-    assert_eq!(out.status.code(), Some(130), "{}", String::from_utf8_lossy(&out.stderr));
+    // 128 + 15: what shells and schedulers read as "terminated".
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(143), "{err}");
+    assert!(err.contains("SIGTERM: checkpoint written at step"), "{err}");
     let last = *steps(&run).last().unwrap();
     assert!(
         run.join(format!("ckpt-{last:08}.safetensors")).exists(),
@@ -369,6 +437,50 @@ fn sigterm_mismatched_resume_and_nan_guard() {
             std::fs::read(run.join("Mean.npy")).unwrap()
         )
     );
+
+    // A second signal exits at once; the run still resumes from a whole checkpoint.
+    let child = Command::new(env!("CARGO_BIN_EXE_diffkfc"))
+        .args([
+            "train",
+            "--config",
+            s(&cfg),
+            "--data",
+            s(&data),
+            "--out",
+            s(&run),
+            "--resume",
+            "--max-steps",
+            "100000",
+        ])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let t0 = std::time::Instant::now();
+    while steps_or_none(&run).is_none_or(|s| s.last().is_none_or(|&l| l < last + 2))
+        && t0.elapsed().as_secs() < 120
+    {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    signal(child.id(), "TERM");
+    signal(child.id(), "INT");
+    let code = child.wait_with_output().unwrap().status.code();
+    // 130: the second signal ended it at once; 143: the first finished its checkpoint before
+    // the second arrived.
+    assert!(matches!(code, Some(130 | 143)), "{code:?}");
+    let o = diffkfc(&[
+        "train",
+        "--config",
+        s(&cfg),
+        "--data",
+        s(&data),
+        "--out",
+        s(&run),
+        "--resume",
+        "--max-steps",
+        &(last + 10).to_string(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
 
     // An absurd learning rate: an error naming the step, exit non-zero, finite checkpoints kept.
     let nan = d.join("nan.json");

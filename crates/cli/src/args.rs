@@ -120,6 +120,34 @@ impl FitArgs {
     }
 }
 
+/// Largest keyframe and transition guidance accepted: far beyond any useful value, small
+/// enough that the sampler stays finite.
+pub(crate) const MAX_GUIDANCE: f64 = 100.0;
+pub(crate) const MAX_TRANSITION: f64 = 1e5;
+
+/// The guidance and step flags of `sample` and `eval`, in their ranges.
+pub(crate) fn check_guidance(
+    kf: f64,
+    place: f64,
+    transition: f64,
+    steps: usize,
+) -> anyhow::Result<()> {
+    let within = |v: f64, max: f64| v.is_finite() && (0.0..=max).contains(&v);
+    if !within(kf, MAX_GUIDANCE) {
+        anyhow::bail!("--kf-guidance: {kf} must be a number from 0 to {MAX_GUIDANCE} (1 = no guidance, 2.5 = the paper)");
+    }
+    if !within(place, MAX_TRANSITION) {
+        anyhow::bail!("--place-guidance: {place} must be a number from 0 to {MAX_TRANSITION}");
+    }
+    if !within(transition, MAX_TRANSITION) {
+        anyhow::bail!("--transition-guidance: {transition} must be a number from 0 to {MAX_TRANSITION} (100 = the paper)");
+    }
+    if steps == 0 || steps > 1000 {
+        anyhow::bail!("--steps: {steps} must be 1 to 1000 (the schedule's length)");
+    }
+    Ok(())
+}
+
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub(crate) enum KeyframeMode {
     /// The trained keyframe branch with keyframe guidance.

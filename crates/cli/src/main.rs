@@ -4,6 +4,7 @@ mod args;
 mod commands;
 mod device;
 mod progress;
+mod signals;
 
 use clap::{Parser, Subcommand};
 

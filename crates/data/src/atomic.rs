@@ -48,6 +48,12 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DataError> {
 /// Remove temporary files `<prefix>.tmp<PID>` in `dir` left by processes that no longer run
 /// (a `kill -9` in the middle of a write). Files of live processes are left alone.
 pub fn remove_stale_temps(dir: &Path, prefix: &str) {
+    remove_dead_leftovers(dir, prefix, "tmp");
+}
+
+/// Remove files or directories `<prefix>.<tag><PID>` in `dir` whose process no longer runs:
+/// what an interrupted writer left (temporary files, partial output folders).
+pub fn remove_dead_leftovers(dir: &Path, prefix: &str, tag: &str) {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return;
     };
@@ -56,13 +62,15 @@ pub fn remove_stale_temps(dir: &Path, prefix: &str) {
         let name = e.file_name().to_string_lossy().into_owned();
         let Some(pid) = name
             .strip_prefix(prefix)
-            .and_then(|r| r.strip_prefix(".tmp"))
+            .and_then(|r| r.strip_prefix('.'))
+            .and_then(|r| r.strip_prefix(tag))
             .and_then(|p| p.parse::<u32>().ok())
         else {
             continue;
         };
         if pid != me && !Path::new(&format!("/proc/{pid}")).exists() {
-            let _ = std::fs::remove_file(e.path());
+            let p = e.path();
+            let _ = if p.is_dir() { std::fs::remove_dir_all(&p) } else { std::fs::remove_file(&p) };
         }
     }
 }

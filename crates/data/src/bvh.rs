@@ -99,6 +99,77 @@ pub fn zyx_degrees(q: Quat, prev: Option<[f64; 3]>) -> [f64; 3] {
     [best[0], best[1], best[2]]
 }
 
+/// Largest channel value read: a position of 100 km in metres (or 1 km in centimetres) or
+/// 1e5 degrees is a broken file, not a motion.
+const MAX_CHANNEL_VALUE: f64 = 1e5;
+/// Most frames read (about 14 hours at 20 fps).
+pub const MAX_FRAMES: usize = 1_000_000;
+
+/// The MOTION section: `Frames: N` (present, a count that matches the frame lines),
+/// `Frame Time: s` and N lines of finite channel values of plausible size.
+fn parse_motion(motion: &str, joints: &[BvhJoint]) -> Result<(f64, Vec<Vec<f64>>), DataError> {
+    let per_frame: usize = joints.iter().map(|j| j.channels.len()).sum();
+    let names: Vec<(String, Channel)> =
+        joints.iter().flat_map(|j| j.channels.iter().map(move |c| (j.name.clone(), *c))).collect();
+    let (mut frame_time, mut declared) = (None, None);
+    let mut frames = Vec::new();
+    for line in motion.lines().map(str::trim).filter(|l| !l.is_empty()) {
+        if let Some(ft) = line.strip_prefix("Frame Time:") {
+            let ft: f64 = ft
+                .trim()
+                .parse()
+                .map_err(|_| bad(format!("Frame Time '{}' is not a number", ft.trim())))?;
+            if !(ft.is_finite() && ft > 0.0) {
+                return Err(bad(format!("Frame Time {ft} must be a positive number of seconds")));
+            }
+            frame_time = Some(ft);
+            continue;
+        }
+        if let Some(n) = line.strip_prefix("Frames:") {
+            let n = n.trim();
+            declared = match n.parse::<usize>() {
+                Ok(n) if n <= MAX_FRAMES => Some(n),
+                _ => {
+                    return Err(bad(format!(
+                        "'Frames: {n}' is not a frame count from 0 to {MAX_FRAMES}"
+                    )))
+                }
+            };
+            continue;
+        }
+        if frames.len() >= declared.unwrap_or(0) {
+            return Err(match declared {
+                None => bad("no 'Frames:' line before the frame values"),
+                Some(n) => bad(format!("more frame lines than 'Frames: {n}' says")),
+            });
+        }
+        let f = frames.len();
+        let v: Vec<f64> = line
+            .split_whitespace()
+            .map(|x| x.parse().map_err(|_| bad(format!("frame {f}: '{x}' is not a number"))))
+            .collect::<Result<_, _>>()?;
+        if v.len() != per_frame {
+            return Err(bad(format!(
+                "frame {f} has {} values, the hierarchy's channels need {per_frame}",
+                v.len()
+            )));
+        }
+        if let Some(k) = v.iter().position(|x| !crate::magnitude::within(*x, MAX_CHANNEL_VALUE)) {
+            let (joint, ch) = &names[k];
+            return Err(bad(format!("frame {f}: joint '{joint}' {} is {}; values must be finite and at most {MAX_CHANNEL_VALUE:e} in size", ch.name(), v[k])));
+        }
+        frames.push(v);
+    }
+    let frame_time = frame_time.ok_or_else(|| bad("no 'Frame Time:' line"))?;
+    match declared {
+        None => Err(bad("no 'Frames:' line")),
+        Some(n) if n != frames.len() => {
+            Err(bad(format!("'Frames: {n}' but the file has {} frame lines", frames.len())))
+        }
+        Some(_) => Ok((frame_time, frames)),
+    }
+}
+
 impl Bvh {
     /// Parse BVH text; errors name what is wrong (and the frame, for values).
     pub fn parse(text: &str) -> Result<Bvh, DataError> {
@@ -111,7 +182,10 @@ impl Bvh {
         for line in hier.lines().map(str::trim) {
             let mut it = line.split_whitespace();
             match it.next() {
-                Some("ROOT") | Some("JOINT") => {
+                Some(kw @ ("ROOT" | "JOINT")) => {
+                    if joints.is_empty() && kw != "ROOT" {
+                        return Err(bad("the hierarchy starts with a JOINT, not a ROOT"));
+                    }
                     let parent = stack.last().copied().flatten();
                     if parent.is_none() && !joints.is_empty() {
                         return Err(bad("a second ROOT (one skeleton per file is read)"));
@@ -205,46 +279,10 @@ impl Bvh {
         if !stack.is_empty() {
             return Err(bad("unclosed '{' in HIERARCHY"));
         }
-        let mut frame_time = None;
-        let mut frames = Vec::new();
-        let per_frame: usize = joints.iter().map(|j| j.channels.len()).sum();
-        for line in motion.lines().map(str::trim).filter(|l| !l.is_empty()) {
-            if let Some(ft) = line.strip_prefix("Frame Time:") {
-                let ft: f64 = ft
-                    .trim()
-                    .parse()
-                    .map_err(|_| bad(format!("Frame Time '{}' is not a number", ft.trim())))?;
-                if !(ft.is_finite() && ft > 0.0) {
-                    return Err(bad(format!(
-                        "Frame Time {ft} must be a positive number of seconds"
-                    )));
-                }
-                frame_time = Some(ft);
-                continue;
-            }
-            if line.starts_with("Frames") {
-                continue;
-            }
-            let v: Vec<f64> = line
-                .split_whitespace()
-                .map(|x| {
-                    x.parse()
-                        .map_err(|_| bad(format!("frame {}: '{x}' is not a number", frames.len())))
-                })
-                .collect::<Result<_, _>>()?;
-            if v.len() != per_frame {
-                return Err(bad(format!(
-                    "frame {} has {} values, the hierarchy's channels need {per_frame}",
-                    frames.len(),
-                    v.len()
-                )));
-            }
-            if v.iter().any(|x| !x.is_finite()) {
-                return Err(bad(format!("frame {} has a value that is not finite", frames.len())));
-            }
-            frames.push(v);
+        if joints.iter().all(|j| j.offset == [0.0; 3] && j.end_site.is_none_or(|e| e == [0.0; 3])) {
+            return Err(bad("every OFFSET is zero: the hierarchy has no bones"));
         }
-        let frame_time = frame_time.ok_or_else(|| bad("no 'Frame Time:' line"))?;
+        let (frame_time, frames) = parse_motion(motion, &joints)?;
         Ok(Bvh { joints, frame_time, frames })
     }
 
@@ -364,6 +402,32 @@ mod tests {
             "HIERARCHY\nROOT a\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n}\nMOTION\nFrame Time: 0.1\n1 2\n",
         ] {
             assert!(Bvh::parse(broken).is_err(), "{broken}");
+        }
+    }
+
+    /// Headers and values a broken exporter writes are refused with what is wrong, never read.
+    #[test]
+    fn broken_headers_and_values_are_refused() {
+        let good = "HIERARCHY\nROOT a\n{\n OFFSET 0 0 0\n CHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation\n JOINT b\n {\n  OFFSET 10 0 0\n  CHANNELS 3 Zrotation Yrotation Xrotation\n  End Site\n  {\n   OFFSET 1 0 0\n  }\n }\n}\nMOTION\nFrames: 2\nFrame Time: 0.05\n1 2 3 0 0 0 0 0 0\n1 2 3 0 0 0 0 0 0\n";
+        assert_eq!(Bvh::parse(good).unwrap().frames.len(), 2);
+        for (from, to, why) in [
+            ("Frames: 2", "Frames: -2", "Frames: -2"),
+            ("Frames: 2", "Frames: 99999999999999999999999", "not a frame count"),
+            ("Frames: 2", "Frames: two", "not a frame count"),
+            ("Frames: 2\n", "", "no 'Frames:' line"),
+            ("Frames: 2", "Frames: 1", "more frame lines"),
+            ("Frames: 2", "Frames: 3", "'Frames: 3' but the file has 2"),
+            ("ROOT a", "JOINT a", "not a ROOT"),
+            ("OFFSET 10 0 0\n  CHANNELS 3 Zrotation Yrotation Xrotation\n  End Site\n  {\n   OFFSET 1 0 0", "OFFSET 0 0 0\n  CHANNELS 3 Zrotation Yrotation Xrotation\n  End Site\n  {\n   OFFSET 0 0 0", "every OFFSET is zero"),
+            (
+                "\n1 2 3 0 0 0 0 0 0\n",
+                "\n1 2 1e30 0 0 0 0 0 0\n",
+                "joint 'a' Zposition is 1000000000000000000000000000000",
+            ),
+            ("\n1 2 3 0 0 0 0 0 0\n", "\n1 2 3 0 0 0 0 1e308 0\n", "joint 'b' Yrotation"),
+        ] {
+            let e = Bvh::parse(&good.replacen(from, to, 1)).unwrap_err().to_string();
+            assert!(e.contains(why), "{from} -> {to}: {e}");
         }
     }
 }

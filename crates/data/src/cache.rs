@@ -14,13 +14,17 @@ use crate::motion_file::first_non_finite;
 use crate::npy;
 use crate::DataError;
 
-const FORMAT: u32 = 1;
+const FORMAT: u32 = 2;
 
+/// A source file as the cache saw it. The inode change time moves on every write, and no tool
+/// sets it back (`cp -p`, `touch -r` and rsync restore the modification time only).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 struct Source {
     path: String,
     size: u64,
     mtime_ns: u128,
+    ctime_ns: i128,
+    inode: u64,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -65,7 +69,14 @@ fn source(path: &Path) -> Result<Source, DataError> {
         .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
         .map(|d| d.as_nanos())
         .unwrap_or(0);
-    Ok(Source { path: path.to_string_lossy().into_owned(), size: md.len(), mtime_ns })
+    use std::os::unix::fs::MetadataExt;
+    Ok(Source {
+        path: path.to_string_lossy().into_owned(),
+        size: md.len(),
+        mtime_ns,
+        ctime_ns: md.ctime() as i128 * 1_000_000_000 + md.ctime_nsec() as i128,
+        inode: md.ino(),
+    })
 }
 
 /// Source files a split depends on, in a fixed order (missing files are left out; the build
@@ -213,6 +224,8 @@ fn build(
                     msg: format!("NaN or infinite value at frame {r}, feature {c}"),
                 });
             }
+            crate::magnitude::check_features(ds.skeleton, &a.data)
+                .map_err(|msg| DataError::Npy { path: mp.clone(), msg })?;
             Ok((caps, a))
         })();
         let (caps, a) = match loaded {

@@ -132,7 +132,7 @@ pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport
             progress(done, total);
             done += 1;
             let entry = seen.entry(id.clone()).or_insert_with(|| {
-                let frames = check_motion(&ds.motion_path(id), dim, &mut report);
+                let frames = check_motion(&ds, &ds.motion_path(id), &mut report);
                 let caps = check_text(&ds.text_path(id), &mut report);
                 if let Some(f) = frames {
                     hist[(f / 20).min(10)] += 1;
@@ -184,7 +184,12 @@ fn short(e: &crate::DataError) -> String {
     }
 }
 
-fn check_motion(path: &Path, dim: usize, report: &mut impl FnMut(&Path, String)) -> Option<usize> {
+fn check_motion(
+    ds: &Dataset,
+    path: &Path,
+    report: &mut impl FnMut(&Path, String),
+) -> Option<usize> {
+    let dim = ds.dim();
     let a = match npy::read_f32(path) {
         Ok(a) => a,
         Err(e) => {
@@ -203,6 +208,10 @@ fn check_motion(path: &Path, dim: usize, report: &mut impl FnMut(&Path, String))
     }
     if let Some((r, c)) = first_non_finite(&a.data, dim) {
         report(path, format!("NaN or infinite value at frame {r}, feature {c}"));
+        ok = false;
+    } else if let Err(m) = crate::magnitude::check_features(ds.skeleton, &a.data) {
+        // The loader skips such a clip; training on it would go NaN.
+        report(path, m);
         ok = false;
     }
     ok.then_some(a.shape[0])

@@ -33,14 +33,27 @@ pub struct ItemSpec {
     pub captions: Vec<String>,
 }
 
+/// What a dataset directory holds, for messages about one that does not.
+pub const LAYOUT: &str = "a dataset directory holds Mean.npy, Std.npy, new_joint_vecs/ID.npy, texts/ID.txt and train.txt, val.txt, test.txt (HumanML3D's layout; `diffkfc data synth --out DIR` makes one)";
+
 impl Dataset {
     pub fn open(root: impl AsRef<Path>) -> Result<Dataset, DataError> {
         let root = root.as_ref().to_path_buf();
+        let not_one =
+            |why: &str| DataError::Invalid(format!("{}: {why}; {LAYOUT}", root.display()));
+        if root.is_file() {
+            return Err(not_one("is a file, not a dataset directory"));
+        }
         if !root.is_dir() {
-            return Err(DataError::Invalid(format!(
-                "{}: dataset directory not found",
-                root.display()
-            )));
+            return Err(not_one("dataset directory not found"));
+        }
+        if !root.join("Mean.npy").exists() {
+            let empty = std::fs::read_dir(&root).map(|mut d| d.next().is_none()).unwrap_or(false);
+            return Err(not_one(if empty {
+                "the directory is empty"
+            } else {
+                "no Mean.npy: not a dataset directory"
+            }));
         }
         let (mean, std) = read_normalisation(&root, None)?;
         let skeleton = match mean.len() {

@@ -24,16 +24,22 @@ const MAX_ABS: f64 = 1e4;
 
 /// A keyframe file as written.
 #[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct KeyframeSpec {
     /// Frames of the motion (absent: the caller's length).
     pub length: Option<usize>,
     /// Body parts or joints every keyframe observes (absent: all).
     pub joints: Option<String>,
     pub keyframes: Vec<KeySpec>,
+    /// Where the keys came from and how they were picked (`keyframes suggest` writes them; read
+    /// and ignored).
+    pub source: Option<serde_json::Value>,
+    pub strategy: Option<serde_json::Value>,
 }
 
 /// One keyframe: a pose (joint positions or features) and/or a place and a heading.
 #[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct KeySpec {
     pub frame: usize,
     pub joints: Option<Vec<Vec3>>,
@@ -56,15 +62,41 @@ pub struct KeyframeSet {
     pub root: Vec<RootKey>,
 }
 
+/// serde's "unknown field `heding`, expected one of `frame`, ..." with the closest known name
+/// added, so a misspelt key says what was meant.
+fn with_suggestion(msg: &str) -> String {
+    let ticked =
+        |t: &str| -> Vec<String> { t.split('`').skip(1).step_by(2).map(str::to_string).collect() };
+    let Some(rest) = msg.strip_prefix("unknown field ") else {
+        return msg.to_string();
+    };
+    let (unknown, expected) = match rest.split_once(", expected") {
+        Some((u, e)) => (ticked(u), ticked(e)),
+        None => return msg.to_string(),
+    };
+    let best = unknown.first().and_then(|u| {
+        expected.iter().map(|k| (strsim::levenshtein(u, k), k)).filter(|(d, _)| *d <= 3).min()
+    });
+    let Some((_, k)) = best else {
+        return msg.to_string();
+    };
+    match msg.split_once(" at line ") {
+        Some((head, at)) => format!("{head} (did you mean `{k}`?) at line {at}"),
+        None => format!("{msg} (did you mean `{k}`?)"),
+    }
+}
+
 impl KeyframeSpec {
     /// Parse the JSON text; errors name where in the file the problem is.
     pub fn parse(text: &str) -> Result<KeyframeSpec, DataError> {
         let de = &mut serde_json::Deserializer::from_str(text);
-        serde_path_to_error::deserialize(de).map_err(|e| {
+        let spec = serde_path_to_error::deserialize(&mut *de).map_err(|e| {
             let at = e.path().to_string();
-            let msg = e.into_inner().to_string();
+            let msg = with_suggestion(&e.into_inner().to_string());
             DataError::Invalid(if at == "." { msg } else { format!("{at}: {msg}") })
-        })
+        })?;
+        de.end().map_err(|e| DataError::Invalid(format!("after the keyframe object: {e}")))?;
+        Ok(spec)
     }
 
     /// The keyframes for `skel`: `length` overrides the file's, `joints` its body parts;
@@ -97,15 +129,19 @@ impl KeyframeSpec {
         let dims = keyframes::dim_mask(skel, Some(&observed));
         let (mut values, mut mask) = (vec![0f32; length * d], vec![0f32; length * d]);
         let mut root = vec![RootKey::default(); length];
-        let mut frames = Vec::new();
+        let mut frames: Vec<usize> = Vec::new();
         for (i, k) in self.keyframes.iter().enumerate() {
             let at = |m: String| bad(format!("keyframes[{i}]: {m}"));
             let f = k.frame;
             if f >= length {
                 return Err(at(format!("frame {f} is beyond the length {length}")));
             }
+            if let Some(j) = frames.iter().position(|&g| g == f) {
+                return Err(at(format!("frame {f} is keyed twice (also keyframes[{j}]); put its pose, root and heading in one keyframe")));
+            }
             let (vals, obs): (Vec<f32>, Vec<bool>) = match (&k.joints, &k.features) {
                 (Some(pose), _) => {
+                    crate::magnitude::check_joints(skel, &vec![pose.clone()]).map_err(at)?;
                     let (vals, obs) = pose::pose_features(skel, pose).map_err(|e| at(e.to_string()))?;
                     if vals.iter().zip(&obs).any(|(v, &o)| o && !v.is_finite()) {
                         return Err(at("the pose gives non-finite features (joints too far apart or coinciding)".into()));
@@ -143,7 +179,6 @@ impl KeyframeSpec {
             frames.push(f);
         }
         frames.sort_unstable();
-        frames.dedup();
         relative_to_first_frame(&mut root);
         Ok(KeyframeSet { length, frames, values, mask, joints: observed, root })
     }
@@ -184,6 +219,20 @@ mod tests {
 
     #[test]
     fn reads_places_headings_and_names_errors() {
+        let pose = |k: f64| -> String {
+            let j = &crate::synth::clip(0, 0).0.joints[0];
+            serde_json::to_string(&j.iter().map(|p| p.map(|v| v * k)).collect::<Vec<_>>()).unwrap()
+        };
+        let keyed = |k: f64| {
+            let text = format!(
+                r#"{{"length": 20, "keyframes": [{{"frame": 2, "joints": {}}}]}}"#,
+                pose(k)
+            );
+            KeyframeSpec::parse(&text).unwrap().resolve(&T2M, None, None, 196).map(|_| ())
+        };
+        keyed(1.0).unwrap();
+        let e = keyed(1000.0).unwrap_err().to_string();
+        assert!(e.contains("keyframes[0]:") && e.contains("millimetres"), "{e}");
         let spec = KeyframeSpec::parse(r#"{"length": 30, "source": "ignored", "keyframes": [{"frame": 5, "root": [1, 0.9, 2], "heading": 90}]}"#).unwrap();
         let k = spec.resolve(&T2M, None, None, 196).unwrap();
         assert_eq!((k.length, k.frames.clone()), (30, vec![5]));
@@ -204,6 +253,12 @@ mod tests {
                 r#"{"length": 20, "keyframes": [{"frame": 3, "heading": "north"}]}"#,
                 "keyframes[0].heading: invalid type: string \"north\"",
             ),
+            (
+                r#"{"length": 20, "keyframes": [{"frame": 3, "heding": 90}]}"#,
+                "keyframes[0].heding: unknown field `heding`, expected one of `frame`, `joints`, `features`, `root`, `heading` (did you mean `heading`?) at line 1",
+            ),
+            (r#"{"lenght": 20, "keyframes": []}"#, "(did you mean `length`?)"),
+            (r#"{"length": 20, "keyframes": []} trailing"#, "after the keyframe object: trailing characters"),
         ] {
             let e = KeyframeSpec::parse(text).map(|_| ()).unwrap_err().to_string();
             assert!(e.contains(needle), "{text}: {e}");
@@ -227,6 +282,10 @@ mod tests {
                 "joints: empty",
             ),
             (r#"{"length": 20, "keyframes": [{"frame": 2}]}"#, "keyframes[0]: needs \"joints\""),
+            (
+                r#"{"length": 20, "keyframes": [{"frame": 2, "root": [0, 1, 0]}, {"frame": 2, "heading": 5}]}"#,
+                "keyframes[1]: frame 2 is keyed twice (also keyframes[0])",
+            ),
         ] {
             let e = KeyframeSpec::parse(text)
                 .unwrap()

@@ -7,7 +7,7 @@ use crate::npy::{self, Array};
 use crate::representation::{self as rep, Joints};
 use crate::rig::{self, ImportOptions};
 use crate::skeleton::Skeleton;
-use crate::DataError;
+use crate::{magnitude, DataError};
 
 fn invalid(path: &Path, msg: String) -> DataError {
     DataError::Npy { path: path.to_path_buf(), msg }
@@ -44,6 +44,7 @@ pub fn load_features(
     if let Some((r, c)) = first_non_finite(&arr.data, dim) {
         return Err(invalid(path, format!("NaN or infinite value at frame {r}, feature {c}")));
     }
+    magnitude::check_features(skel, &arr.data).map_err(|m| invalid(path, m))?;
     Ok(arr)
 }
 
@@ -78,7 +79,9 @@ pub fn load_joints(path: &Path, skel: &Skeleton, min_frames: usize) -> Result<Jo
             ));
         }
     }
-    Ok(rep::joints_from_array(&arr.data, arr.shape[0], arr.shape[1], jn))
+    let j = rep::joints_from_array(&arr.data, arr.shape[0], arr.shape[1], jn);
+    magnitude::check_joints(skel, &j).map_err(|m| invalid(path, m))?;
+    Ok(j)
 }
 
 /// A motion has at least two frames (one pose has no velocity, no path, nothing to animate).
@@ -93,6 +96,7 @@ pub fn load_bvh(path: &Path, skel: &Skeleton, opts: &ImportOptions) -> Result<Jo
     let text = std::fs::read_to_string(path)
         .map_err(|err| DataError::Io { path: path.to_path_buf(), err })?;
     let j = rig::read(skel, &text, opts).map_err(|e| e.in_file(path))?;
+    magnitude::check_joints(skel, &j).map_err(|m| invalid(path, m))?;
     if j.len() < MIN_MOTION_FRAMES {
         return Err(invalid(
             path,
@@ -110,7 +114,10 @@ pub fn load_motion(path: &Path, skel: &Skeleton, bvh: &ImportOptions) -> Result<
     }
     if npy::read_f64(path)?.ndim() == 2 {
         let f = load_features(path, skel, MIN_MOTION_FRAMES)?;
-        Ok(rep::recover_from_ric(skel, &f.data.iter().map(|&v| v as f64).collect::<Vec<_>>()))
+        let j = rep::recover_from_ric(skel, &f.data.iter().map(|&v| v as f64).collect::<Vec<_>>());
+        // Small steps add up: a path past 1 km is refused here rather than drawn.
+        magnitude::check_positions(skel, &j).map_err(|m| invalid(path, m))?;
+        Ok(j)
     } else {
         load_joints(path, skel, MIN_MOTION_FRAMES)
     }

@@ -237,15 +237,54 @@ pub fn bone_offsets(skel: &Skeleton, pose: &[Vec3]) -> Vec<Vec3> {
         .collect()
 }
 
+/// Bone lengths of `pose` (joint to parent; 0 for the root): the retarget's target when taken
+/// from a reference clip's first frame, as HumanML3D's processing does (`000021` for
+/// HumanML3D, `03950` for KIT-ML).
+pub fn bone_lengths(skel: &Skeleton, pose: &[Vec3]) -> Vec<f64> {
+    let parents = skel.parents();
+    (0..skel.num_joints())
+        .map(|i| match parents[i] {
+            p if p < 0 => 0.0,
+            p => quat::norm(quat::sub(pose[i], pose[p as usize])),
+        })
+        .collect()
+}
+
+/// Target bone vectors: the raw offset directions times `lengths` (the skeleton's own target
+/// lengths when None; KIT-ML has none built in).
+fn target_offsets(skel: &Skeleton, lengths: Option<&[f64]>) -> Result<Vec<Vec3>, DataError> {
+    match lengths {
+        Some(l) if l.len() == skel.num_joints() => {
+            Ok(skel.raw_offsets.iter().zip(l).map(|(d, &l)| quat::scale(*d, l)).collect())
+        }
+        Some(l) => Err(DataError::Invalid(format!(
+            "target skeleton: {} bone lengths for the {} skeleton's {} joints",
+            l.len(),
+            skel.name,
+            skel.num_joints()
+        ))),
+        None => skel.target_offsets().ok_or_else(|| {
+            DataError::Invalid(format!(
+                "skeleton '{}' has no built-in target bone lengths: give a reference clip of your data (its first frame's bones, as HumanML3D's KIT processing takes 03950) with --target-skeleton",
+                skel.name
+            ))
+        }),
+    }
+}
+
 /// Retarget a motion to the skeleton's target bone lengths, scaling the root path by the ratio
 /// of lower-leg lengths (HumanML3D `uniform_skeleton`).
 pub fn uniform_skeleton(skel: &Skeleton, joints: &Joints) -> Result<Joints, DataError> {
-    let tgt = skel.target_offsets().ok_or_else(|| {
-        DataError::Invalid(format!(
-            "skeleton '{}' has no target bone lengths to retarget to",
-            skel.name
-        ))
-    })?;
+    uniform_skeleton_to(skel, joints, None)
+}
+
+/// [`uniform_skeleton`] onto the bone `lengths` of [`bone_lengths`] (None: the skeleton's own).
+pub fn uniform_skeleton_to(
+    skel: &Skeleton,
+    joints: &Joints,
+    lengths: Option<&[f64]>,
+) -> Result<Joints, DataError> {
+    let tgt = target_offsets(skel, lengths)?;
     let src = bone_offsets(skel, &joints[0]);
     let leg = |o: &[Vec3]| -> f64 {
         skel.leg_bones.iter().map(|&b| o[b].iter().fold(0.0f64, |m, v| m.max(v.abs()))).sum()
@@ -262,8 +301,19 @@ pub fn features_from_joints(
     joints: &Joints,
     feet_threshold: f64,
 ) -> Result<Vec<f32>, DataError> {
+    features_from_joints_to(skel, joints, feet_threshold, None)
+}
+
+/// [`features_from_joints`] retargeted onto the bone `lengths` of a reference pose
+/// ([`bone_lengths`]; None: the skeleton's built-in target).
+pub fn features_from_joints_to(
+    skel: &Skeleton,
+    joints: &Joints,
+    feet_threshold: f64,
+    lengths: Option<&[f64]>,
+) -> Result<Vec<f32>, DataError> {
     validate_joints(skel, joints)?;
-    let mut pos = uniform_skeleton(skel, joints)?;
+    let mut pos = uniform_skeleton_to(skel, joints, lengths)?;
     let t = pos.len();
     let jn = skel.num_joints();
 

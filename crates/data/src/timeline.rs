@@ -11,6 +11,9 @@ use crate::DataError;
 
 /// Shortest segment accepted, seconds.
 pub const MIN_SEGMENT_S: f64 = 1.0;
+/// Longest timeline accepted, seconds (ten minutes: about 70 windows, seconds of work; a typo
+/// such as `0-100000s` is refused instead of planned).
+pub const MAX_TIMELINE_S: f64 = 600.0;
 
 /// One prompt over frames `start..end` of the whole motion.
 #[derive(Clone, Debug, PartialEq)]
@@ -58,6 +61,9 @@ pub fn parse(spec: &str, fps: f64) -> Result<Vec<Segment>, DataError> {
         let text = text.trim();
         if text.is_empty() {
             return Err(bad(format!("timeline segment '{item}': empty text")));
+        }
+        if b > MAX_TIMELINE_S {
+            return Err(bad(format!("timeline segment '{item}': ends at {b} s; a timeline lasts at most {MAX_TIMELINE_S} s")));
         }
         if b - a < MIN_SEGMENT_S - 1e-9 {
             return Err(bad(format!("timeline segment '{item}': lasts {:.2} s; segments last at least {MIN_SEGMENT_S} s", b - a)));
@@ -124,6 +130,8 @@ mod tests {
             ("0-4s: walk | 5-7s: jump", "a gap"),
             ("0-4s: walk | 3-7s: jump", "an overlap"),
             ("  ", "no segments"),
+            ("0-100000s: walk", "ends at 100000 s; a timeline lasts at most 600 s"),
+            ("0-1e9s: walk", "at most 600 s"),
         ] {
             let e = parse(spec, 20.0).unwrap_err().to_string();
             assert!(e.contains(needle), "{spec}: {e}");

@@ -8,7 +8,7 @@ use std::path::Path;
 
 use diffkfc_data::fuzz::{cases, fuzz};
 use diffkfc_data::rng::Rng;
-use diffkfc_data::{npy, representation as rep, rig, T2M};
+use diffkfc_data::{magnitude, npy, representation as rep, rig, T2M};
 
 fn walk(frames: usize) -> rep::Joints {
     let pose = T2M
@@ -61,8 +61,46 @@ fn bvh_reader_never_panics() {
         let Ok(text) = std::str::from_utf8(b) else {
             return false;
         };
-        rig::read(&T2M, text, &Default::default()).is_ok()
+        let Ok(j) = rig::read(&T2M, text, &Default::default()) else {
+            return false;
+        };
+        // What the readers accept (the magnitude rule passed) is finite joints.
+        if magnitude::check_joints(&T2M, &j).is_ok() {
+            assert!(
+                j.iter().flatten().flatten().all(|v| v.is_finite()),
+                "accepted non-finite joints"
+            );
+        }
+        true
     });
+}
+
+#[test]
+fn accepted_features_give_finite_joints() {
+    // Feature files of any magnitude, 1e-3 to 1e38, in one channel group or all.
+    let mut r = Rng::new(3);
+    let d = T2M.feature_dim();
+    let (mut accepted, mut refused) = (0, 0);
+    for k in 0..cases() / 20 {
+        let frames = 2 + r.below(40);
+        let scale = 10f64.powf(-3.0 + 41.0 * r.uniform());
+        let one = r.below(2) == 0;
+        let c = r.below(d);
+        let f: Vec<f32> = (0..frames * d)
+            .map(|i| {
+                let v = r.normal() * 0.1;
+                (if !one || i % d == c { v * scale } else { v }) as f32
+            })
+            .collect();
+        if f.iter().any(|v| !v.is_finite()) || magnitude::check_features(&T2M, &f).is_err() {
+            refused += 1;
+            continue;
+        }
+        accepted += 1;
+        let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
+        assert!(j.iter().flatten().flatten().all(|v| v.is_finite()), "case {k}: non-finite joints");
+    }
+    assert!(accepted > 0 && refused > 0, "{accepted} accepted, {refused} refused");
 }
 
 #[test]

@@ -3,13 +3,25 @@
 
 use diffkfc_data::quat::{self, Vec3};
 use diffkfc_data::representation::{self as rep, Layout};
-use diffkfc_data::T2M;
+use diffkfc_data::{Skeleton, KIT, T2M};
 use rand::{rngs::StdRng, Rng, SeedableRng};
 
 /// A random smooth motion of `t` frames on the t2m target skeleton.
 fn random_motion(seed: u64, t: usize) -> rep::Joints {
+    random_motion_on(&T2M, &T2M.target_offsets().unwrap(), 1.0, seed, t)
+}
+
+/// A random smooth motion of `t` frames on `skel` with bone vectors `offsets`; `unit` is the
+/// skeleton's length unit per metre (1000 for KIT-ML's millimetres).
+fn random_motion_on(
+    skel: &Skeleton,
+    offsets: &[Vec3],
+    unit: f64,
+    seed: u64,
+    t: usize,
+) -> rep::Joints {
     let mut rng = StdRng::seed_from_u64(seed);
-    let jn = T2M.num_joints();
+    let jn = skel.num_joints();
     // Per joint: rotation axis, amplitude, frequency, phase.
     let params: Vec<(Vec3, f64, f64, f64)> = (0..jn)
         .map(|_| {
@@ -28,7 +40,6 @@ fn random_motion(seed: u64, t: usize) -> rep::Joints {
     // spin averages towards zero and makes the representation itself ill-conditioned.
     let yaw_rate = (rng.random::<f64>() - 0.5) * 0.4;
     let speed = [rng.random::<f64>() - 0.5, rng.random::<f64>() - 0.5];
-    let offsets = T2M.target_offsets().unwrap();
     let mut rots = Vec::new();
     let mut root = Vec::new();
     for f in 0..t {
@@ -39,13 +50,60 @@ fn random_motion(seed: u64, t: usize) -> rep::Joints {
             .collect();
         q[0] = quat::qmul(quat::from_axis_angle([0.0, 1.0, 0.0], yaw0 + yaw_rate * s), q[0]);
         rots.push(q);
-        root.push([
-            speed[0] * s + 0.1 * (2.0 * s).sin(),
-            0.95 + 0.05 * (3.0 * s).cos(),
-            speed[1] * s,
-        ]);
+        root.push(quat::scale(
+            [speed[0] * s + 0.1 * (2.0 * s).sin(), 0.95 + 0.05 * (3.0 * s).cos(), speed[1] * s],
+            unit,
+        ));
     }
-    rep::forward_kinematics(&T2M, &rots, &root, &offsets)
+    rep::forward_kinematics(skel, &rots, &root, offsets)
+}
+
+/// KIT-ML through HumanML3D's conversion rules, retargeted to a reference pose's bones as its
+/// KIT processing does (the target skeleton is a clip's first frame): the features recover the
+/// motion's shape on the reference's bone lengths, in millimetres.
+#[test]
+fn kit_motions_retarget_to_a_reference_skeleton() {
+    // Adult proportions in millimetres along KIT's raw offset directions.
+    let lengths = [
+        0.0, 120.0, 230.0, 230.0, 160.0, 190.0, 290.0, 250.0, 190.0, 290.0, 250.0, 95.0, 420.0,
+        410.0, 110.0, 60.0, 95.0, 420.0, 410.0, 110.0, 60.0,
+    ];
+    let offsets: Vec<Vec3> =
+        KIT.raw_offsets.iter().zip(lengths).map(|(d, l)| quat::scale(*d, l)).collect();
+    let j = random_motion_on(&KIT, &offsets, 1000.0, 3, 100);
+    // Retargeted to its own first frame: the shape is kept.
+    let own = rep::bone_lengths(&KIT, &j[0]);
+    for (a, b) in own.iter().zip(lengths) {
+        assert!((a - b).abs() < 1e-6, "{own:?}");
+    }
+    let feats = rep::features_from_joints_to(&KIT, &j, 0.002 * 1e6, Some(&own)).unwrap();
+    assert_eq!(feats.len(), 99 * KIT.feature_dim());
+    let rec = rep::recover_from_ric(&KIT, &feats.iter().map(|&v| v as f64).collect::<Vec<_>>());
+    let mut worst = 0.0f64;
+    for f in 0..99 {
+        for a in 0..21 {
+            for b in 0..21 {
+                let d0 = quat::norm(quat::sub(j[f][a], j[f][b]));
+                let d1 = quat::norm(quat::sub(rec[f][a], rec[f][b]));
+                worst = worst.max((d0 - d1).abs());
+            }
+        }
+    }
+    eprintln!("KIT: joints -> features -> joints max distance error {worst:.2e} mm");
+    assert!(worst < 0.1, "{worst} mm");
+    // Onto a reference 10% larger: every bone of the result has the reference's length.
+    let big: Vec<f64> = own.iter().map(|l| l * 1.1).collect();
+    let feats = rep::features_from_joints_to(&KIT, &j, 0.002 * 1e6, Some(&big)).unwrap();
+    let rec = rep::recover_from_ric(&KIT, &feats.iter().map(|&v| v as f64).collect::<Vec<_>>());
+    for f in [0, 50, 98] {
+        let got = rep::bone_lengths(&KIT, &rec[f]);
+        for (g, w) in got.iter().zip(&big) {
+            assert!((g - w).abs() < 0.05, "frame {f}: {got:?} vs {big:?}");
+        }
+    }
+    // Without a reference KIT has no target: the error says how to give one.
+    let e = rep::features_from_joints(&KIT, &j, 2000.0).unwrap_err().to_string();
+    assert!(e.contains("--target-skeleton"), "{e}");
 }
 
 fn max_diff(a: &[f32], b: &[f32]) -> f32 {

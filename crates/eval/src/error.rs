@@ -16,6 +16,9 @@ pub enum EvalError {
     /// A caption asked of the evaluator has no cached text embedding.
     #[error("caption not embedded: {0}")]
     CaptionNotEmbedded(String),
+    /// A loss, weight or embedding is not finite: never turned into a score.
+    #[error("{0}")]
+    NonFinite(String),
     #[error(transparent)]
     Model(#[from] ModelError),
     #[error(transparent)]

@@ -21,7 +21,7 @@ use diffkfc_model::text::cache::EmbeddingCache;
 
 use crate::evaluator::{eval_length, TextMotionEvaluator};
 use crate::keyframe_metrics::{displacement_error, k_err_global, k_err_local, k_trans};
-use crate::text_motion::{diversity, multimodality, r_precision, Gaussian};
+use crate::text_motion::{diversity, finite, multimodality, r_precision, Gaussian};
 
 /// Generations per text and pairs per text of MultiModality; pairs of Diversity; R-precision
 /// batch; K-TranS half window (DESIGN §4).
@@ -409,11 +409,13 @@ impl Protocol<'_> {
         for rep in 0..self.opts.replications {
             let items = self.items(rep);
             let captions: Vec<&str> = items.iter().map(|it| it.caption.as_str()).collect();
-            let texts = self.evaluator.embed_texts(&captions)?;
+            let texts = finite(self.evaluator.embed_texts(&captions)?, "the text embeddings")?;
             let rep_seed = Rng::derive(self.opts.seed, 5, rep as u64).next_u64();
             // The real motions' metrics are the same at every rate but K-TranS (keyframes differ).
-            let real_m =
-                self.evaluator.embed_motions(&items.iter().map(|it| it.feats).collect::<Vec<_>>());
+            let real_m = finite(
+                self.evaluator.embed_motions(&items.iter().map(|it| it.feats).collect::<Vec<_>>()),
+                "the real motions' embeddings",
+            )?;
             let mut shared = Values::new();
             self.text_motion(reference, &texts, &real_m, rep_seed, &mut shared);
             if let Some(x) = mean(
@@ -509,7 +511,10 @@ impl Protocol<'_> {
                     row.values.entry(name).or_default().extend(mean(&xs));
                 }
                 let first: Vec<&[f32]> = gens.iter().map(|g| g[0].as_slice()).collect();
-                let motions = self.evaluator.embed_motions(&first);
+                let motions = finite(
+                    self.evaluator.embed_motions(&first),
+                    "the generated motions' embeddings",
+                )?;
                 self.text_motion(reference, &texts, &motions, rep_seed, &mut row.values);
                 if self.opts.multimodality > 0 {
                     let m = self.opts.multimodality.min(items.len());
@@ -524,10 +529,10 @@ impl Protocol<'_> {
                     let emb: Vec<Vec<Vec<f64>>> = groups
                         .iter()
                         .map(|g| {
-                            self.evaluator
-                                .embed_motions(&g.iter().map(Vec::as_slice).collect::<Vec<_>>())
+                            let g: Vec<&[f32]> = g.iter().map(Vec::as_slice).collect();
+                            finite(self.evaluator.embed_motions(&g), "the MultiModality embeddings")
                         })
-                        .collect();
+                        .collect::<crate::error::Result<_>>()?;
                     row.values
                         .entry("multimodality")
                         .or_default()

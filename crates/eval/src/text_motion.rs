@@ -6,6 +6,15 @@ use diffkfc_data::rng::Rng;
 
 use crate::linalg::{matmul, sqrtm_psd};
 
+/// `rows` if every value is finite: a NaN embedding ranks every text first (R-precision 1.0)
+/// beside FID NaN, a score that lies.
+pub fn finite(rows: Vec<Vec<f64>>, what: &str) -> crate::error::Result<Vec<Vec<f64>>> {
+    match rows.iter().flatten().find(|x| !x.is_finite()) {
+        Some(x) => Err(crate::error::EvalError::NonFinite(format!("evaluator: {what} hold {x} (not finite): the evaluator's weights or the motions are broken; retrain it with `diffkfc eval train-evaluator` and check the motions with `diffkfc data check`"))),
+        None => Ok(rows),
+    }
+}
+
 fn dist(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>().sqrt()
 }
@@ -133,6 +142,21 @@ pub fn mean_ci(xs: &[f64]) -> (f64, f64) {
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn non_finite_embeddings_are_an_error_not_a_score() {
+        let rows = vec![vec![0.5, 1.0], vec![2.0, -1.0]];
+        assert_eq!(finite(rows.clone(), "x").unwrap(), rows);
+        let e = finite(vec![vec![0.5, f64::NAN]], "the motion embeddings").unwrap_err().to_string();
+        assert!(
+            e.contains("the motion embeddings hold NaN") && e.contains("train-evaluator"),
+            "{e}"
+        );
+        // What a NaN evaluator used to report: R-precision 1.0 beside FID NaN.
+        let nan = vec![vec![f64::NAN; 4]; 32];
+        assert!(fid(&nan, &nan).is_nan());
+    }
+
     use super::*;
 
     fn gaussian(n: usize, d: usize, shift: f64, scale: f64, seed: u64) -> Vec<Vec<f64>> {

@@ -17,7 +17,7 @@ use crate::evaluator::{
     eval_length, info_nce, motion_tensor, text_tensor, ContrastiveEvaluator, EvaluatorConfig,
     TextMotionEvaluator,
 };
-use crate::text_motion::r_precision;
+use crate::text_motion::{finite, r_precision};
 
 pub struct EvaluatorTraining<'a> {
     pub cfg: EvaluatorConfig,
@@ -53,7 +53,10 @@ pub fn embed_split(
         .map(|i| &split.item_frames(i)[..eval_length(split.items[i].len) * d])
         .collect();
     let captions: Vec<&str> = split.items.iter().map(|it| it.captions[0].as_str()).collect();
-    Ok((ev.embed_texts(&captions)?, ev.embed_motions(&motions)))
+    Ok((
+        finite(ev.embed_texts(&captions)?, "the text embeddings")?,
+        finite(ev.embed_motions(&motions), "the motion embeddings")?,
+    ))
 }
 
 pub struct EvaluatorReport {
@@ -89,6 +92,9 @@ impl EvaluatorTraining<'_> {
             let loss = info_nce(m, t, self.cfg.temperature, &same_caption(&b));
             let l: f64 =
                 loss.clone().into_data().convert::<f64>().try_to_vec::<f64>().expect("scalar")[0];
+            if !l.is_finite() {
+                return Err(EvalError::NonFinite(format!("{}: step {}: InfoNCE loss is {l} (not finite): training stopped, nothing saved; lower --lr ({})", self.out.display(), step + 1, self.lr)));
+            }
             model = optim.descend(model, loss, 1.0, self.lr).0;
             if step == 0 {
                 first = l;
@@ -97,6 +103,14 @@ impl EvaluatorTraining<'_> {
             on_step(step + 1, l);
         }
         let snap = optim.snapshot(&model);
+        if let Some(x) = snap.model.iter().flatten().find(|x| !x.is_finite()) {
+            return Err(EvalError::NonFinite(format!(
+                "{}: after {} steps a weight is {x} (not finite): nothing saved; lower --lr ({})",
+                self.out.display(),
+                self.steps,
+                self.lr
+            )));
+        }
         let vals = snap.model.clone();
         let ck = Checkpoint {
             step: self.steps,

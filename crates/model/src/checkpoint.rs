@@ -306,6 +306,17 @@ impl Checkpoint {
         Ok(())
     }
 
+    /// The checkpoint, if every weight (and EMA weight) is finite: a run resumed from
+    /// non-finite weights would only produce NaN.
+    fn finite(self, path: &Path) -> Result<Checkpoint> {
+        let bad =
+            self.model.iter().chain(self.ema.iter().flatten()).flatten().find(|x| !x.is_finite());
+        match bad {
+            Some(x) => Err(ModelError::file(path, format!("a weight is {x} (not finite)"))),
+            None => Ok(self),
+        }
+    }
+
     /// Checkpoint files of a run directory, by step.
     pub fn list(dir: &Path) -> Vec<(usize, PathBuf)> {
         let mut v: Vec<(usize, PathBuf)> = std::fs::read_dir(dir)
@@ -328,7 +339,7 @@ impl Checkpoint {
         let list = Self::list(dir);
         let mut last_err = None;
         for (_, p) in list.iter().rev() {
-            match Self::load(p) {
+            match Self::load(p).and_then(|c| c.finite(p)) {
                 Ok(c) => return Some(Ok(c)),
                 Err(e) => {
                     // Said, not hidden: the user should know an older checkpoint is in use.

@@ -27,6 +27,7 @@ pub mod pipeline;
 pub mod place;
 pub mod run_config;
 pub mod run_dir;
+pub mod run_lock;
 pub mod sampler;
 pub mod scheduler;
 pub(crate) mod temporal;

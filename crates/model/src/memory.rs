@@ -39,12 +39,35 @@ pub fn fixed_bytes(cfg: &RunConfig) -> f64 {
     BASE_BYTES + 5.0 * params * 4.0
 }
 
-/// Memory the system can still give (`MemAvailable` of /proc/meminfo), when it can be read.
+/// Memory this process can still take: the least of the system's `MemAvailable`, what its
+/// cgroup's limit leaves (v2 `memory.max`, v1 `memory.limit_in_bytes`) and what its address-space
+/// and data-size limits (`ulimit -v`, `ulimit -d`) leave; None when none of them can be read.
 pub fn available_bytes() -> Option<f64> {
-    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let read = |p: &str| std::fs::read_to_string(p).ok();
+    let status = read("/proc/self/status").unwrap_or_default();
+    let limits = read("/proc/self/limits").unwrap_or_default();
+    [
+        read("/proc/meminfo").and_then(|t| kib_field(&t, "MemAvailable:")),
+        cgroup_left(read("/sys/fs/cgroup/memory.max"), read("/sys/fs/cgroup/memory.current")),
+        cgroup_left(
+            read("/sys/fs/cgroup/memory/memory.limit_in_bytes"),
+            read("/sys/fs/cgroup/memory/memory.usage_in_bytes"),
+        ),
+        rlimit(&limits, "Max address space")
+            .map(|l| l - kib_field(&status, "VmSize:").unwrap_or(0.0)),
+        rlimit(&limits, "Max data size").map(|l| l - kib_field(&status, "VmData:").unwrap_or(0.0)),
+    ]
+    .into_iter()
+    .flatten()
+    .map(|b| b.max(0.0))
+    .reduce(f64::min)
+}
+
+/// A `Name:   123 kB` line of /proc, in bytes.
+fn kib_field(text: &str, name: &str) -> Option<f64> {
     let kb: f64 = text
         .lines()
-        .find_map(|l| l.strip_prefix("MemAvailable:"))?
+        .find_map(|l| l.strip_prefix(name))?
         .trim()
         .trim_end_matches("kB")
         .trim()
@@ -53,9 +76,33 @@ pub fn available_bytes() -> Option<f64> {
     Some(kb * 1024.0)
 }
 
+/// A cgroup's limit less its usage (no limit: None).
+fn cgroup_left(limit: Option<String>, usage: Option<String>) -> Option<f64> {
+    let limit: f64 = limit?.trim().parse().ok()?;
+    let usage: f64 = usage.and_then(|u| u.trim().parse().ok()).unwrap_or(0.0);
+    // cgroup v1 reports "no limit" as a huge page-rounded number.
+    (limit < 1e18).then_some(limit - usage)
+}
+
+/// The soft limit of a /proc/self/limits row, in bytes (unlimited: None).
+fn rlimit(limits: &str, name: &str) -> Option<f64> {
+    let row = limits.lines().find_map(|l| l.strip_prefix(name))?;
+    row.split_whitespace().next()?.parse().ok()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn limits_are_read_from_proc_text() {
+        let limits = "Limit                     Soft Limit           Hard Limit           Units\nMax data size             unlimited            unlimited            bytes\nMax address space         8589934592           unlimited            bytes\n";
+        assert_eq!(rlimit(limits, "Max address space"), Some(8589934592.0));
+        assert_eq!(rlimit(limits, "Max data size"), None);
+        assert_eq!(kib_field("VmSize:\t  2048 kB\n", "VmSize:"), Some(2048.0 * 1024.0));
+        assert_eq!(cgroup_left(Some("max\n".into()), Some("5".into())), None);
+        assert_eq!(cgroup_left(Some("1000\n".into()), Some("400\n".into())), Some(600.0));
+    }
 
     #[test]
     fn estimate_follows_the_measured_runs() {

@@ -5,7 +5,6 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::checkpoint::Checkpoint;
 use crate::error::{ModelError, Result};
 use crate::run_config::RunConfig;
 
@@ -61,17 +60,18 @@ impl RunDir {
         self.path.join("loss.svg")
     }
 
-    pub fn has_checkpoints(&self) -> bool {
-        !Checkpoint::list(&self.path).is_empty()
-    }
-
-    /// A resumed run must keep its model and its normalisation: checked before any run file is
-    /// rewritten, so a refused resume leaves the run as it was.
+    /// A resumed run must keep its model, its training recipe (all but `max_steps`) and its
+    /// normalisation: checked before any run file is rewritten, so a refused resume leaves the
+    /// run as it was.
     pub fn check_resumable(&self, cfg: &RunConfig, mean: &[f32]) -> Result<()> {
         let stored = self.config_path();
         if let Ok(old) = RunConfig::load(&stored) {
             if old.model != cfg.model {
                 return Err(ModelError::Refused(format!("--resume: {} describes another model than --config (model section differs); pass the run's own config or choose another --out", stored.display())));
+            }
+            let changed = training_changes(&old, cfg);
+            if !changed.is_empty() {
+                return Err(ModelError::Refused(format!("--resume: {} trained with other training settings than --config ({}); an exact resume keeps them: pass the run's own config, or start a new run from it with --init {}", stored.display(), changed.join(", "), self.path.display())));
             }
         }
         let path = self.path.join("Mean.npy");
@@ -86,7 +86,8 @@ impl RunDir {
         Ok(())
     }
 
-    /// Create the directory and write the config and the normalisation sampling will need.
+    /// Create the directory and write the config and the normalisation sampling will need
+    /// (after `claim`).
     pub fn prepare(&self, cfg: &RunConfig, mean: &[f32], std: &[f32]) -> Result<()> {
         std::fs::create_dir_all(&self.path).map_err(ModelError::io(&self.path))?;
         diffkfc_data::write_atomic(&self.config_path(), cfg.to_json().as_bytes())?;
@@ -136,6 +137,26 @@ impl RunDir {
     pub fn write_loss_plot(&self) -> Result<()> {
         Ok(diffkfc_data::write_atomic(&self.plot_path(), loss_svg(&self.metrics()).as_bytes())?)
     }
+}
+
+/// The `training` fields of `cfg` that differ from `old`'s, `max_steps` aside (a resume may
+/// stop later).
+fn training_changes(old: &RunConfig, cfg: &RunConfig) -> Vec<String> {
+    let as_map = |c: &RunConfig| {
+        let mut t = c.training.clone();
+        t.max_steps = 0;
+        serde_json::to_value(t).unwrap_or_default()
+    };
+    let (a, b) = (as_map(old), as_map(cfg));
+    let (Some(a), Some(b)) = (a.as_object(), b.as_object()) else {
+        return vec![];
+    };
+    a.iter()
+        .filter(|(k, v)| b.get(*k) != Some(v))
+        .map(|(k, v)| {
+            format!("training.{k} {v} -> {}", b.get(k).unwrap_or(&serde_json::Value::Null))
+        })
+        .collect()
 }
 
 fn loss_svg(metrics: &[Metric]) -> String {

@@ -65,3 +65,37 @@ fn named_tensors_load_in_any_order() {
     assert!(e.contains("no tensor for parameter decoder.extra.weight"), "{e}");
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// A newest checkpoint holding non-finite weights is skipped (with a warning) in favour of the
+/// last finite one: resuming from NaN would only produce NaN.
+#[test]
+fn the_newest_finite_checkpoint_is_used() {
+    let m = DiffKfcConfig::tiny().init(&Device::flex());
+    let vals = params::values(&m);
+    let model: Vec<Vec<f32>> = vals.iter().map(|(_, v)| v.clone()).collect();
+    let ck = |step: usize, model: Vec<Vec<f32>>| Checkpoint {
+        step,
+        shapes: vals.iter().map(|(s, _)| s.clone()).collect(),
+        adam_m: model.iter().map(|v| vec![0.0; v.len()]).collect(),
+        adam_v: model.iter().map(|v| vec![0.0; v.len()]).collect(),
+        ema: None,
+        model,
+        adam_step: step as u64,
+        config: String::new(),
+        seed: 1,
+        names: params::names(&m),
+    };
+    let dir = std::env::temp_dir().join(format!("diffkfc-ckpt-nan-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    ck(4, model.clone()).save(&dir).unwrap();
+    let mut broken = model.clone();
+    broken[3][7] = f32::NAN;
+    ck(8, broken).save(&dir).unwrap();
+    assert_eq!(Checkpoint::latest(&dir).unwrap().unwrap().step, 4);
+    // With no finite checkpoint at all, the error says why.
+    std::fs::remove_file(dir.join("ckpt-00000004.safetensors")).unwrap();
+    let e = Checkpoint::latest(&dir).unwrap().unwrap_err().to_string();
+    assert!(e.contains("ckpt-00000008") && e.contains("not finite"), "{e}");
+    std::fs::remove_dir_all(dir).unwrap();
+}

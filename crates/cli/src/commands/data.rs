@@ -1,8 +1,8 @@
 //! `diffkfc data ...`: motion-file conversions (and, later, dataset tools).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
 use diffkfc_data::motion_file::{
     is_bvh, load_bvh, load_features, load_joints, load_motion, MIN_MOTION_FRAMES,
@@ -10,7 +10,7 @@ use diffkfc_data::motion_file::{
 use diffkfc_data::representation::{self as rep, FOOT_CONTACT_THRESHOLD};
 
 use crate::args::BvhInputArgs;
-use diffkfc_data::{loader_bench, rig};
+use diffkfc_data::{loader_bench, magnitude, rig};
 use diffkfc_data::{npy, Skeleton};
 
 #[derive(Args)]
@@ -100,6 +100,11 @@ struct FeaturesArgs {
     feet_threshold: f64,
     #[arg(long, value_enum, default_value = "t2m")]
     skeleton: SkeletonArg,
+    /// Joint positions .npy whose first frame's bone lengths the motion is retargeted to (how
+    /// HumanML3D's processing makes every clip one skeleton: 000021 for HumanML3D, 03950 for
+    /// KIT-ML). Default: HumanML3D's built-in lengths; required for --skeleton kit.
+    #[arg(long, value_name = "FILE")]
+    target_skeleton: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -203,9 +208,18 @@ fn bench_loader(a: BenchLoaderArgs) -> Result<()> {
     Ok(())
 }
 
+/// Most clips `data synth` writes: three times HumanML3D's 29 232 (about 12 GB of files).
+const MAX_SYNTH_CLIPS: usize = 100_000;
+
 fn synth(a: SynthArgs) -> Result<()> {
-    if a.clips == 0 {
-        bail!("--clips: must be at least 1");
+    if a.clips == 0 || a.clips > MAX_SYNTH_CLIPS {
+        bail!(
+            "--clips: {} must be 1 to {MAX_SYNTH_CLIPS} (each clip is about 120 KB of files)",
+            a.clips
+        );
+    }
+    if a.threads.is_some_and(|t| t == 0 || t > 1024) {
+        bail!("--threads: {} must be 1 to 1024", a.threads.unwrap_or(0));
     }
     let threads = a
         .threads
@@ -241,7 +255,25 @@ fn check(a: CheckArgs) -> Result<()> {
     Ok(())
 }
 
+/// `-o` must not name the input: the conversion would replace the file it reads.
+fn refuse_overwriting_input(input: &Path, output: &Path) -> Result<()> {
+    let real = |p: &Path| -> Option<PathBuf> {
+        let name = p.file_name()?;
+        let dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        Some(dir.canonicalize().ok()?.join(name))
+    };
+    let same = match (input.canonicalize().ok(), real(output)) {
+        (Some(i), Some(o)) => i == o || o.canonicalize().is_ok_and(|o| o == i),
+        _ => false,
+    };
+    if same {
+        bail!("-o: {} is the input file; write the result to another file", output.display());
+    }
+    Ok(())
+}
+
 fn features(a: FeaturesArgs) -> Result<()> {
+    refuse_overwriting_input(&a.input, &a.output)?;
     if !(a.feet_threshold.is_finite() && a.feet_threshold > 0.0) {
         bail!("--feet-threshold: {} must be a positive number (squared metres per frame; HumanML3D: 0.002)", a.feet_threshold);
     }
@@ -266,7 +298,11 @@ fn features(a: FeaturesArgs) -> Result<()> {
             );
         }
     }
-    let feats = rep::features_from_joints(skel, &joints, a.feet_threshold)
+    let lengths = match &a.target_skeleton {
+        Some(p) => Some(rep::bone_lengths(skel, &load_joints(p, skel, 1)?[0])),
+        None => None,
+    };
+    let feats = rep::features_from_joints_to(skel, &joints, a.feet_threshold, lengths.as_deref())
         .map_err(|e| e.in_file(&a.input))?;
     let dim = skel.feature_dim();
     let t = feats.len() / dim;
@@ -282,12 +318,16 @@ fn features(a: FeaturesArgs) -> Result<()> {
 }
 
 fn joints(a: JointsArgs) -> Result<()> {
+    refuse_overwriting_input(&a.input, &a.output)?;
     let skel = a.skeleton.skeleton();
     let joints = if is_bvh(&a.input) {
         load_bvh(&a.input, skel, &a.bvh.options()?)?
     } else {
         let feats = load_features(&a.input, skel, MIN_MOTION_FRAMES)?;
-        rep::recover_from_ric(skel, &feats.data.iter().map(|&v| v as f64).collect::<Vec<_>>())
+        let j =
+            rep::recover_from_ric(skel, &feats.data.iter().map(|&v| v as f64).collect::<Vec<_>>());
+        magnitude::check_positions(skel, &j).map_err(|m| anyhow!("{}: {m}", a.input.display()))?;
+        j
     };
     let jn = skel.num_joints();
     npy::write(&a.output, &[joints.len(), jn, 3], &rep::joints_to_f32(&joints))
@@ -297,6 +337,7 @@ fn joints(a: JointsArgs) -> Result<()> {
 }
 
 fn bvh(a: BvhArgs) -> Result<()> {
+    refuse_overwriting_input(&a.input, &a.output)?;
     let skel = a.skeleton.skeleton();
     let joints = load_motion(&a.input, skel, &a.bvh.options()?)?;
     let b = rig::export(skel, &joints);

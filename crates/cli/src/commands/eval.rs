@@ -184,6 +184,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
             split,
             device,
         }) => {
+            check_evaluator_flags(max_steps, batch_size, lr)?;
             let device = crate::device::parse(&device)?;
             let ds = Dataset::open(&data)?;
             let cache = default_cache_dir(&ds);
@@ -250,6 +251,25 @@ pub fn run(a: EvalArgs) -> Result<()> {
     }
 }
 
+/// Bounds of eval's counts: a mistyped count refuses at once rather than running for days or
+/// failing to allocate.
+const MAX_REPLICATIONS: usize = 100;
+const MAX_GENERATION_BATCH: usize = 1024;
+
+/// Bounds of `train-evaluator`'s flags, checked before any work.
+fn check_evaluator_flags(max_steps: usize, batch_size: usize, lr: f64) -> Result<()> {
+    if max_steps == 0 || max_steps > 10_000_000 {
+        bail!("--max-steps: {max_steps} must be 1 to 10000000");
+    }
+    if !(2..=MAX_GENERATION_BATCH).contains(&batch_size) {
+        bail!("--batch-size: {batch_size} must be 2 to {MAX_GENERATION_BATCH} (a batch's other pairs are each pair's negatives)");
+    }
+    if !(lr.is_finite() && lr > 0.0 && lr <= 1.0) {
+        bail!("--lr: {lr} must be a learning rate above 0 and at most 1 (the default: 3e-4)");
+    }
+    Ok(())
+}
+
 fn parse_rate(v: f64, flag: &str) -> Result<f64> {
     if !(0.0..=1.0).contains(&v) {
         bail!("{flag}: {v} is not a keyframe rate in [0, 1]");
@@ -260,15 +280,16 @@ fn parse_rate(v: f64, flag: &str) -> Result<f64> {
 /// The rows to run (`protocol::Rows`), from the flags.
 fn settings(a: &RunArgs) -> Result<Vec<Setting>> {
     let rate = parse_rate(a.keyframe_rate, "--keyframe-rate")?;
-    if a.transition_guidance < 0.0 {
-        bail!("--transition-guidance: must be >= 0");
-    }
+    crate::args::check_guidance(a.kf_guidance, a.place_guidance, a.transition_guidance, a.steps)?;
     let mut sweep = Vec::new();
     if let Some(spec) = &a.sweep_rates {
         for p in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
             let r: f64 =
                 p.parse().map_err(|_| anyhow::anyhow!("--sweep-rates: '{p}' is not a number"))?;
             sweep.push(parse_rate(r, "--sweep-rates")?);
+        }
+        if sweep.is_empty() {
+            bail!("--sweep-rates: '{spec}' lists no rate (e.g. 0,0.02,0.05,0.1)");
         }
     }
     let rows = protocol::Rows {
@@ -290,14 +311,14 @@ fn evaluate(a: RunArgs) -> Result<()> {
     };
     let settings = settings(&a)?;
     a.fit.check()?;
-    for (v, flag) in [
-        (a.replications, "--replications"),
-        (a.samples_for_ade, "--samples-for-ade"),
-        (a.steps, "--steps"),
-        (a.batch_size, "--batch-size"),
+    for (v, flag, max, why) in [
+        (a.replications, "--replications", MAX_REPLICATIONS, "each generates --num-items motions"),
+        (a.samples_for_ade, "--samples-for-ade", 100, "each generates every item again"),
+        (a.mm_texts, "--mm-texts", 10_000, "each generates 30 motions"),
+        (a.batch_size, "--batch-size", MAX_GENERATION_BATCH, "motions generated at once"),
     ] {
-        if v == 0 {
-            bail!("{flag}: must be at least 1");
+        if v == 0 || v > max {
+            bail!("{flag}: {v} must be 1 to {max} ({why})");
         }
     }
     let strategy: Strategy = a

@@ -40,7 +40,34 @@ pub struct RenderArgs {
     bvh: BvhInputArgs,
 }
 
+/// The output's extension says what is drawn; anything else would write a GIF or PNG under a
+/// name that says otherwise.
+fn check_output(a: &RenderArgs) -> Result<()> {
+    let ext = a.output.extension().map(|e| e.to_string_lossy().to_ascii_lowercase());
+    let want = if a.sheet { ["png", "html"] } else { ["gif", "html"] };
+    if !ext.as_deref().is_some_and(|e| want.contains(&e)) {
+        bail!(
+            "-o: {} must end in .{} or .html{}",
+            a.output.display(),
+            want[0],
+            if a.sheet {
+                " (a --sheet is a PNG)"
+            } else {
+                " (a GIF of one motion; --sheet for a PNG)"
+            }
+        );
+    }
+    if !(1..=64).contains(&a.columns) {
+        bail!("--columns: {} must be 1 to 64", a.columns);
+    }
+    if a.inputs.iter().any(|i| i == &a.output) {
+        bail!("-o: {} is an input file; write the picture to another file", a.output.display());
+    }
+    Ok(())
+}
+
 pub fn run(a: RenderArgs) -> Result<()> {
+    check_output(&a)?;
     let bvh = a.bvh.options()?;
     let motions =
         a.inputs.iter().map(|p| load_motion(p, &T2M, &bvh)).collect::<Result<Vec<_>, _>>()?;

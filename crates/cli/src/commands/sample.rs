@@ -145,8 +145,14 @@ pub struct SampleArgs {
     #[arg(long)]
     pub(crate) no_root_keys: bool,
     /// Output folder (created): sample_NN.npy/_joints.npy/.bvh/.gif, results.json, index.html.
+    /// A folder of an earlier `sample` is replaced whole (other files in it are kept); one that
+    /// holds other files is refused unless --force.
     #[arg(long, default_value = "out/sample")]
     out: PathBuf,
+    /// Write into an --out folder that holds files diffkfc did not write (only sample_NN*,
+    /// source_joints.npy, results.json and index.html are written; nothing is removed).
+    #[arg(long)]
+    force: bool,
     /// Compute device: flex (the CPU default), or ndarray, wgpu, cuda in builds with that
     /// cargo feature.
     #[arg(long, default_value = "flex", value_name = "flex|ndarray|wgpu|cuda")]
@@ -214,34 +220,17 @@ pub fn run(a: SampleArgs) -> Result<()> {
 
 /// Flag values in their ranges, before any work.
 fn check_flags(a: &SampleArgs) -> Result<()> {
-    if !(a.kf_guidance.is_finite() && (0.0..=MAX_GUIDANCE).contains(&a.kf_guidance)) {
-        bail!("--kf-guidance: {} must be a number from 0 to {MAX_GUIDANCE} (1 = no guidance, 2.5 = the paper)", a.kf_guidance);
-    }
-    if !(a.place_guidance.is_finite() && (0.0..=MAX_TRANSITION).contains(&a.place_guidance)) {
-        bail!("--place-guidance: {} must be a number from 0 to {MAX_TRANSITION}", a.place_guidance);
-    }
-    if !(a.transition_guidance.is_finite()
-        && (0.0..=MAX_TRANSITION).contains(&a.transition_guidance))
-    {
-        bail!("--transition-guidance: {} must be a number from 0 to {MAX_TRANSITION} (100 = the paper)", a.transition_guidance);
-    }
-    if a.steps == 0 || a.steps > 1000 {
-        bail!("--steps: {} must be 1 to 1000 (the schedule's length)", a.steps);
-    }
+    crate::args::check_guidance(a.kf_guidance, a.place_guidance, a.transition_guidance, a.steps)?;
     if a.tg_bases == 0 {
         bail!("--tg-bases: must be at least 1");
     }
     a.fit.check()?;
+    output::check_out(a)?;
     if a.num_samples == 0 || a.num_samples > 256 {
         bail!("--num-samples: {} must be 1 to 256", a.num_samples);
     }
     Ok(())
 }
-
-/// Largest keyframe and transition guidance accepted: far beyond any useful value, small
-/// enough that the sampler stays finite.
-const MAX_GUIDANCE: f64 = 100.0;
-const MAX_TRANSITION: f64 = 1e5;
 
 fn run_one(a: SampleArgs) -> Result<()> {
     if a.text.trim().is_empty() {
@@ -323,6 +312,9 @@ pub(super) struct Generator {
     opts: Options,
     fit: Fit,
     step: usize,
+    /// Longest motion the checkpoint's model was built for (`model.max_frames`).
+    max_frames: usize,
+    checkpoint: std::path::PathBuf,
 }
 
 impl Generator {
@@ -358,7 +350,18 @@ impl Generator {
             impose_track: false,
         };
         let enc = MiniLm::load(&text::default_dir(), &Device::flex())?;
-        Ok(Generator { model, schedule, mean, std, enc, opts, fit: a.fit.fit(), step })
+        Ok(Generator {
+            model,
+            schedule,
+            mean,
+            std,
+            enc,
+            opts,
+            fit: a.fit.fit(),
+            step,
+            max_frames: cfg.model.max_frames,
+            checkpoint: a.checkpoint.clone(),
+        })
     }
 
     fn embed(&self, text: &str, flag: &str) -> Result<Vec<f32>> {
@@ -414,6 +417,9 @@ impl Generator {
     /// Sample, fit and check every motion of `req`; also the seconds the sampler took. A
     /// diverged sampler (extreme guidance) gives an error, not NaN files with exit 0.
     fn generate(&self, req: &Request, a: &SampleArgs) -> Result<(Vec<Fitted>, f64)> {
+        if req.frames > self.max_frames {
+            bail!("--length: {} frames, but {} was built for at most {} (model.max_frames); ask for fewer frames or use --timeline for longer motions", req.frames, self.checkpoint.display(), self.max_frames);
+        }
         let t0 = std::time::Instant::now();
         let generator = pipeline::Generator {
             model: &self.model,

@@ -1,8 +1,6 @@
 //! `diffkfc train`: diffusion training with keyframe masking, checkpoints and exact resume.
 
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
@@ -12,6 +10,7 @@ use diffkfc_data::dataset::Dataset;
 use diffkfc_model::optim::Home;
 use diffkfc_model::run_config::RunConfig;
 use diffkfc_model::run_dir::RunDir;
+use diffkfc_model::run_lock::{Claim, RunLock};
 use diffkfc_model::text::cache::embed_captions;
 use diffkfc_model::trainer::{Event, Trainer};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -28,8 +27,12 @@ pub struct TrainArgs {
     #[arg(long)]
     out: Option<PathBuf>,
     /// Continue from the run directory's latest checkpoint.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "init")]
     resume: bool,
+    /// Write a new run into a non-empty directory that is not a run (only the run's own file
+    /// names are written).
+    #[arg(long)]
+    force: bool,
     /// Start a new run from these weights (a run or model directory, or a checkpoint file):
     /// every parameter it has with the same name and shape is taken, the model's others
     /// (an extension the source lacks, such as model.root_path) start as initialised.
@@ -90,9 +93,6 @@ fn check_memory(cfg: &RunConfig, device: &str) -> Result<()> {
     Ok(())
 }
 
-/// Exit status of a run stopped by SIGINT or SIGTERM after writing its checkpoint (128 + SIGINT).
-pub const INTERRUPTED_EXIT: i32 = 130;
-
 pub fn run(a: TrainArgs) -> Result<()> {
     let mut cfg = RunConfig::load(&a.config)?;
     if let Some(s) = a.seed {
@@ -105,6 +105,10 @@ pub fn run(a: TrainArgs) -> Result<()> {
         "--data: no dataset given (make one with `diffkfc data synth --out work/synth`)",
     )?;
     let max_steps = a.max_steps.unwrap_or(cfg.training.max_steps);
+    if max_steps == 0 {
+        let flag = if a.max_steps.is_some() { "--max-steps" } else { "training.max_steps" };
+        bail!("{flag}: 0 trains nothing and writes no checkpoint; give at least 1");
+    }
     cfg.training.check_stop(max_steps)?;
     let stem = a
         .config
@@ -113,9 +117,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
         .unwrap_or_else(|| "run".into());
     let run = RunDir::new(a.out.clone().unwrap_or_else(|| PathBuf::from("runs").join(stem)));
     let run_dir = run.path.clone();
-    if !a.resume && run.has_checkpoints() {
-        bail!("--out: {} already holds checkpoints; pass --resume to continue it or choose another --out", run_dir.display());
-    }
+    let claim = if a.resume { Claim::Resume } else { Claim::New { force: a.force } };
+    RunLock::check(&run_dir, claim)?;
     if let Some(p) = a.init.as_ref().filter(|p| !p.exists()) {
         bail!("--init: {} does not exist", p.display());
     }
@@ -161,20 +164,16 @@ pub fn run(a: TrainArgs) -> Result<()> {
         bail!("model.text_dim is {} but the text encoder gives {}", cfg.model.text_dim, text.dim);
     }
     cfg.bind_dataset(&ds.mean, &ds.std);
+    let _held = RunLock::claim(&run_dir, claim)?;
     if a.resume {
         run.check_resumable(&cfg, &ds.mean)?;
     }
     run.prepare(&cfg, &ds.mean, &ds.std)?;
 
-    let interrupted = Arc::new(AtomicBool::new(false));
-    {
-        let flag = interrupted.clone();
-        let _ = ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst));
-    }
+    let signal = crate::signals::StopSignal::install()?;
     let started = Instant::now();
     let budget = a.time_budget;
-    let stop =
-        || interrupted.load(Ordering::SeqCst) || budget.is_some_and(|b| started.elapsed() >= b);
+    let stop = || signal.requested() || budget.is_some_and(|b| started.elapsed() >= b);
     let pb = ProgressBar::new(max_steps as u64);
     pb.set_style(
         ProgressStyle::with_template("{msg} [{bar:30}] step {pos}/{len} {per_sec} ETA {eta}")
@@ -214,7 +213,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
     run.write_loss_plot()?;
     let secs = started.elapsed().as_secs_f64();
     let steps = outcome.end_step - outcome.start_step;
-    let why = if interrupted.load(Ordering::SeqCst) {
+    let why = if signal.requested() {
         " (interrupted)"
     } else if outcome.stopped_early {
         " (time budget reached)"
@@ -238,13 +237,14 @@ pub fn run(a: TrainArgs) -> Result<()> {
         );
     }
     println!("  checkpoints, metrics.jsonl, loss.svg in {}", run_dir.display());
-    if interrupted.load(Ordering::SeqCst) {
+    if let Some(code) = signal.exit_code() {
         // A script must be able to tell an interrupted run (checkpoint written) from a finished one.
         eprintln!(
-            "interrupted: checkpoint written at step {}; `--resume` continues",
+            "{}: checkpoint written at step {}; `--resume` continues",
+            signal.name(),
             outcome.end_step
         );
-        std::process::exit(INTERRUPTED_EXIT);
+        std::process::exit(code);
     }
     Ok(())
 }

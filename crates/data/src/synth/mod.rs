@@ -454,6 +454,9 @@ pub fn write_dataset(
     let name =
         out.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "synth".into());
     let tmp = out.with_file_name(format!(".{name}.partial{}", std::process::id()));
+    // What interrupted runs left (up to hundreds of MB each).
+    let parent = tmp.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    crate::atomic::remove_dead_leftovers(parent, &format!(".{name}"), "partial");
     let _ = std::fs::remove_dir_all(&tmp);
     for sub in ["new_joint_vecs", "new_joints", "texts"] {
         std::fs::create_dir_all(tmp.join(sub)).map_err(io(&tmp))?;

@@ -2,6 +2,7 @@
 //! the 3D page.
 
 use super::*;
+use diffkfc_data::output_set::{Committed, OutputSet};
 
 /// Every file of a `sample` folder: per-sample features, joints, GIF, BVH; the source; results.json
 /// (with `extra` merged in) and the 3D page (with timeline `segments`: start frame and text).
@@ -16,13 +17,13 @@ pub(super) fn write_outputs(
 ) -> Result<()> {
     let (b, n, d) = (fitted.len(), keys.length, T2M.feature_dim());
     let (opts, fit, step) = (&gen.opts, gen.fit, gen.step);
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    remove_stale_samples(&a.out, b)?;
+    let set = OutputSet::begin(&a.out, MARKER, is_output, a.force, "--out")?;
+    let dir = set.path().to_path_buf();
     let mut samples = Vec::new();
     let mut views = Vec::new();
     let key_joints = (keys.joints.len() < T2M.num_joints()).then(|| keys.joints.clone());
     if let Some(src) = &keys.source {
-        npy::write(a.out.join("source_joints.npy"), &[src.len(), 22, 3], &rep::joints_to_f32(src))?;
+        npy::write(dir.join("source_joints.npy"), &[src.len(), 22, 3], &rep::joints_to_f32(src))?;
         views.push(ViewMotion {
             label: "source".into(),
             joints: src.clone(),
@@ -44,19 +45,17 @@ pub(super) fn write_outputs(
         });
         let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
         let name = format!("sample_{i:02}");
-        let stem = a.out.join(&name);
+        let stem = dir.join(&name);
         npy::write(stem.with_extension("npy"), &[n, d], &f)?;
-        npy::write(a.out.join(format!("{name}_joints.npy")), &[n, 22, 3], &rep::joints_to_f32(&j))?;
+        npy::write(dir.join(format!("{name}_joints.npy")), &[n, 22, 3], &rep::joints_to_f32(&j))?;
         render::gif(&T2M, &j, &keys.frames, &stem.with_extension("gif"))?;
         let rig = diffkfc_data::rig::export(&T2M, &j);
         diffkfc_data::write_atomic(&stem.with_extension("bvh"), rig.to_text().as_bytes())?;
         // The BVH is a rigid rig: it reproduces the motion when the fit made it rigid.
         let (bvh_mean, bvh_max) = diffkfc_data::rig::export_error(&T2M, &j, &rig);
         let path_file = format!("{name}_root_path.npy");
-        match &done.root_path {
-            Some(p) => npy::write(a.out.join(&path_file), &[p.len() / 3, 3], p)?,
-            // An earlier run's path would describe another motion.
-            None => drop(std::fs::remove_file(a.out.join(&path_file))),
+        if let Some(p) = &done.root_path {
+            npy::write(dir.join(&path_file), &[p.len() / 3, 3], p)?;
         }
         samples.push(json!({
             "features": format!("{name}.npy"),
@@ -140,15 +139,23 @@ pub(super) fn write_outputs(
         r.extend(e.clone());
     }
     diffkfc_data::write_atomic(
-        &a.out.join("results.json"),
+        &dir.join("results.json"),
         serde_json::to_string_pretty(&report)?.as_bytes(),
     )?;
     diffkfc_data::write_atomic(
-        &a.out.join("index.html"),
+        &dir.join("index.html"),
         index_html(&report, &views, segments).as_bytes(),
     )?;
+    let kept = match set.commit()? {
+        Committed::Replaced { kept } if !kept.is_empty() => {
+            format!(" (replaced the earlier outputs; kept {})", kept.join(", "))
+        }
+        Committed::Replaced { .. } => " (replaced the earlier outputs)".into(),
+        Committed::Merged => " (written beside the folder's other files: --force)".into(),
+        Committed::Created => String::new(),
+    };
     println!(
-        "{}: {b} sample(s) of {n} frames in {secs:.1} s ({:?}); see results.json and index.html",
+        "{}: {b} sample(s) of {n} frames in {secs:.1} s ({:?}); see results.json and index.html{kept}",
         a.out.display(),
         opts.sampler
     );
@@ -231,24 +238,26 @@ fn fmt(v: &serde_json::Value) -> String {
     v.as_f64().map(|x| format!("{x:.4}")).unwrap_or_else(|| "-".into())
 }
 
-/// Outputs of an earlier, larger run into the same folder (sample_NN files with NN >= `keep`),
-/// so the folder holds only what results.json describes.
-fn remove_stale_samples(out: &Path, keep: usize) -> Result<()> {
-    let Ok(entries) = std::fs::read_dir(out) else {
-        return Ok(());
+/// The file that marks a folder as `sample`'s.
+const MARKER: &str = ".diffkfc-sample";
+
+/// The names a `sample` folder's files have.
+fn is_output(name: &str) -> bool {
+    if ["results.json", "index.html", "source_joints.npy"].contains(&name) {
+        return true;
+    }
+    let Some(rest) = name.strip_prefix("sample_") else {
+        return false;
     };
-    for e in entries.flatten() {
-        let name = e.file_name().to_string_lossy().into_owned();
-        let Some(rest) = name.strip_prefix("sample_") else {
-            continue;
-        };
-        let (num, tail) =
-            rest.split_at(rest.find(|c: char| !c.is_ascii_digit()).unwrap_or(rest.len()));
-        let ours = [".npy", "_joints.npy", ".gif", ".bvh", "_root_path.npy"].contains(&tail);
-        if ours && num.parse::<usize>().is_ok_and(|k| k >= keep) {
-            std::fs::remove_file(e.path())
-                .with_context(|| format!("removing the stale {}", e.path().display()))?;
-        }
+    let (num, tail) = rest.split_at(rest.find(|c: char| !c.is_ascii_digit()).unwrap_or(rest.len()));
+    !num.is_empty() && [".npy", "_joints.npy", ".gif", ".bvh", "_root_path.npy"].contains(&tail)
+}
+
+/// `--out` may take this run's outputs (checked before any work).
+pub(super) fn check_out(a: &SampleArgs) -> Result<()> {
+    // With --prompts each prompt has its own folder below --out.
+    if a.prompts.is_none() {
+        OutputSet::check(&a.out, MARKER, is_output, a.force, "--out")?;
     }
     Ok(())
 }

@@ -7,6 +7,7 @@
 //! every frame, the keyframe branch brings back the first motion's own arms and drowns the text).
 
 use super::*;
+use crate::args::MAX_GUIDANCE;
 
 pub(super) fn run(a: SampleArgs) -> Result<()> {
     let (Some(lower), Some(upper)) = (a.text_lower.clone(), a.text_upper.clone()) else {

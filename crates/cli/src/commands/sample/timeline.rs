@@ -39,8 +39,12 @@ pub(super) fn run(a: SampleArgs, spec_arg: &str) -> Result<()> {
             root: vec![RootKey::default(); total],
         },
     };
-    let windows = tl::windows(&segments, diffkfc_data::dataset::MAX_FRAMES, OVERLAP);
     let gen = Generator::load(&a)?;
+    let window = gen.max_frames.min(diffkfc_data::dataset::MAX_FRAMES);
+    if window <= 2 * OVERLAP {
+        bail!("--timeline: {} was built for motions of at most {window} frames (model.max_frames); a timeline needs windows longer than {}", a.checkpoint.display(), 2 * OVERLAP);
+    }
+    let windows = tl::windows(&segments, window, OVERLAP);
     let embs =
         segments.iter().map(|s| gen.embed(&s.text, "--timeline")).collect::<Result<Vec<_>>>()?;
     let b = a.num_samples;
