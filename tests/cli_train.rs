@@ -4,7 +4,7 @@
 mod common;
 use common::*;
 use std::path::Path;
-use std::process::Command;
+use std::process::{Child, Command, Stdio};
 
 const CFG: &str = r#"{"model": {"preset": "tiny", "dec_layers": 1, "dma_sizes": [2, 0]},
   "training": {"batch_size": 4, "max_steps": 6, "checkpoint_every": 2, "keep_checkpoints": 2,
@@ -18,6 +18,35 @@ fn setup(name: &str) -> (std::path::PathBuf, std::path::PathBuf) {
         .success());
     std::fs::write(d.join("cfg.json"), CFG).unwrap();
     (d, data)
+}
+
+/// `train --config cfg --data data --out run --max-steps 100000 [extra]` in the background.
+fn spawn_train(cfg: &Path, data: &Path, run: &Path, extra: &[&str], stderr: Stdio) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_diffkfc"))
+        .args(["train", "--config", s(cfg), "--data", s(data), "--out", s(run)])
+        .args(["--max-steps", "100000"])
+        .args(extra)
+        .stdout(Stdio::null())
+        .stderr(stderr)
+        .spawn()
+        .unwrap()
+}
+
+/// `train ... --resume --max-steps steps` to its end.
+fn resume_to(cfg: &Path, data: &Path, run: &Path, steps: u64) -> std::process::Output {
+    let steps = steps.to_string();
+    diffkfc(&[
+        "train",
+        "--config",
+        s(cfg),
+        "--data",
+        s(data),
+        "--out",
+        s(run),
+        "--resume",
+        "--max-steps",
+        &steps,
+    ])
 }
 
 fn signal(pid: u32, name: &str) {
@@ -233,40 +262,14 @@ fn sigkill_then_resume() {
     let cfg = d.join("cfg.json");
     std::fs::write(&cfg, CFG.replace("\"checkpoint_every\": 2", "\"checkpoint_every\": 1"))
         .unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_diffkfc"))
-        .args([
-            "train",
-            "--config",
-            s(&cfg),
-            "--data",
-            s(&data),
-            "--out",
-            s(&run),
-            "--max-steps",
-            "100000",
-        ])
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
+    let mut child = spawn_train(&cfg, &data, &run, &[], Stdio::null());
     let t0 = std::time::Instant::now();
     while !run.join("ckpt-00000003.safetensors").exists() && t0.elapsed().as_secs() < 120 {
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
     child.kill().unwrap(); // SIGKILL
     child.wait().unwrap();
-    let o = diffkfc(&[
-        "train",
-        "--config",
-        s(&cfg),
-        "--data",
-        s(&data),
-        "--out",
-        s(&run),
-        "--resume",
-        "--max-steps",
-        "12",
-    ]);
+    let o = resume_to(&cfg, &data, &run, 12);
     assert!(o.status.success(), "{}", stderr(&o));
     let st = steps(&run);
     assert_eq!(*st.last().unwrap(), 12);
@@ -373,22 +376,7 @@ fn sigterm_mismatched_resume_and_nan_guard() {
     let cfg = d.join("cfg.json");
     std::fs::write(&cfg, CFG.replace("\"checkpoint_every\": 2", "\"checkpoint_every\": 1000"))
         .unwrap();
-    let child = Command::new(env!("CARGO_BIN_EXE_diffkfc"))
-        .args([
-            "train",
-            "--config",
-            s(&cfg),
-            "--data",
-            s(&data),
-            "--out",
-            s(&run),
-            "--max-steps",
-            "100000",
-        ])
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    let child = spawn_train(&cfg, &data, &run, &[], Stdio::piped());
     let t0 = std::time::Instant::now();
     while steps_or_none(&run).is_none_or(|s| s.len() < 3) && t0.elapsed().as_secs() < 120 {
         std::thread::sleep(std::time::Duration::from_millis(20));
@@ -439,23 +427,7 @@ fn sigterm_mismatched_resume_and_nan_guard() {
     );
 
     // A second signal exits at once; the run still resumes from a whole checkpoint.
-    let child = Command::new(env!("CARGO_BIN_EXE_diffkfc"))
-        .args([
-            "train",
-            "--config",
-            s(&cfg),
-            "--data",
-            s(&data),
-            "--out",
-            s(&run),
-            "--resume",
-            "--max-steps",
-            "100000",
-        ])
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
+    let child = spawn_train(&cfg, &data, &run, &["--resume"], Stdio::null());
     let t0 = std::time::Instant::now();
     while steps_or_none(&run).is_none_or(|s| s.last().is_none_or(|&l| l < last + 2))
         && t0.elapsed().as_secs() < 120
@@ -468,18 +440,7 @@ fn sigterm_mismatched_resume_and_nan_guard() {
     // 130: the second signal ended it at once; 143: the first finished its checkpoint before
     // the second arrived.
     assert!(matches!(code, Some(130 | 143)), "{code:?}");
-    let o = diffkfc(&[
-        "train",
-        "--config",
-        s(&cfg),
-        "--data",
-        s(&data),
-        "--out",
-        s(&run),
-        "--resume",
-        "--max-steps",
-        &(last + 10).to_string(),
-    ]);
+    let o = resume_to(&cfg, &data, &run, last + 10);
     assert!(o.status.success(), "{}", stderr(&o));
 
     // An absurd learning rate: an error naming the step, exit non-zero, finite checkpoints kept.
