@@ -126,9 +126,13 @@ def embed_texts(enc, vocab, vectors, captions):
         return enc["text_encoder"](torch.from_numpy(words), torch.from_numpy(pos), [len(s) for s in seqs]).numpy()
 
 
+# The official loaders zero-pad every normalised motion to max_motion_length frames.
+MAX_MOTION_LENGTH = 196
+
+
 def embed_motions(enc, mean, std, motions):
     lens = [m.shape[0] // 4 * 4 for m in motions]
-    x = np.zeros((len(motions), max(lens), 259), np.float32)
+    x = np.zeros((len(motions), max(MAX_MOTION_LENGTH, max(lens)), 259), np.float32)
     for i, m in enumerate(motions):
         x[i, : lens[i]] = ((m[: lens[i]] - mean) / std)[:, :-4]
     with torch.no_grad():

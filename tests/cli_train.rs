@@ -349,6 +349,18 @@ fn bad_train_arguments() {
         &diffkfc(&["train", "--config", s(&cos), "--data", s(&d), "--max-steps", "7"]),
         &["--max-steps", "7", "training.max_steps 6"],
     );
+    // A batch that fits the machine but not the process's limit (`ulimit -v 8 GB`) is refused
+    // too (it used to abort in the allocator after a minute).
+    let limited = d.join("limited.json");
+    std::fs::write(&limited, CFG.replace("\"batch_size\": 4", "\"batch_size\": 2048")).unwrap();
+    let line = format!(
+        "ulimit -v 8000000; exec {} train --config {} --data {}",
+        env!("CARGO_BIN_EXE_diffkfc"),
+        s(&limited),
+        s(&d)
+    );
+    let o = Command::new("sh").args(["-c", &line]).output().unwrap();
+    assert_one_line_error(&o, &["training.batch_size", "2048", "ulimit", "fits"]);
     // A batch the machine cannot hold is refused before anything is loaded (it used to grow
     // until the kernel killed it).
     if diffkfc_model::memory::available_bytes().is_some_and(|b| b > 50e9) {

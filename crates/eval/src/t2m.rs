@@ -4,8 +4,11 @@
 //! `evaluator.safetensors`, `glove.npy`, `glove_words.txt`, with the evaluator's `mean.npy` and
 //! `std.npy`). Every size is read from the weights' shapes.
 //!
-//! Motion: normalised with the evaluator's own mean/std, foot contacts dropped, padded with zeros;
-//! the movement encoder (two Conv1d k4 s2 p1 + LeakyReLU 0.2, Linear) gives one code per 4
+//! Motion: normalised with the evaluator's own mean/std, foot contacts dropped, zero-padded to
+//! [`MAX_MOTION_LENGTH`] frames as the official loaders pad real motions
+//! (`Text2MotionDatasetV2`) and generated ones (the comparison loader of `comp_v6_model_dataset`)
+//! before the movement encoder (generated motions are padded with zeros too, not with frames
+//! generated past their length as MDM's evaluation does); the movement encoder (two Conv1d k4 s2 p1 + LeakyReLU 0.2, Linear) gives one code per 4
 //! frames; a bidirectional GRU over the first `len / 4` codes, from a learned initial state,
 //! ends in an MLP (Linear, LayerNorm, LeakyReLU, Linear). Text: each `word/POS` token becomes
 //! its GloVe vector plus a projected 15-way POS one-hot (a word list overrides the POS of
@@ -22,6 +25,9 @@ use diffkfc_data::texts::Caption;
 
 use crate::error::{EvalError, Result};
 use crate::evaluator::TextMotionEvaluator;
+
+/// Frames every motion is zero-padded to (the official loaders' `max_motion_length`).
+pub const MAX_MOTION_LENGTH: usize = 196;
 
 /// The 15 POS slots of the one-hot, in order.
 pub const POS: [&str; 15] = [
@@ -416,7 +422,9 @@ impl T2mEvaluator {
     fn embed_batch(&self, motions: &[&[f32]]) -> Vec<Vec<f64>> {
         let d = self.mean.len();
         let lens: Vec<usize> = motions.iter().map(|m| m.len() / d).collect();
-        let t = lens.iter().copied().max().unwrap_or(4).max(4).div_ceil(4) * 4;
+        // Every motion zero-padded to the loader's 196 frames: the second convolution's last
+        // window of a shorter motion then reads codes of zero frames, as the official one does.
+        let t = lens.iter().copied().max().unwrap_or(0).max(MAX_MOTION_LENGTH).div_ceil(4) * 4;
         let mut x = vec![0f32; motions.len() * t * (d - 4)];
         for (k, m) in motions.iter().enumerate() {
             for (f, frame) in m.chunks_exact(d).enumerate() {

@@ -87,7 +87,7 @@ fn check_memory(cfg: &RunConfig, device: &str) -> Result<()> {
                 / memory::per_sample_bytes(cfg, frames))
             .floor()
             .max(0.0);
-            bail!("training.batch_size: {} needs about {:.1} GB but {:.1} GB is free; at most about {fits} fits", cfg.training.batch_size, need / 1e9, free / 1e9);
+            bail!("training.batch_size: {} needs about {:.1} GB but {:.1} GB is available to this process (free memory, cgroup and ulimit limits); at most about {fits} fits", cfg.training.batch_size, need / 1e9, free / 1e9);
         }
     }
     Ok(())
