@@ -20,11 +20,13 @@ fn setup(name: &str) -> (std::path::PathBuf, std::path::PathBuf) {
     (d, data)
 }
 
-/// `train --config cfg --data data --out run --max-steps 100000 [extra]` in the background.
+/// `train --config cfg --data data --out run --max-steps 100000 [extra]` in the background
+/// (for at most two minutes).
 fn spawn_train(cfg: &Path, data: &Path, run: &Path, extra: &[&str], stderr: Stdio) -> Child {
     Command::new(env!("CARGO_BIN_EXE_diffkfc"))
         .args(["train", "--config", s(cfg), "--data", s(data), "--out", s(run)])
-        .args(["--max-steps", "100000"])
+        // A budget, so that a child left running by a failed assertion ends by itself.
+        .args(["--max-steps", "100000", "--time-budget", "120s"])
         .args(extra)
         .stdout(Stdio::null())
         .stderr(stderr)
