@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use common::*;
-use diffkfc_data::{fixtures, npy, rig::T2M_NAMES};
+use diffkfc_data::{io::npy, io::rig::T2M_NAMES, testing::fixtures};
 
 fn blender() -> Option<PathBuf> {
     let found = std::env::var_os("PATH")

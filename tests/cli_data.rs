@@ -2,7 +2,7 @@
 
 mod common;
 use common::*;
-use diffkfc_data::{fixtures, npy};
+use diffkfc_data::{io::npy, testing::fixtures};
 use std::path::Path;
 
 fn max_abs(a: &[f32], b: &[f32]) -> f32 {

@@ -2,7 +2,7 @@
 
 mod common;
 use common::*;
-use diffkfc_data::{fixtures, npy};
+use diffkfc_data::{io::npy, testing::fixtures};
 use std::path::Path;
 
 fn clip(root: &Path, id: &str, data: &[f32], frames: usize, caption: &str) {

@@ -211,7 +211,8 @@ fn bad_configs_name_the_key() {
 
 #[test]
 fn text_embed_prints_ids_and_embedding() {
-    let Some(reference) = diffkfc_data::fixtures::require("minilm/reference_embeddings.json")
+    let Some(reference) =
+        diffkfc_data::testing::fixtures::require("minilm/reference_embeddings.json")
     else {
         return;
     };

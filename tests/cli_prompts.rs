@@ -3,7 +3,7 @@
 
 mod common;
 use common::*;
-use diffkfc_data::npy;
+use diffkfc_data::io::npy;
 
 /// Body-part prompts: the lower body is exactly that of the plain lower-body prompt with the
 /// same seed, and the upper body follows its own text (raised arms here, not the walk's swing).
@@ -147,7 +147,8 @@ fn suggested_keyframes_read_back_and_are_hit() {
         assert!(miss < 1e-3 && rel < 0.05, "frame {f}: {miss} {rel}");
     }
     // From a motion, evenly spaced; bad counts and rates.
-    let Some(src) = diffkfc_data::fixtures::require("humanml3d/new_joint_vecs/012314.npy") else {
+    let Some(src) = diffkfc_data::testing::fixtures::require("humanml3d/new_joint_vecs/012314.npy")
+    else {
         return;
     };
     let o = diffkfc(&[

@@ -3,7 +3,7 @@
 
 mod common;
 use common::*;
-use diffkfc_data::npy;
+use diffkfc_data::io::npy;
 
 #[test]
 fn sample_outputs_errors_and_determinism() {

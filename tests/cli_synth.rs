@@ -20,7 +20,7 @@ fn synth_check_and_render() {
 
     // GIF: one frame per motion frame; keyframe frames use the highlight colour.
     let clip = out.join("new_joint_vecs/000000.npy");
-    let frames = diffkfc_data::npy::read_f32(&clip).unwrap().shape[0];
+    let frames = diffkfc_data::io::npy::read_f32(&clip).unwrap().shape[0];
     let gif_path = d.join("m.gif");
     let o = diffkfc(&["render", s(&clip), "-o", s(&gif_path), "--keyframes", "0,10"]);
     assert!(o.status.success(), "{}", stderr(&o));

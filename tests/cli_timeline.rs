@@ -5,7 +5,7 @@ mod common;
 use std::path::Path;
 
 use common::*;
-use diffkfc_data::npy;
+use diffkfc_data::io::npy;
 
 fn steps(j: &[f32]) -> Vec<f32> {
     // Largest joint move from each frame to the next (metres).

@@ -109,7 +109,7 @@ fn train_grown(
 
 /// The first sample in `out` is 40 frames of 263 finite HumanML3D features.
 fn assert_finite_sample(out: &Path) {
-    let feats = diffkfc_data::npy::read_f32(out.join("sample_00.npy")).unwrap().data;
+    let feats = diffkfc_data::io::npy::read_f32(out.join("sample_00.npy")).unwrap().data;
     assert_eq!(feats.len(), 40 * 263);
     assert!(feats.iter().all(|v| v.is_finite()));
 }

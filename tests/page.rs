@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use common::*;
-use diffkfc_data::fixtures;
+use diffkfc_data::testing::fixtures;
 
 fn chromium() -> Option<PathBuf> {
     let path = std::env::var_os("PATH")?;

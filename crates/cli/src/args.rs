@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
-use diffkfc_data::rig::{self, ImportOptions};
+use diffkfc_data::io::rig::{self, ImportOptions};
 use diffkfc_model::fit::{Fit, KeyframeFit};
 use diffkfc_model::sampler::Sampler;
 
@@ -91,7 +91,7 @@ pub(crate) struct FitArgs {
     /// Largest move of a planted foot the lock makes, in metres; a contact span whose foot
     /// slides further is left as it is (a dragged foot), as is one whose leg cannot reach the
     /// held foot to within 2 cm at every frame (README, "Foot lock").
-    #[arg(long, default_value_t = diffkfc_data::footlock::MAX_SHIFT_M, value_name = "METRES")]
+    #[arg(long, default_value_t = diffkfc_data::postprocess::footlock::MAX_SHIFT_M, value_name = "METRES")]
     foot_lock_reach: f64,
     /// Keep the network's joint positions as they are. By default every frame is refitted to
     /// one skeleton (bone directions kept, lengths the skeleton's) before the foot lock, so the

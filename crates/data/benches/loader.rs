@@ -4,13 +4,14 @@
 //! (CI: `-- --test`, each case once).
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use diffkfc_data::batch::{KeyframeConfig, Loader};
-use diffkfc_data::cache::{default_cache_dir, PackedSplit};
+use diffkfc_data::dataset::batch::{KeyframeConfig, Loader};
+use diffkfc_data::dataset::cache::{default_cache_dir, PackedSplit};
 use diffkfc_data::dataset::Dataset;
 
 fn loader(c: &mut Criterion) {
     let dir = std::env::temp_dir().join(format!("diffkfc-loader-bench-{}", std::process::id()));
-    diffkfc_data::synth::write_dataset(&dir, 200, 0, 2, &|_, _| {}).expect("synthetic set");
+    diffkfc_data::dataset::synth::write_dataset(&dir, 200, 0, 2, &|_, _| {})
+        .expect("synthetic set");
     let ds = Dataset::open(&dir).expect("dataset");
     let split = PackedSplit::open(&ds, "train", &default_cache_dir(&ds), |_, _| {}).expect("cache");
     let mut g = c.benchmark_group("loader");

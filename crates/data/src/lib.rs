@@ -1,42 +1,23 @@
-//! diffkfc-data: the HumanML3D / KIT-ML file formats, skeletons and motion representation.
+//! diffkfc-data: everything about motion data before and after the network, in the order of the
+//! pipeline: `motion` (skeletons, the HumanML3D representation, root keys and tracks), `io`
+//! (npy, BVH, motion and keyframe files, atomic outputs), `dataset` (the HumanML3D layout, the
+//! packed cache, batches with keyframe masks, checks, the synthetic set), `keyframes` (selection
+//! and timelines), `postprocess` (warp, rigid refit, foot lock) and `render` (GIF, contact sheet,
+//! the 3D page).
 
-pub mod absolute_root;
-mod atomic;
-pub mod batch;
-pub mod bvh;
-pub mod cache;
-pub mod check;
 pub mod dataset;
-pub mod fixtures;
-pub mod footlock;
-pub mod fuzz;
-pub mod keyframe_file;
+pub mod io;
 pub mod keyframes;
-pub mod loader_bench;
-pub mod magnitude;
-pub mod motion_file;
-pub mod npy;
-pub mod output_set;
-pub mod plausibility;
-pub(crate) mod pose;
-pub mod quat;
+pub mod motion;
+pub mod postprocess;
 pub mod render;
-pub mod representation;
-pub mod rig;
-pub mod rigid;
 pub mod rng;
-pub mod root_path;
-pub mod root_track;
-pub mod skeleton;
-pub mod synth;
-pub mod texts;
-pub mod timeline;
-pub mod viewer;
-pub mod warp;
+#[cfg(any(test, feature = "testing"))]
+pub mod testing;
 
-pub use atomic::write_atomic;
-pub use representation::{features_from_joints, recover_from_ric, Joints, Layout};
-pub use skeleton::{Skeleton, KIT, T2M};
+pub use io::atomic::write_atomic;
+pub use motion::representation::{features_from_joints, recover_from_ric, Joints, Layout};
+pub use motion::skeleton::{Skeleton, KIT, T2M};
 
 use std::path::PathBuf;
 

@@ -2,11 +2,11 @@
 
 use std::path::{Path, PathBuf};
 
-use diffkfc_data::batch::{KeyframeConfig, Loader};
-use diffkfc_data::cache::PackedSplit;
+use diffkfc_data::dataset::batch::{KeyframeConfig, Loader};
+use diffkfc_data::dataset::cache::PackedSplit;
 use diffkfc_data::dataset::Dataset;
 use diffkfc_data::keyframes::Strategy;
-use diffkfc_data::{fixtures, npy};
+use diffkfc_data::{io::npy, testing::fixtures};
 
 fn write_clip(root: &Path, id: &str, feats: &[f32], dim: usize, captions: &[&str]) {
     npy::write(
@@ -173,9 +173,10 @@ fn batches_are_normalised_padded_and_deterministic() {
         }
         // Root channels: the crop's own frame (its first frame at the origin facing +Z), the
         // whole trajectory of the crop, observed only at keyframes.
-        let r = diffkfc_data::warp::ROOT_CHANNELS;
+        let r = diffkfc_data::motion::root_key::ROOT_CHANNELS;
         assert_eq!(&b.root[i * n * r..i * n * r + r], &[0.0, 0.0, 0.0, 1.0]);
-        let want = diffkfc_data::warp::root_channels(&raw[start * d..(start + len) * d], d);
+        let want =
+            diffkfc_data::motion::root_key::root_channels(&raw[start * d..(start + len) * d], d);
         assert!(b.root[i * n * r..(i * n + len) * r]
             .iter()
             .zip(&want)
@@ -215,7 +216,7 @@ fn dense_root_tracks_keep_the_sparse_keys_and_observe_the_root() {
     let a = Loader::new(&ds, &split, 4, 7, sparse).batch(0, 0);
     let b = Loader::new(&ds, &split, 4, 7, dense.clone()).batch(0, 0);
     assert_eq!(b, Loader::new(&ds, &split, 4, 7, dense).batch(0, 0), "reproducible by seed");
-    let (n, d, r) = (a.frames, a.dim, diffkfc_data::warp::ROOT_CHANNELS);
+    let (n, d, r) = (a.frames, a.dim, diffkfc_data::motion::root_key::ROOT_CHANNELS);
     assert_eq!((&a.x0, &a.root, &a.lengths), (&b.x0, &b.root, &b.lengths));
     for i in 0..4 {
         let len = b.lengths[i];

@@ -1,14 +1,14 @@
 //! Bounded fuzzing of the readers of untrusted files: valid inputs mutated at random (bit flips,
 //! byte and token replacement, truncation, duplication, digit runs that overflow), each fed to
 //! the reader inside `catch_unwind`. Every input must give Ok or a clean error: no panic, and no
-//! call slower than a second (`diffkfc_data::fuzz`).
+//! call slower than a second (`diffkfc_data::testing::fuzz`).
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::Path;
 
-use diffkfc_data::fuzz::{cases, fuzz};
 use diffkfc_data::rng::Rng;
-use diffkfc_data::{magnitude, npy, representation as rep, rig, T2M};
+use diffkfc_data::testing::fuzz::{cases, fuzz};
+use diffkfc_data::{io::npy, io::rig, motion::magnitude, motion::representation as rep, T2M};
 
 fn walk(frames: usize) -> rep::Joints {
     let pose = T2M
@@ -16,7 +16,7 @@ fn walk(frames: usize) -> rep::Joints {
         .map(|o| {
             rep::forward_kinematics(
                 &T2M,
-                &[vec![diffkfc_data::quat::IDENTITY; 22]],
+                &[vec![diffkfc_data::motion::quat::IDENTITY; 22]],
                 &[[0.0, 0.9, 0.0]],
                 &o,
             )[0]

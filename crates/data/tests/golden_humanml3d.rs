@@ -1,8 +1,8 @@
 //! Golden tests of the motion representation against real HumanML3D data
 //! (`../shared/fixtures/humanml3d`, produced by HumanML3D's own reference code).
 
-use diffkfc_data::representation::{self as rep, Layout};
-use diffkfc_data::{fixtures, npy, T2M};
+use diffkfc_data::motion::representation::{self as rep, Layout};
+use diffkfc_data::{io::npy, testing::fixtures, T2M};
 
 fn load(rel: &str) -> Option<npy::Array<f64>> {
     fixtures::require(&format!("humanml3d/{rel}")).map(|p| npy::read_f64(p).unwrap())

@@ -1,7 +1,7 @@
 //! `.npy` against numpy itself: files numpy writes (format 1.0 and 2.0, f32 and f64, rank 0 to 4,
 //! empty arrays) read back with their values, and our writer's bytes equal `np.save`'s.
 
-use diffkfc_data::{fixtures, npy};
+use diffkfc_data::{io::npy, testing::fixtures};
 
 const SCRIPT: &str = r#"
 import sys, json, numpy as np

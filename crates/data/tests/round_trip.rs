@@ -1,8 +1,8 @@
 //! Round trips of the motion representation on synthetic rigid motions: random smooth joint
 //! rotations and root paths on the target skeleton, built by forward kinematics.
 
-use diffkfc_data::quat::{self, Vec3};
-use diffkfc_data::representation::{self as rep, Layout};
+use diffkfc_data::motion::quat::{self, Vec3};
+use diffkfc_data::motion::representation::{self as rep, Layout};
 use diffkfc_data::{Skeleton, KIT, T2M};
 use rand::{rngs::StdRng, Rng, SeedableRng};
 

@@ -3,10 +3,10 @@
 
 use std::collections::{HashMap, HashSet};
 
-use diffkfc_data::plausibility;
-use diffkfc_data::representation as rep;
-use diffkfc_data::synth::{self, actions::ACTIONS};
-use diffkfc_data::{npy, texts, T2M};
+use diffkfc_data::dataset::synth::{self, actions::ACTIONS};
+use diffkfc_data::motion::plausibility;
+use diffkfc_data::motion::representation as rep;
+use diffkfc_data::{io::npy, io::texts, T2M};
 
 fn out_dir(name: &str) -> std::path::PathBuf {
     let d = std::env::temp_dir().join(format!("diffkfc-synth-{name}-{}", std::process::id()));
@@ -40,7 +40,7 @@ fn same_seed_same_bytes_any_thread_count() {
     assert!(fa == fb, "same seed, different bytes");
     assert!(fa != fc, "different seeds, same bytes");
     // The output is a valid dataset.
-    let report = diffkfc_data::check::check(&a, |_, _| {});
+    let report = diffkfc_data::dataset::check::check(&a, |_, _| {});
     assert!(report.ok(), "{:?}", report.problems);
     for d in [a, b, c] {
         std::fs::remove_dir_all(d).unwrap();
@@ -107,7 +107,7 @@ fn every_clip_is_plausible_and_everything_is_covered() {
 /// planted foot stays put.
 #[test]
 fn walking_feet_alternate_on_the_ground() {
-    use diffkfc_data::synth::{actions, body::Pose};
+    use diffkfc_data::dataset::synth::{actions, body::Pose};
     let mut rng = diffkfc_data::rng::Rng::new(3);
     let seg = (actions::by_name("walk_forward").gen)(&mut rng, &Pose::standing(0.0, 0.0, 0.0), 120);
     let joints: rep::Joints = synth::body::joints_seq(&seg.poses);

@@ -220,7 +220,7 @@ impl<'a> ContrastiveEvaluator<'a> {
                 ),
             ));
         }
-        let read = |n: &str| diffkfc_data::npy::read_f32(dir.join(n)).map(|a| a.data);
+        let read = |n: &str| diffkfc_data::io::npy::read_f32(dir.join(n)).map(|a| a.data);
         let (mean, std) = (read("Mean.npy")?, read("Std.npy")?);
         if mean.len() != cfg.motion_dim + 4 || std.len() != mean.len() {
             return Err(EvalError::file(

@@ -1,8 +1,8 @@
 //! K-Err and K-TranS (see the crate documentation for the definitions).
 
-use diffkfc_data::quat;
-use diffkfc_data::representation::{Joints, Layout};
-use diffkfc_data::skeleton::Skeleton;
+use diffkfc_data::motion::quat;
+use diffkfc_data::motion::representation::{Joints, Layout};
+use diffkfc_data::motion::skeleton::Skeleton;
 
 /// Mean L2 distance between `gen` and `reference` over the given frames and joints (global).
 pub fn k_err_global(

@@ -6,13 +6,13 @@
 
 use std::collections::BTreeMap;
 
-use diffkfc_data::cache::PackedSplit;
+use diffkfc_data::dataset::cache::PackedSplit;
 use diffkfc_data::dataset::{self, Dataset};
 use diffkfc_data::keyframes::{self, Strategy};
-use diffkfc_data::plausibility::foot_skating_ratio;
-use diffkfc_data::representation::{recover_from_ric, Joints};
+use diffkfc_data::motion::plausibility::foot_skating_ratio;
+use diffkfc_data::motion::representation::{recover_from_ric, Joints};
+use diffkfc_data::motion::root_key::{self, ROOT_CHANNELS};
 use diffkfc_data::rng::Rng;
-use diffkfc_data::warp::{self, ROOT_CHANNELS};
 use diffkfc_model::fit::{Fit, KeyframeFit};
 use diffkfc_model::pipeline::Generator;
 use diffkfc_model::place::PlaceGuidance;
@@ -333,7 +333,7 @@ impl Protocol<'_> {
                     req.kf[o + e] = v * m;
                 }
                 if self.opts.root_keys {
-                    let traj = warp::root_trajectory(it.feats, d);
+                    let traj = root_key::root_trajectory(it.feats, d);
                     for &f in &keys[p] {
                         let (v, m) = traj[f].channels();
                         let at = (r * n + f) * ROOT_CHANNELS;

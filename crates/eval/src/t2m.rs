@@ -21,7 +21,7 @@ use std::path::{Path, PathBuf};
 use burn::prelude::*;
 use burn::tensor::activation::{leaky_relu, sigmoid};
 use diffkfc_data::dataset::Dataset;
-use diffkfc_data::texts::Caption;
+use diffkfc_data::io::texts::Caption;
 
 use crate::error::{EvalError, Result};
 use crate::evaluator::TextMotionEvaluator;
@@ -346,7 +346,7 @@ impl T2mEvaluator {
         }
         let w = Weights::read(&dir.join("evaluator.safetensors"))?;
         let glove_path = dir.join("glove.npy");
-        let vectors = diffkfc_data::npy::read_f32(&glove_path)?;
+        let vectors = diffkfc_data::io::npy::read_f32(&glove_path)?;
         let words_path = dir.join("glove_words.txt");
         let words = std::fs::read_to_string(&words_path)
             .map_err(|err| EvalError::Io { path: words_path.clone(), err })?;
@@ -375,7 +375,7 @@ impl T2mEvaluator {
                 ));
             }
         }
-        let read = |n: &str| diffkfc_data::npy::read_f32(dir.join(n)).map(|a| a.data);
+        let read = |n: &str| diffkfc_data::io::npy::read_f32(dir.join(n)).map(|a| a.data);
         let (mean, std) = (read("mean.npy")?, read("std.npy")?);
         let conv1 = w.conv("movement_encoder.main.0", device)?;
         let conv2 = w.conv("movement_encoder.main.3", device)?;

@@ -4,8 +4,8 @@
 use std::path::PathBuf;
 
 use burn::prelude::*;
-use diffkfc_data::batch::{Batch, KeyframeConfig, Loader};
-use diffkfc_data::cache::PackedSplit;
+use diffkfc_data::dataset::batch::{Batch, KeyframeConfig, Loader};
+use diffkfc_data::dataset::cache::PackedSplit;
 use diffkfc_data::dataset::Dataset;
 use diffkfc_model::checkpoint::Checkpoint;
 use diffkfc_model::optim::{Home, Optimiser};
@@ -127,8 +127,8 @@ impl EvaluatorTraining<'_> {
         ck.save(&self.out)?;
         Checkpoint::prune(&self.out, 1);
         let dims = [self.ds.dim()];
-        diffkfc_data::npy::write(self.out.join("Mean.npy"), &dims, &self.ds.mean)?;
-        diffkfc_data::npy::write(self.out.join("Std.npy"), &dims, &self.ds.std)?;
+        diffkfc_data::io::npy::write(self.out.join("Mean.npy"), &dims, &self.ds.mean)?;
+        diffkfc_data::io::npy::write(self.out.join("Std.npy"), &dims, &self.ds.std)?;
         let ev = ContrastiveEvaluator {
             model: params::load(self.cfg.init(&self.device), &vals),
             mean: self.ds.mean.clone(),

@@ -1,7 +1,7 @@
 //! FID against the formula as T2M and MDM compute it (numpy's covariance, scipy's `sqrtm`), on
 //! the evaluator's 512 dimensions and on a small, nearly singular case.
 
-use diffkfc_data::{fixtures, npy, rng::Rng};
+use diffkfc_data::{io::npy, rng::Rng, testing::fixtures};
 use diffkfc_eval::text_motion::fid;
 
 const SCRIPT: &str = r#"

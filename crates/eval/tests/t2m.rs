@@ -10,7 +10,7 @@
 use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
-use diffkfc_data::{fixtures, npy, texts};
+use diffkfc_data::{io::npy, io::texts, testing::fixtures};
 use diffkfc_eval::evaluator::TextMotionEvaluator;
 use diffkfc_eval::t2m::T2mEvaluator;
 

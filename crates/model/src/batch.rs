@@ -1,9 +1,9 @@
 //! Data batches (flat host buffers from `diffkfc-data`) to Burn tensors.
 
 use burn::prelude::*;
-use diffkfc_data::absolute_root::{self, VelocityStats, CHANNELS};
-use diffkfc_data::batch::Batch;
-use diffkfc_data::warp::ROOT_CHANNELS;
+use diffkfc_data::dataset::batch::Batch;
+use diffkfc_data::motion::absolute_root::{self, VelocityStats, CHANNELS};
+use diffkfc_data::motion::root_key::ROOT_CHANNELS;
 
 use crate::denoiser::Condition;
 
@@ -17,7 +17,7 @@ pub struct TensorBatch {
 }
 
 /// `text` holds one embedding of width `text_dim` per sample, row-major. `absolute`: the model
-/// sees an absolute root (`diffkfc_data::absolute_root`): the motion's root channels become
+/// sees an absolute root (`diffkfc_data::motion::absolute_root`): the motion's root channels become
 /// angle and place, observed at a keyframe where the keyframe observes its heading / place.
 pub fn to_tensors(
     b: &Batch,

@@ -1,7 +1,7 @@
 //! Network configuration: the paper's, and smaller ones for CPU work.
 
 use burn::prelude::*;
-use diffkfc_data::absolute_root::VelocityStats;
+use diffkfc_data::motion::absolute_root::VelocityStats;
 
 /// DiffKFC denoiser hyper-parameters.
 #[derive(Config, Debug, PartialEq)]
@@ -28,7 +28,7 @@ pub struct DiffKfcConfig {
     #[config(default = 0.1)]
     pub dropout: f64,
     /// Root channels a keyframe may observe beside its features (place x, z and heading as
-    /// sin, cos: our extension, see `diffkfc_data::warp`); 0 = pose-only keyframes (the paper,
+    /// sin, cos: our extension, see `diffkfc_data::postprocess::warp`); 0 = pose-only keyframes (the paper,
     /// and checkpoints made before root channels existed).
     #[config(default = 4)]
     pub root_channels: usize,
@@ -37,7 +37,7 @@ pub struct DiffKfcConfig {
     #[config(default = 0)]
     pub temporal_kernel: usize,
     /// The decoder also reads, per frame, the velocity the keyed places imply
-    /// (`diffkfc_data::root_path`; our extension); false for checkpoints made before it.
+    /// (`diffkfc_data::motion::root_path`; our extension); false for checkpoints made before it.
     #[config(default = false)]
     pub root_path: bool,
     /// The decoder's frame tokens also read their own frame's keyframe values and masks (pose
@@ -47,7 +47,7 @@ pub struct DiffKfcConfig {
     #[config(default = false)]
     pub key_input: bool,
     /// The network sees the root as yaw angle and place instead of velocities
-    /// (`diffkfc_data::absolute_root`; our extension); false for checkpoints made before it.
+    /// (`diffkfc_data::motion::absolute_root`; our extension); false for checkpoints made before it.
     #[config(default = false)]
     pub absolute_root: bool,
     /// The dataset's mean and std of the three velocity root channels (means, then stds), which

@@ -4,9 +4,9 @@
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 
-use diffkfc_data::absolute_root::VelocityStats;
-use diffkfc_data::root_path::{path_channels, PATH_CHANNELS};
-use diffkfc_data::warp::ROOT_CHANNELS;
+use diffkfc_data::motion::absolute_root::VelocityStats;
+use diffkfc_data::motion::root_key::ROOT_CHANNELS;
+use diffkfc_data::motion::root_path::{path_channels, PATH_CHANNELS};
 use diffkfc_data::T2M;
 
 use crate::config::DiffKfcConfig;
@@ -24,12 +24,12 @@ pub struct Condition {
     pub kf: Tensor<3>,
     /// [B, N, D] 1 where a keyframe observes a feature.
     pub kf_mask: Tensor<3>,
-    /// [B, N, ROOT_CHANNELS] keyed root place and heading (`diffkfc_data::warp::RootKey`),
+    /// [B, N, ROOT_CHANNELS] keyed root place and heading (`diffkfc_data::motion::root_key::RootKey`),
     /// zero where unobserved, and its mask.
     pub root: Tensor<3>,
     pub root_mask: Tensor<3>,
     /// [B, N, PATH_CHANNELS] the velocity the keyed places imply for each frame
-    /// (`diffkfc_data::root_path`), read by the decoder of models with path channels.
+    /// (`diffkfc_data::motion::root_path`), read by the decoder of models with path channels.
     pub path: Tensor<3>,
     /// [B*N] frames with any observed feature.
     pub kf_frames: Vec<bool>,

@@ -1,10 +1,11 @@
 //! After the last denoising step: how a generated motion is made to meet its keyframes exactly.
 
 use diffkfc_data::dataset::denormalise;
-use diffkfc_data::footlock::{self, LockReport};
-use diffkfc_data::representation::Layout;
-use diffkfc_data::rigid::{self, RigidReport};
-use diffkfc_data::warp::{self, Correction, RootKey, ROOT_CHANNELS};
+use diffkfc_data::motion::representation::Layout;
+use diffkfc_data::motion::root_key::{RootKey, ROOT_CHANNELS};
+use diffkfc_data::postprocess::footlock::{self, LockReport};
+use diffkfc_data::postprocess::rigid::{self, RigidReport};
+use diffkfc_data::postprocess::warp::{self, Correction};
 use diffkfc_data::Skeleton;
 
 use crate::sampler::Request;
@@ -22,7 +23,7 @@ pub enum KeyframeFit {
     #[default]
     Track,
     /// Motion warping: the residual at each key spread smoothly over its neighbours, the root
-    /// re-integrated to the keyed places and headings (`diffkfc_data::warp`).
+    /// re-integrated to the keyed places and headings (`diffkfc_data::postprocess::warp`).
     Warp,
     /// The observed features written into the keyframe frames alone (the paper's implied
     /// behaviour; the pose jumps at the key).
@@ -48,12 +49,12 @@ impl std::str::FromStr for KeyframeFit {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Fit {
     pub keyframes: KeyframeFit,
-    /// Hold planted feet still after the keyframe fit (`diffkfc_data::footlock`).
+    /// Hold planted feet still after the keyframe fit (`diffkfc_data::postprocess::footlock`).
     pub foot_lock: bool,
     /// Largest move of a planted foot the lock makes (metres; `footlock::MAX_SHIFT_M` by
     /// default): spans that slide further are left as dragged.
     pub lock_reach: f64,
-    /// Refit every frame to one skeleton before the foot lock (`diffkfc_data::rigid`), so the
+    /// Refit every frame to one skeleton before the foot lock (`diffkfc_data::postprocess::rigid`), so the
     /// BVH export reproduces the motion.
     pub rigid: bool,
 }

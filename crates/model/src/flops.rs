@@ -5,7 +5,7 @@
 //! ([`forward_planned`] with `DmaPlan::work`: what the fused CPU path computes, so a rate from
 //! it is never above what the machine did).
 
-use diffkfc_data::root_path::PATH_CHANNELS;
+use diffkfc_data::motion::root_path::PATH_CHANNELS;
 
 use crate::dma::BlockWork;
 use crate::DiffKfcConfig;

@@ -1,5 +1,5 @@
 //! Keyframe classifier-free guidance (paper Eq. 3): X = X(C, none) + s (X(C, kf) - X(C, none)).
-//! Training drops all keyframes of some samples (`diffkfc_data::batch`) so that the keyframe-free
+//! Training drops all keyframes of some samples (`diffkfc_data::dataset::batch`) so that the keyframe-free
 //! branch is learned; sampling runs both branches in one batched forward and combines them here.
 
 use burn::prelude::*;

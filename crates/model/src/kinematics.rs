@@ -1,6 +1,6 @@
 //! Differentiable `recover_from_ric` in Burn: de-normalised features [B, N, D] -> global joint
 //! positions [B, N, J, 3], for the kinematic losses and for guidance. Same maths as
-//! `diffkfc_data::representation::recover_from_ric` (tested against it).
+//! `diffkfc_data::motion::representation::recover_from_ric` (tested against it).
 
 use burn::prelude::*;
 
@@ -39,7 +39,7 @@ pub fn recover_from_ric(feats: Tensor<3>, joints: usize) -> Tensor<4> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use diffkfc_data::{fixtures, npy, representation, T2M};
+    use diffkfc_data::{io::npy, motion::representation, testing::fixtures, T2M};
 
     #[test]
     fn matches_the_reference_implementation_on_real_data() {

@@ -3,7 +3,7 @@
 
 use burn::prelude::*;
 
-use diffkfc_data::root_track::TRACK_DIMS;
+use diffkfc_data::motion::root_track::TRACK_DIMS;
 
 use crate::kinematics::recover_from_ric;
 

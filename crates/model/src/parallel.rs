@@ -9,7 +9,7 @@
 //! before the backward pass.
 
 use burn::prelude::*;
-use diffkfc_data::batch::Batch;
+use diffkfc_data::dataset::batch::Batch;
 
 use crate::losses::{Kinematic, Losses};
 

@@ -3,9 +3,9 @@
 //! easily ignored by the denoiser, a dense root track is not (GMD, CondMDI).
 
 use diffkfc_data::dataset::normalise;
-use diffkfc_data::representation::recover_root_rot_pos;
-use diffkfc_data::root_track;
-use diffkfc_data::warp::{self, ROOT_CHANNELS};
+use diffkfc_data::motion::representation::recover_root_rot_pos;
+use diffkfc_data::motion::root_key::{self, ROOT_CHANNELS};
+use diffkfc_data::motion::root_track;
 use diffkfc_data::Skeleton;
 
 use crate::diffusion::Schedule;
@@ -78,7 +78,7 @@ impl Generator<'_> {
         let mut out = req.clone();
         for (i, s) in stage1.iter().enumerate() {
             let len = req.lengths[i];
-            let channels = warp::root_channels(&s.features, d);
+            let channels = root_key::root_channels(&s.features, d);
             let mut x = s.features.clone();
             normalise(&mut x, self.mean, self.std);
             let frames: Vec<usize> = (0..len).collect();

@@ -4,10 +4,10 @@
 //! step makes the hit exact; this asks the network for a walk that covers the keyed ground
 //! itself, so the warp has less to stretch.
 
-use diffkfc_data::absolute_root::VelocityStats;
-use diffkfc_data::quat;
-use diffkfc_data::representation::recover_root_rot_pos;
-use diffkfc_data::warp::{ROOT_CHANNELS, ROOT_POS_SCALE};
+use diffkfc_data::motion::absolute_root::VelocityStats;
+use diffkfc_data::motion::quat;
+use diffkfc_data::motion::representation::recover_root_rot_pos;
+use diffkfc_data::motion::root_key::{ROOT_CHANNELS, ROOT_POS_SCALE};
 
 use crate::error::ModelError;
 use crate::Denoiser;

@@ -3,8 +3,8 @@
 
 use std::path::Path;
 
-use diffkfc_data::absolute_root::VelocityStats;
-use diffkfc_data::batch::KeyframeConfig;
+use diffkfc_data::dataset::batch::KeyframeConfig;
+use diffkfc_data::motion::absolute_root::VelocityStats;
 use serde::{Deserialize, Serialize};
 
 use crate::config::DiffKfcConfig;
@@ -235,11 +235,12 @@ impl RunConfig {
         if !(0.0..1.0).contains(&m.dropout) {
             return bad("model.dropout", &m.dropout, "must be in [0, 1)");
         }
-        if m.root_channels != 0 && m.root_channels != diffkfc_data::warp::ROOT_CHANNELS {
+        if m.root_channels != 0 && m.root_channels != diffkfc_data::motion::root_key::ROOT_CHANNELS
+        {
             return bad(
                 "model.root_channels",
                 &m.root_channels,
-                &format!("must be 0 or {}", diffkfc_data::warp::ROOT_CHANNELS),
+                &format!("must be 0 or {}", diffkfc_data::motion::root_key::ROOT_CHANNELS),
             );
         }
         if (m.temporal_kernel.is_multiple_of(2) && m.temporal_kernel != 0) || m.temporal_kernel > 31

@@ -75,7 +75,7 @@ impl RunDir {
             }
         }
         let path = self.path.join("Mean.npy");
-        if let Ok(m) = diffkfc_data::npy::read_f32(&path) {
+        if let Ok(m) = diffkfc_data::io::npy::read_f32(&path) {
             if m.data != mean {
                 return Err(ModelError::Refused(format!(
                     "--resume: {} differs from the dataset's Mean.npy: the run was trained on another normalisation; resume on its own dataset or choose another --out",
@@ -92,7 +92,7 @@ impl RunDir {
         std::fs::create_dir_all(&self.path).map_err(ModelError::io(&self.path))?;
         diffkfc_data::write_atomic(&self.config_path(), cfg.to_json().as_bytes())?;
         for (name, v) in [("Mean.npy", mean), ("Std.npy", std)] {
-            diffkfc_data::npy::write(self.path.join(name), &[v.len()], v)?;
+            diffkfc_data::io::npy::write(self.path.join(name), &[v.len()], v)?;
         }
         Ok(())
     }

@@ -4,10 +4,10 @@
 //! afterwards is `fit`'s job.
 
 use burn::prelude::*;
-use diffkfc_data::absolute_root;
+use diffkfc_data::motion::absolute_root;
+use diffkfc_data::motion::root_key::ROOT_CHANNELS;
+use diffkfc_data::motion::root_track;
 use diffkfc_data::rng::Rng;
-use diffkfc_data::root_track;
-use diffkfc_data::warp::ROOT_CHANNELS;
 
 use crate::diffusion::Schedule;
 use crate::guidance;
@@ -105,7 +105,7 @@ pub struct Request {
     pub kf: Vec<f32>,
     /// [B, N, D] 1 where observed.
     pub mask: Vec<f32>,
-    /// [B, N, ROOT_CHANNELS] keyed root place and heading (`warp::RootKey::channels`), zero
+    /// [B, N, ROOT_CHANNELS] keyed root place and heading (`root_key::RootKey::channels`), zero
     /// where unobserved, and its mask.
     pub root: Vec<f32>,
     pub root_mask: Vec<f32>,
@@ -145,7 +145,7 @@ impl Request {
             .collect()
     }
 
-    /// The request as a model with an absolute root sees it (`diffkfc_data::absolute_root`):
+    /// The request as a model with an absolute root sees it (`diffkfc_data::motion::absolute_root`):
     /// the root channels of every frame observed from the keyed places and headings alone.
     pub fn with_absolute_root(&self) -> Request {
         let (n, d, r) = (self.frames, self.dim, ROOT_CHANNELS);

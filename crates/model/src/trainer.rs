@@ -11,10 +11,10 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use burn::prelude::*;
-use diffkfc_data::absolute_root::VelocityStats;
-use diffkfc_data::batch::{Batch, Loader};
-use diffkfc_data::cache::PackedSplit;
+use diffkfc_data::dataset::batch::{Batch, Loader};
+use diffkfc_data::dataset::cache::PackedSplit;
 use diffkfc_data::dataset::Dataset;
+use diffkfc_data::motion::absolute_root::VelocityStats;
 use diffkfc_data::rng::Rng;
 
 use crate::batch::to_tensors;

@@ -55,7 +55,7 @@ mod tests {
     use crate::sampler::Request;
     use crate::DiffKfcConfig;
     use burn::prelude::*;
-    use diffkfc_data::warp::{RootKey, ROOT_CHANNELS};
+    use diffkfc_data::motion::root_key::{RootKey, ROOT_CHANNELS};
 
     fn checkpoint_of(m: &Denoiser, named: bool) -> Checkpoint {
         let (shapes, model) = params::values(m).into_iter().unzip();

@@ -1,10 +1,10 @@
-//! Bounded fuzzing of run configs (`diffkfc_data::fuzz`): mutated copies of the shipped configs
+//! Bounded fuzzing of run configs (`diffkfc_data::testing::fuzz`): mutated copies of the shipped configs
 //! parse or give a clean error, and whatever parses is valid enough to build a model from
 //! (the checks that keep zero sizes and absurd values out).
 
 use std::path::Path;
 
-use diffkfc_data::fuzz::{cases, fuzz};
+use diffkfc_data::testing::fuzz::{cases, fuzz};
 use diffkfc_model::run_config::RunConfig;
 
 #[test]

@@ -4,7 +4,7 @@
 //! DIFFKFC_WRITE_GOLDEN=1) within 1e-5 (relative to the output scale).
 
 use burn::prelude::*;
-use diffkfc_data::{npy, rng::Rng};
+use diffkfc_data::{io::npy, rng::Rng};
 use diffkfc_model::bench::{request, Sampling};
 use diffkfc_model::{params, DiffKfcConfig};
 

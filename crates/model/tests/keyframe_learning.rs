@@ -13,11 +13,11 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
-use diffkfc_data::cache::PackedSplit;
+use diffkfc_data::dataset::cache::PackedSplit;
 use diffkfc_data::dataset::{Dataset, MAX_FRAMES};
 use diffkfc_data::keyframes;
+use diffkfc_data::motion::root_key::{self, ROOT_CHANNELS};
 use diffkfc_data::rng::Rng;
-use diffkfc_data::warp::{self, ROOT_CHANNELS};
 use diffkfc_model::diffusion::Schedule;
 use diffkfc_model::optim::Home;
 use diffkfc_model::run_config::RunConfig;
@@ -69,7 +69,7 @@ fn root_path_error(ds: &Dataset, gen: &[f32], gt: &[f32], len: usize) -> f64 {
     let path = |x: &[f32]| {
         let mut x = x[..len * d].to_vec();
         ds.denormalise(&mut x);
-        warp::root_trajectory(&x, d)
+        root_key::root_trajectory(&x, d)
     };
     let (a, b) = (path(gen), path(gt));
     let dist = |p: [f64; 2], q: [f64; 2]| ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2)).sqrt();
@@ -81,7 +81,7 @@ fn root_path_error(ds: &Dataset, gen: &[f32], gt: &[f32], len: usize) -> f64 {
 fn keyframes_reproduce_a_clip_far_better_than_text() {
     let steps = env_or("DIFFKFC_KFTEST_STEPS", 400);
     let root = root_dir();
-    diffkfc_data::synth::write_dataset(&root.join("data"), 24, 5, 2, &|_, _| {}).unwrap();
+    diffkfc_data::dataset::synth::write_dataset(&root.join("data"), 24, 5, 2, &|_, _| {}).unwrap();
     let ds = Dataset::open(root.join("data")).unwrap();
     let train =
         PackedSplit::open(&ds, "train", &root.join("data/.diffkfc-cache"), |_, _| {}).unwrap();
@@ -134,7 +134,7 @@ fn keyframes_reproduce_a_clip_far_better_than_text() {
         let others: Vec<usize> = (0..len).filter(|f| !keys.contains(f)).collect();
         let mut raw = gt.clone();
         ds.denormalise(&mut raw);
-        let gt_root = warp::root_channels(&raw, d);
+        let gt_root = root_key::root_channels(&raw, d);
         let (mut errs, mut root_errs) = ([0.0; 4], [0.0; 4]);
         // Keys with places; no keys; keys with places at s = 2.5; keys without places.
         for (slot, (observed, s, places)) in [

@@ -4,8 +4,8 @@ use burn::module::{ModuleVisitor, Param};
 use burn::optim::GradientsParams;
 use burn::prelude::*;
 use burn::tensor::Distribution;
-use diffkfc_data::root_path::PATH_CHANNELS;
-use diffkfc_data::warp::ROOT_CHANNELS;
+use diffkfc_data::motion::root_key::ROOT_CHANNELS;
+use diffkfc_data::motion::root_path::PATH_CHANNELS;
 use diffkfc_model::dma::{DmaBlock, DmaPlan};
 use diffkfc_model::{Condition, DiffKfcConfig};
 

@@ -2,7 +2,7 @@
 //! (`../shared/fixtures/minilm/reference_embeddings.json`).
 
 use burn::prelude::*;
-use diffkfc_data::fixtures;
+use diffkfc_data::testing::fixtures;
 use diffkfc_model::text::{self, minilm::MiniLm, TextEncoder};
 
 fn encoder() -> Option<MiniLm> {

@@ -12,11 +12,11 @@
 use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
-use diffkfc_data::cache::PackedSplit;
+use diffkfc_data::dataset::cache::PackedSplit;
 use diffkfc_data::dataset::{denormalise, normalise, Dataset, MAX_FRAMES};
-use diffkfc_data::representation::recover_from_ric;
-use diffkfc_data::root_track;
-use diffkfc_data::warp::{self, ROOT_CHANNELS};
+use diffkfc_data::motion::representation::recover_from_ric;
+use diffkfc_data::motion::root_key::{self, ROOT_CHANNELS};
+use diffkfc_data::motion::root_track;
 use diffkfc_model::diffusion::Schedule;
 use diffkfc_model::sampler::{sample, Options, Request};
 use diffkfc_model::text::{self, minilm::MiniLm, TextEncoder};
@@ -38,7 +38,7 @@ fn track_request(raw: &[f32], len: usize, mean: &[f32], std: &[f32], text: Vec<f
     let frames: Vec<usize> = (0..len).collect();
     root_track::observe(
         &x,
-        &warp::root_channels(raw, d),
+        &root_key::root_channels(raw, d),
         d,
         &frames,
         &mut req.kf,
@@ -70,7 +70,7 @@ fn planted_toe_speed(ds: &Dataset, x: &[f32]) -> f64 {
 
 /// Mean ground distance (m) between the roots of de-normalised features `a` and `b`.
 fn path_distance(a: &[f32], b: &[f32], d: usize) -> f64 {
-    let (a, b) = (warp::root_trajectory(a, d), warp::root_trajectory(b, d));
+    let (a, b) = (root_key::root_trajectory(a, d), root_key::root_trajectory(b, d));
     let dist = |p: [f64; 2], q: [f64; 2]| (p[0] - q[0]).hypot(p[1] - q[1]);
     a.iter().zip(&b).map(|(p, q)| dist(p.place.unwrap(), q.place.unwrap())).sum::<f64>()
         / a.len() as f64
@@ -89,13 +89,13 @@ fn a_dense_root_track_is_followed_by_the_pelvis_and_the_feet() {
         Err(e) => return eprintln!("SKIPPED: {e}"),
     };
     let root = root_dir();
-    diffkfc_data::synth::write_dataset(&root.join("data"), 60, 77, 2, &|_, _| {}).unwrap();
+    diffkfc_data::dataset::synth::write_dataset(&root.join("data"), 60, 77, 2, &|_, _| {}).unwrap();
     let ds = Dataset::open(root.join("data")).unwrap();
     let clips =
         PackedSplit::open(&ds, "train", &root.join("data/.diffkfc-cache"), |_, _| {}).unwrap();
     let device = Device::flex();
     let (cfg, model, _) = load_for_inference(&model_dir, &device).unwrap();
-    let read = |f: &str| diffkfc_data::npy::read_f32(model_dir.join(f)).unwrap().data;
+    let read = |f: &str| diffkfc_data::io::npy::read_f32(model_dir.join(f)).unwrap().data;
     let (mean, std) = (read("Mean.npy"), read("Std.npy"));
     let schedule = Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps).unwrap();
     let d = ds.dim();
@@ -104,7 +104,7 @@ fn a_dense_root_track_is_followed_by_the_pelvis_and_the_feet() {
         .filter(|&i| {
             let len = clips.items[i].len.min(MAX_FRAMES);
             let raw = &clips.item_frames(i)[..len * d];
-            let path = warp::root_trajectory(raw, d);
+            let path = root_key::root_trajectory(raw, d);
             let [x, z] = path[len - 1].place.unwrap();
             x.hypot(z) / len as f64 * ds.skeleton.fps > 0.3
         })

@@ -5,7 +5,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
-use diffkfc_data::cache::PackedSplit;
+use diffkfc_data::dataset::cache::PackedSplit;
 use diffkfc_data::dataset::Dataset;
 use diffkfc_model::checkpoint::Checkpoint;
 use diffkfc_model::optim::Home;
@@ -19,7 +19,7 @@ static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
 fn dataset(name: &str, clips: usize) -> PathBuf {
     let d = std::env::temp_dir().join(format!("diffkfc-train-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
-    diffkfc_data::synth::write_dataset(&d, clips, 2, 2, &|_, _| {}).unwrap();
+    diffkfc_data::dataset::synth::write_dataset(&d, clips, 2, 2, &|_, _| {}).unwrap();
     d
 }
 
@@ -332,7 +332,8 @@ fn shard_gradients_weighted_by_counts_equal_the_batch_gradient() {
     let device = Device::flex().autodiff();
     device.seed(5);
     let model = cfg.model.init(&device);
-    let loader = diffkfc_data::batch::Loader::new(&ds, &train, 12, 3, cfg.keyframes.clone());
+    let loader =
+        diffkfc_data::dataset::batch::Loader::new(&ds, &train, 12, 3, cfg.keyframes.clone());
     let b = loader.batch(0, 0);
     let parts: Vec<Counts> = (0..3).map(|k| Counts::of(&b.shard(4 * k..4 * k + 4))).collect();
     assert!(parts.windows(2).any(|w| w[0] != w[1]), "shards should differ: {parts:?}");

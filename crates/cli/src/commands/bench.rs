@@ -301,11 +301,11 @@ fn loader_case(a: &BenchArgs) -> Result<()> {
     let dir = match &a.data {
         Some(d) => d.clone(),
         None => {
-            diffkfc_data::synth::write_dataset(&tmp, 300, 0, 2, &|_, _| {})?;
+            diffkfc_data::dataset::synth::write_dataset(&tmp, 300, 0, 2, &|_, _| {})?;
             tmp.clone()
         }
     };
-    let v = diffkfc_data::loader_bench::run(
+    let v = diffkfc_data::dataset::loader_bench::run(
         &dir,
         "train",
         if a.quick { 20 } else { 200 },

@@ -4,14 +4,14 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, bail, Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
-use diffkfc_data::motion_file::{
+use diffkfc_data::io::motion_file::{
     is_bvh, load_bvh, load_features, load_joints, load_motion, MIN_MOTION_FRAMES,
 };
-use diffkfc_data::representation::{self as rep, FOOT_CONTACT_THRESHOLD};
+use diffkfc_data::motion::representation::{self as rep, FOOT_CONTACT_THRESHOLD};
 
 use crate::args::BvhInputArgs;
-use diffkfc_data::{loader_bench, magnitude, rig};
-use diffkfc_data::{npy, Skeleton};
+use diffkfc_data::{dataset::loader_bench, io::rig, motion::magnitude};
+use diffkfc_data::{io::npy, Skeleton};
 
 #[derive(Args)]
 pub struct DataArgs {
@@ -226,9 +226,10 @@ fn synth(a: SynthArgs) -> Result<()> {
         .unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1));
     let bar = std::sync::Mutex::new(crate::progress::bar("synthesising"));
     let t0 = std::time::Instant::now();
-    let s = diffkfc_data::synth::write_dataset(&a.out, a.clips, a.seed, threads, &|d, n| {
-        (bar.lock().unwrap())(d, n)
-    })?;
+    let s =
+        diffkfc_data::dataset::synth::write_dataset(&a.out, a.clips, a.seed, threads, &|d, n| {
+            (bar.lock().unwrap())(d, n)
+        })?;
     println!(
         "{}: {} clips, {} frames ({:.2} h at 20 fps), seed {}, in {:.1} s",
         s.out.display(),
@@ -242,7 +243,7 @@ fn synth(a: SynthArgs) -> Result<()> {
 }
 
 fn check(a: CheckArgs) -> Result<()> {
-    let report = diffkfc_data::check::check(&a.dir, crate::progress::bar("checking"));
+    let report = diffkfc_data::dataset::check::check(&a.dir, crate::progress::bar("checking"));
     if a.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
-use diffkfc_data::cache::{default_cache_dir, PackedSplit};
+use diffkfc_data::dataset::cache::{default_cache_dir, PackedSplit};
 use diffkfc_data::dataset::Dataset;
 use diffkfc_data::keyframes::Strategy;
 use diffkfc_eval::evaluator::{ContrastiveEvaluator, EvaluatorConfig, TextMotionEvaluator};

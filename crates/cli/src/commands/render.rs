@@ -4,10 +4,10 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Result};
 use clap::Args;
-use diffkfc_data::viewer::{self, ViewMotion};
+use diffkfc_data::render::viewer::{self, ViewMotion};
 use diffkfc_data::{render, T2M};
 
-use diffkfc_data::motion_file::load_motion;
+use diffkfc_data::io::motion_file::load_motion;
 
 use crate::args::BvhInputArgs;
 
@@ -103,7 +103,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
                 numbers: format!(
                     "{} frames, foot skating {:.4}",
                     j.len(),
-                    diffkfc_data::plausibility::foot_skating_ratio(&T2M, &j)
+                    diffkfc_data::motion::plausibility::foot_skating_ratio(&T2M, &j)
                 ),
                 joints: j,
                 ..Default::default()

@@ -5,7 +5,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use diffkfc_data::cache::{default_cache_dir, PackedSplit};
+use diffkfc_data::dataset::cache::{default_cache_dir, PackedSplit};
 use diffkfc_data::dataset::Dataset;
 use diffkfc_model::optim::Home;
 use diffkfc_model::run_config::RunConfig;

@@ -85,14 +85,14 @@ impl EmbeddingCache {
 /// the dataset's packed splits (`text-<encoder>.safetensors`).
 pub fn embed_captions(
     ds: &diffkfc_data::dataset::Dataset,
-    splits: &[&diffkfc_data::cache::PackedSplit],
+    splits: &[&diffkfc_data::dataset::cache::PackedSplit],
     progress: impl FnMut(usize, usize),
 ) -> Result<EmbeddingCache, TextError> {
     let encoder =
         super::minilm::MiniLm::load(&super::default_dir(), &burn::prelude::Device::flex())?;
     let captions: Vec<String> =
         splits.iter().flat_map(|s| s.items.iter().flat_map(|i| i.captions.clone())).collect();
-    let path = diffkfc_data::cache::default_cache_dir(ds)
+    let path = diffkfc_data::dataset::cache::default_cache_dir(ds)
         .join(format!("text-{}.safetensors", encoder.name()));
     EmbeddingCache::build(&path, &encoder, &captions, progress)
 }

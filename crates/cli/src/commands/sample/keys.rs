@@ -1,7 +1,7 @@
 //! Keyframes of a sample request: from a motion (`--from`, `--frames`/`--keyframe-rate`) or a
 //! keyframe JSON file (`--keyframes`), with their places and headings.
 
-use diffkfc_data::keyframe_file::KeyframeSpec;
+use diffkfc_data::io::keyframe_file::KeyframeSpec;
 
 use super::*;
 
@@ -54,7 +54,7 @@ pub(super) fn keys_from_motion(
     length: Option<usize>,
     joints: Vec<usize>,
 ) -> Result<Keys> {
-    let feats = diffkfc_data::motion_file::load_motion_features(path, &T2M, &a.bvh.options()?)?;
+    let feats = diffkfc_data::io::motion_file::load_motion_features(path, &T2M, &a.bvh.options()?)?;
     let d = T2M.feature_dim();
     let t = feats.len() / d;
     let length = length.unwrap_or(t.min(diffkfc_data::dataset::MAX_FRAMES));
@@ -85,7 +85,7 @@ pub(super) fn keys_from_motion(
     );
     let mut root = vec![RootKey::default(); length];
     if !a.no_root_keys {
-        let traj = warp::root_trajectory(&feats[..length * d], d);
+        let traj = root_key::root_trajectory(&feats[..length * d], d);
         for &f in &frames {
             root[f] = traj[f];
         }
@@ -117,7 +117,7 @@ pub(super) fn keys_from_json(
 
 #[cfg(test)]
 mod tests {
-    /// Bounded fuzzing of the keyframe JSON reader (`diffkfc_data::fuzz`): mutated keyframe
+    /// Bounded fuzzing of the keyframe JSON reader (`diffkfc_data::testing::fuzz`): mutated keyframe
     /// files give keyframes or a clean error, never a panic or a hang; whatever is accepted has
     /// finite values, frames inside the motion and a length from 1 to 196.
     #[test]
@@ -127,7 +127,7 @@ mod tests {
         let pose: Vec<[f64; 3]> = diffkfc_data::T2M
             .target_offsets()
             .map(|o| {
-                let rot = vec![vec![diffkfc_data::quat::IDENTITY; 22]];
+                let rot = vec![vec![diffkfc_data::motion::quat::IDENTITY; 22]];
                 super::rep::forward_kinematics(&diffkfc_data::T2M, &rot, &[[0.0, 0.9, 0.0]], &o)[0]
                     .clone()
             })
@@ -140,22 +140,27 @@ mod tests {
             serde_json::json!({"length": 40, "keyframes": [{"frame": 10, "root": [0.5, 0.9, 1.5]}, {"frame": 39, "heading": -90}]}).to_string().into_bytes(),
         ];
         let path = dir.join("keys.json");
-        diffkfc_data::fuzz::fuzz("keyframe json", &seeds, diffkfc_data::fuzz::cases() / 10, &|b| {
-            std::fs::write(&path, b).unwrap();
-            match super::keys_from_json(&path, None, None) {
-                Ok(k) => {
-                    assert!(
-                        (1..=196).contains(&k.length) && k.frames.iter().all(|&f| f < k.length)
-                    );
-                    assert!(
-                        k.values.iter().all(|v| v.is_finite()),
-                        "non-finite keyframe values accepted"
-                    );
-                    true
+        diffkfc_data::testing::fuzz::fuzz(
+            "keyframe json",
+            &seeds,
+            diffkfc_data::testing::fuzz::cases() / 10,
+            &|b| {
+                std::fs::write(&path, b).unwrap();
+                match super::keys_from_json(&path, None, None) {
+                    Ok(k) => {
+                        assert!(
+                            (1..=196).contains(&k.length) && k.frames.iter().all(|&f| f < k.length)
+                        );
+                        assert!(
+                            k.values.iter().all(|v| v.is_finite()),
+                            "non-finite keyframe values accepted"
+                        );
+                        true
+                    }
+                    Err(_) => false,
                 }
-                Err(_) => false,
-            }
-        });
+            },
+        );
         std::fs::remove_dir_all(dir).unwrap();
     }
 }

@@ -2,7 +2,7 @@
 //! the 3D page.
 
 use super::*;
-use diffkfc_data::output_set::{Committed, OutputSet};
+use diffkfc_data::io::output_set::{Committed, OutputSet};
 
 /// Every file of a `sample` folder: per-sample features, joints, GIF, BVH; the source; results.json
 /// (with `extra` merged in) and the 3D page (with timeline `segments`: start frame and text).
@@ -32,7 +32,7 @@ pub(super) fn write_outputs(
             numbers: format!(
                 "K-TranS {}, foot skating {:.4}",
                 k_trans(src, &keys.frames, 2).map_or("-".into(), |v| format!("{v:.4}")),
-                diffkfc_data::plausibility::foot_skating_ratio(&T2M, src)
+                diffkfc_data::motion::plausibility::foot_skating_ratio(&T2M, src)
             ),
             links: vec![("joints".into(), "source_joints.npy".into())],
             ..Default::default()
@@ -49,10 +49,10 @@ pub(super) fn write_outputs(
         npy::write(stem.with_extension("npy"), &[n, d], &f)?;
         npy::write(dir.join(format!("{name}_joints.npy")), &[n, 22, 3], &rep::joints_to_f32(&j))?;
         render::gif(&T2M, &j, &keys.frames, &stem.with_extension("gif"))?;
-        let rig = diffkfc_data::rig::export(&T2M, &j);
+        let rig = diffkfc_data::io::rig::export(&T2M, &j);
         diffkfc_data::write_atomic(&stem.with_extension("bvh"), rig.to_text().as_bytes())?;
         // The BVH is a rigid rig: it reproduces the motion when the fit made it rigid.
-        let (bvh_mean, bvh_max) = diffkfc_data::rig::export_error(&T2M, &j, &rig);
+        let (bvh_mean, bvh_max) = diffkfc_data::io::rig::export_error(&T2M, &j, &rig);
         let path_file = format!("{name}_root_path.npy");
         if let Some(p) = &done.root_path {
             npy::write(dir.join(&path_file), &[p.len() / 3, 3], p)?;
@@ -63,14 +63,14 @@ pub(super) fn write_outputs(
             "gif": format!("{name}.gif"),
             "bvh": format!("{name}.bvh"),
             "bvh_error_m": {"mean": bvh_mean, "max": bvh_max},
-            "bone_length_std_m": diffkfc_data::rigid::bone_length_std(&T2M, &j) * T2M.metres_per_unit,
+            "bone_length_std_m": diffkfc_data::postprocess::rigid::bone_length_std(&T2M, &j) * T2M.metres_per_unit,
             "rigid": done.rigid,
             "root_path": done.root_path.is_some().then_some(&path_file),
             "track": done.track,
             "k_err_m": keys.source.as_ref().and_then(|s| k_err_global(&j, s, &keys.frames, &keys.joints)),
             "k_err_root_relative_m": k_err_local(&T2M, &f, &keys.values, &keys.frames, &keys.joints),
             "k_trans": k_trans(&j, &keys.frames, 2),
-            "foot_skating": diffkfc_data::plausibility::foot_skating_ratio(&T2M, &j),
+            "foot_skating": diffkfc_data::motion::plausibility::foot_skating_ratio(&T2M, &j),
             "corrections": corrections,
             "foot_lock": fit.foot_lock.then_some(&done.feet),
         }));
@@ -132,7 +132,7 @@ pub(super) fn write_outputs(
         "seed": a.seed,
         "seconds": secs,
         "real_k_trans": keys.source.as_ref().and_then(|s| k_trans(s, &keys.frames, 2)),
-        "real_foot_skating": keys.source.as_ref().map(|s| diffkfc_data::plausibility::foot_skating_ratio(&T2M, s)),
+        "real_foot_skating": keys.source.as_ref().map(|s| diffkfc_data::motion::plausibility::foot_skating_ratio(&T2M, s)),
         "samples": samples,
     });
     if let (Some(r), Some(e)) = (report.as_object_mut(), extra.as_object()) {

@@ -46,7 +46,7 @@ pub(super) fn run(a: SampleArgs) -> Result<()> {
             let values: Vec<f32> = (0..n * d)
                 .map(|k| if lower_mask[k] > 0.0 { f.features[k] } else { keys.values[k] })
                 .collect();
-            (values, mask, warp::root_trajectory(&f.features, d))
+            (values, mask, root_key::root_trajectory(&f.features, d))
         })
         .collect();
     let refs: Vec<(&[f32], &[f32], &[RootKey])> =

@@ -3,7 +3,7 @@
 //! a keyframe file that `sample --keyframes` reads: edit a few, then in-fill.
 
 use clap::{FromArgMatches, Subcommand};
-use diffkfc_data::motion_file::load_motion_features;
+use diffkfc_data::io::motion_file::load_motion_features;
 
 use super::*;
 
@@ -111,7 +111,7 @@ fn suggest(a: SuggestArgs) -> Result<()> {
     };
     let frames = keyframes::select(strategy, n, rate, &feats, d, &mut Rng::new(a.seed));
     let joints = rep::recover_from_ric(&T2M, &feats.iter().map(|&v| v as f64).collect::<Vec<_>>());
-    let traj = warp::root_trajectory(&feats, d);
+    let traj = root_key::root_trajectory(&feats, d);
     let round = |v: f64| (v * 1e4).round() / 1e4;
     let keys: Vec<_> = frames
         .iter()

@@ -1,10 +1,10 @@
 //! `sample --timeline`: one long motion from a timeline of prompts, window after window
-//! (`diffkfc_data::timeline` plans the windows). Each window after the first is given the last
+//! (`diffkfc_data::keyframes::timeline` plans the windows). Each window after the first is given the last
 //! [`OVERLAP`] frames of the motion so far as keyframes (every feature, place and heading, in
 //! the window's own frame), and its frames from the last repeated one on replace the motion's.
 
-use diffkfc_data::footlock::LockReport;
-use diffkfc_data::timeline::{self as tl, Window};
+use diffkfc_data::keyframes::timeline::{self as tl, Window};
+use diffkfc_data::postprocess::footlock::LockReport;
 
 use super::*;
 
@@ -153,18 +153,21 @@ fn window_keys(
         (vec![0f32; n * d], vec![0f32; n * d], vec![RootKey::default(); n]);
     if w.keyed > 0 {
         let tail = &so_far[w.start * d..];
-        let traj = warp::root_trajectory(tail, d);
+        let traj = root_key::root_trajectory(tail, d);
         v[..w.keyed * d].copy_from_slice(&tail[..w.keyed * d]);
         m[..w.keyed * d].fill(1.0);
         root[..w.keyed].copy_from_slice(&traj[..w.keyed]);
     }
-    let origin =
-        if w.start == 0 { RootKey::default() } else { warp::root_trajectory(so_far, d)[w.start] };
+    let origin = if w.start == 0 {
+        RootKey::default()
+    } else {
+        root_key::root_trajectory(so_far, d)[w.start]
+    };
     for &g in keys.frames.iter().filter(|&&g| g >= w.start + w.keyed && g < w.end) {
         let f = g - w.start;
         v[f * d..(f + 1) * d].copy_from_slice(&keys.values[g * d..(g + 1) * d]);
         m[f * d..(f + 1) * d].copy_from_slice(&keys.mask[g * d..(g + 1) * d]);
-        root[f] = diffkfc_data::keyframe_file::relative_to(keys.root[g], origin);
+        root[f] = diffkfc_data::io::keyframe_file::relative_to(keys.root[g], origin);
     }
     (v, m, root)
 }

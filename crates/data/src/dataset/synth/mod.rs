@@ -1,0 +1,569 @@
+//! `diffkfc data synth`: a procedural text-motion dataset in the exact HumanML3D layout.
+//!
+//! Clips are single actions, sequences ("walks forward, then jumps"), simultaneous upper and
+//! lower body ("walks while waving the right hand"), and ambiguous captions realised two ways
+//! ("bends over and walks": bend then walk, or walk bent over) where only keyframes can tell.
+//! Poses come from a parametric body with leg IK (`body`), locomotion from a footstep planner
+//! (`gait`); features from the same `process_file` as real data.
+
+pub mod actions;
+pub mod body;
+pub mod captions;
+pub mod gait;
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+use serde_json::{json, Value};
+
+use self::actions::{Part, Segment, ACTIONS};
+use self::body::Pose;
+use crate::io::texts::Caption;
+use crate::motion::representation::{self as rep, Layout, FOOT_CONTACT_THRESHOLD};
+use crate::rng::Rng;
+use crate::{io::npy, DataError, T2M};
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Pattern {
+    Single,
+    Sequence,
+    Simultaneous,
+    Ambiguous,
+}
+
+pub const PATTERNS: [Pattern; 4] =
+    [Pattern::Single, Pattern::Sequence, Pattern::Simultaneous, Pattern::Ambiguous];
+
+#[derive(Clone, Debug, Serialize)]
+pub struct ActionSpan {
+    pub action: &'static str,
+    pub start: usize,
+    pub end: usize,
+    pub params: Value,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct ClipMeta {
+    pub id: String,
+    pub pattern: Pattern,
+    /// For ambiguous clips: which realisation ("sequence" or "simultaneous").
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub realisation: Option<&'static str>,
+    pub frames: usize,
+    pub actions: Vec<ActionSpan>,
+    pub captions: Vec<String>,
+    pub split: &'static str,
+}
+
+/// A generated clip: joint positions (T+1 frames, so features have T) and its description.
+pub struct Clip {
+    pub joints: rep::Joints,
+    pub meta: ClipMeta,
+}
+
+/// Ambiguous captions and their two realisations (sequence first, simultaneous second).
+struct Ambiguous {
+    name: &'static str,
+    phrases: &'static [&'static str],
+    sequence: [&'static str; 2],
+    simultaneous: (&'static str, &'static str),
+}
+
+const AMBIGUOUS: &[Ambiguous] = &[
+    Ambiguous {
+        name: "bend_and_walk",
+        phrases: &["bends over and walks", "walks and bends over", "bends down and walks forward"],
+        sequence: ["pick_up", "walk_forward"],
+        simultaneous: ("walk_forward", "bent"),
+    },
+    Ambiguous {
+        name: "walk_and_wave",
+        phrases: &["walks and waves", "walks forward and waves a hand", "waves and walks"],
+        sequence: ["walk_forward", "wave"],
+        simultaneous: ("walk_forward", "wave"),
+    },
+    Ambiguous {
+        name: "squat_and_raise",
+        phrases: &[
+            "squats and raises both arms",
+            "raises both arms and squats",
+            "squats with arms raised",
+        ],
+        sequence: ["raise_both_arms", "squat"],
+        simultaneous: ("squat", "raise_both_arms"),
+    },
+    Ambiguous {
+        name: "turn_and_walk",
+        phrases: &["turns and walks", "walks and turns", "turns while walking"],
+        sequence: ["turn", "walk_forward"],
+        simultaneous: ("walk_circle", ""),
+    },
+];
+
+/// Lower-body actions that an upper-body action can be overlaid on.
+const OVERLAY_BASES: &[&str] = &[
+    "walk_forward",
+    "walk_backward",
+    "walk_sideways",
+    "walk_circle",
+    "jog",
+    "turn",
+    "squat",
+    "jump_in_place",
+];
+
+fn frames_in(r: &mut Rng, range: (usize, usize), cap: usize) -> usize {
+    let lo = range.0.min(cap);
+    let hi = range.1.min(cap).max(lo);
+    lo + r.below(hi - lo + 1)
+}
+
+/// Run an action from `start` (upper-body actions over a standing idle).
+fn perform(r: &mut Rng, name: &str, start: &Pose, n: usize) -> Segment {
+    let a = actions::by_name(name);
+    match a.part {
+        Part::Lower => (a.gen)(r, start, n),
+        Part::Upper => {
+            let base = actions::idle(r, start, n);
+            overlay(r, base, name)
+        }
+    }
+}
+
+/// Put an upper-body action's arms (and twist) on top of a base segment's poses.
+fn overlay(r: &mut Rng, base: Segment, upper: &str) -> Segment {
+    let n = base.poses.len();
+    let up = (actions::by_name(upper).gen)(r, &base.poses[0], n);
+    let poses = base
+        .poses
+        .iter()
+        .zip(&up.poses)
+        .map(|(b, u)| {
+            // The upper action was computed on the base's first pose; take only its arms.
+            let mut p = *b;
+            let rest = base.poses[0].arms;
+            for (k, rest) in rest.iter().enumerate() {
+                let changed = (u.arms[k].flex - rest.flex).abs()
+                    + (u.arms[k].abd - rest.abd).abs()
+                    + (u.arms[k].elbow - rest.elbow).abs();
+                let w = (changed * 4.0).min(1.0);
+                p.arms[k] = body::Arm::lerp(b.arms[k], u.arms[k], w);
+            }
+            p.twist += u.twist;
+            p
+        })
+        .collect();
+    Segment { poses, params: json!({"base": base.params, "upper": up.params}), side: up.side }
+}
+
+/// Concatenate two segments, cross-fading the first `blend` frames of the second from the
+/// last pose of the first.
+fn concat(a: &[Pose], b: &[Pose], blend: usize) -> Vec<Pose> {
+    let last = *a.last().unwrap();
+    let mut out = a.to_vec();
+    for (i, p) in b.iter().enumerate() {
+        let w = body::smooth((i + 1) as f64 / (blend + 1) as f64);
+        out.push(if i < blend { Pose::lerp(&last, p, w) } else { *p });
+    }
+    out
+}
+
+fn end_pose(p: &Pose) -> Pose {
+    // The next action starts from where this one ended, standing.
+    let mut s = Pose::standing(p.root[0], p.root[2], p.yaw);
+    s.feet = p.feet;
+    s
+}
+
+/// Generate clip `index` of a dataset with `seed`: the first attempt whose features
+/// reproduce its motion (HumanML3D's smoothed facing direction cannot represent a body that
+/// ends facing opposite to its start within a few seconds; such draws are redrawn).
+pub fn clip(seed: u64, index: usize) -> (Clip, Vec<f32>) {
+    let mut last = None;
+    for attempt in 0..16u64 {
+        let c = clip_attempt(seed, index, attempt);
+        let feats = rep::features_from_joints(&T2M, &c.joints, FOOT_CONTACT_THRESHOLD)
+            .expect("synthetic joints are valid");
+        let rec = rep::recover_from_ric(&T2M, &feats.iter().map(|&v| v as f64).collect::<Vec<_>>());
+        if representable(&c.joints, &rec) {
+            return (c, feats);
+        }
+        last = Some((c, feats));
+    }
+    last.expect("at least one attempt")
+}
+
+/// Whether recovered joints move like the input (frame-to-frame displacement lengths agree;
+/// they are invariant to the canonical placement).
+fn representable(input: &rep::Joints, rec: &rep::Joints) -> bool {
+    rec.windows(2).zip(input.windows(2)).all(|(r, i)| {
+        (0..22).all(|j| {
+            let a = crate::motion::quat::norm(crate::motion::quat::sub(r[1][j], r[0][j]));
+            let b = crate::motion::quat::norm(crate::motion::quat::sub(i[1][j], i[0][j]));
+            (a - b).abs() < 1e-3
+        })
+    })
+}
+
+fn clip_attempt(seed: u64, index: usize, attempt: u64) -> Clip {
+    let mut r = Rng::derive(seed, 7 + (attempt << 8), index as u64);
+    // 3.14, not PI: the synthetic set's bytes are fixed by its seed, and PI would change them.
+    #[allow(clippy::approx_constant)]
+    let start = Pose::standing(r.range(-1.0, 1.0), r.range(-1.0, 1.0), r.range(-3.14, 3.14));
+    let pattern = PATTERNS[[0, 0, 0, 1, 1, 2, 2, 3][r.below(8)]];
+    let max = 195; // +1 position frame -> at most 195 feature frames (< 196)
+    let mut spans = Vec::new();
+    let mut realisation = None;
+    let caps: Vec<String>;
+    let poses: Vec<Pose>;
+    let pick_phrase = |r: &mut Rng, name: &str, side: Option<&str>, ing: bool| {
+        let (p, g) = *r.pick(actions::by_name(name).phrases);
+        captions::fill(if ing { g } else { p }, side)
+    };
+    // Half the time, say coarsely what the parameters are ("slowly", "twice").
+    let modify = |r: &mut Rng, phrase: String, params: &Value| {
+        let m = captions::modifiers(params);
+        if !m.is_empty() && r.chance(0.5) {
+            format!("{phrase} {}", r.pick(&m))
+        } else {
+            phrase
+        }
+    };
+    match pattern {
+        Pattern::Single => {
+            let a = r.pick(ACTIONS);
+            let n = frames_in(&mut r, a.frames, max).max(40);
+            let seg = perform(&mut r, a.name, &start, n);
+            spans.push(ActionSpan { action: a.name, start: 0, end: n, params: seg.params.clone() });
+            caps = (0..3)
+                .map(|_| {
+                    let p = pick_phrase(&mut r, a.name, seg.side, false);
+                    let p = modify(&mut r, p, &seg.params);
+                    captions::sentence(&mut r, &p)
+                })
+                .collect();
+            poses = seg.poses;
+        }
+        Pattern::Sequence | Pattern::Ambiguous => {
+            let (names, amb) = if pattern == Pattern::Sequence {
+                let a = r.pick(ACTIONS).name;
+                let mut b = r.pick(ACTIONS).name;
+                while b == a {
+                    b = r.pick(ACTIONS).name;
+                }
+                ([a, b], None)
+            } else {
+                let amb = r.pick(AMBIGUOUS);
+                (amb.sequence, Some(amb))
+            };
+            let simultaneous = amb.is_some() && r.chance(0.5);
+            if let (Some(amb), true) = (amb, simultaneous) {
+                realisation = Some("simultaneous");
+                let (lower, upper) = amb.simultaneous;
+                let n = frames_in(&mut r, (100, 195), max);
+                let base = (actions::by_name(lower).gen)(&mut r, &start, n);
+                let seg = match upper {
+                    "" => base,
+                    "bent" => {
+                        let bend = r.range(0.6, 0.9);
+                        let poses = base
+                            .poses
+                            .iter()
+                            .map(|p| Pose { pitch: p.pitch + bend, head_pitch: -0.3, ..*p })
+                            .collect();
+                        Segment {
+                            poses,
+                            params: json!({"base": base.params, "spine_bend": bend}),
+                            side: None,
+                        }
+                    }
+                    u => overlay(&mut r, base, u),
+                };
+                spans.push(ActionSpan {
+                    action: lower,
+                    start: 0,
+                    end: n,
+                    params: seg.params.clone(),
+                });
+                if !upper.is_empty() && upper != "bent" {
+                    spans.push(ActionSpan {
+                        action: upper,
+                        start: 0,
+                        end: n,
+                        params: seg.params["upper"].clone(),
+                    });
+                }
+                poses = seg.poses;
+            } else {
+                realisation = amb.map(|_| "sequence");
+                let n1 = frames_in(&mut r, (45, 100), 100);
+                let n2 = frames_in(&mut r, (45, 95), max - n1);
+                let s1 = perform(&mut r, names[0], &start, n1);
+                let s2 = perform(&mut r, names[1], &end_pose(s1.poses.last().unwrap()), n2);
+                spans.push(ActionSpan {
+                    action: names[0],
+                    start: 0,
+                    end: n1,
+                    params: s1.params.clone(),
+                });
+                spans.push(ActionSpan {
+                    action: names[1],
+                    start: n1,
+                    end: n1 + n2,
+                    params: s2.params.clone(),
+                });
+                poses = concat(&s1.poses, &s2.poses, 8);
+                if amb.is_none() {
+                    caps = (0..3)
+                        .map(|_| {
+                            let p1 = pick_phrase(&mut r, names[0], s1.side, false);
+                            let p1 = modify(&mut r, p1, &s1.params);
+                            let (p2, g2) = (
+                                pick_phrase(&mut r, names[1], s2.side, false),
+                                pick_phrase(&mut r, names[1], s2.side, true),
+                            );
+                            let pred = match r.below(4) {
+                                0 => format!("{p1}, then {p2}"),
+                                1 => format!("{p1} and then {p2}"),
+                                2 => format!("first {p1}, then {p2}"),
+                                _ => format!("{p1} before {g2}"),
+                            };
+                            captions::sentence(&mut r, &pred)
+                        })
+                        .collect();
+                    return finish(index, pattern, realisation, poses, spans, caps);
+                }
+            }
+            let amb = amb.unwrap();
+            caps = (0..3)
+                .map(|_| {
+                    let p = r.pick(amb.phrases).to_string();
+                    captions::sentence(&mut r, &p)
+                })
+                .collect();
+            spans.insert(
+                0,
+                ActionSpan { action: amb.name, start: 0, end: poses.len(), params: json!({}) },
+            );
+        }
+        Pattern::Simultaneous => {
+            let lower = *r.pick(OVERLAY_BASES);
+            let uppers: Vec<&str> =
+                ACTIONS.iter().filter(|a| a.part == Part::Upper).map(|a| a.name).collect();
+            let upper = *r.pick(&uppers);
+            let n = frames_in(&mut r, actions::by_name(lower).frames, max).max(60);
+            let base = (actions::by_name(lower).gen)(&mut r, &start, n);
+            let base_side = base.side;
+            let seg = overlay(&mut r, base, upper);
+            spans.push(ActionSpan {
+                action: lower,
+                start: 0,
+                end: n,
+                params: seg.params["base"].clone(),
+            });
+            spans.push(ActionSpan {
+                action: upper,
+                start: 0,
+                end: n,
+                params: seg.params["upper"].clone(),
+            });
+            caps = (0..3)
+                .map(|_| {
+                    let (l, lg) = (
+                        pick_phrase(&mut r, lower, base_side, false),
+                        pick_phrase(&mut r, lower, base_side, true),
+                    );
+                    let (u, ug) = (
+                        pick_phrase(&mut r, upper, seg.side, false),
+                        pick_phrase(&mut r, upper, seg.side, true),
+                    );
+                    let pred = match r.below(3) {
+                        0 => format!("{l} while {ug}"),
+                        1 => format!("{u} while {lg}"),
+                        _ => format!("{l} and {u} at the same time"),
+                    };
+                    captions::sentence(&mut r, &pred)
+                })
+                .collect();
+            poses = seg.poses;
+        }
+    }
+    finish(index, pattern, realisation, poses, spans, caps)
+}
+
+fn finish(
+    index: usize,
+    pattern: Pattern,
+    realisation: Option<&'static str>,
+    poses: Vec<Pose>,
+    actions: Vec<ActionSpan>,
+    captions: Vec<String>,
+) -> Clip {
+    let joints: rep::Joints = body::joints_seq(&poses);
+    let frames = joints.len() - 1;
+    Clip {
+        joints,
+        meta: ClipMeta {
+            id: format!("{index:06}"),
+            pattern,
+            realisation,
+            frames,
+            actions,
+            captions,
+            split: "train",
+        },
+    }
+}
+
+/// Split of the `k`-th clip of a (pattern, first action) group: about 75% train, 5% val,
+/// 20% test, and every group with two or more clips in both train and test.
+fn split_of(k: usize) -> &'static str {
+    match k % 20 {
+        1 | 6 | 11 | 16 => "test",
+        3 => "val",
+        _ => "train",
+    }
+}
+
+pub struct SynthSummary {
+    pub clips: usize,
+    pub frames: usize,
+    pub out: PathBuf,
+}
+
+/// Write a synthetic dataset of `n` clips to `out` (built in a temporary sibling directory and
+/// renamed at the end). `progress(done, total)`.
+pub fn write_dataset(
+    out: &Path,
+    n: usize,
+    seed: u64,
+    threads: usize,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<SynthSummary, DataError> {
+    let io = |p: &Path| {
+        let p = p.to_path_buf();
+        move |e| DataError::Io { path: p, err: e }
+    };
+    if out.exists() && std::fs::read_dir(out).map(|mut d| d.next().is_some()).unwrap_or(true) {
+        return Err(DataError::Invalid(format!(
+            "{}: already exists and is not empty",
+            out.display()
+        )));
+    }
+    let name =
+        out.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "synth".into());
+    let tmp = out.with_file_name(format!(".{name}.partial{}", std::process::id()));
+    // What interrupted runs left (up to hundreds of MB each).
+    let parent = tmp.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    crate::io::atomic::remove_dead_leftovers(parent, &format!(".{name}"), "partial");
+    let _ = std::fs::remove_dir_all(&tmp);
+    for sub in ["new_joint_vecs", "new_joints", "texts"] {
+        std::fs::create_dir_all(tmp.join(sub)).map_err(io(&tmp))?;
+    }
+    let dim = T2M.feature_dim();
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    // Each clip depends only on (seed, index); threads just share the work.
+    type Out = (ClipMeta, Vec<f64>, Vec<f64>, usize);
+    let work = |i: usize| -> Result<Out, DataError> {
+        let (c, feats) = clip(seed, i);
+        let t = feats.len() / dim;
+        let fdata: Vec<f64> = feats.iter().map(|&v| v as f64).collect();
+        let rec = rep::recover_from_ric(&T2M, &fdata);
+        npy::write(tmp.join(format!("new_joint_vecs/{}.npy", c.meta.id)), &[t, dim], &feats)?;
+        npy::write(
+            tmp.join(format!("new_joints/{}.npy", c.meta.id)),
+            &[t, 22, 3],
+            &rep::joints_to_f32(&rec),
+        )?;
+        let mut sum = vec![0.0; dim];
+        let mut sq = vec![0.0; dim];
+        for row in fdata.chunks(dim) {
+            for k in 0..dim {
+                sum[k] += row[k];
+                sq[k] += row[k] * row[k];
+            }
+        }
+        let d = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+        progress(d, n);
+        Ok((c.meta, sum, sq, t))
+    };
+    let threads = threads.max(1);
+    let mut results: Vec<Option<Result<Out, DataError>>> = (0..n).map(|_| None).collect();
+    std::thread::scope(|s| {
+        let chunks: Vec<_> = results.chunks_mut(n.div_ceil(threads).max(1)).enumerate().collect();
+        let per = n.div_ceil(threads).max(1);
+        for (ci, chunk) in chunks {
+            let work = &work;
+            s.spawn(move || {
+                for (k, slot) in chunk.iter_mut().enumerate() {
+                    *slot = Some(work(ci * per + k));
+                }
+            });
+        }
+    });
+    let mut metas = Vec::with_capacity(n);
+    let (mut sum, mut sq, mut frames) = (vec![0.0; dim], vec![0.0; dim], 0usize);
+    for r in results {
+        let (m, s1, s2, t) = r.expect("every clip generated")?;
+        for k in 0..dim {
+            sum[k] += s1[k];
+            sq[k] += s2[k];
+        }
+        frames += t;
+        metas.push(m);
+    }
+    // Splits, balanced within each (pattern, first action) group.
+    let mut counts = std::collections::HashMap::new();
+    for m in &mut metas {
+        let k = counts.entry((m.pattern as u8, m.actions[0].action)).or_insert(0usize);
+        m.split = split_of(*k);
+        *k += 1;
+    }
+    for m in &metas {
+        let lines: Vec<String> = m
+            .captions
+            .iter()
+            .map(|c| {
+                Caption { text: c.clone(), tokens: captions::tokens(c), start: 0.0, end: 0.0 }
+                    .to_line()
+            })
+            .collect();
+        crate::write_atomic(
+            &tmp.join(format!("texts/{}.txt", m.id)),
+            (lines.join("\n") + "\n").as_bytes(),
+        )?;
+    }
+    for split in ["train", "val", "test"] {
+        let ids: Vec<&str> =
+            metas.iter().filter(|m| m.split == split).map(|m| m.id.as_str()).collect();
+        crate::write_atomic(&tmp.join(format!("{split}.txt")), (ids.join("\n") + "\n").as_bytes())?;
+    }
+    let (mean, std) = mean_std(&sum, &sq, frames);
+    npy::write(tmp.join("Mean.npy"), &[dim], &mean)?;
+    npy::write(tmp.join("Std.npy"), &[dim], &std)?;
+    let manifest = json!({"generator": "diffkfc data synth", "version": env!("CARGO_PKG_VERSION"), "seed": seed, "clips": metas});
+    crate::write_atomic(
+        &tmp.join("manifest.json"),
+        &serde_json::to_vec_pretty(&manifest).expect("json"),
+    )?;
+    if out.exists() {
+        std::fs::remove_dir(out).map_err(io(out))?;
+    }
+    std::fs::rename(&tmp, out).map_err(io(out))?;
+    Ok(SynthSummary { clips: n, frames, out: out.to_path_buf() })
+}
+
+/// Per-dim mean, and std averaged within each feature group as HumanML3D does.
+pub fn mean_std(sum: &[f64], sq: &[f64], frames: usize) -> (Vec<f32>, Vec<f32>) {
+    let nf = frames.max(1) as f64;
+    let mean: Vec<f64> = sum.iter().map(|s| s / nf).collect();
+    let std: Vec<f64> =
+        sq.iter().zip(&mean).map(|(q, m)| (q / nf - m * m).max(0.0).sqrt()).collect();
+    let mut grouped = std.clone();
+    for (_, range) in Layout::of(&T2M).groups() {
+        let g = std[range.clone()].iter().sum::<f64>() / range.len() as f64;
+        grouped[range].iter_mut().for_each(|v| *v = g.max(1e-4));
+    }
+    (mean.iter().map(|&v| v as f32).collect(), grouped.iter().map(|&v| v as f32).collect())
+}

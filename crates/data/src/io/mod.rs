@@ -1,0 +1,11 @@
+//! Files: `.npy` arrays, BVH (parsing, rig import and export), motion and keyframe files a
+//! user hands us, caption files, and writing outputs atomically, one file or a whole folder.
+
+pub(crate) mod atomic;
+pub mod bvh;
+pub mod keyframe_file;
+pub mod motion_file;
+pub mod npy;
+pub mod output_set;
+pub mod rig;
+pub mod texts;

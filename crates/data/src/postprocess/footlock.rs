@@ -1,0 +1,558 @@
+//! Foot locking: after the keyframe fit, a foot the motion itself labels as planted (its toe's
+//! contact channel) is held still on the ground plane and its leg reaches it by two-bone IK.
+//! Generated walks slide their planted feet (foot skating); this removes the slide without
+//! touching the root, so keyed places and headings stay exact, and it leaves held frames
+//! (the pose keyframes) unchanged.
+
+use crate::motion::quat::{self, Quat, Vec3};
+use crate::motion::representation::{recover_from_ric, recover_root_rot_pos, Layout};
+use crate::motion::skeleton::Skeleton;
+
+/// A toe contact channel above this marks its foot planted.
+pub const CONTACT: f32 = 0.5;
+/// Frames over which a lock's offset fades out before and after a planted span (0.2 s).
+pub const BLEND: usize = 4;
+/// Largest move of a planted foot (metres): a span that slides further than twice this is not
+/// a planted step but a dragged foot; it is left as it is and counted in
+/// [`LockReport::dragged`]. What keeps a lock from stretching the leg is the reach test
+/// ([`REACH_SLACK_M`]); on the reference model caps of 0.5 and 1.0 m lock the same spans.
+pub const MAX_SHIFT_M: f64 = 0.5;
+
+/// How far short of its anchor a held foot may stay (metres): a span is locked only if at every
+/// frame the leg, straightened if need be, reaches within this of the anchor (two-bone IK pulls
+/// an out-of-reach foot in along the hip-ankle line, which is a slide of that size). Spans
+/// needing more are left as they are and counted in [`LockReport::out_of_reach`]: holding them
+/// would stretch the leg straight and still slide.
+pub const REACH_SLACK_M: f64 = 0.02;
+
+/// What locking did to one motion.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct LockReport {
+    /// Frames (per foot, summed) whose foot was moved.
+    pub frames: usize,
+    /// Largest horizontal move of a foot (metres): how far the motion's own feet slid.
+    pub max_shift_m: f64,
+    /// Planted spans left unlocked because their foot slides more than a step can absorb.
+    pub dragged: usize,
+    /// Planted spans left unlocked because the leg could reach the held foot only straight.
+    pub out_of_reach: usize,
+    /// Every planted span, with how far its toe slid before and after locking.
+    pub spans: Vec<PlantSpan>,
+}
+
+/// What became of one planted span.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Outcome {
+    Locked,
+    Dragged,
+    OutOfReach,
+}
+
+/// One planted span of one foot: frames `start..=end` whose toe the motion labels in contact.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct PlantSpan {
+    pub foot: &'static str,
+    pub start: usize,
+    pub end: usize,
+    pub outcome: Outcome,
+    /// Largest horizontal distance of the toe from its place at the span's first frame
+    /// (metres), before and after locking.
+    pub drift_before_m: f64,
+    pub drift_after_m: f64,
+}
+
+/// One leg's joints, from the hip to the toe.
+#[derive(Clone, Copy)]
+struct Leg {
+    hip: usize,
+    knee: usize,
+    ankle: usize,
+    toe: usize,
+    /// Index of the toe's contact channel among the 4 contact channels.
+    contact: usize,
+}
+
+fn legs(skel: &Skeleton) -> Vec<Leg> {
+    let mut out = Vec::new();
+    for (feet, contact) in [(skel.feet_left, 1), (skel.feet_right, 3)] {
+        let [ankle, toe] = feet;
+        for chain in skel.kinematic_chain {
+            if let Some(p) = chain.iter().position(|&j| j == ankle) {
+                if p >= 2 && chain.get(p + 1) == Some(&toe) {
+                    out.push(Leg { hip: chain[p - 2], knee: chain[p - 1], ankle, toe, contact });
+                }
+            }
+        }
+    }
+    out
+}
+
+fn smoothstep(x: f64) -> f64 {
+    let x = x.clamp(0.0, 1.0);
+    x * x * (3.0 - 2.0 * x)
+}
+
+/// Horizontal offset of one foot per frame: inside a planted span, from its toe to the span's
+/// anchor (the toe's mean place, or its place at the nearest held frame, so held frames get 0);
+/// outside, the span-end offsets fading over up to `blend` free frames. Spans needing a move
+/// over `max_shift`, or a move `reachable(frame, offset)` refuses, are skipped; returns the
+/// offsets and every span (first frame, last frame, outcome).
+fn offsets(
+    toe: &[Vec3],
+    planted: &[bool],
+    hold: &[bool],
+    blend: usize,
+    max_shift: f64,
+    reachable: impl Fn(usize, Vec3) -> bool,
+) -> (Vec<Vec3>, Vec<(usize, usize, Outcome)>) {
+    let t = toe.len();
+    let mut o = vec![[0.0; 3]; t];
+    let mut spans = Vec::new();
+    let mut s = 0;
+    while s < t {
+        if !planted[s] {
+            s += 1;
+            continue;
+        }
+        let mut e = s;
+        while e + 1 < t && planted[e + 1] {
+            e += 1;
+        }
+        // Held frames in the span or right beside it: the foot stays where they put it (a span
+        // that starts after a pose key must not snap away from the key's foot).
+        let held: Vec<usize> =
+            (s.saturating_sub(1)..=(e + 1).min(t - 1)).filter(|&f| hold[f]).collect();
+        let mean = (s..=e).fold([0.0; 3], |a, f| quat::add(a, toe[f]));
+        let mean = quat::scale(mean, 1.0 / (e - s + 1) as f64);
+        let span: Vec<Vec3> = (s..=e)
+            .map(|f| {
+                let anchor =
+                    held.iter().min_by_key(|&&k| k.abs_diff(f)).map(|&k| toe[k]).unwrap_or(mean);
+                [anchor[0] - toe[f][0], 0.0, anchor[2] - toe[f][2]]
+            })
+            .collect();
+        if span.iter().any(|v| quat::norm(*v) > max_shift) {
+            spans.push((s, e, Outcome::Dragged));
+            s = e + 1;
+            continue;
+        }
+        if span.iter().enumerate().any(|(i, v)| !hold[s + i] && !reachable(s + i, *v)) {
+            spans.push((s, e, Outcome::OutOfReach));
+            s = e + 1;
+            continue;
+        }
+        spans.push((s, e, Outcome::Locked));
+        o[s..=e].copy_from_slice(&span);
+        // Fade out into the free frames on each side, stopping short of held and planted ones.
+        let free = |f: usize| !planted[f] && !hold[f];
+        let after = (1..=blend).take_while(|&i| e + i < t && free(e + i)).count();
+        for i in 1..=after {
+            let w = smoothstep(1.0 - i as f64 / (after + 1) as f64);
+            o[e + i] = quat::add(o[e + i], quat::scale(o[e], w));
+        }
+        let before = (1..=blend).take_while(|&i| i <= s && free(s - i)).count();
+        for i in 1..=before {
+            let w = smoothstep(1.0 - i as f64 / (before + 1) as f64);
+            o[s - i] = quat::add(o[s - i], quat::scale(o[s], w));
+        }
+        s = e + 1;
+    }
+    (o, spans)
+}
+
+/// Largest horizontal distance (metres) of `toe` over `start..=end` from its place at `start`.
+fn drift(toe: impl Fn(usize) -> Vec3, start: usize, end: usize, unit: f64) -> f64 {
+    let a = toe(start);
+    (start..=end).map(toe).map(|p| (p[0] - a[0]).hypot(p[2] - a[2]) * unit).fold(0.0, f64::max)
+}
+
+/// Knee position for a hip `h`, a moved ankle target `a` and the frame's own thigh and shin
+/// lengths, bending towards the original knee `k0`; the ankle is pulled in when out of reach.
+/// Returns (knee, ankle).
+fn two_bone(h: Vec3, k0: Vec3, a0: Vec3, a: Vec3) -> (Vec3, Vec3) {
+    let (l1, l2) = (quat::norm(quat::sub(k0, h)), quat::norm(quat::sub(a0, k0)));
+    let ha = quat::sub(a, h);
+    let dist = quat::norm(ha);
+    if dist < 1e-9 || l1 < 1e-9 || l2 < 1e-9 {
+        return (k0, a0);
+    }
+    let u = quat::scale(ha, 1.0 / dist);
+    let d = dist.clamp((l1 - l2).abs() + 1e-6, (l1 + l2) * (1.0 - 1e-6));
+    let a = quat::add(h, quat::scale(u, d));
+    let along = (l1 * l1 - l2 * l2 + d * d) / (2.0 * d);
+    let up = (l1 * l1 - along * along).max(0.0).sqrt();
+    let hk = quat::sub(k0, h);
+    let bend = quat::sub(hk, quat::scale(u, quat::dot(hk, u)));
+    let bend = if quat::norm(bend) > 1e-9 { quat::normalize(bend) } else { return (k0, a0) };
+    (quat::add(h, quat::add(quat::scale(u, along), quat::scale(bend, up))), a)
+}
+
+fn read6(row: &[f64], at: usize) -> Quat {
+    quat::from_matrix(quat::cont6d_to_matrix([
+        row[at],
+        row[at + 1],
+        row[at + 2],
+        row[at + 3],
+        row[at + 4],
+        row[at + 5],
+    ]))
+}
+
+/// Lock the planted feet of de-normalised features `feats` [T, D] in place. `hold[f]` marks
+/// frames that must not change (pose keyframes). Positions, local velocities and the leg's
+/// rotations are updated together; the root and the contact labels are not touched.
+pub fn lock_feet(
+    skel: &Skeleton,
+    feats: &mut [f32],
+    hold: &[bool],
+    blend: usize,
+    max_shift_m: f64,
+) -> LockReport {
+    let layout = Layout::of(skel);
+    let d = layout.dim();
+    let t = feats.len() / d;
+    let mut report = LockReport::default();
+    if t < 2 {
+        return report;
+    }
+    let f64s: Vec<f64> = feats.iter().map(|&v| v as f64).collect();
+    let joints = recover_from_ric(skel, &f64s);
+    let (rq, _) = recover_root_rot_pos(&f64s, d);
+    let unit = skel.metres_per_unit;
+    let slack = REACH_SLACK_M / unit;
+    for leg in legs(skel) {
+        let planted: Vec<bool> = (0..t)
+            .map(|f| feats[f * d + layout.contacts().start + leg.contact] > CONTACT)
+            .collect();
+        let toe: Vec<Vec3> = joints.iter().map(|j| j[leg.toe]).collect();
+        // The frame's own bone lengths: generated motions stretch them a little.
+        let reachable = |f: usize, o: Vec3| {
+            let j = &joints[f];
+            let leg_len = quat::norm(quat::sub(j[leg.knee], j[leg.hip]))
+                + quat::norm(quat::sub(j[leg.ankle], j[leg.knee]));
+            let wanted = quat::norm(quat::sub(quat::add(j[leg.ankle], o), j[leg.hip]));
+            wanted <= leg_len + slack
+        };
+        let (o, spans) = offsets(&toe, &planted, hold, blend, max_shift_m / unit, reachable);
+        report.dragged += spans.iter().filter(|s| s.2 == Outcome::Dragged).count();
+        report.out_of_reach += spans.iter().filter(|s| s.2 == Outcome::OutOfReach).count();
+        // New knee, ankle and toe positions where the foot moves (deltas, zero elsewhere).
+        let mut delta = vec![[[0.0; 3]; 3]; t];
+        let mut moved = vec![false; t];
+        for f in 0..t {
+            let shift = quat::norm(o[f]);
+            if shift == 0.0 || hold[f] {
+                continue;
+            }
+            let j = &joints[f];
+            let (k, a) =
+                two_bone(j[leg.hip], j[leg.knee], j[leg.ankle], quat::add(j[leg.ankle], o[f]));
+            let toe_new = quat::add(a, quat::sub(j[leg.toe], j[leg.ankle]));
+            delta[f] = [
+                quat::sub(k, j[leg.knee]),
+                quat::sub(a, j[leg.ankle]),
+                quat::sub(toe_new, j[leg.toe]),
+            ];
+            moved[f] = true;
+            report.frames += 1;
+            report.max_shift_m = report.max_shift_m.max(quat::norm(delta[f][1]) * unit);
+        }
+        let foot = if leg.contact == 1 { "left" } else { "right" };
+        report.spans.extend(spans.iter().map(|&(start, end, outcome)| PlantSpan {
+            foot,
+            start,
+            end,
+            outcome,
+            drift_before_m: drift(|f| toe[f], start, end, unit),
+            drift_after_m: drift(|f| quat::add(toe[f], delta[f][2]), start, end, unit),
+        }));
+        let chain = [leg.knee, leg.ankle, leg.toe];
+        // Held rows stay as they are, velocities included.
+        for f in (0..t).filter(|&f| !hold[f] && (moved[f] || (f + 1 < t && moved[f + 1]))) {
+            let row = &mut feats[f * d..(f + 1) * d];
+            let next = if f + 1 < t { delta[f + 1] } else { delta[f] };
+            for (c, &jt) in chain.iter().enumerate() {
+                let ric = quat::qrot(rq[f], delta[f][c]);
+                let vel = quat::qrot(rq[f], quat::sub(next[c], delta[f][c]));
+                for k in 0..3 {
+                    row[layout.ric().start + (jt - 1) * 3 + k] += ric[k] as f32;
+                    row[layout.vel().start + jt * 3 + k] += vel[k] as f32;
+                }
+            }
+            if moved[f] {
+                relocal(
+                    skel,
+                    &layout,
+                    leg,
+                    rq[f],
+                    &joints[f],
+                    &delta[f],
+                    &f64s[f * d..(f + 1) * d],
+                    row,
+                );
+            }
+        }
+    }
+    report
+}
+
+/// Rewrite the local rotations of the knee, ankle and toe slots (HumanML3D stores at a joint the
+/// rotation of the bone that ends there) after the thigh and shin turned: each bone's global
+/// rotation is turned by the swing from its old to its new direction; the foot keeps its own.
+#[allow(clippy::too_many_arguments)]
+fn relocal(
+    skel: &Skeleton,
+    layout: &Layout,
+    leg: Leg,
+    root: Quat,
+    j: &[Vec3],
+    delta: &[Vec3; 3],
+    old: &[f64],
+    row: &mut [f32],
+) {
+    let chain = skel.kinematic_chain.iter().find(|c| c.contains(&leg.hip)).expect("leg in a chain");
+    let rot = |jt: usize| layout.rot().start + (jt - 1) * 6;
+    // Global rotations down the chain to the hip slot.
+    let mut g = root;
+    for &jt in &chain[1..] {
+        g = quat::qmul(g, read6(old, rot(jt)));
+        if jt == leg.hip {
+            break;
+        }
+    }
+    let g_hip = g;
+    let g_knee = quat::qmul(g_hip, read6(old, rot(leg.knee)));
+    let g_ankle = quat::qmul(g_knee, read6(old, rot(leg.ankle)));
+    let g_toe = quat::qmul(g_ankle, read6(old, rot(leg.toe)));
+    let (k1, a1) = (quat::add(j[leg.knee], delta[0]), quat::add(j[leg.ankle], delta[1]));
+    let thigh = quat::qbetween(quat::sub(j[leg.knee], j[leg.hip]), quat::sub(k1, j[leg.hip]));
+    let shin = quat::qbetween(quat::sub(j[leg.ankle], j[leg.knee]), quat::sub(a1, k1));
+    let g_knee1 = quat::qmul(thigh, g_knee);
+    let g_ankle1 = quat::qmul(shin, g_ankle);
+    let locals = [
+        (leg.knee, quat::qmul(quat::qinv(g_hip), g_knee1)),
+        (leg.ankle, quat::qmul(quat::qinv(g_knee1), g_ankle1)),
+        (leg.toe, quat::qmul(quat::qinv(g_ankle1), g_toe)),
+    ];
+    for (jt, q) in locals {
+        let c6 = quat::to_cont6d(q);
+        for k in 0..6 {
+            row[rot(jt) + k] = c6[k] as f32;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::motion::plausibility::foot_skating_ratio;
+    use crate::motion::representation::features_from_joints;
+    use crate::T2M;
+
+    /// A synthetic walk's features, and the same with its planted feet sliding forward.
+    fn walk() -> Vec<f32> {
+        let mut clip = None;
+        for i in 0..400 {
+            let (c, f) = crate::dataset::synth::clip(3, i);
+            if c.meta.actions.len() == 1 && c.meta.actions[0].action == "walk_forward" {
+                clip = Some(f);
+                break;
+            }
+        }
+        clip.expect("a walk among the first synthetic clips")
+    }
+
+    fn joints(skel: &Skeleton, f: &[f32]) -> crate::motion::representation::Joints {
+        recover_from_ric(skel, &f.iter().map(|&v| v as f64).collect::<Vec<_>>())
+    }
+
+    #[test]
+    fn nothing_planted_or_all_held_is_identity() {
+        let f = walk();
+        let layout = Layout::of(&T2M);
+        let (d, t) = (layout.dim(), f.len() / layout.dim());
+        let mut none = f.clone();
+        for r in 0..t {
+            none[r * d + layout.contacts().start..(r + 1) * d].iter_mut().for_each(|v| *v = 0.0);
+        }
+        let before = none.clone();
+        assert_eq!(lock_feet(&T2M, &mut none, &vec![false; t], BLEND, MAX_SHIFT_M).frames, 0);
+        assert_eq!(none, before);
+        let mut held = f.clone();
+        lock_feet(&T2M, &mut held, &vec![true; t], BLEND, MAX_SHIFT_M);
+        assert_eq!(held, f);
+    }
+
+    /// The synthetic walk with its lower legs swung back and forth along z by `amplitude`
+    /// metres over `period` frames, keeping the clean clip's contact labels (the slide would
+    /// erase them): its planted feet skate.
+    fn sliding_walk(amplitude: f64, period: f64) -> Vec<f32> {
+        let clean = walk();
+        let layout = Layout::of(&T2M);
+        let d = layout.dim();
+        let mut j = joints(&T2M, &clean);
+        for (f, frame) in j.iter_mut().enumerate() {
+            for &k in &[4usize, 5, 7, 8, 10, 11] {
+                frame[k][2] += amplitude * (std::f64::consts::TAU * f as f64 / period).sin();
+            }
+        }
+        let mut sliding =
+            features_from_joints(&T2M, &j, crate::motion::representation::FOOT_CONTACT_THRESHOLD)
+                .unwrap();
+        let c = layout.contacts();
+        for r in 0..(sliding.len() / d).min(clean.len() / d) {
+            sliding[r * d + c.start..r * d + c.end]
+                .copy_from_slice(&clean[r * d + c.start..r * d + c.end]);
+        }
+        sliding
+    }
+
+    #[test]
+    fn sliding_planted_feet_are_held_and_stay_consistent() {
+        let layout = Layout::of(&T2M);
+        let d = layout.dim();
+        // 6 cm at 2 Hz: planted feet skate at up to 0.75 m/s.
+        let sliding = sliding_walk(0.06, 10.0);
+        let t1 = sliding.len() / d;
+        let hold: Vec<bool> = (0..t1).map(|f| f == t1 / 2).collect();
+        let before_j = joints(&T2M, &sliding);
+        let skate0 = foot_skating_ratio(&T2M, &before_j);
+        let mut locked = sliding.clone();
+        let rep = lock_feet(&T2M, &mut locked, &hold, BLEND, MAX_SHIFT_M);
+        let after_j = joints(&T2M, &locked);
+        let skate1 = foot_skating_ratio(&T2M, &after_j);
+        assert!(
+            rep.frames > 0 && rep.dragged == 0 && skate0 > 0.3 && skate1 < 0.1,
+            "skating {skate0} -> {skate1}, {rep:?}"
+        );
+        // Locked spans are pinned where the leg reaches (to 1 mm) and within the reach slack
+        // where it reaches only straight, from a slide of centimetres; joint velocities stay
+        // continuous at the spans' ends (the toe's acceleration no larger than the slide's).
+        let locked_spans: Vec<&PlantSpan> =
+            rep.spans.iter().filter(|s| s.outcome == Outcome::Locked).collect();
+        assert!(
+            !locked_spans.is_empty() && locked_spans.len() + rep.out_of_reach == rep.spans.len()
+        );
+        for s in &locked_spans {
+            assert!(s.drift_after_m < REACH_SLACK_M, "{s:?}");
+        }
+        // This walk's stance legs are nearly straight, so the reach (not the anchor) bounds the
+        // pin: on average the slide shrinks more than tenfold.
+        let mean = |f: fn(&PlantSpan) -> f64| {
+            locked_spans.iter().map(|s| f(s)).sum::<f64>() / locked_spans.len() as f64
+        };
+        let (before, after) = (mean(|s| s.drift_before_m), mean(|s| s.drift_after_m));
+        assert!(after * 10.0 < before, "drift {before} -> {after} m");
+        assert!(locked_spans.iter().any(|s| s.drift_before_m > 0.02), "{locked_spans:?}");
+        let accel = |j: &[Vec<Vec3>], f: usize, k: usize| {
+            let v = |f: usize| quat::sub(j[f + 1][k], j[f][k]);
+            quat::norm(quat::sub(v(f + 1), v(f)))
+        };
+        for s in &locked_spans {
+            for f in [s.start.saturating_sub(2), s.start, s.end.saturating_sub(1), s.end] {
+                if f + 2 < t1 {
+                    let k = if s.foot == "left" { 10 } else { 11 };
+                    let worst = (0..t1 - 2).map(|g| accel(&before_j, g, k)).fold(0.0, f64::max);
+                    assert!(accel(&after_j, f, k) <= worst * 1.05, "{s:?} frame {f}");
+                }
+            }
+        }
+        // The held frame, the root and the upper body are untouched.
+        let row = |v: &[f32], f: usize| v[f * d..(f + 1) * d].to_vec();
+        assert_eq!(row(&locked, t1 / 2), row(&sliding, t1 / 2));
+        for f in 0..t1 {
+            assert_eq!(locked[f * d..f * d + 4], sliding[f * d..f * d + 4]);
+            for k in [0usize, 3, 6, 9, 12, 15, 16, 17, 20, 21] {
+                assert_eq!(after_j[f][k], before_j[f][k]);
+            }
+        }
+        // Bone lengths hold, planted toes move less than 0.5 m/s, and the rotation slots agree
+        // with the new positions: each bone's global rotation takes its rest direction to it.
+        for (f, (a, b)) in after_j.iter().zip(&before_j).enumerate() {
+            for (p, c) in [(1usize, 4usize), (4, 7), (7, 10), (2, 5), (5, 8), (8, 11)] {
+                let l = |j: &Vec<Vec3>| quat::norm(quat::sub(j[c], j[p]));
+                assert!((l(a) - l(b)).abs() < 1e-5, "frame {f} bone {p}-{c}");
+            }
+            let r = row(&locked, f).iter().map(|&v| v as f64).collect::<Vec<_>>();
+            let rot = |jt: usize| read6(&r, layout.rot().start + (jt - 1) * 6);
+            let (rq, _) =
+                recover_root_rot_pos(&locked.iter().map(|&v| v as f64).collect::<Vec<_>>(), d);
+            let g4 = quat::qmul(quat::qmul(rq[f], rot(1)), rot(4));
+            let g7 = quat::qmul(g4, rot(7));
+            for (g, p, c) in [(g4, 1usize, 4usize), (g7, 4, 7)] {
+                let dir = quat::normalize(quat::sub(a[c], a[p]));
+                let want = quat::qrot(g, T2M.raw_offsets[c]);
+                assert!(
+                    quat::norm(quat::sub(dir, want)) < 1e-3,
+                    "frame {f} bone {p}-{c}: {dir:?} vs {want:?}"
+                );
+            }
+        }
+        // Local velocities match the positions they describe (but at the held frame, kept as is).
+        for f in (0..t1 - 1).filter(|&f| !hold[f]) {
+            let (rq, _) =
+                recover_root_rot_pos(&locked.iter().map(|&v| v as f64).collect::<Vec<_>>(), d);
+            let v = quat::qrot(rq[f], quat::sub(after_j[f + 1][10], after_j[f][10]));
+            for k in 0..3 {
+                assert!(
+                    (locked[f * d + layout.vel().start + 30 + k] as f64 - v[k]).abs() < 1e-4,
+                    "frame {f}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn offsets_fade_and_respect_held_frames() {
+        let toe: Vec<Vec3> = (0..20).map(|f| [0.0, 0.0, 0.05 * f as f64]).collect();
+        let planted: Vec<bool> = (0..20).map(|f| (5..=10).contains(&f)).collect();
+        let mut hold = vec![false; 20];
+        let any = |_: usize, _: Vec3| true;
+        let (o, spans) = offsets(&toe, &planted, &hold, 4, 1.0, any);
+        assert_eq!(spans, vec![(5, 10, Outcome::Locked)]);
+        // Planted frames land on their mean place; the fade is monotone and ends at zero.
+        for f in 5..=10 {
+            assert!((toe[f][2] + o[f][2] - 0.375).abs() < 1e-12);
+        }
+        assert!(
+            o[11][2].abs() < o[10][2].abs()
+                && o[14][2].abs() < o[11][2].abs()
+                && o[15] == [0.0; 3]
+                && o[0] == [0.0; 3]
+        );
+        hold[8] = true;
+        let (o, _) = offsets(&toe, &planted, &hold, 4, 1.0, any);
+        assert_eq!(o[8], [0.0; 3]);
+        assert!((toe[5][2] + o[5][2] - toe[8][2]).abs() < 1e-12);
+        // A foot dragged 25 cm over the span is not a planted step: left alone.
+        let (o, spans) = offsets(&toe, &planted, &[false; 20], 4, 0.1, any);
+        assert_eq!((spans, o), (vec![(5, 10, Outcome::Dragged)], vec![[0.0; 3]; 20]));
+        // A span the leg cannot reach at one of its frames is left alone; held frames are not
+        // asked (they do not move).
+        let short = |f: usize, _: Vec3| f != 9;
+        let (o, spans) = offsets(&toe, &planted, &[false; 20], 4, 1.0, short);
+        assert_eq!((spans, o), (vec![(5, 10, Outcome::OutOfReach)], vec![[0.0; 3]; 20]));
+        let mut hold9 = vec![false; 20];
+        hold9[9] = true;
+        let (_, spans) = offsets(&toe, &planted, &hold9, 4, 1.0, short);
+        assert_eq!(spans, vec![(5, 10, Outcome::Locked)]);
+        // A span right after a held frame keeps the foot where that frame has it: no snap.
+        let mut hold4 = vec![false; 20];
+        hold4[4] = true;
+        let (o, _) = offsets(&toe, &planted, &hold4, 4, 1.0, any);
+        for f in 5..=10 {
+            assert!((toe[f][2] + o[f][2] - toe[4][2]).abs() < 1e-12, "frame {f}");
+        }
+    }
+
+    /// A stance leg pulled past its reach: the lock leaves the span rather than straighten it.
+    #[test]
+    fn unreachable_spans_are_left_alone() {
+        // 40 cm: to hold the feet, the legs would have to reach far past their length.
+        let mut sliding = sliding_walk(0.4, 20.0);
+        let t1 = sliding.len() / Layout::of(&T2M).dim();
+        let rep = lock_feet(&T2M, &mut sliding, &vec![false; t1], BLEND, 2.0);
+        assert!(rep.out_of_reach > 0, "{rep:?}");
+    }
+}

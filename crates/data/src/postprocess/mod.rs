@@ -1,0 +1,6 @@
+//! After sampling: meeting keyframes without a seam (warp), one rigid skeleton (rigid), and
+//! planted feet held still (foot lock).
+
+pub mod footlock;
+pub mod rigid;
+pub mod warp;
