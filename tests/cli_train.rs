@@ -365,7 +365,7 @@ fn bad_train_arguments() {
     assert_one_line_error(&o, &["training.batch_size", "2048", "ulimit", "fits"]);
     // A batch the machine cannot hold is refused before anything is loaded (it used to grow
     // until the kernel killed it).
-    if diffkfc_model::memory::available_bytes().is_some_and(|b| b > 50e9) {
+    if diffkfc_model::training::memory::available_bytes().is_some_and(|b| b > 50e9) {
         eprintln!("SKIPPED: more than 50 GB free, a 16000 batch may fit here");
         return;
     }

@@ -6,8 +6,8 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 use diffkfc_data::io::rig::{self, ImportOptions};
-use diffkfc_model::fit::{Fit, KeyframeFit};
-use diffkfc_model::sampler::Sampler;
+use diffkfc_model::diffusion::scheduler::Sampler;
+use diffkfc_model::sampling::fit::{Fit, KeyframeFit};
 
 /// How a BVH input is read: its joint names, units and up axis.
 #[derive(Args, Clone, Debug, Default)]

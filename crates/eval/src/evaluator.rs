@@ -9,8 +9,8 @@ use burn::nn::conv::{Conv1d, Conv1dConfig};
 use burn::nn::{LayerNorm, LayerNormConfig, Linear, LinearConfig, PaddingConfig1d};
 use burn::prelude::*;
 use burn::tensor::activation::{gelu, log_softmax};
-use diffkfc_model::attention::Attention;
 use diffkfc_model::kernels::{key_mask, layer_norm, linear, linear_gelu};
+use diffkfc_model::network::attention::Attention;
 
 use crate::error::{EvalError, Result};
 
@@ -190,7 +190,7 @@ pub fn text_tensor(
 
 /// Rows of a [B, 512] tensor as f64 vectors.
 fn rows(t: Tensor<2>) -> Vec<Vec<f64>> {
-    diffkfc_model::params::host(t)
+    diffkfc_model::network::params::host(t)
         .chunks(EMBED)
         .map(|r| r.iter().map(|&x| x as f64).collect())
         .collect()
@@ -203,12 +203,13 @@ impl<'a> ContrastiveEvaluator<'a> {
         text: &'a diffkfc_model::text::cache::EmbeddingCache,
         device: &Device,
     ) -> Result<Self> {
-        let mut ck = diffkfc_model::checkpoint::Checkpoint::latest(dir).ok_or_else(|| {
-            EvalError::file(
-                dir,
-                "no evaluator checkpoint (run `diffkfc eval train-evaluator` first)",
-            )
-        })??;
+        let mut ck =
+            diffkfc_model::run::checkpoint::Checkpoint::latest(dir).ok_or_else(|| {
+                EvalError::file(
+                    dir,
+                    "no evaluator checkpoint (run `diffkfc eval train-evaluator` first)",
+                )
+            })??;
         let cfg: EvaluatorConfig = serde_json::from_str(&ck.config)
             .map_err(|e| EvalError::file(dir, format!("evaluator config: {e}")))?;
         if cfg.text_dim != text.dim {
@@ -233,9 +234,9 @@ impl<'a> ContrastiveEvaluator<'a> {
             ));
         }
         let model = cfg.init(device);
-        ck.align(&diffkfc_model::params::names(&model), dir)?;
+        ck.align(&diffkfc_model::network::params::names(&model), dir)?;
         Ok(ContrastiveEvaluator {
-            model: diffkfc_model::params::load(model, &ck.model),
+            model: diffkfc_model::network::params::load(model, &ck.model),
             mean,
             std,
             text,

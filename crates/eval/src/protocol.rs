@@ -13,10 +13,11 @@ use diffkfc_data::motion::plausibility::foot_skating_ratio;
 use diffkfc_data::motion::representation::{recover_from_ric, Joints};
 use diffkfc_data::motion::root_key::{self, ROOT_CHANNELS};
 use diffkfc_data::rng::Rng;
-use diffkfc_model::fit::{Fit, KeyframeFit};
-use diffkfc_model::pipeline::Generator;
-use diffkfc_model::place::PlaceGuidance;
-use diffkfc_model::sampler::{self, Request, Sampler, TgMode};
+use diffkfc_model::diffusion::scheduler::Sampler;
+use diffkfc_model::sampling::fit::{Fit, KeyframeFit};
+use diffkfc_model::sampling::pipeline::Generator;
+use diffkfc_model::sampling::place::PlaceGuidance;
+use diffkfc_model::sampling::sampler::{self, Request, TgMode};
 use diffkfc_model::text::cache::EmbeddingCache;
 
 use crate::evaluator::{eval_length, TextMotionEvaluator};
@@ -218,7 +219,8 @@ impl Protocol<'_> {
         };
         stages
             * rows.div_ceil(self.opts.batch.max(1))
-            * sampler::timesteps(self.gen.schedule, self.opts.sampler).len()
+            * diffkfc_model::diffusion::scheduler::timesteps(self.gen.schedule, self.opts.sampler)
+                .len()
     }
 
     /// Denoising steps the whole run takes (for the progress bar and the estimate).
@@ -237,7 +239,7 @@ impl Protocol<'_> {
 
     /// Whether generating `s` runs both keyframe-guidance branches (a doubled batch).
     fn guided(&self, s: &Setting) -> bool {
-        diffkfc_model::guidance::is_guided(self.opts.kf_guidance, s.rate > 0.0, s.inpaint)
+        diffkfc_model::sampling::guidance::is_guided(self.opts.kf_guidance, s.rate > 0.0, s.inpaint)
     }
 
     /// Generation jobs (item, sample) in denoiser batches, sorted by length to limit padding.
@@ -285,7 +287,9 @@ impl Protocol<'_> {
         probe.generate(&items, &keys, &s, 1, 0, &mut || {});
         let per_unit = t0.elapsed().as_secs_f64() / 2.0 / probe.units(&items, 1, &s).max(1.0);
         let items = self.items(0);
-        let steps = sampler::timesteps(self.gen.schedule, self.opts.sampler).len() as f64;
+        let steps =
+            diffkfc_model::diffusion::scheduler::timesteps(self.gen.schedule, self.opts.sampler)
+                .len() as f64;
         let mm = self.opts.multimodality.min(items.len());
         let text_only = Setting { rate: 0.0, ..s.clone() };
         let proposal =

@@ -485,7 +485,7 @@ pub fn split_captions(ds: &Dataset, split: &str) -> Result<Vec<Caption>> {
 /// Rows of a [B, E] tensor as f64 vectors.
 fn rows(t: Tensor<2>) -> Vec<Vec<f64>> {
     let e = t.dims()[1];
-    diffkfc_model::params::host(t)
+    diffkfc_model::network::params::host(t)
         .chunks(e)
         .map(|r| r.iter().map(|&x| x as f64).collect())
         .collect()

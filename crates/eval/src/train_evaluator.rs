@@ -7,10 +7,10 @@ use burn::prelude::*;
 use diffkfc_data::dataset::batch::{Batch, KeyframeConfig, Loader};
 use diffkfc_data::dataset::cache::PackedSplit;
 use diffkfc_data::dataset::Dataset;
-use diffkfc_model::checkpoint::Checkpoint;
-use diffkfc_model::optim::{Home, Optimiser};
-use diffkfc_model::params;
+use diffkfc_model::network::params;
+use diffkfc_model::run::checkpoint::Checkpoint;
 use diffkfc_model::text::cache::EmbeddingCache;
+use diffkfc_model::training::optim::{Home, Optimiser};
 
 use crate::error::{EvalError, Result};
 use crate::evaluator::{

@@ -1,40 +1,20 @@
-//! diffkfc-model: the DiffKFC network in Burn (text encoder, Dilated Mask Attention keyframe
-//! encoder, transformer decoder) and its diffusion, guidance and losses.
+//! diffkfc-model: the DiffKFC network in Burn and everything that runs it, in the order of the
+//! pipeline: `text` (the frozen MiniLM encoder), `network` (keyframe encoder, decoder),
+//! `diffusion` (the noise schedule and its schedulers), `training` (loop, losses, optimiser),
+//! `run` (configs, run directories, checkpoints, loading for inference), `sampling` (the
+//! reverse loop, guidance, fits, the generation pipeline), `kernels` (fused CPU kernels) and
+//! `bench`.
 
-pub mod attention;
-pub(crate) mod batch;
 pub mod bench;
-pub mod checkpoint;
-pub(crate) mod config;
-pub(crate) mod decoder;
-pub mod denoiser;
 pub mod diffusion;
-pub mod dma;
-pub mod dropout;
-pub(crate) mod embed;
 pub mod error;
-pub mod fit;
-pub mod flops;
-pub mod guidance;
 pub mod kernels;
-pub(crate) mod kinematics;
-pub(crate) mod losses;
-pub mod memory;
-pub mod optim;
-pub mod parallel;
-pub mod params;
-pub mod pipeline;
-pub mod place;
-pub mod run_config;
-pub mod run_dir;
-pub mod run_lock;
-pub mod sampler;
-pub mod scheduler;
-pub(crate) mod temporal;
+pub mod network;
+pub mod run;
+pub mod sampling;
 pub mod text;
-pub mod trainer;
-pub(crate) mod transition;
-pub(crate) mod warm_start;
+pub mod training;
 
-pub use config::DiffKfcConfig;
-pub use denoiser::{Condition, Denoiser, Encoded};
+pub use network::condition::Condition;
+pub use network::config::DiffKfcConfig;
+pub use network::denoiser::{Denoiser, Encoded};

@@ -6,10 +6,11 @@
 #![allow(deprecated)] // Burn marks its ndarray backend deprecated; it is the reference here
 
 use burn::prelude::*;
+use diffkfc_model::diffusion::scheduler::Sampler;
 use diffkfc_model::diffusion::Schedule;
-use diffkfc_model::optim::{clip_grad_norm, Adam, Home, Optimiser};
-use diffkfc_model::params;
-use diffkfc_model::sampler::{sample, Options, Request, Sampler};
+use diffkfc_model::network::params;
+use diffkfc_model::sampling::sampler::{sample, Options, Request};
+use diffkfc_model::training::optim::{clip_grad_norm, Adam, Home, Optimiser};
 use diffkfc_model::{Denoiser, DiffKfcConfig};
 
 fn request() -> Request {

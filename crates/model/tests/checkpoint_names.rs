@@ -2,8 +2,8 @@
 //! tensors come in another order loads into the right parameters, and a missing one is named.
 
 use burn::prelude::*;
-use diffkfc_model::checkpoint::Checkpoint;
-use diffkfc_model::{params, DiffKfcConfig};
+use diffkfc_model::run::checkpoint::Checkpoint;
+use diffkfc_model::{network::params, DiffKfcConfig};
 
 #[test]
 fn every_parameter_has_a_unique_path() {

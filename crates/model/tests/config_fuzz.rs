@@ -5,7 +5,7 @@
 use std::path::Path;
 
 use diffkfc_data::testing::fuzz::{cases, fuzz};
-use diffkfc_model::run_config::RunConfig;
+use diffkfc_model::run::config::RunConfig;
 
 #[test]
 fn configs_never_panic() {

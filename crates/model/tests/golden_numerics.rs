@@ -6,7 +6,7 @@
 use burn::prelude::*;
 use diffkfc_data::{io::npy, rng::Rng};
 use diffkfc_model::bench::{request, Sampling};
-use diffkfc_model::{params, DiffKfcConfig};
+use diffkfc_model::{network::params, DiffKfcConfig};
 
 fn model(cfg: &DiffKfcConfig, device: &Device) -> diffkfc_model::Denoiser {
     let m = cfg.init(device);

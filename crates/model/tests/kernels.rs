@@ -7,7 +7,7 @@ use burn::nn::LayerNormConfig;
 use burn::prelude::*;
 use burn::tensor::Distribution;
 use diffkfc_model::kernels::{self, Mask};
-use diffkfc_model::params::host;
+use diffkfc_model::network::params::host;
 
 /// Largest difference, relative to the reference's largest magnitude when that is above 1
 /// (parameter gradients sum hundreds of rows, where float32 rounding grows with the sum).
@@ -163,9 +163,9 @@ fn fused_residual_layer_norm_matches_burn_with_dropout_and_gradients() {
     let a0 = random([4, 33, 24], &ad);
     let w = random([4, 33, 24], &ad);
     for prob in [0.0, 0.3] {
-        let drop = diffkfc_model::dropout::Dropout::new(prob);
+        let drop = diffkfc_model::network::dropout::Dropout::new(prob);
         let run = |fused: bool| {
-            diffkfc_model::dropout::seed(11);
+            diffkfc_model::network::dropout::seed(11);
             let (h, a) = (h0.clone().detach().require_grad(), a0.clone().detach().require_grad());
             let y = if fused {
                 kernels::residual_layer_norm(&ln, h.clone(), a.clone(), &drop)

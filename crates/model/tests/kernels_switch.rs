@@ -4,7 +4,7 @@
 use burn::prelude::*;
 use burn::tensor::Distribution;
 use diffkfc_model::kernels::{self, Mask};
-use diffkfc_model::params::host;
+use diffkfc_model::network::params::host;
 
 #[test]
 fn the_environment_switch_selects_the_composed_ops() {

@@ -18,12 +18,14 @@ use diffkfc_data::dataset::{Dataset, MAX_FRAMES};
 use diffkfc_data::keyframes;
 use diffkfc_data::motion::root_key::{self, ROOT_CHANNELS};
 use diffkfc_data::rng::Rng;
+use diffkfc_model::diffusion::scheduler::Sampler;
 use diffkfc_model::diffusion::Schedule;
-use diffkfc_model::optim::Home;
-use diffkfc_model::run_config::RunConfig;
-use diffkfc_model::sampler::{sample, Options, Request, Sampler};
+use diffkfc_model::run::config::RunConfig;
+use diffkfc_model::run::load::load_for_inference;
+use diffkfc_model::sampling::sampler::{sample, Options, Request};
 use diffkfc_model::text::cache::EmbeddingCache;
-use diffkfc_model::trainer::{load_for_inference, Trainer};
+use diffkfc_model::training::optim::Home;
+use diffkfc_model::training::trainer::Trainer;
 
 fn env_or(name: &str, default: usize) -> usize {
     std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)

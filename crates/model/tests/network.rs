@@ -6,7 +6,7 @@ use burn::prelude::*;
 use burn::tensor::Distribution;
 use diffkfc_data::motion::root_key::ROOT_CHANNELS;
 use diffkfc_data::motion::root_path::PATH_CHANNELS;
-use diffkfc_model::dma::{DmaBlock, DmaPlan};
+use diffkfc_model::network::keyframe_encoder::{DmaBlock, DmaPlan};
 use diffkfc_model::{Condition, DiffKfcConfig};
 
 const N: usize = 24;
@@ -64,7 +64,7 @@ fn tiny_models(dev: &Device) -> Vec<diffkfc_model::Denoiser> {
     // Temporal taps and the root path hint start at zero: perturbed so that they do something.
     let conv = DiffKfcConfig::tiny().with_temporal_kernel(3).with_root_path(true).init(dev);
     let mut k = 0u32;
-    let vals: Vec<Vec<f32>> = diffkfc_model::params::values(&conv)
+    let vals: Vec<Vec<f32>> = diffkfc_model::network::params::values(&conv)
         .into_iter()
         .map(|(_, v)| {
             if v.iter().all(|&x| x == 0.0) && [3 * 64, 4 * 64, 64].contains(&v.len()) {
@@ -80,7 +80,7 @@ fn tiny_models(dev: &Device) -> Vec<diffkfc_model::Denoiser> {
         })
         .collect();
     assert!(k > 0, "the temporal taps were found");
-    vec![plain, diffkfc_model::params::load(conv, &vals)]
+    vec![plain, diffkfc_model::network::params::load(conv, &vals)]
 }
 
 fn max_diff(a: &[f32], b: &[f32]) -> f32 {

@@ -1,9 +1,10 @@
 //! Sampling: guidance identities, exact keyframes, determinism (tiny random-weight model).
 
 use burn::prelude::*;
+use diffkfc_model::diffusion::scheduler::{timesteps, Sampler};
 use diffkfc_model::diffusion::Schedule;
-use diffkfc_model::fit::{finish, Fit, KeyframeFit};
-use diffkfc_model::sampler::{sample, timesteps, Options, Request, Sampler};
+use diffkfc_model::sampling::fit::{finish, Fit, KeyframeFit};
+use diffkfc_model::sampling::sampler::{sample, Options, Request};
 use diffkfc_model::DiffKfcConfig;
 
 fn request() -> Request {

@@ -18,9 +18,9 @@ use diffkfc_data::motion::representation::recover_from_ric;
 use diffkfc_data::motion::root_key::{self, ROOT_CHANNELS};
 use diffkfc_data::motion::root_track;
 use diffkfc_model::diffusion::Schedule;
-use diffkfc_model::sampler::{sample, Options, Request};
+use diffkfc_model::run::load::load_for_inference;
+use diffkfc_model::sampling::sampler::{sample, Options, Request};
 use diffkfc_model::text::{self, minilm::MiniLm, TextEncoder};
-use diffkfc_model::trainer::load_for_inference;
 
 fn root_dir() -> PathBuf {
     let d = std::env::temp_dir().join(format!("diffkfc-track-{}", std::process::id()));

@@ -7,11 +7,11 @@ use std::path::{Path, PathBuf};
 use burn::prelude::*;
 use diffkfc_data::dataset::cache::PackedSplit;
 use diffkfc_data::dataset::Dataset;
-use diffkfc_model::checkpoint::Checkpoint;
-use diffkfc_model::optim::Home;
-use diffkfc_model::run_config::RunConfig;
+use diffkfc_model::run::checkpoint::Checkpoint;
+use diffkfc_model::run::config::RunConfig;
 use diffkfc_model::text::cache::EmbeddingCache;
-use diffkfc_model::trainer::{Event, Trainer};
+use diffkfc_model::training::optim::Home;
+use diffkfc_model::training::trainer::{Event, Trainer};
 
 /// Burn's device RNG (dropout, initialisation) is process-wide: tests that train take turns.
 static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
@@ -249,12 +249,14 @@ fn tiny_config_lowers_validation_loss() {
 /// them, its keyframe input is 2 x 263 wide) still loads and samples, with pose-only keyframes.
 #[test]
 fn checkpoint_without_root_channels_loads() {
-    use diffkfc_model::sampler::{sample, Options, Request, Sampler};
-    use diffkfc_model::trainer::load_for_inference;
+    use diffkfc_model::diffusion::scheduler::Sampler;
+    use diffkfc_model::run::load::load_for_inference;
+    use diffkfc_model::sampling::sampler::{sample, Options, Request};
     let device = Device::flex();
     let cfg = RunConfig::parse(r#"{"model": "tiny"}"#).unwrap();
     let old_model = cfg.model.clone().with_root_channels(0);
-    let vals: Vec<(Vec<usize>, Vec<f32>)> = diffkfc_model::params::values(&old_model.init(&device));
+    let vals: Vec<(Vec<usize>, Vec<f32>)> =
+        diffkfc_model::network::params::values(&old_model.init(&device));
     // The config as the old code wrote it: every model key but root_channels.
     let mut json: serde_json::Value = serde_json::from_str(&cfg.to_json()).unwrap();
     json["model"].as_object_mut().unwrap().remove("root_channels");
@@ -303,14 +305,14 @@ fn checkpoint_without_root_channels_loads() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
-/// Data parallelism simulated on the CPU (`diffkfc_model::parallel`): a batch of 12 samples of
+/// Data parallelism simulated on the CPU (`diffkfc_model::training::parallel`): a batch of 12 samples of
 /// different lengths and keyframes split over 3 "devices", every loss term on (L_simple, the
 /// keyframe, smoothness, position, velocity and foot losses), no dropout. Shard gradients
 /// weighted by each term's count and summed equal the single-device gradient; the plain mean of
 /// the shards' own losses does not.
 #[test]
 fn shard_gradients_weighted_by_counts_equal_the_batch_gradient() {
-    use diffkfc_model::parallel::{Combine, Counts};
+    use diffkfc_model::training::parallel::{Combine, Counts};
     let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let (root, ds, train, val, text) = prepared("shards", 24);
     let mut cfg = config();

@@ -10,7 +10,7 @@ use anyhow::{bail, Context, Result};
 use burn::prelude::Device;
 use clap::Args;
 use diffkfc_model::bench::{Sampling, TrainStep};
-use diffkfc_model::run_config::RunConfig;
+use diffkfc_model::run::config::RunConfig;
 use diffkfc_model::DiffKfcConfig;
 use serde_json::{json, Value};
 

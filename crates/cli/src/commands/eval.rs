@@ -15,11 +15,11 @@ use diffkfc_eval::t2m::{split_captions, T2mEvaluator};
 use diffkfc_eval::text_motion::Gaussian;
 use diffkfc_eval::train_evaluator::{embed_split, EvaluatorTraining};
 use diffkfc_model::diffusion::Schedule;
-use diffkfc_model::pipeline::Generator;
-use diffkfc_model::place::PlaceGuidance;
-use diffkfc_model::sampler;
+use diffkfc_model::run::load::load_for_inference;
+use diffkfc_model::sampling::pipeline::Generator;
+use diffkfc_model::sampling::place::PlaceGuidance;
+use diffkfc_model::sampling::sampler;
 use diffkfc_model::text::cache::embed_captions;
-use diffkfc_model::trainer::load_for_inference;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::args::{FitArgs, KeyframeMode, SamplerArg};
@@ -327,7 +327,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
         .map_err(|e: String| anyhow::anyhow!("--keyframe-strategy: {e}"))?;
     let device = crate::device::parse(&a.device)?;
     let (cfg, model, step) = load_for_inference(&run_dir, &device)?;
-    let (mean, std) = diffkfc_model::run_dir::RunDir::of(&run_dir).normalisation(&cfg)?;
+    let (mean, std) = diffkfc_model::run::dir::RunDir::of(&run_dir).normalisation(&cfg)?;
     PlaceGuidance::for_model(a.place_guidance, &model, &mean, &std)?;
     let ds = Dataset::open(&data)?;
     if ds.dim() != cfg.model.feat_dim {

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use burn::prelude::*;
 use clap::{Args, Subcommand};
-use diffkfc_model::run_config::RunConfig;
+use diffkfc_model::run::config::RunConfig;
 use diffkfc_model::text::{self, minilm::MiniLm, TextEncoder};
 
 #[derive(Args)]
@@ -78,7 +78,7 @@ pub fn run(a: ModelArgs) -> Result<()> {
             Ok(())
         }
         ModelCommand::Export { checkpoint, out, dtype } => {
-            let e = diffkfc_model::checkpoint::export(&checkpoint, &out, dtype == "f16")?;
+            let e = diffkfc_model::run::checkpoint::export(&checkpoint, &out, dtype == "f16")?;
             println!(
                 "{}: step {} as {dtype}, {:.2} MB; wrote {}",
                 out.display(),

@@ -7,12 +7,12 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use diffkfc_data::dataset::cache::{default_cache_dir, PackedSplit};
 use diffkfc_data::dataset::Dataset;
-use diffkfc_model::optim::Home;
-use diffkfc_model::run_config::RunConfig;
-use diffkfc_model::run_dir::RunDir;
-use diffkfc_model::run_lock::{Claim, RunLock};
+use diffkfc_model::run::config::RunConfig;
+use diffkfc_model::run::dir::RunDir;
+use diffkfc_model::run::lock::{Claim, RunLock};
 use diffkfc_model::text::cache::embed_captions;
-use diffkfc_model::trainer::{Event, Trainer};
+use diffkfc_model::training::optim::Home;
+use diffkfc_model::training::trainer::{Event, Trainer};
 use indicatif::{ProgressBar, ProgressStyle};
 
 #[derive(Args)]
@@ -78,7 +78,7 @@ fn check_memory(cfg: &RunConfig, device: &str) -> Result<()> {
     if !matches!(device, "flex" | "cpu" | "ndarray") {
         return Ok(());
     }
-    use diffkfc_model::memory;
+    use diffkfc_model::training::memory;
     let frames = diffkfc_data::dataset::MAX_FRAMES;
     let need = memory::training_bytes(cfg, frames);
     if let Some(free) = memory::available_bytes() {

@@ -21,7 +21,7 @@ use burn::prelude::*;
 use burn::tensor::activation::softmax;
 use burn::tensor::TensorData;
 
-use crate::dropout::Dropout;
+use crate::network::dropout::Dropout;
 
 pub use mha::{AttnShape, Mask};
 

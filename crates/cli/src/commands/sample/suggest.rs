@@ -52,7 +52,7 @@ struct SuggestArgs {
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Sampler steps of the generated motion (the sample command's default sampler).
-    #[arg(long, default_value_t = diffkfc_model::sampler::DEFAULT_STEPS)]
+    #[arg(long, default_value_t = diffkfc_model::sampling::sampler::DEFAULT_STEPS)]
     steps: usize,
     /// Output keyframe file (the JSON `sample --keyframes` reads).
     #[arg(short, long, default_value = "keys.json")]

@@ -1,0 +1,93 @@
+//! What the denoiser is conditioned on: the text embedding, the keyframes' features and masks,
+//! their root places and headings, and the path they imply, for a batch.
+
+use burn::prelude::*;
+
+use diffkfc_data::motion::root_key::ROOT_CHANNELS;
+use diffkfc_data::motion::root_path::{path_channels, PATH_CHANNELS};
+use diffkfc_data::T2M;
+
+/// What the model is conditioned on, for a batch of B samples of N frames.
+#[derive(Clone, Debug)]
+pub struct Condition {
+    /// [B, text_dim] frozen text embeddings.
+    pub text: Tensor<2>,
+    /// [B, N, D] normalised keyframe features, zero where unobserved.
+    pub kf: Tensor<3>,
+    /// [B, N, D] 1 where a keyframe observes a feature.
+    pub kf_mask: Tensor<3>,
+    /// [B, N, ROOT_CHANNELS] keyed root place and heading (`diffkfc_data::motion::root_key::RootKey`),
+    /// zero where unobserved, and its mask.
+    pub root: Tensor<3>,
+    pub root_mask: Tensor<3>,
+    /// [B, N, PATH_CHANNELS] the velocity the keyed places imply for each frame
+    /// (`diffkfc_data::motion::root_path`), read by the decoder of models with path channels.
+    pub path: Tensor<3>,
+    /// [B*N] frames with any observed feature.
+    pub kf_frames: Vec<bool>,
+    /// [B*N] real (non-padding) frames.
+    pub real: Vec<bool>,
+}
+
+impl Condition {
+    /// A condition from device tensors `text` [B, T], `kf`/`kf_mask` [B, N, D] and the host
+    /// copies of the masks ([B*N*D] features, [B*N*R] root channels with their values).
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        text: Tensor<2>,
+        kf: Tensor<3>,
+        kf_mask: Tensor<3>,
+        mask: &[f32],
+        root: &[f32],
+        root_mask: &[f32],
+        real: Vec<bool>,
+        device: &Device,
+    ) -> Condition {
+        let [b, n, d] = kf.dims();
+        let r = ROOT_CHANNELS;
+        assert_eq!(
+            (root.len(), root_mask.len()),
+            (b * n * r, b * n * r),
+            "root channels [B, N, {r}]"
+        );
+        let kf_frames = (0..b * n)
+            .map(|f| {
+                mask[f * d..(f + 1) * d]
+                    .iter()
+                    .chain(&root_mask[f * r..(f + 1) * r])
+                    .any(|&m| m > 0.0)
+            })
+            .collect();
+        let root_t = |v: &[f32]| Tensor::<1>::from_floats(v, device).reshape([b, n, r]);
+        let path: Vec<f32> = (0..b)
+            .flat_map(|i| {
+                let s = i * n * r..(i + 1) * n * r;
+                path_channels(&root[s.clone()], &root_mask[s], n, T2M.fps)
+            })
+            .collect();
+        Condition {
+            path: Tensor::<1>::from_floats(path.as_slice(), device).reshape([b, n, PATH_CHANNELS]),
+            text,
+            kf,
+            kf_mask,
+            root: root_t(root),
+            root_mask: root_t(root_mask),
+            kf_frames,
+            real,
+        }
+    }
+
+    /// The same condition with all keyframes dropped (keyframe classifier-free guidance).
+    pub fn without_keyframes(&self) -> Condition {
+        Condition {
+            text: self.text.clone(),
+            kf: self.kf.zeros_like(),
+            kf_mask: self.kf_mask.zeros_like(),
+            root: self.root.zeros_like(),
+            root_mask: self.root_mask.zeros_like(),
+            path: self.path.zeros_like(),
+            kf_frames: vec![false; self.kf_frames.len()],
+            real: self.real.clone(),
+        }
+    }
+}

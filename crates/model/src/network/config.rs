@@ -1,0 +1,109 @@
+//! Network configuration: the paper's, and smaller ones for CPU work.
+
+use burn::prelude::*;
+use diffkfc_data::motion::absolute_root::VelocityStats;
+
+/// DiffKFC denoiser hyper-parameters.
+#[derive(Config, Debug, PartialEq)]
+pub struct DiffKfcConfig {
+    /// Motion feature width (HumanML3D 263, KIT-ML 251).
+    #[config(default = 263)]
+    pub feat_dim: usize,
+    /// Width of the frozen text embedding (MiniLM: 384).
+    #[config(default = 384)]
+    pub text_dim: usize,
+    #[config(default = 512)]
+    pub d_model: usize,
+    #[config(default = 8)]
+    pub heads: usize,
+    #[config(default = 1024)]
+    pub ffn: usize,
+    #[config(default = 8)]
+    pub dec_layers: usize,
+    /// Window size of each Dilated Mask Attention block; 0 stands for the whole sequence (N).
+    #[config(default = "vec![2, 2, 4, 4, 6, 6, 8, 0]")]
+    pub dma_sizes: Vec<usize>,
+    #[config(default = 196)]
+    pub max_frames: usize,
+    #[config(default = 0.1)]
+    pub dropout: f64,
+    /// Root channels a keyframe may observe beside its features (place x, z and heading as
+    /// sin, cos: our extension, see `diffkfc_data::postprocess::warp`); 0 = pose-only keyframes (the paper,
+    /// and checkpoints made before root channels existed).
+    #[config(default = 4)]
+    pub root_channels: usize,
+    /// Taps of a depthwise convolution over the frames in each decoder layer (odd; our
+    /// extension, `crate::network::temporal`); 0 = none (the paper, and checkpoints made before it).
+    #[config(default = 0)]
+    pub temporal_kernel: usize,
+    /// The decoder also reads, per frame, the velocity the keyed places imply
+    /// (`diffkfc_data::motion::root_path`; our extension); false for checkpoints made before it.
+    #[config(default = false)]
+    pub root_path: bool,
+    /// The decoder's frame tokens also read their own frame's keyframe values and masks (pose
+    /// features and root channels) through a zero-initialised projection, beside the keyframe
+    /// encoder's cross-attention (our extension, as CondMDI feeds observations with the noisy
+    /// input); false for checkpoints made before it.
+    #[config(default = false)]
+    pub key_input: bool,
+    /// The network sees the root as yaw angle and place instead of velocities
+    /// (`diffkfc_data::motion::absolute_root`; our extension); false for checkpoints made before it.
+    #[config(default = false)]
+    pub absolute_root: bool,
+    /// The dataset's mean and std of the three velocity root channels (means, then stds), which
+    /// an absolute-root model needs to give HumanML3D features back; set by training.
+    #[config(default = "Vec::new()")]
+    pub velocity_stats: Vec<f32>,
+}
+
+impl DiffKfcConfig {
+    /// The velocity statistics of an absolute-root model; None for a velocity-root model.
+    /// Panics on an absolute-root config without them (`RunConfig::bind_dataset` sets them).
+    pub fn absolute(&self) -> Option<VelocityStats> {
+        self.absolute_root.then(|| {
+            VelocityStats::from_flat(&self.velocity_stats)
+                .expect("an absolute-root model carries the dataset's velocity statistics")
+        })
+    }
+
+    /// The paper: d 512, 8 heads, FFN 1024, 8 decoder layers, 8 DMA blocks {2,2,4,4,6,6,8,N}.
+    pub fn paper() -> Self {
+        Self::new()
+    }
+
+    pub fn small() -> Self {
+        Self::new()
+            .with_d_model(256)
+            .with_heads(4)
+            .with_ffn(512)
+            .with_dec_layers(4)
+            .with_dma_sizes(vec![2, 4, 8, 0])
+    }
+
+    /// Fast on a CPU: for tests, the quick start and smoke benchmarks.
+    pub fn tiny() -> Self {
+        Self::new()
+            .with_d_model(64)
+            .with_heads(4)
+            .with_ffn(128)
+            .with_dec_layers(2)
+            .with_dma_sizes(vec![2, 4, 0])
+    }
+
+    /// The PyTorch timing reference's own small network (`../shared/bench`, `--config tiny`
+    /// there): d 128, 4 heads, FFN 256, 4 decoder layers, DMA {2,4,8,N}; for like-for-like
+    /// timings of a small model (`diffkfc bench --config torch-tiny --torch PY`).
+    pub fn torch_tiny() -> Self {
+        Self::small().with_d_model(128).with_ffn(256)
+    }
+
+    pub fn preset(name: &str) -> Option<Self> {
+        match name {
+            "paper" => Some(Self::paper()),
+            "small" => Some(Self::small()),
+            "tiny" => Some(Self::tiny()),
+            "torch-tiny" => Some(Self::torch_tiny()),
+            _ => None,
+        }
+    }
+}

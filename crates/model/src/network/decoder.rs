@@ -1,0 +1,80 @@
+//! The denoising decoder: L layers of self-attention over [y_t, y_c, frame tokens],
+//! cross-attention to the keyframe encoder's output (keys masked to valid tokens), and a
+//! feed-forward block; post-norm residuals as in MDM. With `model.temporal_kernel` > 0 a
+//! depthwise convolution over the frames joins the self-attention's residual ([`TemporalConv`]).
+
+use burn::nn::{LayerNorm, LayerNormConfig, Linear, LinearConfig};
+use burn::prelude::*;
+
+use crate::kernels::{linear, linear_gelu, residual_layer_norm, Mask};
+use crate::network::attention::Attention;
+use crate::network::dropout::Dropout;
+use crate::network::temporal::TemporalConv;
+
+#[derive(Module, Debug)]
+pub struct DecoderLayer {
+    self_attn: Attention,
+    cross_attn: Attention,
+    ff1: Linear,
+    ff2: Linear,
+    ln1: LayerNorm,
+    ln2: LayerNorm,
+    ln3: LayerNorm,
+    drop: Dropout,
+    /// Last, so that layers without it visit their parameters as before (old checkpoints).
+    temporal: Option<TemporalConv>,
+}
+
+impl DecoderLayer {
+    /// `temporal_kernel` 0: no temporal convolution (the paper).
+    pub fn new(
+        d: usize,
+        heads: usize,
+        ffn: usize,
+        dropout: f64,
+        temporal_kernel: usize,
+        device: &Device,
+    ) -> Self {
+        DecoderLayer {
+            self_attn: Attention::new(d, heads, device),
+            cross_attn: Attention::new(d, heads, device),
+            ff1: LinearConfig::new(d, ffn).init(device),
+            ff2: LinearConfig::new(ffn, d).init(device),
+            ln1: LayerNormConfig::new(d).init(device),
+            ln2: LayerNormConfig::new(d).init(device),
+            ln3: LayerNormConfig::new(d).init(device),
+            drop: Dropout::new(dropout),
+            temporal: (temporal_kernel > 0).then(|| TemporalConv::new(temporal_kernel, d, device)),
+        }
+    }
+
+    /// The cross-attention keys and values of the encoder output (fixed across denoising steps).
+    pub fn cross_kv(&self, enc: Tensor<3>) -> (Tensor<3>, Tensor<3>) {
+        self.cross_attn.keys_values(enc)
+    }
+
+    /// `h` [B, 2+N, d] with `self_pad` (key padding of the decoder sequence); `enc_kv` from
+    /// [`cross_kv`] with `enc_pad` (encoder tokens that are not valid keys); `real` [B, N, 1]
+    /// 1 on real frames, 0 on padding -> [B, 2+N, d].
+    pub fn forward(
+        &self,
+        h: Tensor<3>,
+        self_pad: Mask,
+        enc_kv: &(Tensor<3>, Tensor<3>),
+        enc_pad: Mask,
+        real: &Tensor<3>,
+    ) -> Tensor<3> {
+        let mut a = self.self_attn.forward(h.clone(), h.clone(), self_pad);
+        if let Some(conv) = &self.temporal {
+            let [b, m, d] = h.dims();
+            let frames = h.clone().slice([0..b, 2..m, 0..d]) * real.clone();
+            let c = conv.forward(frames);
+            a = a + Tensor::cat(vec![Tensor::<3>::zeros([b, 2, d], &h.device()), c], 1);
+        }
+        let h = residual_layer_norm(&self.ln1, h, a, &self.drop);
+        let c = self.cross_attn.forward_kv(h.clone(), enc_kv, enc_pad);
+        let h = residual_layer_norm(&self.ln2, h, c, &self.drop);
+        let f = linear(&self.ff2, self.drop.forward(linear_gelu(&self.ff1, h.clone())));
+        residual_layer_norm(&self.ln3, h, f, &self.drop)
+    }
+}

@@ -1,0 +1,187 @@
+//! The DiffKFC denoiser X_theta(x_t, keyframes, text, t) -> x0, with the keyframe encoder
+//! callable once per sample and reused at every denoising step (it does not see t).
+
+use burn::nn::{Linear, LinearConfig};
+use burn::prelude::*;
+
+use diffkfc_data::motion::absolute_root::VelocityStats;
+use diffkfc_data::motion::root_path::PATH_CHANNELS;
+
+use crate::kernels::{key_mask, linear, Mask};
+use crate::network::condition::Condition;
+use crate::network::config::DiffKfcConfig;
+use crate::network::decoder::DecoderLayer;
+use crate::network::keyframe_encoder::{DmaPlan, KeyframeEncoder};
+use crate::network::sinusoidal::{positions, TimestepEmbed};
+
+/// The encoder's output for a condition, reused across denoising steps.
+#[derive(Clone, Debug)]
+pub struct Encoded {
+    /// [B, 1+N, d]
+    pub tokens: Tensor<3>,
+    /// Per decoder layer: cross-attention keys and values of `tokens` ([B, 1+N, d] each).
+    pub cross_kv: Vec<(Tensor<3>, Tensor<3>)>,
+    /// [B, 1+N] keys the decoder must not attend (never-valid tokens, padding).
+    pub key_pad: Mask,
+    /// [B, 1, d] text token y_c.
+    pub text_tok: Tensor<3>,
+    /// [B, 2+N] padding frames of the decoder sequence.
+    pub self_pad: Mask,
+    /// [1, N, d] frame position encodings (sin/cos of every frame: computed once, not per step).
+    pub pos: Tensor<3>,
+    /// [B, N, 1] 1 on real frames, 0 on padding (what the temporal convolution may read).
+    pub real: Tensor<3>,
+    /// [B, N, d] the root path hint's embedding, added to the decoder's frame tokens (models
+    /// with path channels).
+    pub path: Option<Tensor<3>>,
+    /// [B, N, d] each frame's own keyframe observation (`KeyframeEncoder::observations`),
+    /// embedded (models with key input).
+    pub key: Option<Tensor<3>>,
+}
+
+#[derive(Module, Debug)]
+pub struct Denoiser {
+    x_in: Linear,
+    text_in: Linear,
+    time: TimestepEmbed,
+    encoder: KeyframeEncoder,
+    layers: Vec<DecoderLayer>,
+    out: Linear,
+    d_model: usize,
+    dma_sizes: Vec<usize>,
+    /// The root path hint's projection (last, so positional checkpoints of models without it
+    /// are a prefix of its parameters).
+    path_in: Option<Linear>,
+    /// The dataset's velocity statistics of an absolute-root model (`DiffKfcConfig::absolute`,
+    /// flat); empty for a velocity root. No parameters.
+    velocity_stats: Vec<f32>,
+    /// The per-frame keyframe input's projection (last, like `path_in`).
+    key_in: Option<Linear>,
+}
+
+impl DiffKfcConfig {
+    pub fn init(&self, device: &Device) -> Denoiser {
+        let d = self.d_model;
+        Denoiser {
+            x_in: LinearConfig::new(self.feat_dim, d).init(device),
+            text_in: LinearConfig::new(self.text_dim, d).init(device),
+            time: TimestepEmbed::new(d, device),
+            encoder: KeyframeEncoder::new(
+                self.feat_dim,
+                self.root_channels,
+                d,
+                self.heads,
+                self.ffn,
+                self.dma_sizes.len(),
+                device,
+            ),
+            layers: (0..self.dec_layers)
+                .map(|_| {
+                    DecoderLayer::new(
+                        d,
+                        self.heads,
+                        self.ffn,
+                        self.dropout,
+                        self.temporal_kernel,
+                        device,
+                    )
+                })
+                .collect(),
+            out: LinearConfig::new(d, self.feat_dim).init(device),
+            d_model: d,
+            dma_sizes: self.dma_sizes.clone(),
+            // Zero at first: a model fine-tuned from one without the hint starts as that model.
+            path_in: self.root_path.then(|| {
+                LinearConfig::new(PATH_CHANNELS, d)
+                    .with_initializer(burn::nn::Initializer::Zeros)
+                    .init(device)
+            }),
+            velocity_stats: if self.absolute_root { self.velocity_stats.clone() } else { vec![] },
+            key_in: self.key_input.then(|| {
+                LinearConfig::new(2 * (self.feat_dim + self.root_channels), d)
+                    .with_initializer(burn::nn::Initializer::Zeros)
+                    .init(device)
+            }),
+        }
+    }
+}
+
+impl Denoiser {
+    /// Run the keyframe encoder and the decoder's cross-attention projections of its output
+    /// (once per condition).
+    pub fn encode(&self, c: &Condition) -> Encoded {
+        let device = c.kf.device();
+        let [b, n, _] = c.kf.dims();
+        let text_tok = linear(&self.text_in, c.text.clone()).unsqueeze_dim::<3>(1);
+        let plan = DmaPlan::new(&c.kf_frames, &c.real, b, n, &self.dma_sizes);
+        let pos = positions(n, self.d_model, &device);
+        let obs = self.encoder.observations(c);
+        let key = self.key_in.as_ref().map(|l| linear(l, obs.clone()));
+        let tokens = self.encoder.forward(text_tok.clone(), obs, pos.clone(), &plan);
+        let key_pad = plan.final_valid().iter().map(|v| !v).collect();
+        let self_pad = (0..b * (n + 2))
+            .map(|k| k % (n + 2) >= 2 && !c.real[k / (n + 2) * n + k % (n + 2) - 2])
+            .collect();
+        let cross_kv = self.layers.iter().map(|l| l.cross_kv(tokens.clone())).collect();
+        let real: Vec<f32> = c.real.iter().map(|&r| if r { 1.0 } else { 0.0 }).collect();
+        let path = self.path_in.as_ref().map(|l| linear(l, c.path.clone()));
+        Encoded {
+            path,
+            key,
+            real: Tensor::<1>::from_floats(real.as_slice(), &device).reshape([b, n, 1]),
+            cross_kv,
+            tokens,
+            key_pad: key_mask(key_pad),
+            text_tok,
+            self_pad: key_mask(self_pad),
+            pos,
+        }
+    }
+
+    /// Predict x0 from x_t [B, N, D] at timesteps `t` (one per sample) -> [B, N, D].
+    pub fn decode(&self, x_t: Tensor<3>, t: &[usize], e: &Encoded) -> Tensor<3> {
+        let device = x_t.device();
+        let [b, n, _] = x_t.dims();
+        let mut frames = linear(&self.x_in, x_t) + e.pos.clone();
+        if let Some(p) = &e.path {
+            frames = frames + p.clone();
+        }
+        if let Some(k) = &e.key {
+            frames = frames + k.clone();
+        }
+        let y_t = self.time.forward(t, &device);
+        let mut h = Tensor::cat(vec![y_t, e.text_tok.clone(), frames], 1);
+        for (layer, kv) in self.layers.iter().zip(&e.cross_kv) {
+            h = layer.forward(h, e.self_pad.clone(), kv, e.key_pad.clone(), &e.real);
+        }
+        let d = self.d_model;
+        linear(&self.out, h.slice([0..b, 2..n + 2, 0..d]))
+    }
+
+    /// The velocity statistics of a model that sees an absolute root; None for a velocity root.
+    pub fn absolute_root(&self) -> Option<VelocityStats> {
+        VelocityStats::from_flat(&self.velocity_stats)
+    }
+
+    pub fn forward(&self, x_t: Tensor<3>, t: &[usize], c: &Condition) -> Tensor<3> {
+        self.decode(x_t, t, &self.encode(c))
+    }
+
+    /// Parameter counts: (keyframe encoder, decoder and the rest, total).
+    pub fn param_counts(&self) -> Vec<(&'static str, usize)> {
+        let enc = self.encoder.num_params();
+        let dec: usize = self.layers.iter().map(|l| l.num_params()).sum();
+        let emb = self.x_in.num_params()
+            + self.text_in.num_params()
+            + self.time.num_params()
+            + self.out.num_params()
+            + self.path_in.as_ref().map_or(0, |l| l.num_params())
+            + self.key_in.as_ref().map_or(0, |l| l.num_params());
+        vec![
+            ("keyframe encoder (DMA)", enc),
+            ("decoder layers", dec),
+            ("input/output/timestep/text projections", emb),
+            ("total", self.num_params()),
+        ]
+    }
+}

@@ -1,0 +1,376 @@
+//! Run configuration files (`configs/*.json`): sections model, diffusion, data, keyframes,
+//! training. Unknown or ill-typed keys are errors that name the key.
+
+use std::path::Path;
+
+use diffkfc_data::dataset::batch::KeyframeConfig;
+use diffkfc_data::motion::absolute_root::VelocityStats;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{ModelError, Result};
+use crate::network::config::DiffKfcConfig;
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DiffusionConfig {
+    pub steps: usize,
+    /// "cosine" (the paper) or "linear".
+    pub schedule: String,
+}
+
+impl Default for DiffusionConfig {
+    fn default() -> Self {
+        DiffusionConfig { steps: 1000, schedule: "cosine".into() }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DataConfig {
+    /// Dataset root; the CLI's --data overrides it.
+    pub dir: Option<String>,
+    pub train_split: String,
+    pub val_split: String,
+}
+
+impl Default for DataConfig {
+    fn default() -> Self {
+        DataConfig { dir: None, train_split: "train".into(), val_split: "val".into() }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrainingConfig {
+    pub batch_size: usize,
+    pub lr: f64,
+    pub max_steps: usize,
+    pub warmup_steps: usize,
+    /// Cosine decay of the learning rate to 0 at max_steps.
+    pub cosine_decay: bool,
+    /// Gradient-norm clipping (0: off).
+    pub grad_clip: f64,
+    /// EMA decay of the weights (0: no EMA).
+    pub ema_decay: f64,
+    pub checkpoint_every: usize,
+    pub keep_checkpoints: usize,
+    pub val_every: usize,
+    pub val_batches: usize,
+    pub log_every: usize,
+    pub seed: u64,
+    /// Weights of the kinematic losses (MDM-style): joint positions, joint velocities, foot contact.
+    pub lambda_pos: f64,
+    pub lambda_vel: f64,
+    pub lambda_foot: f64,
+    /// Weight of the reconstruction error on the elements the keyframes observe (the paper's
+    /// L_simple leaves them out; 0 = the paper).
+    pub keyframe_loss: f64,
+    /// Weight of the error of frame-to-frame feature changes (`losses::l_smooth`; 0 = the paper).
+    pub smooth_loss: f64,
+}
+
+impl TrainingConfig {
+    /// Refuses a stop step past `max_steps` when the learning rate decays to 0 there: every
+    /// further step would be wasted (a run continued that way once trained 3000 steps at lr 0).
+    pub fn check_stop(&self, stop: usize) -> Result<()> {
+        if self.cosine_decay && stop > self.max_steps {
+            return Err(ModelError::Refused(format!(
+                "--max-steps: {stop} is past training.max_steps {} of the config, where the cosine learning rate has decayed to 0; raise training.max_steps in the config instead",
+                self.max_steps
+            )));
+        }
+        Ok(())
+    }
+}
+
+impl Default for TrainingConfig {
+    fn default() -> Self {
+        TrainingConfig {
+            batch_size: 64,
+            lr: 1e-4,
+            max_steps: 500_000,
+            warmup_steps: 0,
+            cosine_decay: false,
+            grad_clip: 1.0,
+            ema_decay: 0.9999,
+            checkpoint_every: 5000,
+            keep_checkpoints: 3,
+            val_every: 5000,
+            val_batches: 8,
+            log_every: 50,
+            seed: 0,
+            lambda_pos: 0.0,
+            lambda_vel: 0.0,
+            lambda_foot: 0.0,
+            keyframe_loss: 0.0,
+            smooth_loss: 0.0,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunConfig {
+    pub model: DiffKfcConfig,
+    #[serde(default)]
+    pub diffusion: DiffusionConfig,
+    #[serde(default)]
+    pub data: DataConfig,
+    #[serde(default)]
+    pub keyframes: KeyframeConfig,
+    #[serde(default)]
+    pub training: TrainingConfig,
+}
+
+impl RunConfig {
+    /// Parse a config file; `"model": "tiny"` (a preset name) or an object of overrides on the
+    /// paper defaults (`"preset": "tiny"` inside the object starts from that preset).
+    pub fn load(path: &Path) -> Result<RunConfig> {
+        let text = std::fs::read_to_string(path).map_err(ModelError::io(path))?;
+        Self::parse(&text).map_err(|e| e.in_file(path))
+    }
+
+    pub fn parse(text: &str) -> Result<RunConfig> {
+        let bad = |msg: String| ModelError::Config(msg);
+        let mut v: serde_json::Value =
+            serde_json::from_str(text).map_err(|e| bad(format!("not valid JSON: {e}")))?;
+        let model = v.get_mut("model").ok_or(bad("missing section 'model'".into()))?;
+        let base = match model {
+            serde_json::Value::String(name) => DiffKfcConfig::preset(name)
+                .ok_or(bad(format!("model: unknown preset '{name}' (tiny, small, paper)")))?,
+            serde_json::Value::Object(m) => match m.remove("preset") {
+                Some(serde_json::Value::String(name)) => DiffKfcConfig::preset(&name).ok_or(
+                    bad(format!("model.preset: unknown preset '{name}' (tiny, small, paper)")),
+                )?,
+                Some(other) => {
+                    return Err(bad(format!("model.preset: expected a preset name, got {other}")))
+                }
+                None => DiffKfcConfig::paper(),
+            },
+            other => {
+                return Err(bad(format!("model: expected a preset name or an object, got {other}")))
+            }
+        };
+        // Overlay the given model keys on the preset.
+        let mut merged = serde_json::to_value(&base).expect("config serialises");
+        if let (serde_json::Value::Object(m), serde_json::Value::Object(out)) =
+            (&*model, &mut merged)
+        {
+            for (k, val) in m {
+                if !out.contains_key(k) {
+                    return Err(bad(format!("unknown key 'model.{k}'")));
+                }
+                out.insert(k.clone(), val.clone());
+            }
+        }
+        *model = merged;
+        // Every section denies unknown fields: the path names the key at fault.
+        let cfg: RunConfig = serde_path_to_error::deserialize(v).map_err(|e| {
+            let what = if e.inner().to_string().starts_with("unknown field") {
+                "unknown key"
+            } else {
+                "bad value"
+            };
+            bad(format!("{}: {what}: {}", e.path(), e.inner()))
+        })?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Every value in its range, checked before anything is built from it (a zero width or
+    /// batch would divide by zero, a huge one exhaust memory, a NaN train silently).
+    pub fn validate(&self) -> Result<()> {
+        let m = &self.model;
+        let t = &self.training;
+        let k = &self.keyframes;
+        let bad = |key: &str, v: &dyn std::fmt::Display, want: &str| {
+            Err(ModelError::Config(format!("{key}: {v} {want}")))
+        };
+        let positive = [
+            ("model.feat_dim", m.feat_dim),
+            ("model.text_dim", m.text_dim),
+            ("model.d_model", m.d_model),
+            ("model.heads", m.heads),
+            ("model.ffn", m.ffn),
+            ("model.max_frames", m.max_frames),
+            ("diffusion.steps", self.diffusion.steps),
+            ("training.batch_size", t.batch_size),
+        ];
+        for (key, v) in positive {
+            if v == 0 {
+                return bad(key, &v, "must be at least 1");
+            }
+        }
+        if crate::diffusion::Schedule::by_name(&self.diffusion.schedule, 2).is_none() {
+            return Err(ModelError::Config(format!(
+                "diffusion.schedule: unknown '{}' (cosine, linear)",
+                self.diffusion.schedule
+            )));
+        }
+        if !m.d_model.is_multiple_of(m.heads) {
+            return Err(ModelError::Config(format!(
+                "model.heads: {} does not divide model.d_model ({})",
+                m.heads, m.d_model
+            )));
+        }
+        // Sizes whose products would not fit in memory on any machine this runs on.
+        let limits = [
+            ("model.d_model", m.d_model, 16_384),
+            ("model.ffn", m.ffn, 65_536),
+            ("model.heads", m.heads, 256),
+            ("model.dec_layers", m.dec_layers, 256),
+            ("model.feat_dim", m.feat_dim, 4096),
+            ("model.max_frames", m.max_frames, 196),
+            ("training.batch_size", t.batch_size, 16_384),
+            ("diffusion.steps", self.diffusion.steps, 100_000),
+        ];
+        for (key, v, max) in limits {
+            if v > max {
+                return bad(key, &v, &format!("is too large (at most {max})"));
+            }
+        }
+        if m.dma_sizes.len() > 64 {
+            return bad("model.dma_sizes", &m.dma_sizes.len(), "blocks is too many (at most 64)");
+        }
+        if !(0.0..1.0).contains(&m.dropout) {
+            return bad("model.dropout", &m.dropout, "must be in [0, 1)");
+        }
+        if m.root_channels != 0 && m.root_channels != diffkfc_data::motion::root_key::ROOT_CHANNELS
+        {
+            return bad(
+                "model.root_channels",
+                &m.root_channels,
+                &format!("must be 0 or {}", diffkfc_data::motion::root_key::ROOT_CHANNELS),
+            );
+        }
+        if (m.temporal_kernel.is_multiple_of(2) && m.temporal_kernel != 0) || m.temporal_kernel > 31
+        {
+            return bad(
+                "model.temporal_kernel",
+                &m.temporal_kernel,
+                "must be 0 (none) or an odd number up to 31",
+            );
+        }
+        let unit = [
+            ("keyframes.rate", k.rate),
+            ("keyframes.drop_prob", k.drop_prob),
+            ("keyframes.root_drop_prob", k.root_drop_prob),
+            ("keyframes.dense_root_prob", k.dense_root_prob),
+            ("keyframes.dense_root_min_density", k.dense_root_min_density),
+            ("training.ema_decay", t.ema_decay),
+        ];
+        for (key, v) in unit {
+            if !(0.0..=1.0).contains(&v) {
+                return bad(key, &v, "must be in [0, 1]");
+            }
+        }
+        let non_negative = [
+            ("training.grad_clip", t.grad_clip),
+            ("training.lambda_pos", t.lambda_pos),
+            ("training.lambda_vel", t.lambda_vel),
+            ("training.lambda_foot", t.lambda_foot),
+            ("training.keyframe_loss", t.keyframe_loss),
+            ("training.smooth_loss", t.smooth_loss),
+        ];
+        for (key, v) in non_negative {
+            if !(v.is_finite() && v >= 0.0) {
+                return bad(key, &v, "must be a finite number >= 0");
+            }
+        }
+        if !(t.lr.is_finite() && t.lr > 0.0) {
+            return bad("training.lr", &t.lr, "must be a finite number > 0");
+        }
+        if m.absolute_root && t.lambda_pos + t.lambda_vel + t.lambda_foot > 0.0 {
+            return bad(
+                "model.absolute_root",
+                &m.absolute_root,
+                "the kinematic losses (training.lambda_pos, lambda_vel, lambda_foot) read velocity roots; set them to 0",
+            );
+        }
+        Ok(())
+    }
+
+    /// Record the dataset's velocity statistics in an absolute-root model's config (its
+    /// checkpoints then give HumanML3D features back on their own); no change otherwise.
+    pub fn bind_dataset(&mut self, mean: &[f32], std: &[f32]) {
+        if self.model.absolute_root {
+            self.model.velocity_stats = VelocityStats::of(mean, std).flat();
+        }
+    }
+
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).expect("config serialises")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_overrides_and_errors() {
+        let c = RunConfig::parse(r#"{"model": "tiny", "training": {"lr": 0.001}}"#).unwrap();
+        assert_eq!(c.model, DiffKfcConfig::tiny());
+        assert_eq!(c.training.lr, 0.001);
+        assert_eq!(c.training.batch_size, 64);
+        let c = RunConfig::parse(r#"{"model": {"preset": "small", "dec_layers": 2}}"#).unwrap();
+        assert_eq!(c.model.dec_layers, 2);
+        assert_eq!(c.model.d_model, 256);
+        let e = RunConfig::parse(r#"{"model": "tiny", "training": {"learning_rate": 1}}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("training.learning_rate: unknown key"), "{e}");
+        let e = RunConfig::parse(r#"{"model": {"d_modle": 3}}"#).unwrap_err().to_string();
+        assert!(e.contains("model.d_modle"), "{e}");
+        let e = RunConfig::parse(r#"{"model": "tiny", "training": {"lr": "fast"}}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("training.lr: bad value"), "{e}");
+        for (body, needle) in [
+            (r#""training": {"batch_size": 0}"#, "training.batch_size: 0"),
+            (r#""diffusion": {"steps": 0}"#, "diffusion.steps: 0"),
+            (r#""training": {"batch_size": 100000}"#, "too large"),
+            (r#""training": {"lr": -1}"#, "training.lr: -1"),
+            (r#""training": {"ema_decay": 1.5}"#, "training.ema_decay: 1.5"),
+            (r#""training": {"grad_clip": -1}"#, "training.grad_clip: -1"),
+            (r#""keyframes": {"rate": 2}"#, "keyframes.rate: 2"),
+            (r#""diffusion": {"schedule": "foo"}"#, "diffusion.schedule: unknown 'foo'"),
+        ] {
+            let e = RunConfig::parse(&format!(r#"{{"model": "tiny", {body}}}"#))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(needle), "{body}: {e}");
+        }
+        for (model, needle) in [
+            (r#"{"preset": "tiny", "heads": 3}"#, "does not divide"),
+            (r#"{"preset": "tiny", "d_model": 0}"#, "model.d_model: 0"),
+            (r#"{"preset": "tiny", "dropout": 1.5}"#, "model.dropout: 1.5"),
+            (r#"{"preset": "tiny", "temporal_kernel": 4}"#, "model.temporal_kernel: 4"),
+        ] {
+            let e = RunConfig::parse(&format!(r#"{{"model": {model}}}"#)).unwrap_err().to_string();
+            assert!(e.contains(needle), "{model}: {e}");
+        }
+        let e = RunConfig::parse(
+            r#"{"model": {"preset": "tiny", "absolute_root": true}, "training": {"lambda_pos": 1}}"#,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("model.absolute_root: true") && e.contains("lambda_pos"), "{e}");
+        let e = RunConfig::parse(r#"{"model": "huge"}"#).unwrap_err().to_string();
+        assert!(e.contains("unknown preset 'huge'"), "{e}");
+        let e = RunConfig::parse(r#"{"model": "tiny", "keyframes": {"strategy": "sometimes"}}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("bad value") && e.contains("sometimes"), "{e}");
+    }
+
+    #[test]
+    fn shipped_configs_parse() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
+        for name in ["tiny", "small", "paper-humanml3d", "paper-kit"] {
+            let c = RunConfig::load(&dir.join(format!("{name}.json"))).unwrap();
+            let again = RunConfig::parse(&c.to_json()).unwrap();
+            assert_eq!(c, again, "{name} does not round-trip");
+        }
+    }
+}

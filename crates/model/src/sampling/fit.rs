@@ -1,0 +1,198 @@
+//! After the last denoising step: how a generated motion is made to meet its keyframes exactly.
+
+use diffkfc_data::dataset::denormalise;
+use diffkfc_data::motion::representation::Layout;
+use diffkfc_data::motion::root_key::{RootKey, ROOT_CHANNELS};
+use diffkfc_data::postprocess::footlock::{self, LockReport};
+use diffkfc_data::postprocess::rigid::{self, RigidReport};
+use diffkfc_data::postprocess::warp::{self, Correction};
+use diffkfc_data::Skeleton;
+
+use crate::sampling::sampler::Request;
+
+/// Frames over which a pose correction fades out past a key when the next key is further away
+/// (1 s at 20 fps): long enough that the added acceleration stays far below a real motion's.
+pub const FALLOFF: usize = 20;
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum KeyframeFit {
+    /// Root first, then the body (`pipeline`): the keyed sample's root warped to the keyed
+    /// places and headings gives a dense root track; the motion is denoised again with that
+    /// track observed on every frame, so the legs step at the path's speed; then warped.
+    #[default]
+    Track,
+    /// Motion warping: the residual at each key spread smoothly over its neighbours, the root
+    /// re-integrated to the keyed places and headings (`diffkfc_data::postprocess::warp`).
+    Warp,
+    /// The observed features written into the keyframe frames alone (the paper's implied
+    /// behaviour; the pose jumps at the key).
+    Paste,
+    /// The network's output as it is.
+    None,
+}
+
+impl std::str::FromStr for KeyframeFit {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "track" => Ok(KeyframeFit::Track),
+            "warp" => Ok(KeyframeFit::Warp),
+            "paste" => Ok(KeyframeFit::Paste),
+            "none" => Ok(KeyframeFit::None),
+            _ => Err(format!("unknown keyframe fit '{s}' (track, warp, paste, none)")),
+        }
+    }
+}
+
+/// What follows the last denoising step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Fit {
+    pub keyframes: KeyframeFit,
+    /// Hold planted feet still after the keyframe fit (`diffkfc_data::postprocess::footlock`).
+    pub foot_lock: bool,
+    /// Largest move of a planted foot the lock makes (metres; `footlock::MAX_SHIFT_M` by
+    /// default): spans that slide further are left as dragged.
+    pub lock_reach: f64,
+    /// Refit every frame to one skeleton before the foot lock (`diffkfc_data::postprocess::rigid`), so the
+    /// BVH export reproduces the motion.
+    pub rigid: bool,
+}
+
+impl Default for Fit {
+    fn default() -> Self {
+        Fit {
+            keyframes: KeyframeFit::Track,
+            foot_lock: true,
+            lock_reach: footlock::MAX_SHIFT_M,
+            rigid: true,
+        }
+    }
+}
+
+/// A finished motion: de-normalised features [len, D], the correction made at each keyed
+/// frame, what making it rigid and foot locking moved, and (track fit) the first stage's root
+/// path.
+#[derive(Clone, Debug, Default)]
+pub struct Fitted {
+    pub features: Vec<f32>,
+    pub corrections: Vec<Correction>,
+    pub feet: LockReport,
+    pub rigid: Option<RigidReport>,
+    /// [len, 3] the root positions (metres) of the track the second stage observed.
+    pub root_path: Option<Vec<f32>>,
+    /// How closely the second stage's own output followed that track.
+    pub track: Option<TrackReport>,
+}
+
+/// The track fit's second stage against the track it observed, before any fit.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct TrackReport {
+    /// Mean ground speed (m/s) of the track and of the network's root.
+    pub track_speed_mps: f64,
+    pub raw_speed_mps: f64,
+    /// Mean and largest ground distance (m) of the network's root from the track.
+    pub raw_distance_m: f64,
+    pub raw_distance_max_m: f64,
+}
+
+impl TrackReport {
+    /// From root positions [T, 3] of the track and of the network's output.
+    pub fn of(track: &[f32], raw: &[f32], fps: f64) -> TrackReport {
+        let ground = |p: &[f32], a: usize, b: usize| {
+            ((p[3 * a] - p[3 * b]) as f64).hypot((p[3 * a + 2] - p[3 * b + 2]) as f64)
+        };
+        let t = track.len() / 3;
+        let speed = |p: &[f32]| {
+            (1..t).map(|f| ground(p, f, f - 1)).sum::<f64>() * fps / (t.max(2) - 1) as f64
+        };
+        let dist: Vec<f64> = (0..t)
+            .map(|f| {
+                ((track[3 * f] - raw[3 * f]) as f64)
+                    .hypot((track[3 * f + 2] - raw[3 * f + 2]) as f64)
+            })
+            .collect();
+        TrackReport {
+            track_speed_mps: speed(track),
+            raw_speed_mps: speed(raw),
+            raw_distance_m: dist.iter().sum::<f64>() / t.max(1) as f64,
+            raw_distance_max_m: dist.iter().copied().fold(0.0, f64::max),
+        }
+    }
+}
+
+/// Sample `i` of the sampler's normalised output `x` [B, N, D], de-normalised, fitted to the
+/// request's keyframes and, with `fit.foot_lock`, its planted feet held (pose keyframes untouched).
+pub fn finish(
+    x: &[f32],
+    req: &Request,
+    i: usize,
+    mean: &[f32],
+    std: &[f32],
+    skel: &Skeleton,
+    fit: Fit,
+) -> Fitted {
+    let layout = Layout::of(skel);
+    let (mut features, corrections) = fit_keys(x, req, i, mean, std, &layout, fit.keyframes);
+    let mut hold = vec![false; req.lengths[i]];
+    req.key_frames(i).into_iter().for_each(|f| hold[f] = true);
+    let rigid = fit.rigid.then(|| rigid::make_rigid(skel, &mut features, &hold));
+    let mut feet = LockReport::default();
+    if fit.foot_lock {
+        feet = footlock::lock_feet(skel, &mut features, &hold, footlock::BLEND, fit.lock_reach);
+    }
+    Fitted { features, corrections, feet, rigid, root_path: None, track: None }
+}
+
+fn fit_keys(
+    x: &[f32],
+    req: &Request,
+    i: usize,
+    mean: &[f32],
+    std: &[f32],
+    layout: &Layout,
+    fit: KeyframeFit,
+) -> (Vec<f32>, Vec<Correction>) {
+    let (n, d, r) = (req.frames, req.dim, ROOT_CHANNELS);
+    let len = req.lengths[i];
+    let span = |v: &[f32], w: usize| v[i * n * w..(i * n + len) * w].to_vec();
+    let mut out = span(x, d);
+    denormalise(&mut out, mean, std);
+    let mask = span(&req.mask, d);
+    let mut target = span(&req.kf, d);
+    denormalise(&mut target, mean, std);
+    match fit {
+        KeyframeFit::None => (out, Vec::new()),
+        KeyframeFit::Paste => {
+            let mut corr: Vec<Correction> = Vec::new();
+            for f in 0..len {
+                let row = f * d..(f + 1) * d;
+                if !mask[row.clone()].iter().any(|&m| m > 0.0) {
+                    continue;
+                }
+                let mut worst = 0.0f64;
+                for k in row {
+                    if mask[k] > 0.0 {
+                        worst = worst.max((target[k] - out[k]).abs() as f64);
+                        out[k] = target[k];
+                    }
+                }
+                corr.push(Correction { frame: f, pose: worst, ..Default::default() });
+            }
+            (out, corr)
+        }
+        KeyframeFit::Warp | KeyframeFit::Track => {
+            let (rv, rm) = (span(&req.root, r), span(&req.root_mask, r));
+            let root: Vec<RootKey> = (0..len)
+                .map(|f| RootKey::from_channels(&rv[f * r..(f + 1) * r], &rm[f * r..(f + 1) * r]))
+                .collect();
+            let corr = warp::warp(
+                layout,
+                &mut out,
+                &warp::Targets { features: &target, mask: &mask, root: &root },
+                FALLOFF,
+            );
+            (out, corr)
+        }
+    }
+}

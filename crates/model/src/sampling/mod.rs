@@ -1,0 +1,10 @@
+//! Generating motion: the reverse-diffusion loop and its request (`sampler`), keyframe,
+//! transition and place guidance, the keyframe fits, and the pipeline that turns keyframes into
+//! a fitted motion (the track fit's two stages).
+
+pub mod fit;
+pub mod guidance;
+pub mod pipeline;
+pub mod place;
+pub mod sampler;
+pub(crate) mod transition;

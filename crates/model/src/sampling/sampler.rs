@@ -1,0 +1,329 @@
+//! Reverse diffusion: each step one decoder call (keyframe classifier-free guidance batches its
+//! two branches, `guidance`), the guidance shift (transition and place guidance), and the
+//! sampler's update (`scheduler`: DDPM, DDIM, DPM-Solver++(2M)). Meeting the keyframes exactly
+//! afterwards is `fit`'s job.
+
+use burn::prelude::*;
+use diffkfc_data::motion::absolute_root;
+use diffkfc_data::motion::root_key::ROOT_CHANNELS;
+use diffkfc_data::motion::root_track;
+use diffkfc_data::rng::Rng;
+
+use crate::diffusion::scheduler::{self, timesteps, Sampler};
+use crate::diffusion::Schedule;
+use crate::network::params::host;
+use crate::sampling::guidance;
+use crate::sampling::place::PlaceGuidance;
+use crate::sampling::transition;
+use crate::{Condition, Denoiser};
+
+/// Steps by default, with the default sampler [`DEFAULT_SAMPLER`] (DPM-Solver++(2M)): the
+/// fewest denoiser calls whose metrics on the reference model are within 5% of DDIM-50's on
+/// every metric (docs/reference-model.md, 3 x 256 items: DPM-10 foot skating +3.7%, ADE
+/// +2.6%, FID and K-TranS better; DPM-8 adds 5.0% foot skating, DDIM-10 5.9%, DPM-5 8.7%).
+pub const DEFAULT_STEPS: usize = 10;
+
+/// The default sampler.
+pub const DEFAULT_SAMPLER: Sampler = Sampler::DpmSolver(DEFAULT_STEPS);
+
+/// Transition guidance strength r by default. The paper's 100 overshoots here (its loss is a sum
+/// over the 263 normalised channels): on the reference model at DDIM-10 r = 100 doubles FID,
+/// while r = 10 lowers K-TranS by 5% at equal FID (docs/reference-model.md).
+pub const DEFAULT_TRANSITION: f64 = 10.0;
+
+/// How the transition-guidance gradient is taken.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum TgMode {
+    /// With respect to the predicted x0 (cheap: no backward pass).
+    X0,
+    /// With respect to x_t through the denoiser (the paper's Eq. 5; needs an autodiff device).
+    Exact,
+}
+
+#[derive(Clone, Debug)]
+pub struct Options {
+    pub sampler: Sampler,
+    /// Keyframe guidance scale s: X = X(C, none) + s (X(C, kf) - X(C, none)); 1 = conditional
+    /// only (one forward per step instead of a doubled batch).
+    pub kf_guidance: f64,
+    /// Transition guidance strength r (0 = off).
+    pub transition: f64,
+    /// Half window l and number of DCT bases m of transition guidance.
+    pub window: usize,
+    pub dct_bases: usize,
+    pub seed: u64,
+    pub tg_mode: TgMode,
+    /// The MDM-inp baseline: no keyframe branch; observed features pasted into x0 every step.
+    pub inpaint: bool,
+    /// Place guidance: the root path of each step's x0 pulled towards the keyed places.
+    pub place: Option<PlaceGuidance>,
+    /// Observed root-track features (`root_track::TRACK_DIMS`) replace the prediction at every
+    /// step, so x_t carries the track the network is asked to follow.
+    pub impose_track: bool,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        // Not the paper's s = 2.5 and r = 100 (tuned for 1000 DDPM steps): on our models both
+        // cost FID, ADE and R-precision (docs/reference-model.md).
+        Options {
+            sampler: DEFAULT_SAMPLER,
+            kf_guidance: 1.0,
+            transition: DEFAULT_TRANSITION,
+            window: 2,
+            dct_bases: 3,
+            seed: 0,
+            tg_mode: TgMode::X0,
+            inpaint: false,
+            place: None,
+            impose_track: false,
+        }
+    }
+}
+
+/// What to generate: B motions of up to N frames (normalised feature space).
+#[derive(Clone, Debug)]
+pub struct Request {
+    pub batch: usize,
+    pub frames: usize,
+    pub dim: usize,
+    /// [B, text_dim]
+    pub text: Vec<f32>,
+    pub text_dim: usize,
+    /// [B, N, D] keyframe values (normalised), zero where unobserved.
+    pub kf: Vec<f32>,
+    /// [B, N, D] 1 where observed.
+    pub mask: Vec<f32>,
+    /// [B, N, ROOT_CHANNELS] keyed root place and heading (`root_key::RootKey::channels`), zero
+    /// where unobserved, and its mask.
+    pub root: Vec<f32>,
+    pub root_mask: Vec<f32>,
+    pub lengths: Vec<usize>,
+}
+
+impl Request {
+    /// A request with no keyframes: B motions of the given lengths, texts [B, text_dim].
+    pub fn text_only(
+        frames: usize,
+        dim: usize,
+        text: Vec<f32>,
+        text_dim: usize,
+        lengths: Vec<usize>,
+    ) -> Request {
+        let b = lengths.len();
+        let r = ROOT_CHANNELS;
+        Request {
+            batch: b,
+            frames,
+            dim,
+            text,
+            text_dim,
+            kf: vec![0.0; b * frames * dim],
+            mask: vec![0.0; b * frames * dim],
+            root: vec![0.0; b * frames * r],
+            root_mask: vec![0.0; b * frames * r],
+            lengths,
+        }
+    }
+
+    /// Frames of sample `b` whose pose is observed (any feature but a root track's).
+    pub fn key_frames(&self, b: usize) -> Vec<usize> {
+        let (n, d) = (self.frames, self.dim);
+        (0..self.lengths[b])
+            .filter(|&f| root_track::is_pose_key(&self.mask[(b * n + f) * d..(b * n + f + 1) * d]))
+            .collect()
+    }
+
+    /// The request as a model with an absolute root sees it (`diffkfc_data::motion::absolute_root`):
+    /// the root channels of every frame observed from the keyed places and headings alone.
+    pub fn with_absolute_root(&self) -> Request {
+        let (n, d, r) = (self.frames, self.dim, ROOT_CHANNELS);
+        let mut out = self.clone();
+        for i in 0..self.batch {
+            absolute_root::keyframes(
+                &self.root[i * n * r..(i + 1) * n * r],
+                &self.root_mask[i * n * r..(i + 1) * n * r],
+                n,
+                &mut out.kf[i * n * d..(i + 1) * n * d],
+                &mut out.mask[i * n * d..(i + 1) * n * d],
+                d,
+            );
+        }
+        out
+    }
+
+    /// The network's condition of this request.
+    pub fn condition(&self, device: &Device) -> Condition {
+        let (b, n, d) = (self.batch, self.frames, self.dim);
+        let real = (0..b * n).map(|f| f % n < self.lengths[f / n]).collect();
+        let text =
+            Tensor::<1>::from_floats(self.text.as_slice(), device).reshape([b, self.text_dim]);
+        let kf = Tensor::<1>::from_floats(self.kf.as_slice(), device).reshape([b, n, d]);
+        let kf_mask = Tensor::<1>::from_floats(self.mask.as_slice(), device).reshape([b, n, d]);
+        Condition::new(text, kf, kf_mask, &self.mask, &self.root, &self.root_mask, real, device)
+    }
+}
+
+/// Generate; returns normalised features [B, N, D] (frames past each length are zero).
+/// `progress(done, total)` after every step.
+pub fn sample(
+    model: &Denoiser,
+    schedule: &Schedule,
+    req: &Request,
+    opts: &Options,
+    mut progress: impl FnMut(usize, usize),
+) -> Vec<f32> {
+    let device = model.devices().first().cloned().unwrap_or_else(Device::flex);
+    let absolute = model.absolute_root();
+    // An absolute-root model reads keyed places as features; place guidance, which moves
+    // velocity channels, has nothing to do there.
+    let (abs_req, abs_opts);
+    let (req, opts) = match absolute {
+        Some(_) => {
+            abs_req = req.with_absolute_root();
+            abs_opts = Options { place: None, ..opts.clone() };
+            (&abs_req, &abs_opts)
+        }
+        None => (req, opts),
+    };
+    let (b, n, d) = (req.batch, req.frames, req.dim);
+    let cond = req.condition(&device);
+    let keys: Vec<Vec<usize>> = (0..b).map(|i| req.key_frames(i)).collect();
+    let any_keys = keys.iter().any(|k| !k.is_empty());
+    let guided = guidance::is_guided(opts.kf_guidance, any_keys, opts.inpaint);
+    let exact = opts.tg_mode == TgMode::Exact && opts.transition > 0.0 && any_keys;
+    assert!(
+        !exact || device.is_autodiff(),
+        "exact transition guidance needs the model on an autodiff device"
+    );
+    // The encoder runs once; both guidance branches share each decoder call. Its output is
+    // detached so per-step backward passes (exact mode) never reach into it.
+    let cond = if opts.inpaint { cond.without_keyframes() } else { cond };
+    let mut enc = if guided { model.encode(&guidance::pair(&cond)) } else { model.encode(&cond) };
+    enc.tokens = enc.tokens.detach();
+    enc.text_tok = enc.text_tok.detach();
+    enc.cross_kv = enc.cross_kv.into_iter().map(|(k, v)| (k.detach(), v.detach())).collect();
+    let kf_t = Tensor::<1>::from_floats(req.kf.as_slice(), &device).reshape([b, n, d]);
+    let mask_t = Tensor::<1>::from_floats(req.mask.as_slice(), &device).reshape([b, n, d]);
+    let track_mask = opts.impose_track.then(|| {
+        let dims: Vec<f32> =
+            (0..d).map(|k| if root_track::TRACK_DIMS.contains(&k) { 1.0 } else { 0.0 }).collect();
+        mask_t.clone() * Tensor::<1>::from_floats(dims.as_slice(), &device).reshape([1, 1, d])
+    });
+    let mut rng = Rng::new(opts.seed);
+    let mut x: Vec<f32> = (0..b * n * d).map(|_| rng.normal() as f32).collect();
+    let ts = timesteps(schedule, opts.sampler);
+    let mut scheduler = scheduler::for_sampler(opts.sampler, schedule, rng);
+    for (k, &t) in ts.iter().enumerate() {
+        let mut xt = Tensor::<1>::from_floats(x.as_slice(), &device).reshape([b, n, d]);
+        if exact {
+            xt = xt.require_grad();
+        }
+        let mut x0_t = if guided {
+            guidance::combine(
+                model.decode(Tensor::cat(vec![xt.clone(), xt.clone()], 0), &vec![t; 2 * b], &enc),
+                opts.kf_guidance,
+            )
+        } else {
+            model.decode(xt.clone(), &vec![t; b], &enc)
+        };
+        if opts.inpaint {
+            // MDM-inp: the observed features replace the prediction at every step.
+            x0_t = x0_t * (mask_t.ones_like() - mask_t.clone()) + kf_t.clone() * mask_t.clone();
+        } else if let Some(tm) = &track_mask {
+            x0_t = x0_t * (tm.ones_like() - tm.clone()) + kf_t.clone() * tm.clone();
+        }
+        let x0 = host(x0_t.clone().detach());
+        match ts.get(k + 1).copied() {
+            None => x = x0,
+            Some(prev) => {
+                let (ab, ab_prev) = (schedule.alphas_cumprod[t], schedule.alphas_cumprod[prev]);
+                // Posterior variance of the jump t -> prev: guidance moves x_t by it.
+                let var = (1.0 - ab_prev) / (1.0 - ab) * (1.0 - ab / ab_prev);
+                let step = Step { x0: &x0, x0_t, xt: &xt, var, exact };
+                let shift = guidance_shift(req, opts, &keys, step);
+                scheduler.step(&mut x, &x0, &shift, t, prev);
+            }
+        }
+        progress(k + 1, ts.len());
+    }
+    for i in 0..b {
+        if let Some(stats) = &absolute {
+            absolute_root::to_relative(
+                &mut x[i * n * d..(i + 1) * n * d],
+                req.lengths[i],
+                d,
+                stats,
+            );
+        }
+        for f in req.lengths[i]..n {
+            x[(i * n + f) * d..(i * n + f + 1) * d].iter_mut().for_each(|v| *v = 0.0);
+        }
+    }
+    x
+}
+
+/// One step's prediction, for the guidance terms.
+struct Step<'a> {
+    /// Predicted x0 on the host, [B * N * D].
+    x0: &'a [f32],
+    /// The same as a tensor (differentiable with respect to `xt` in exact mode).
+    x0_t: Tensor<3>,
+    xt: &'a Tensor<3>,
+    /// Posterior variance of the jump to the next timestep.
+    var: f64,
+    /// Transition guidance through the denoiser (the paper's Eq. 5) rather than on x0.
+    exact: bool,
+}
+
+/// What guidance subtracts from a step's update: r * var * dL_tr/dx for transition guidance
+/// (the x0 gradient, or chained through the denoiser in exact mode) plus place guidance's
+/// strength * var * dL_place/dx on the root channels.
+fn guidance_shift(req: &Request, opts: &Options, keys: &[Vec<usize>], step: Step) -> Vec<f32> {
+    let (b, n, d) = (req.batch, req.frames, req.dim);
+    let mut shift = vec![0f32; step.x0.len()];
+    if opts.transition > 0.0 && step.var > 0.0 {
+        let mut grad = vec![0f32; step.x0.len()];
+        for (i, key) in keys.iter().enumerate() {
+            let r = i * n * d..(i + 1) * n * d;
+            let (_, g) = transition::loss_and_grad(
+                &step.x0[r.clone()],
+                &req.kf[r.clone()],
+                &req.mask[r.clone()],
+                key,
+                req.lengths[i],
+                d,
+                opts.window,
+                opts.dct_bases,
+            );
+            grad[r].copy_from_slice(&g);
+        }
+        if step.exact {
+            // Chain rule through the denoiser: d L / d x_t = J^T (d L / d x0).
+            let device = step.xt.device();
+            let g = Tensor::<1>::from_floats(grad.as_slice(), &device).reshape([b, n, d]);
+            let grads = (step.x0_t * g).sum().backward();
+            grad = step.xt.grad(&grads).map(host).unwrap_or(grad);
+        }
+        for (s, gv) in shift.iter_mut().zip(grad) {
+            *s = (opts.transition * step.var) as f32 * gv;
+        }
+    }
+    if let (Some(pg), true) = (&opts.place, step.var > 0.0) {
+        for i in 0..b {
+            let (r, rr) =
+                (i * n * d..(i + 1) * n * d, i * n * ROOT_CHANNELS..(i + 1) * n * ROOT_CHANNELS);
+            let (_, g) = pg.loss_and_grad(
+                &step.x0[r.clone()],
+                &req.root[rr.clone()],
+                &req.root_mask[rr],
+                req.lengths[i],
+                d,
+            );
+            for (s, gv) in shift[r].iter_mut().zip(g) {
+                *s += (pg.strength * step.var) as f32 * gv;
+            }
+        }
+    }
+    shift
+}

@@ -1,0 +1,54 @@
+//! Data batches (flat host buffers from `diffkfc-data`) to Burn tensors.
+
+use burn::prelude::*;
+use diffkfc_data::dataset::batch::Batch;
+use diffkfc_data::motion::absolute_root::{self, VelocityStats, CHANNELS};
+use diffkfc_data::motion::root_key::ROOT_CHANNELS;
+
+use crate::network::condition::Condition;
+
+/// Tensors of a training batch: the clean motion and what it is conditioned on.
+pub struct TensorBatch {
+    /// [B, N, D] normalised features (zero on padding).
+    pub x0: Tensor<3>,
+    /// [B, N] 1 on real frames.
+    pub valid: Tensor<2>,
+    pub cond: Condition,
+}
+
+/// `text` holds one embedding of width `text_dim` per sample, row-major. `absolute`: the model
+/// sees an absolute root (`diffkfc_data::motion::absolute_root`): the motion's root channels become
+/// angle and place, observed at a keyframe where the keyframe observes its heading / place.
+pub fn to_tensors(
+    b: &Batch,
+    text: &[f32],
+    text_dim: usize,
+    absolute: Option<&VelocityStats>,
+    device: &Device,
+) -> TensorBatch {
+    let (bs, n, d) = (b.batch_size, b.frames, b.dim);
+    assert_eq!(text.len(), bs * text_dim, "one text embedding per sample");
+    let (mut x0, mut kf_mask) = (b.x0.clone(), b.kf_mask.clone());
+    if let Some(stats) = absolute {
+        let r = ROOT_CHANNELS;
+        for i in 0..bs {
+            absolute_root::to_absolute(&mut x0[i * n * d..(i + 1) * n * d], b.lengths[i], d, stats);
+            for f in 0..n {
+                let rm = &b.root_mask[(i * n + f) * r..(i * n + f + 1) * r];
+                kf_mask[(i * n + f) * d..][..CHANNELS]
+                    .copy_from_slice(&absolute_root::observed(rm));
+            }
+        }
+    }
+    let x0 = Tensor::<1>::from_floats(x0.as_slice(), device).reshape([bs, n, d]);
+    let kf_mask_t = Tensor::<1>::from_floats(kf_mask.as_slice(), device).reshape([bs, n, d]);
+    let kf = x0.clone() * kf_mask_t.clone();
+    let real = b.valid.iter().map(|&v| v > 0.0).collect();
+    let text = Tensor::<1>::from_floats(text, device).reshape([bs, text_dim]);
+    let cond = Condition::new(text, kf, kf_mask_t, &kf_mask, &b.root, &b.root_mask, real, device);
+    TensorBatch {
+        x0,
+        valid: Tensor::<1>::from_floats(b.valid.as_slice(), device).reshape([bs, n]),
+        cond,
+    }
+}

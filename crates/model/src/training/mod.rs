@@ -1,0 +1,12 @@
+//! Training: the loop (`trainer`), batches as tensors, the losses and the differentiable
+//! kinematics they read, the optimiser and EMA, data-parallel loss weighting, memory estimates
+//! and warm starts from another run's weights.
+
+pub(crate) mod batch;
+pub(crate) mod kinematics;
+pub(crate) mod losses;
+pub mod memory;
+pub mod optim;
+pub mod parallel;
+pub mod trainer;
+pub(crate) mod warm_start;
