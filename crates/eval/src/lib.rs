@@ -4,7 +4,7 @@
 //! in metres:
 //! * K-Err: mean L2 error of the observed joints at keyframe frames, globally and in the
 //!   root-relative, facing-normalised frame (the RIC features).
-//! * K-TranS: mean acceleration magnitude |x[j+1] - 2x[j] + x[j-1]| over frames within l of a
+//! * K-TranS: mean acceleration magnitude |x[j+1] - 2x`[j]` + x[j-1]| over frames within l of a
 //!   keyframe, averaged over joints and keyframes (real motion gives the reference value).
 
 pub mod error;

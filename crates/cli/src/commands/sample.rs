@@ -64,7 +64,7 @@ pub struct SampleArgs {
     /// JSON frames count on the whole timeline.
     #[arg(long, conflicts_with_all = ["text", "prompts", "from", "length", "seconds"], value_name = "SEGMENTS|FILE")]
     timeline: Option<String>,
-    /// Many prompts: one per line, optionally `text#length`; outputs go to <out>/promptNNN.
+    /// Many prompts: one per line, optionally `text#length`; outputs go to `<out>`/promptNNN.
     #[arg(long, conflicts_with = "text")]
     prompts: Option<PathBuf>,
     /// Keyframes from a motion: features (T,263) or joints (T,22,3) .npy, or a BVH (ours,
@@ -84,7 +84,7 @@ pub struct SampleArgs {
     #[arg(long, default_value = "random", value_name = "random|uniform|mdo")]
     keyframe_strategy: String,
     /// Keyframes from a JSON file: {"length": 120, "joints": "lower_body", "keyframes":
-    /// [{"frame": 0, "joints": [[x,y,z] x 22]}, {"frame": 60, "features": [263 numbers],
+    /// [{"frame": 0, "joints": [`[x,y,z]` x 22]}, {"frame": 60, "features": [263 numbers],
     /// "root": [x, y, z], "heading": 90}, {"frame": 100, "root": [0, 0.9, 5]}]}. Each keyframe
     /// has a pose ("joints" in metres, or "features") and/or a place ("root", metres) and a
     /// heading (degrees, 0 faces +Z, 90 faces +X) in the output's frame: frame 0 at the origin
@@ -370,7 +370,7 @@ impl Generator {
     }
 
     /// A request for `b` motions of `n` frames of the text `emb`; item i observes `keys[i]`
-    /// (raw features [n, D], their mask, root keys [n]), or `keys[0]` when one is given.
+    /// (raw features [n, D], their mask, root keys `[n]`), or `keys[0]` when one is given.
     fn request(
         &self,
         emb: &[f32],

@@ -23,7 +23,7 @@ pub struct TrainArgs {
     /// Dataset root (overrides data.dir of the config).
     #[arg(long)]
     data: Option<PathBuf>,
-    /// Run directory (default: runs/<config name>).
+    /// Run directory (default: runs/`<config name>`).
     #[arg(long)]
     out: Option<PathBuf>,
     /// Continue from the run directory's latest checkpoint.

@@ -58,7 +58,7 @@ pub struct KeyframeSet {
     pub mask: Vec<f32>,
     /// Joints the keyframes observe.
     pub joints: Vec<usize>,
-    /// [length] keyed place and heading, relative to frame 0 (see [`relative_to`]).
+    /// `[length]` keyed place and heading, relative to frame 0 (see [`relative_to`]).
     pub root: Vec<RootKey>,
 }
 

@@ -15,7 +15,7 @@ pub struct Plausibility {
     pub foot_skating: f64,
     /// Fastest joint speed between consecutive frames (m/s).
     pub max_speed: f64,
-    /// Largest joint acceleration |x[t+1] - 2x[t] + x[t-1]| * fps^2 (m/s^2): velocity spikes.
+    /// Largest joint acceleration |x[t+1] - 2x`[t]` + x[t-1]| * fps^2 (m/s^2): velocity spikes.
     pub max_accel: f64,
 }
 

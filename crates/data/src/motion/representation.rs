@@ -1,7 +1,7 @@
 //! The HumanML3D motion representation: joint positions <-> feature vectors.
 //!
-//! Layout per frame (J joints): [0] root angular velocity about Y, [1:3] root linear velocity
-//! (x, z) in the facing frame, [3] root height, then (J-1)*3 root-relative joint positions (RIC),
+//! Layout per frame (J joints): `[0]` root angular velocity about Y, `[1:3]` root linear velocity
+//! (x, z) in the facing frame, `[3]` root height, then (J-1)*3 root-relative joint positions (RIC),
 //! (J-1)*6 local rotations (continuous 6D), J*3 local joint velocities, 4 foot contacts.
 //! `features_from_joints` is HumanML3D's `process_file`; `recover_from_ric` its inverse for
 //! positions. Arithmetic is in f64; files are f32.

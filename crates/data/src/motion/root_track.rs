@@ -41,7 +41,7 @@ impl TrackSchedule {
     }
 }
 
-/// Whether a keyframe mask row [D] observes anything besides the track dims: a pose key, as
+/// Whether a keyframe mask row `[D]` observes anything besides the track dims: a pose key, as
 /// opposed to a frame that only carries the root track.
 pub fn is_pose_key(mask_row: &[f32]) -> bool {
     mask_row.iter().enumerate().any(|(k, &m)| m > 0.0 && !TRACK_DIMS.contains(&k))

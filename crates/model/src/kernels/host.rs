@@ -117,7 +117,7 @@ fn transposed(x: &[f32], cols: usize) -> View {
     View { ptr: x.as_ptr(), rs: 1, cs: cols as isize }
 }
 
-/// y [rows, out] = x [rows, in] . w [in, out] + b [out]: the bias is the product's starting
+/// y [rows, out] = x [rows, in] . w [in, out] + b `[out]`: the bias is the product's starting
 /// value, so there is no separate broadcast pass.
 pub fn linear_forward(x: &[f32], w: &[f32], b: &[f32]) -> Vec<f32> {
     let (n_out, n_in) = (b.len(), w.len() / b.len());

@@ -58,7 +58,7 @@ pub struct AttnArgs {
 
 #[backend_extension(Flex, Autodiff)]
 pub trait FusedOps: Backend {
-    /// LayerNorm over the last dim: x [.., d], gamma and beta [d].
+    /// LayerNorm over the last dim: x `[.., d]`, gamma and beta `[d]`.
     fn fused_layer_norm(
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
@@ -72,13 +72,13 @@ pub trait FusedOps: Backend {
         beta: FloatTensor<Self>,
         drop: DropMask,
     ) -> FloatTensor<Self>;
-    /// x [rows, in] . w [in, out] + b [out] -> [rows, out].
+    /// x `[rows, in]` . w `[in, out]` + b `[out]` -> `[rows, out]`.
     fn fused_linear(
         x: FloatTensor<Self>,
         w: FloatTensor<Self>,
         b: FloatTensor<Self>,
     ) -> FloatTensor<Self>;
-    /// gelu(x [rows, in] . w [in, out] + b [out]) -> [rows, out].
+    /// gelu(x `[rows, in]` . w `[in, out]` + b `[out]`) -> `[rows, out]`.
     fn fused_linear_gelu(
         x: FloatTensor<Self>,
         w: FloatTensor<Self>,

@@ -23,15 +23,15 @@ pub struct Condition {
     /// [B, N, PATH_CHANNELS] the velocity the keyed places imply for each frame
     /// (`diffkfc_data::motion::root_path`), read by the decoder of models with path channels.
     pub path: Tensor<3>,
-    /// [B*N] frames with any observed feature.
+    /// `[B*N]` frames with any observed feature.
     pub kf_frames: Vec<bool>,
-    /// [B*N] real (non-padding) frames.
+    /// `[B*N]` real (non-padding) frames.
     pub real: Vec<bool>,
 }
 
 impl Condition {
     /// A condition from device tensors `text` [B, T], `kf`/`kf_mask` [B, N, D] and the host
-    /// copies of the masks ([B*N*D] features, [B*N*R] root channels with their values).
+    /// copies of the masks (`[B*N*D]` features, `[B*N*R]` root channels with their values).
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         text: Tensor<2>,

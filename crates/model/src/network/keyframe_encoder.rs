@@ -215,7 +215,7 @@ impl KeyframeEncoder {
     }
 
     /// The observation each frame token is built from: the condition's keyframes `kf`/`kf_mask`
-    /// [B,N,D] and the model's root channels [B,N,R], each value masked, beside its mask ->
+    /// `[B,N,D]` and the model's root channels `[B,N,R]`, each value masked, beside its mask ->
     /// [B, N, 2(D+R)]. The decoder's per-frame key input reads the same vector.
     pub fn observations(&self, c: &Condition) -> Tensor<3> {
         let mut parts = vec![c.kf.clone() * c.kf_mask.clone(), c.kf_mask.clone()];
@@ -228,7 +228,7 @@ impl KeyframeEncoder {
         Tensor::cat(parts, 2)
     }
 
-    /// `text_tok` [B,1,d]; `obs` [B,N,2(D+R)] ([`Self::observations`]); `pos` [1,N,d]
+    /// `text_tok` `[B,1,d]`; `obs` [B,N,2(D+R)] ([`Self::observations`]); `pos` `[1,N,d]`
     /// -> [B, 1+N, d].
     pub fn forward(
         &self,

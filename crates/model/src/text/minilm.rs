@@ -1,5 +1,5 @@
 //! all-MiniLM-L6-v2 (sentence-transformers): BERT, mean pooling over the attention mask
-//! ([CLS] and [SEP] included), L2 normalisation.
+//! (`[CLS]` and `[SEP]` included), L2 normalisation.
 
 use std::path::{Path, PathBuf};
 

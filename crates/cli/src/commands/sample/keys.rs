@@ -16,7 +16,7 @@ pub(super) struct Keys {
     pub(super) source: Option<rep::Joints>,
     /// Joints the keyframes observe.
     pub(super) joints: Vec<usize>,
-    /// [length] keyed place and heading (unobserved: default).
+    /// `[length]` keyed place and heading (unobserved: default).
     pub(super) root: Vec<RootKey>,
 }
 
