@@ -166,7 +166,7 @@ mod parts;
 pub mod suggest;
 mod timeline;
 use keys::*;
-use output::write_outputs;
+use output::{write_outputs, Outputs};
 
 pub fn run(a: SampleArgs) -> Result<()> {
     if let Some(spec) = a.timeline.clone() {
@@ -244,7 +244,7 @@ fn run_one(a: SampleArgs) -> Result<()> {
     let req =
         gen.request(&emb, keys.length, a.num_samples, &[(&keys.values, &keys.mask, &keys.root)]);
     let (fitted, secs) = gen.generate(&req, &a)?;
-    write_outputs(&a, &gen, &keys, fitted, secs, json!({}), &[])
+    write_outputs(&a, &gen, Outputs { keys: &keys, fitted, secs, extra: json!({}), segments: &[] })
 }
 
 /// One motion from `a`'s text and keyframes (the first sample): de-normalised, fitted features.

@@ -221,8 +221,58 @@ impl Trainer<'_> {
         on_event: &mut dyn FnMut(Event),
     ) -> Result<Outcome> {
         let tc = &self.cfg.training;
+        let schedule = self.checked_schedule(max_steps)?;
+        std::fs::create_dir_all(&self.run_dir).map_err(ModelError::io(&self.run_dir))?;
+        let device = self.device.clone().autodiff();
+        device.seed(tc.seed);
+        let (mut model, mut optim, start) = self.starting_point(resume, &device, on_event)?;
+        let mut files = RunFiles::open(self, &model, start)?;
+        let loader =
+            Loader::new(self.ds, self.train, tc.batch_size, tc.seed, self.cfg.keyframes.clone());
+        let (mut step, mut last, mut stopped) = (start, None, false);
+        // Validation lines without a training loss: before the first step of a fresh run, and
+        // where a run is stopped early, so start and end are always measured.
+        if start == 0 && tc.val_every > 0 && step < max_steps {
+            files.validation(0, self.validate(&optim.eval_weights(&model), &schedule))?;
+        }
+        while step < max_steps {
+            if stop() {
+                stopped = true;
+                if tc.val_every > 0 && step > start {
+                    files
+                        .validation(step, self.validate(&optim.eval_weights(&model), &schedule))?;
+                }
+                break;
+            }
+            let (updated, mut rec) =
+                self.step(model, &mut optim, &loader, &schedule, step, &device, &files)?;
+            model = updated;
+            step += 1;
+            if tc.val_every > 0 && (step % tc.val_every == 0 || step == max_steps) {
+                rec.val_loss = self.validate(&optim.eval_weights(&model), &schedule);
+            }
+            files.record(&rec)?;
+            on_event(Event::Step(&rec));
+            if step % tc.checkpoint_every.max(1) == 0 || step == max_steps {
+                let p = files.checkpoint(step, optim.snapshot(&model))?;
+                on_event(Event::Checkpoint(step, &p));
+            }
+            last = Some(rec);
+        }
+        if stopped
+            && step > start
+            && !Checkpoint::list(&self.run_dir).iter().any(|(s, _)| *s == step)
+        {
+            let p = files.checkpoint(step, optim.snapshot(&model))?;
+            on_event(Event::Checkpoint(step, &p));
+        }
+        Ok(Outcome { start_step: start, end_step: step, stopped_early: stopped, last })
+    }
+
+    /// The schedule, after the checks a run must pass before it writes anything.
+    fn checked_schedule(&self, max_steps: usize) -> Result<Schedule> {
         let dm = &self.cfg.diffusion;
-        tc.check_stop(max_steps)?;
+        self.cfg.training.check_stop(max_steps)?;
         let schedule = Schedule::by_name(&dm.schedule, dm.steps).ok_or_else(|| {
             ModelError::Config(format!(
                 "diffusion.schedule: unknown '{}' (cosine, linear)",
@@ -236,26 +286,30 @@ impl Trainer<'_> {
                 "model.absolute_root: the config lacks the dataset's velocity statistics (RunConfig::bind_dataset)".into(),
             ));
         }
-        std::fs::create_dir_all(&self.run_dir).map_err(ModelError::io(&self.run_dir))?;
-        let device = self.device.clone().autodiff();
-        device.seed(tc.seed);
-        let mut model = self.cfg.model.init(&device);
-        let shapes = params::shapes(&model);
-        let names = params::names(&model);
-        let keep_ema = tc.ema_decay > 0.0;
-        let mut optim = None;
-        let mut start = 0;
+        Ok(schedule)
+    }
+
+    /// The model and optimiser a run starts from, and its step: the newest checkpoint when
+    /// resuming, else `init`'s weights (warm start) or a fresh initialisation.
+    fn starting_point(
+        &self,
+        resume: bool,
+        device: &Device,
+        on_event: &mut dyn FnMut(Event),
+    ) -> Result<(Denoiser, Optimiser, usize)> {
+        let keep_ema = self.cfg.training.ema_decay > 0.0;
+        let mut model = self.cfg.model.init(device);
         if resume {
             if let Some(ck) = Checkpoint::latest(&self.run_dir) {
                 let mut ck = ck?;
-                ck.align(&names, &self.run_dir)?;
-                if ck.shapes != shapes {
+                ck.align(&params::names(&model), &self.run_dir)?;
+                if ck.shapes != params::shapes(&model) {
                     return Err(ModelError::file(
                         &self.run_dir,
                         "checkpoint does not match the model in the config (different shapes; runs made before keyframes had root channels cannot be resumed: start a new --out)",
                     ));
                 }
-                start = ck.step;
+                let start = ck.step;
                 let ema = keep_ema.then(|| ck.ema.unwrap_or_else(|| ck.model.clone()));
                 let snap = Snapshot {
                     model: ck.model,
@@ -264,150 +318,162 @@ impl Trainer<'_> {
                     m: ck.adam_m,
                     v: ck.adam_v,
                 };
-                let (m, o) = Optimiser::restore(model, snap, self.optimiser);
-                model = m;
-                optim = Some(o);
+                let (model, optim) = Optimiser::restore(model, snap, self.optimiser);
+                return Ok((model, optim, start));
             }
         }
-        if let (None, Some(path)) = (&optim, &self.init) {
-            let (m, fresh) = crate::training::warm_start::warm_start(
-                model,
-                &crate::run::load::checkpoint_at(path)?,
-                path,
-            )?;
+        if let Some(path) = &self.init {
+            let ck = crate::run::load::checkpoint_at(path)?;
+            let (m, fresh) = crate::training::warm_start::warm_start(model, &ck, path)?;
             model = m;
             on_event(Event::WarmStart(fresh));
         }
-        let mut optim = optim.unwrap_or_else(|| Optimiser::new(&model, self.optimiser, keep_ema));
-        let run = crate::run::dir::RunDir::new(&self.run_dir);
+        let optim = Optimiser::new(&model, self.optimiser, keep_ema);
+        Ok((model, optim, 0))
+    }
+
+    /// One optimisation step from `step` (its batch, timesteps, noise and dropout derived from
+    /// the seed and the step): the updated model and the step's record.
+    #[allow(clippy::too_many_arguments)]
+    fn step(
+        &self,
+        model: Denoiser,
+        optim: &mut Optimiser,
+        loader: &Loader,
+        schedule: &Schedule,
+        step: usize,
+        device: &Device,
+        files: &RunFiles,
+    ) -> Result<(Denoiser, StepRecord)> {
+        let tc = &self.cfg.training;
+        let step_seed = tc.seed.wrapping_mul(0x9E37_79B9).wrapping_add(step as u64);
+        device.seed(step_seed);
+        crate::network::dropout::seed(step_seed);
+        let per_epoch = loader.batches_per_epoch().max(1);
+        let b = loader.batch((step / per_epoch) as u64, step % per_epoch);
+        let (t, noise) =
+            self.draw(0x7EA1, step as u64, [b.batch_size, b.frames, b.dim], schedule.steps, device);
+        let l = self.batch_loss(&model, schedule, &b, &t, noise, device);
+        let total = l.total(&self.kinematic());
+        let lr = learning_rate(tc.lr, step, tc.warmup_steps, tc.cosine_decay, tc.max_steps);
+        let loss = scalar(total.clone());
+        if !loss.is_finite() {
+            // Stop before the step is taken: the weights and every checkpoint stay finite.
+            return Err(non_finite(step + 1, "loss", loss, &self.run_dir));
+        }
+        let (model, grad_norm) = optim.descend(model, total, tc.grad_clip, lr);
+        if !grad_norm.is_finite() {
+            return Err(non_finite(step + 1, "gradient norm", grad_norm, &self.run_dir));
+        }
+        // Early in training the EMA follows closely (as in common EMA warm-ups).
+        let decay = tc.ema_decay.min((1.0 + step as f64) / (10.0 + step as f64));
+        optim.update_ema(&model, decay);
+        let rec = StepRecord {
+            step: step + 1,
+            loss,
+            l_simple: scalar(l.simple),
+            l_key: l.key.map(scalar),
+            l_smooth: l.smooth.map(scalar),
+            l_pos: l.pos.map(scalar),
+            l_vel: l.vel.map(scalar),
+            l_foot: l.foot.map(scalar),
+            lr,
+            grad_norm,
+            wall_s: files.elapsed(),
+            val_loss: None,
+        };
+        Ok((model, rec))
+    }
+}
+
+/// What a run writes while it trains: metrics.jsonl lines and checkpoints (with the tensor
+/// names and shapes, config and seed they carry).
+struct RunFiles {
+    run_dir: PathBuf,
+    metrics: std::fs::File,
+    metrics_path: PathBuf,
+    started: Instant,
+    shapes: Vec<Vec<usize>>,
+    names: Vec<String>,
+    config: String,
+    seed: u64,
+    keep: usize,
+}
+
+impl RunFiles {
+    /// The run's files from step `start` on (a resumed run drops the metrics lines after it).
+    fn open(t: &Trainer, model: &Denoiser, start: usize) -> Result<RunFiles> {
+        let run = crate::run::dir::RunDir::new(&t.run_dir);
         let metrics_path = run.metrics_path();
         run.truncate_metrics(start)?;
-        let mut metrics = std::fs::OpenOptions::new()
+        let metrics = std::fs::OpenOptions::new()
             .create(true)
             .append(true)
             .open(&metrics_path)
             .map_err(ModelError::io(&metrics_path))?;
-        let loader =
-            Loader::new(self.ds, self.train, tc.batch_size, tc.seed, self.cfg.keyframes.clone());
-        let per_epoch = loader.batches_per_epoch().max(1);
-        let kin = self.kinematic();
-        let t0 = Instant::now();
-        let mut last = None;
-        let mut step = start;
-        let save = |step: usize, snap: Snapshot| -> Result<PathBuf> {
-            // Never write (and so never rotate older checkpoints away for) non-finite weights.
-            if let Some(x) = snap
-                .model
-                .iter()
-                .chain(snap.ema.iter().flatten())
-                .flat_map(|v| v.iter())
-                .find(|x| !x.is_finite())
-            {
-                return Err(non_finite(step, "a weight", *x as f64, &self.run_dir));
-            }
-            let ck = Checkpoint {
-                step,
-                shapes: shapes.clone(),
-                model: snap.model,
-                ema: snap.ema,
-                adam_step: snap.step,
-                adam_m: snap.m,
-                adam_v: snap.v,
-                config: self.cfg.to_json(),
-                seed: tc.seed,
-                names: names.clone(),
-            };
-            let p = ck.save(&self.run_dir)?;
-            Checkpoint::prune(&self.run_dir, tc.keep_checkpoints);
-            Ok(p)
-        };
-        let mut stopped = false;
-        // Validation lines without a training loss: before the first step of a fresh run, and
-        // where a run is stopped early, so start and end are always measured.
-        let val_line = |step: usize,
-                        weights: &[Vec<f32>],
-                        metrics: &mut std::fs::File|
-         -> Result<Option<f64>> {
-            let v = self.validate(weights, &schedule);
-            if let Some(v) = v {
-                let line = serde_json::json!({"step": step, "val_loss": v, "wall_s": t0.elapsed().as_secs_f64()});
-                writeln!(metrics, "{line}").map_err(ModelError::io(&metrics_path))?;
-            }
-            Ok(v)
-        };
-        if start == 0 && tc.val_every > 0 && step < max_steps {
-            val_line(0, &optim.eval_weights(&model), &mut metrics)?;
+        Ok(RunFiles {
+            run_dir: t.run_dir.clone(),
+            metrics,
+            metrics_path,
+            started: Instant::now(),
+            shapes: params::shapes(model),
+            names: params::names(model),
+            config: t.cfg.to_json(),
+            seed: t.cfg.training.seed,
+            keep: t.cfg.training.keep_checkpoints,
+        })
+    }
+
+    fn elapsed(&self) -> f64 {
+        self.started.elapsed().as_secs_f64()
+    }
+
+    fn line(&mut self, line: &str) -> Result<()> {
+        writeln!(self.metrics, "{line}").map_err(ModelError::io(&self.metrics_path))
+    }
+
+    /// A validation line without a training loss (when there is a validation split).
+    fn validation(&mut self, step: usize, val: Option<f64>) -> Result<()> {
+        match val {
+            Some(v) => self.line(
+                &serde_json::json!({"step": step, "val_loss": v, "wall_s": self.elapsed()})
+                    .to_string(),
+            ),
+            None => Ok(()),
         }
-        while step < max_steps {
-            if stop() {
-                stopped = true;
-                if tc.val_every > 0 && step > start {
-                    val_line(step, &optim.eval_weights(&model), &mut metrics)?;
-                }
-                break;
-            }
-            let step_seed = tc.seed.wrapping_mul(0x9E37_79B9).wrapping_add(step as u64);
-            device.seed(step_seed);
-            crate::network::dropout::seed(step_seed);
-            let b = loader.batch((step / per_epoch) as u64, step % per_epoch);
-            let (t, noise) = self.draw(
-                0x7EA1,
-                step as u64,
-                [b.batch_size, b.frames, b.dim],
-                schedule.steps,
-                &device,
-            );
-            let l = self.batch_loss(&model, &schedule, &b, &t, noise, &device);
-            let total = l.total(&kin);
-            let lr = learning_rate(tc.lr, step, tc.warmup_steps, tc.cosine_decay, tc.max_steps);
-            let loss = scalar(total.clone());
-            if !loss.is_finite() {
-                // Stop before the step is taken: the weights and every checkpoint stay finite.
-                return Err(non_finite(step + 1, "loss", loss, &self.run_dir));
-            }
-            let (updated, grad_norm) = optim.descend(model, total, tc.grad_clip, lr);
-            if !grad_norm.is_finite() {
-                return Err(non_finite(step + 1, "gradient norm", grad_norm, &self.run_dir));
-            }
-            model = updated;
-            // Early in training the EMA follows closely (as in common EMA warm-ups).
-            let decay = tc.ema_decay.min((1.0 + step as f64) / (10.0 + step as f64));
-            optim.update_ema(&model, decay);
-            step += 1;
-            let mut rec = StepRecord {
-                step,
-                loss,
-                l_simple: scalar(l.simple),
-                l_key: l.key.map(scalar),
-                l_smooth: l.smooth.map(scalar),
-                l_pos: l.pos.map(scalar),
-                l_vel: l.vel.map(scalar),
-                l_foot: l.foot.map(scalar),
-                lr,
-                grad_norm,
-                wall_s: t0.elapsed().as_secs_f64(),
-                val_loss: None,
-            };
-            if tc.val_every > 0 && (step % tc.val_every == 0 || step == max_steps) {
-                rec.val_loss = self.validate(&optim.eval_weights(&model), &schedule);
-            }
-            writeln!(metrics, "{}", serde_json::to_string(&rec).expect("json"))
-                .map_err(ModelError::io(&metrics_path))?;
-            on_event(Event::Step(&rec));
-            if step % tc.checkpoint_every.max(1) == 0 || step == max_steps {
-                let p = save(step, optim.snapshot(&model))?;
-                on_event(Event::Checkpoint(step, &p));
-            }
-            last = Some(rec);
-        }
-        if stopped
-            && step > start
-            && !Checkpoint::list(&self.run_dir).iter().any(|(s, _)| *s == step)
+    }
+
+    fn record(&mut self, rec: &StepRecord) -> Result<()> {
+        self.line(&serde_json::to_string(rec).expect("json"))
+    }
+
+    /// Write the checkpoint of `step` and rotate old ones away; never for non-finite weights
+    /// (so rotation never removes the last good checkpoint).
+    fn checkpoint(&self, step: usize, snap: Snapshot) -> Result<PathBuf> {
+        if let Some(x) = snap
+            .model
+            .iter()
+            .chain(snap.ema.iter().flatten())
+            .flat_map(|v| v.iter())
+            .find(|x| !x.is_finite())
         {
-            let p = save(step, optim.snapshot(&model))?;
-            on_event(Event::Checkpoint(step, &p));
+            return Err(non_finite(step, "a weight", *x as f64, &self.run_dir));
         }
-        Ok(Outcome { start_step: start, end_step: step, stopped_early: stopped, last })
+        let ck = Checkpoint {
+            step,
+            shapes: self.shapes.clone(),
+            model: snap.model,
+            ema: snap.ema,
+            adam_step: snap.step,
+            adam_m: snap.m,
+            adam_v: snap.v,
+            config: self.config.clone(),
+            seed: self.seed,
+            names: self.names.clone(),
+        };
+        let p = ck.save(&self.run_dir)?;
+        Checkpoint::prune(&self.run_dir, self.keep);
+        Ok(p)
     }
 }
 

@@ -4,117 +4,197 @@
 use super::*;
 use diffkfc_data::io::output_set::{Committed, OutputSet};
 
-/// Every file of a `sample` folder: per-sample features, joints, GIF, BVH; the source; results.json
-/// (with `extra` merged in) and the 3D page (with timeline `segments`: start frame and text).
-pub(super) fn write_outputs(
+/// What a `sample` run hands to its output folder.
+pub(super) struct Outputs<'a> {
+    pub keys: &'a Keys,
+    pub fitted: Vec<Fitted>,
+    /// Seconds the sampler took.
+    pub secs: f64,
+    /// Fields merged into results.json (timelines, body-part prompts).
+    pub extra: serde_json::Value,
+    /// Timeline segments for the page: start frame and text.
+    pub segments: &'a [(usize, String)],
+}
+
+/// Every file of a `sample` folder, written as one set: per-sample features, joints, GIF, BVH;
+/// the source; results.json and the 3D page.
+pub(super) fn write_outputs(a: &SampleArgs, gen: &Generator, out: Outputs) -> Result<()> {
+    let keys = out.keys;
+    let (b, n) = (out.fitted.len(), keys.length);
+    let set = OutputSet::begin(&a.out, MARKER, is_output, a.force, "--out")?;
+    let dir = set.path().to_path_buf();
+    let mut views = Vec::new();
+    if let Some(src) = &keys.source {
+        npy::write(dir.join("source_joints.npy"), &[src.len(), 22, 3], &rep::joints_to_f32(src))?;
+        views.push(source_view(keys, src));
+    }
+    let mut samples = Vec::new();
+    for (i, done) in out.fitted.into_iter().enumerate() {
+        let (s, view) = write_sample(&dir, i, done, keys, gen.fit)?;
+        samples.push(s);
+        views.push(view);
+    }
+    let mut report = results(a, gen, keys, out.secs, samples);
+    if let (Some(r), Some(e)) = (report.as_object_mut(), out.extra.as_object()) {
+        r.extend(e.clone());
+    }
+    diffkfc_data::write_atomic(
+        &dir.join("results.json"),
+        serde_json::to_string_pretty(&report)?.as_bytes(),
+    )?;
+    diffkfc_data::write_atomic(
+        &dir.join("index.html"),
+        index_html(&report, &views, out.segments).as_bytes(),
+    )?;
+    let kept = match set.commit()? {
+        Committed::Replaced { kept } if !kept.is_empty() => {
+            format!(" (replaced the earlier outputs; kept {})", kept.join(", "))
+        }
+        Committed::Replaced { .. } => " (replaced the earlier outputs)".into(),
+        Committed::Merged => " (written beside the folder's other files: --force)".into(),
+        Committed::Created => String::new(),
+    };
+    println!(
+        "{}: {b} sample(s) of {n} frames in {:.1} s ({:?}); see results.json and index.html{kept}",
+        a.out.display(),
+        out.secs,
+        gen.opts.sampler
+    );
+    for (i, s) in report["samples"].as_array().unwrap().iter().enumerate() {
+        println!(
+            "  sample_{i:02}: {}, K-TranS {}, foot skating {}{}{}",
+            k_err_text(s),
+            fmt(&s["k_trans"]),
+            fmt(&s["foot_skating"]),
+            fit_note(s, gen.fit),
+            lock_note(s)
+        );
+    }
+    Ok(())
+}
+
+/// The page's view of the keyframe source.
+fn source_view(keys: &Keys, src: &rep::Joints) -> ViewMotion {
+    ViewMotion {
+        label: "source".into(),
+        joints: src.clone(),
+        keyframes: keys.frames.clone(),
+        key_joints: (keys.joints.len() < T2M.num_joints()).then(|| keys.joints.clone()),
+        numbers: format!(
+            "K-TranS {}, foot skating {:.4}",
+            k_trans(src, &keys.frames, 2).map_or("-".into(), |v| format!("{v:.4}")),
+            diffkfc_data::motion::plausibility::foot_skating_ratio(&T2M, src)
+        ),
+        links: vec![("joints".into(), "source_joints.npy".into())],
+        ..Default::default()
+    }
+}
+
+/// Sample `i`'s files in `dir`, its results.json entry and its view on the page.
+fn write_sample(
+    dir: &Path,
+    i: usize,
+    done: Fitted,
+    keys: &Keys,
+    fit: Fit,
+) -> Result<(serde_json::Value, ViewMotion)> {
+    let (n, d) = (keys.length, T2M.feature_dim());
+    let f = &done.features;
+    let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
+    let name = format!("sample_{i:02}");
+    let stem = dir.join(&name);
+    npy::write(stem.with_extension("npy"), &[n, d], f)?;
+    npy::write(dir.join(format!("{name}_joints.npy")), &[n, 22, 3], &rep::joints_to_f32(&j))?;
+    render::gif(&T2M, &j, &keys.frames, &stem.with_extension("gif"))?;
+    let rig = diffkfc_data::io::rig::export(&T2M, &j);
+    diffkfc_data::write_atomic(&stem.with_extension("bvh"), rig.to_text().as_bytes())?;
+    // The BVH is a rigid rig: it reproduces the motion when the fit made it rigid.
+    let (bvh_mean, bvh_max) = diffkfc_data::io::rig::export_error(&T2M, &j, &rig);
+    let path_file = format!("{name}_root_path.npy");
+    if let Some(p) = &done.root_path {
+        npy::write(dir.join(&path_file), &[p.len() / 3, 3], p)?;
+    }
+    let s = json!({
+        "features": format!("{name}.npy"),
+        "joints": format!("{name}_joints.npy"),
+        "gif": format!("{name}.gif"),
+        "bvh": format!("{name}.bvh"),
+        "bvh_error_m": {"mean": bvh_mean, "max": bvh_max},
+        "bone_length_std_m": diffkfc_data::postprocess::rigid::bone_length_std(&T2M, &j) * T2M.metres_per_unit,
+        "rigid": done.rigid,
+        "root_path": done.root_path.is_some().then_some(&path_file),
+        "track": done.track,
+        "k_err_m": keys.source.as_ref().and_then(|s| k_err_global(&j, s, &keys.frames, &keys.joints)),
+        "k_err_root_relative_m": k_err_local(&T2M, f, &keys.values, &keys.frames, &keys.joints),
+        "k_trans": k_trans(&j, &keys.frames, 2),
+        "foot_skating": diffkfc_data::motion::plausibility::foot_skating_ratio(&T2M, &j),
+        "corrections": done.corrections,
+        "foot_lock": fit.foot_lock.then_some(&done.feet),
+    });
+    let view = sample_view(&name, &s, done, keys, j);
+    Ok((s, view))
+}
+
+/// The page's view of one sample (`s`: its results.json entry).
+fn sample_view(
+    name: &str,
+    s: &serde_json::Value,
+    done: Fitted,
+    keys: &Keys,
+    j: rep::Joints,
+) -> ViewMotion {
+    // The keyed pose: the source's where there is one, else the (fitted) sample's own.
+    let key_poses = keys
+        .frames
+        .iter()
+        .filter(|&&k| k < j.len())
+        .map(|&k| (k, keys.source.as_ref().and_then(|src| src.get(k)).unwrap_or(&j[k]).clone()))
+        .collect();
+    ViewMotion {
+        label: name.to_string(),
+        keyframes: keys.frames.clone(),
+        key_joints: (keys.joints.len() < T2M.num_joints()).then(|| keys.joints.clone()),
+        key_poses,
+        numbers: format!(
+            "{}, K-TranS {}, foot skating {}",
+            k_err_text(s),
+            fmt(&s["k_trans"]),
+            fmt(&s["foot_skating"])
+        ),
+        links: ["gif", "bvh", "features", "joints"]
+            .iter()
+            .map(|k| (k.to_string(), s[*k].as_str().unwrap_or("").to_string()))
+            .collect(),
+        root_path: done.root_path.as_ref().map(|p| {
+            p.chunks(3).map(|v| [v[0] as f64, v[1] as f64, v[2] as f64]).collect::<Vec<_>>()
+        }),
+        planted: done
+            .feet
+            .spans
+            .iter()
+            .map(|s| {
+                let toe = if s.foot == "left" { T2M.feet_left[1] } else { T2M.feet_right[1] };
+                (toe, s.start, s.end)
+            })
+            .collect(),
+        joints: j,
+    }
+}
+
+/// results.json: the run's inputs and settings, and every sample's entry.
+fn results(
     a: &SampleArgs,
     gen: &Generator,
     keys: &Keys,
-    fitted: Vec<Fitted>,
     secs: f64,
-    extra: serde_json::Value,
-    segments: &[(usize, String)],
-) -> Result<()> {
-    let (b, n, d) = (fitted.len(), keys.length, T2M.feature_dim());
-    let (opts, fit, step) = (&gen.opts, gen.fit, gen.step);
-    let set = OutputSet::begin(&a.out, MARKER, is_output, a.force, "--out")?;
-    let dir = set.path().to_path_buf();
-    let mut samples = Vec::new();
-    let mut views = Vec::new();
-    let key_joints = (keys.joints.len() < T2M.num_joints()).then(|| keys.joints.clone());
-    if let Some(src) = &keys.source {
-        npy::write(dir.join("source_joints.npy"), &[src.len(), 22, 3], &rep::joints_to_f32(src))?;
-        views.push(ViewMotion {
-            label: "source".into(),
-            joints: src.clone(),
-            keyframes: keys.frames.clone(),
-            key_joints: key_joints.clone(),
-            numbers: format!(
-                "K-TranS {}, foot skating {:.4}",
-                k_trans(src, &keys.frames, 2).map_or("-".into(), |v| format!("{v:.4}")),
-                diffkfc_data::motion::plausibility::foot_skating_ratio(&T2M, src)
-            ),
-            links: vec![("joints".into(), "source_joints.npy".into())],
-            ..Default::default()
-        });
-    }
-    for (i, done) in fitted.into_iter().enumerate() {
-        let (f, corrections) = (done.features, done.corrections);
-        let root_path = done.root_path.as_ref().map(|p| {
-            p.chunks(3).map(|v| [v[0] as f64, v[1] as f64, v[2] as f64]).collect::<Vec<_>>()
-        });
-        let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
-        let name = format!("sample_{i:02}");
-        let stem = dir.join(&name);
-        npy::write(stem.with_extension("npy"), &[n, d], &f)?;
-        npy::write(dir.join(format!("{name}_joints.npy")), &[n, 22, 3], &rep::joints_to_f32(&j))?;
-        render::gif(&T2M, &j, &keys.frames, &stem.with_extension("gif"))?;
-        let rig = diffkfc_data::io::rig::export(&T2M, &j);
-        diffkfc_data::write_atomic(&stem.with_extension("bvh"), rig.to_text().as_bytes())?;
-        // The BVH is a rigid rig: it reproduces the motion when the fit made it rigid.
-        let (bvh_mean, bvh_max) = diffkfc_data::io::rig::export_error(&T2M, &j, &rig);
-        let path_file = format!("{name}_root_path.npy");
-        if let Some(p) = &done.root_path {
-            npy::write(dir.join(&path_file), &[p.len() / 3, 3], p)?;
-        }
-        samples.push(json!({
-            "features": format!("{name}.npy"),
-            "joints": format!("{name}_joints.npy"),
-            "gif": format!("{name}.gif"),
-            "bvh": format!("{name}.bvh"),
-            "bvh_error_m": {"mean": bvh_mean, "max": bvh_max},
-            "bone_length_std_m": diffkfc_data::postprocess::rigid::bone_length_std(&T2M, &j) * T2M.metres_per_unit,
-            "rigid": done.rigid,
-            "root_path": done.root_path.is_some().then_some(&path_file),
-            "track": done.track,
-            "k_err_m": keys.source.as_ref().and_then(|s| k_err_global(&j, s, &keys.frames, &keys.joints)),
-            "k_err_root_relative_m": k_err_local(&T2M, &f, &keys.values, &keys.frames, &keys.joints),
-            "k_trans": k_trans(&j, &keys.frames, 2),
-            "foot_skating": diffkfc_data::motion::plausibility::foot_skating_ratio(&T2M, &j),
-            "corrections": corrections,
-            "foot_lock": fit.foot_lock.then_some(&done.feet),
-        }));
-        let s = samples.last().expect("pushed");
-        // The keyed pose: the source's where there is one, else the (fitted) sample's own.
-        let key_poses = keys
-            .frames
-            .iter()
-            .filter(|&&k| k < j.len())
-            .map(|&k| (k, keys.source.as_ref().and_then(|src| src.get(k)).unwrap_or(&j[k]).clone()))
-            .collect();
-        views.push(ViewMotion {
-            label: name.clone(),
-            keyframes: keys.frames.clone(),
-            key_joints: key_joints.clone(),
-            key_poses,
-            numbers: format!(
-                "{}, K-TranS {}, foot skating {}",
-                k_err_text(s),
-                fmt(&s["k_trans"]),
-                fmt(&s["foot_skating"])
-            ),
-            links: ["gif", "bvh", "features", "joints"]
-                .iter()
-                .map(|k| (k.to_string(), s[*k].as_str().unwrap_or("").to_string()))
-                .collect(),
-            root_path,
-            planted: done
-                .feet
-                .spans
-                .iter()
-                .map(|s| {
-                    let toe = if s.foot == "left" { T2M.feet_left[1] } else { T2M.feet_right[1] };
-                    (toe, s.start, s.end)
-                })
-                .collect(),
-            joints: j,
-        });
-    }
-    let mut report = json!({
+    samples: Vec<serde_json::Value>,
+) -> serde_json::Value {
+    let (opts, fit) = (&gen.opts, gen.fit);
+    json!({
         "text": a.text,
         "checkpoint": a.checkpoint.display().to_string(),
-        "checkpoint_step": step,
-        "length": n,
+        "checkpoint_step": gen.step,
+        "length": keys.length,
         "source": a.from.as_ref().or(a.keyframes.as_ref()).map(|p| p.display().to_string()),
         "keyframes": keys.frames,
         "keyframe_joints": keys.joints,
@@ -134,66 +214,41 @@ pub(super) fn write_outputs(
         "real_k_trans": keys.source.as_ref().and_then(|s| k_trans(s, &keys.frames, 2)),
         "real_foot_skating": keys.source.as_ref().map(|s| diffkfc_data::motion::plausibility::foot_skating_ratio(&T2M, s)),
         "samples": samples,
-    });
-    if let (Some(r), Some(e)) = (report.as_object_mut(), extra.as_object()) {
-        r.extend(e.clone());
-    }
-    diffkfc_data::write_atomic(
-        &dir.join("results.json"),
-        serde_json::to_string_pretty(&report)?.as_bytes(),
-    )?;
-    diffkfc_data::write_atomic(
-        &dir.join("index.html"),
-        index_html(&report, &views, segments).as_bytes(),
-    )?;
-    let kept = match set.commit()? {
-        Committed::Replaced { kept } if !kept.is_empty() => {
-            format!(" (replaced the earlier outputs; kept {})", kept.join(", "))
-        }
-        Committed::Replaced { .. } => " (replaced the earlier outputs)".into(),
-        Committed::Merged => " (written beside the folder's other files: --force)".into(),
-        Committed::Created => String::new(),
+    })
+}
+
+/// "; largest track correction: pose ..., place ... m, heading ... deg" of a sample entry.
+fn fit_note(s: &serde_json::Value, fit: Fit) -> String {
+    let most = |k: &str| {
+        s["corrections"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .filter_map(|c| c[k].as_f64())
+            .map(f64::abs)
+            .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))))
     };
-    println!(
-        "{}: {b} sample(s) of {n} frames in {secs:.1} s ({:?}); see results.json and index.html{kept}",
-        a.out.display(),
-        opts.sampler
-    );
-    for (i, s) in report["samples"].as_array().unwrap().iter().enumerate() {
-        let most = |k: &str| {
-            s["corrections"]
-                .as_array()
-                .into_iter()
-                .flatten()
-                .filter_map(|c| c[k].as_f64())
-                .map(f64::abs)
-                .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))))
-        };
-        let fit_note = match (most("pose"), most("place_m"), most("heading_deg")) {
-            (None, None, None) => String::new(),
-            (p, m, h) => format!(
-                "; largest {:?} correction: pose {}, place {} m, heading {} deg",
-                fit.keyframes,
-                p.map_or("-".into(), |v| format!("{v:.3}")),
-                m.map_or("-".into(), |v| format!("{v:.3}")),
-                h.map_or("-".into(), |v| format!("{v:.1}"))
-            ),
-        };
-        let lock_note = match s["foot_lock"]["frames"].as_u64() {
-            Some(frames) => format!(
-                "; foot lock moved {frames} frame(s) (left {} dragged span(s), {} out of the leg's reach)",
-                s["foot_lock"]["dragged"], s["foot_lock"]["out_of_reach"]
-            ),
-            None => String::new(),
-        };
-        println!(
-            "  sample_{i:02}: {}, K-TranS {}, foot skating {}{fit_note}{lock_note}",
-            k_err_text(s),
-            fmt(&s["k_trans"]),
-            fmt(&s["foot_skating"])
-        );
+    match (most("pose"), most("place_m"), most("heading_deg")) {
+        (None, None, None) => String::new(),
+        (p, m, h) => format!(
+            "; largest {:?} correction: pose {}, place {} m, heading {} deg",
+            fit.keyframes,
+            p.map_or("-".into(), |v| format!("{v:.3}")),
+            m.map_or("-".into(), |v| format!("{v:.3}")),
+            h.map_or("-".into(), |v| format!("{v:.1}"))
+        ),
     }
-    Ok(())
+}
+
+/// "; foot lock moved N frame(s) (...)" of a sample entry.
+fn lock_note(s: &serde_json::Value) -> String {
+    match s["foot_lock"]["frames"].as_u64() {
+        Some(frames) => format!(
+            "; foot lock moved {frames} frame(s) (left {} dragged span(s), {} out of the leg's reach)",
+            s["foot_lock"]["dragged"], s["foot_lock"]["out_of_reach"]
+        ),
+        None => String::new(),
+    }
 }
 
 /// The folder's page: the 3D view of the source and every sample, the settings above it.

@@ -57,5 +57,9 @@ pub(super) fn run(a: SampleArgs) -> Result<()> {
     let extra = json!({"text_lower": lower, "text_upper": upper, "parts_order": ["lower_body", "upper_body"], "part_guidance": a.part_guidance});
     let mut a = a;
     a.text = format!("lower body: {lower} / upper body: {upper}");
-    write_outputs(&a, &gen, &keys, second, secs1 + secs2, extra, &[])
+    write_outputs(
+        &a,
+        &gen,
+        Outputs { keys: &keys, fitted: second, secs: secs1 + secs2, extra, segments: &[] },
+    )
 }

@@ -136,7 +136,7 @@ pub(super) fn run(a: SampleArgs, spec_arg: &str) -> Result<()> {
         })
         .collect::<Vec<_>>()
         .join(" | ");
-    write_outputs(&a, &gen, &keys, fitted, secs, extra, &marks)
+    write_outputs(&a, &gen, Outputs { keys: &keys, fitted, secs, extra, segments: &marks })
 }
 
 /// Keyframes of one window for one motion: its first `keyed` frames repeat the motion so far
