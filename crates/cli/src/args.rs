@@ -90,7 +90,7 @@ pub(crate) struct FitArgs {
     no_foot_lock: bool,
     /// Largest move of a planted foot the lock makes, in metres; a contact span whose foot
     /// slides further is left as it is (a dragged foot), as is one whose leg cannot reach the
-    /// held foot to within 2 cm at every frame (README, "Foot lock").
+    /// held foot to within 2 cm at every frame (docs/sampling.md).
     #[arg(long, default_value_t = diffkfc_data::postprocess::footlock::MAX_SHIFT_M, value_name = "METRES")]
     foot_lock_reach: f64,
     /// Keep the network's joint positions as they are. By default every frame is refitted to

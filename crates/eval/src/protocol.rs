@@ -1,4 +1,4 @@
-//! The evaluation protocol (DESIGN §4): for every replication, draw test items (shuffled with
+//! The evaluation protocol of the paper: for every replication, draw test items (shuffled with
 //! the replication's seed, ground-truth lengths, one random caption each) and keyframes as in
 //! training (same seed for every setting, so settings are compared on the same keyframes); for
 //! every setting (keyframe mode, transition guidance, keyframe rate) generate and measure.
@@ -7,17 +7,17 @@
 use std::collections::BTreeMap;
 
 use diffkfc_data::dataset::cache::PackedSplit;
-use diffkfc_data::dataset::{self, Dataset};
+use diffkfc_data::dataset::Dataset;
 use diffkfc_data::keyframes::{self, Strategy};
 use diffkfc_data::motion::plausibility::foot_skating_ratio;
 use diffkfc_data::motion::representation::{recover_from_ric, Joints};
-use diffkfc_data::motion::root_key::{self, ROOT_CHANNELS};
+use diffkfc_data::motion::root_key::{self, RootKey};
 use diffkfc_data::rng::Rng;
 use diffkfc_model::diffusion::scheduler::Sampler;
 use diffkfc_model::sampling::fit::{Fit, KeyframeFit};
-use diffkfc_model::sampling::pipeline::Generator;
+use diffkfc_model::sampling::pipeline::{Generator, KeyedItem};
 use diffkfc_model::sampling::place::PlaceGuidance;
-use diffkfc_model::sampling::sampler::{self, Request, TgMode};
+use diffkfc_model::sampling::sampler::{self, TgMode};
 use diffkfc_model::text::cache::EmbeddingCache;
 
 use crate::evaluator::{eval_length, TextMotionEvaluator};
@@ -25,7 +25,7 @@ use crate::keyframe_metrics::{displacement_error, k_err_global, k_err_local, k_t
 use crate::text_motion::{diversity, finite, multimodality, r_precision, Gaussian};
 
 /// Generations per text and pairs per text of MultiModality; pairs of Diversity; R-precision
-/// batch; K-TranS half window (DESIGN §4).
+/// batch; K-TranS half window.
 pub const MM_GENERATIONS: usize = 30;
 pub const MM_PAIRS: usize = 10;
 pub const DIVERSITY_PAIRS: usize = 300;
@@ -319,33 +319,39 @@ impl Protocol<'_> {
         let all_dims = keyframes::dim_mask(self.ds.skeleton, None);
         let mut out: Vec<Vec<Vec<f32>>> = items.iter().map(|_| vec![Vec::new(); k]).collect();
         for (c, chunk) in self.batches(items, k).iter().enumerate() {
-            let b = chunk.len();
             let n = chunk.iter().map(|&(p, _)| items[p].len).max().unwrap_or(1);
-            let mut req = Request::text_only(n, d, Vec::new(), self.text.dim, vec![0; b]);
-            for (r, &(p, _)) in chunk.iter().enumerate() {
-                let it = &items[p];
-                req.text.extend_from_slice(
-                    self.text.get(&it.caption).expect("captions of the split are embedded"),
-                );
-                req.lengths[r] = it.len;
-                let mask = keyframes::frame_mask(it.len, &keys[p], &all_dims);
-                let mut kf: Vec<f32> = it.feats.to_vec();
-                dataset::normalise(&mut kf, self.gen.mean, self.gen.std);
-                let o = r * n * d;
-                for (e, (&m, &v)) in mask.iter().zip(&kf).enumerate() {
-                    req.mask[o + e] = m;
-                    req.kf[o + e] = v * m;
-                }
-                if self.opts.root_keys {
-                    let traj = root_key::root_trajectory(it.feats, d);
-                    for &f in &keys[p] {
-                        let (v, m) = traj[f].channels();
-                        let at = (r * n + f) * ROOT_CHANNELS;
-                        req.root[at..at + ROOT_CHANNELS].copy_from_slice(&v);
-                        req.root_mask[at..at + ROOT_CHANNELS].copy_from_slice(&m);
+            let masks: Vec<Vec<f32>> = chunk
+                .iter()
+                .map(|&(p, _)| keyframes::frame_mask(items[p].len, &keys[p], &all_dims))
+                .collect();
+            let roots: Vec<Vec<RootKey>> = chunk
+                .iter()
+                .map(|&(p, _)| {
+                    let mut root = vec![RootKey::default(); items[p].len];
+                    if self.opts.root_keys {
+                        let traj = root_key::root_trajectory(items[p].feats, d);
+                        for &f in &keys[p] {
+                            root[f] = traj[f];
+                        }
                     }
-                }
-            }
+                    root
+                })
+                .collect();
+            let keyed: Vec<KeyedItem> = chunk
+                .iter()
+                .zip(masks.iter().zip(&roots))
+                .map(|(&(p, _), (mask, root))| KeyedItem {
+                    text: self
+                        .text
+                        .get(&items[p].caption)
+                        .expect("captions of the split are embedded"),
+                    length: items[p].len,
+                    values: items[p].feats,
+                    mask,
+                    root,
+                })
+                .collect();
+            let req = self.gen.request(n, &keyed);
             let opts = sampler::Options {
                 sampler: self.opts.sampler,
                 kf_guidance: self.opts.kf_guidance,

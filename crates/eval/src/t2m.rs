@@ -341,7 +341,10 @@ impl T2mEvaluator {
     pub fn load(dir: &Path, captions: &[Caption], device: &Device) -> Result<T2mEvaluator> {
         for f in FILES {
             if !dir.join(f).is_file() {
-                return Err(EvalError::file(dir, format!("missing {f}: convert MDM's T2M evaluator with scripts/convert-t2m-evaluator.py (README, \"The official T2M evaluator\")")));
+                return Err(EvalError::file(
+                    dir,
+                    format!("missing {f}: convert MDM's T2M evaluator with scripts/convert-t2m-evaluator.py (README, section Evaluation)"),
+                ));
             }
         }
         let w = Weights::read(&dir.join("evaluator.safetensors"))?;

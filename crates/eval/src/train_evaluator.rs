@@ -10,7 +10,7 @@ use diffkfc_data::dataset::Dataset;
 use diffkfc_model::network::params;
 use diffkfc_model::run::checkpoint::Checkpoint;
 use diffkfc_model::text::cache::EmbeddingCache;
-use diffkfc_model::training::optim::{Home, Optimiser};
+use diffkfc_model::training::optim::{Optimiser, StateLocation};
 
 use crate::error::{EvalError, Result};
 use crate::evaluator::{
@@ -76,7 +76,7 @@ impl EvaluatorTraining<'_> {
         device.seed(self.seed);
         let mut model = self.cfg.init(&device);
         let shapes = params::shapes(&model);
-        let mut optim = Optimiser::new(&model, Home::for_device(&device), false);
+        let mut optim = Optimiser::new(&model, StateLocation::for_device(&device), false);
         let kf = KeyframeConfig { rate: 0.0, drop_prob: 0.0, ..Default::default() };
         let loader = Loader::new(self.ds, self.train, self.batch_size, self.seed, kf);
         let per_epoch = loader.batches_per_epoch().max(1);

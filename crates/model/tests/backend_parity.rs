@@ -10,7 +10,7 @@ use diffkfc_model::diffusion::scheduler::Sampler;
 use diffkfc_model::diffusion::Schedule;
 use diffkfc_model::network::params;
 use diffkfc_model::sampling::sampler::{sample, Options, Request};
-use diffkfc_model::training::optim::{clip_grad_norm, Adam, Home, Optimiser};
+use diffkfc_model::training::optim::{clip_grad_norm, Adam, Optimiser, StateLocation};
 use diffkfc_model::{Denoiser, DiffKfcConfig};
 
 fn request() -> Request {
@@ -108,7 +108,7 @@ fn flex_and_ndarray_agree() {
     // The device-resident optimiser (the GPU backends' path) in Burn's ops on ndarray: the same
     // step as the host path on ndarray, and as flex's.
     let (m, loss) = loss_on(&nd);
-    let mut o = Optimiser::new(&m, Home::Device, false);
+    let mut o = Optimiser::new(&m, StateLocation::Device, false);
     let (m, norm) = o.descend(m, loss, 1.0, 1e-3);
     let vd: Vec<f32> = params::values(&m).into_iter().flat_map(|(_, v)| v).collect();
     let (ed, edf) = (rel(&vd, &vb), rel(&vd, &va));

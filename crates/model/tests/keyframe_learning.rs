@@ -24,7 +24,7 @@ use diffkfc_model::run::config::RunConfig;
 use diffkfc_model::run::load::load_for_inference;
 use diffkfc_model::sampling::sampler::{sample, Options, Request};
 use diffkfc_model::text::cache::EmbeddingCache;
-use diffkfc_model::training::optim::Home;
+use diffkfc_model::training::optim::StateLocation;
 use diffkfc_model::training::trainer::Trainer;
 
 fn env_or(name: &str, default: usize) -> usize {
@@ -111,7 +111,7 @@ fn keyframes_reproduce_a_clip_far_better_than_text() {
         val: None,
         text: &text,
         device: Device::flex(),
-        optimiser: Home::Host,
+        optimiser: StateLocation::Host,
         run_dir: run_dir.clone(),
         init: None,
     };

@@ -3,7 +3,7 @@
 use burn::prelude::*;
 use diffkfc_model::diffusion::scheduler::{timesteps, Sampler};
 use diffkfc_model::diffusion::Schedule;
-use diffkfc_model::sampling::fit::{finish, Fit, KeyframeFit};
+use diffkfc_model::sampling::fit::{fit_sample, Fit, KeyframeFit};
 use diffkfc_model::sampling::sampler::{sample, Options, Request};
 use diffkfc_model::DiffKfcConfig;
 
@@ -62,7 +62,7 @@ fn guidance_identities_and_exact_keyframes() {
     let (mean, std) = (vec![0.1f32; 263], vec![0.5f32; 263]);
     for fit in [KeyframeFit::Paste, KeyframeFit::Warp] {
         for i in 0..2 {
-            let done = finish(
+            let done = fit_sample(
                 &a,
                 &req,
                 i,
@@ -73,7 +73,7 @@ fn guidance_identities_and_exact_keyframes() {
             );
             let (f, corr) = (done.features, done.corrections);
             // Foot locking leaves the keyed frames as the fit made them.
-            let locked = finish(
+            let locked = fit_sample(
                 &a,
                 &req,
                 i,

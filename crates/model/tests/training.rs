@@ -10,7 +10,7 @@ use diffkfc_data::dataset::Dataset;
 use diffkfc_model::run::checkpoint::Checkpoint;
 use diffkfc_model::run::config::RunConfig;
 use diffkfc_model::text::cache::EmbeddingCache;
-use diffkfc_model::training::optim::Home;
+use diffkfc_model::training::optim::StateLocation;
 use diffkfc_model::training::trainer::{Event, Trainer};
 
 /// Burn's device RNG (dropout, initialisation) is process-wide: tests that train take turns.
@@ -83,7 +83,7 @@ fn resume_is_exact_and_checkpoints_rotate() {
         val: Some(&val),
         text: &text,
         device: Device::flex(),
-        optimiser: Home::Host,
+        optimiser: StateLocation::Host,
         run_dir: root.join(dir),
         init: None,
     };
@@ -153,7 +153,7 @@ fn device_resident_optimiser_matches_host_and_resumes_exactly() {
     let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let (root, ds, train, val, text) = prepared("device-optim", 24);
     let cfg = config();
-    let mk = |dir: &str, optimiser: Home| Trainer {
+    let mk = |dir: &str, optimiser: StateLocation| Trainer {
         cfg: &cfg,
         ds: &ds,
         train: &train,
@@ -166,8 +166,8 @@ fn device_resident_optimiser_matches_host_and_resumes_exactly() {
     };
     let never = || false;
     let mut norms = Vec::new();
-    mk("host", Home::Host).run(false, 6, &never, &mut |_| {}).unwrap();
-    mk("device", Home::Device)
+    mk("host", StateLocation::Host).run(false, 6, &never, &mut |_| {}).unwrap();
+    mk("device", StateLocation::Device)
         .run(false, 6, &never, &mut |e| {
             if let Event::Step(r) = e {
                 norms.push(r.grad_norm)
@@ -193,12 +193,12 @@ fn device_resident_optimiser_matches_host_and_resumes_exactly() {
         assert!(r < 1e-5, "{what}: host and device differ by {r:e} (relative L2)");
     }
     // 3 + 3 steps on the device path equal 6, and a host checkpoint resumes on the device.
-    mk("split", Home::Device).run(false, 3, &never, &mut |_| {}).unwrap();
-    mk("split", Home::Device).run(true, 6, &never, &mut |_| {}).unwrap();
+    mk("split", StateLocation::Device).run(false, 3, &never, &mut |_| {}).unwrap();
+    mk("split", StateLocation::Device).run(true, 6, &never, &mut |_| {}).unwrap();
     assert_eq!(losses(&root.join("split")), d, "resumed device run differs");
     assert_eq!(last("split").model, cd.model);
-    mk("mixed", Home::Host).run(false, 3, &never, &mut |_| {}).unwrap();
-    mk("mixed", Home::Device).run(true, 6, &never, &mut |_| {}).unwrap();
+    mk("mixed", StateLocation::Host).run(false, 3, &never, &mut |_| {}).unwrap();
+    mk("mixed", StateLocation::Device).run(true, 6, &never, &mut |_| {}).unwrap();
     let r = rel(&last("mixed").model, &cd.model);
     assert!(r < 1e-5, "host-then-device run differs by {r:e}");
     std::fs::remove_dir_all(root).unwrap();
@@ -225,7 +225,7 @@ fn tiny_config_lowers_validation_loss() {
         val: Some(&val),
         text: &text,
         device: Device::flex(),
-        optimiser: Home::Host,
+        optimiser: StateLocation::Host,
         run_dir: root.join("run"),
         init: None,
     };
@@ -327,7 +327,7 @@ fn shard_gradients_weighted_by_counts_equal_the_batch_gradient() {
         val: Some(&val),
         text: &text,
         device: Device::flex(),
-        optimiser: Home::Host,
+        optimiser: StateLocation::Host,
         run_dir: root.join("run"),
         init: None,
     };

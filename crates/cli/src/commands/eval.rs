@@ -14,9 +14,7 @@ use diffkfc_eval::report;
 use diffkfc_eval::t2m::{split_captions, T2mEvaluator};
 use diffkfc_eval::text_motion::Gaussian;
 use diffkfc_eval::train_evaluator::{embed_split, EvaluatorTraining};
-use diffkfc_model::diffusion::Schedule;
-use diffkfc_model::run::load::load_for_inference;
-use diffkfc_model::sampling::pipeline::Generator;
+use diffkfc_model::run::load::InferenceModel;
 use diffkfc_model::sampling::place::PlaceGuidance;
 use diffkfc_model::sampling::sampler;
 use diffkfc_model::text::cache::embed_captions;
@@ -326,9 +324,9 @@ fn evaluate(a: RunArgs) -> Result<()> {
         .parse()
         .map_err(|e: String| anyhow::anyhow!("--keyframe-strategy: {e}"))?;
     let device = crate::device::parse(&a.device)?;
-    let (cfg, model, step) = load_for_inference(&run_dir, &device)?;
-    let (mean, std) = diffkfc_model::run::dir::RunDir::of(&run_dir).normalisation(&cfg)?;
-    PlaceGuidance::for_model(a.place_guidance, &model, &mean, &std)?;
+    let loaded = InferenceModel::load(&run_dir, &device)?;
+    let (cfg, step) = (&loaded.cfg, loaded.step);
+    PlaceGuidance::for_model(a.place_guidance, &loaded.model, &loaded.mean, &loaded.std)?;
     let ds = Dataset::open(&data)?;
     if ds.dim() != cfg.model.feat_dim {
         bail!(
@@ -366,14 +364,6 @@ fn evaluate(a: RunArgs) -> Result<()> {
     }
     let (_, real) = embed_split(ev.as_ref(), &ds, &split)?;
     let reference = Gaussian::fit(&real);
-    let schedule =
-        Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps).with_context(|| {
-            format!(
-                "{}: unknown diffusion schedule '{}' in the checkpoint's config (cosine, linear)",
-                run_dir.display(),
-                cfg.diffusion.schedule
-            )
-        })?;
     let sampler = a.sampler.sampler(a.steps);
     let fit = a.fit.fit();
     let opts = protocol::Options {
@@ -391,13 +381,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
         seed: a.seed,
     };
     let p = Protocol {
-        gen: Generator {
-            model: &model,
-            schedule: &schedule,
-            mean: &mean,
-            std: &std,
-            skel: ds.skeleton,
-        },
+        gen: loaded.generator(ds.skeleton),
         ds: &ds,
         split: &split,
         text: &text,

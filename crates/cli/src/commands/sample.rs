@@ -12,12 +12,9 @@ use diffkfc_data::render::viewer::{self, escape, ViewMotion};
 use diffkfc_data::rng::Rng;
 use diffkfc_data::{io::npy, motion::representation as rep, render, T2M};
 use diffkfc_eval::keyframe_metrics::{k_err_global, k_err_local, k_trans};
-use diffkfc_model::diffusion::Schedule;
-use diffkfc_model::network::denoiser::Denoiser;
-use diffkfc_model::run::dir::RunDir;
-use diffkfc_model::run::load::load_for_inference;
+use diffkfc_model::run::load::InferenceModel;
 use diffkfc_model::sampling::fit::{Fit, Fitted};
-use diffkfc_model::sampling::pipeline;
+use diffkfc_model::sampling::pipeline::KeyedItem;
 use diffkfc_model::sampling::place::PlaceGuidance;
 use diffkfc_model::sampling::sampler::{self, Options, Request};
 use diffkfc_model::text::{self, minilm::MiniLm, TextEncoder};
@@ -305,16 +302,10 @@ fn request_keys(a: &SampleArgs) -> Result<Keys> {
 
 /// The model and the settings one `sample` command generates with.
 pub(super) struct Generator {
-    model: Denoiser,
-    schedule: Schedule,
-    mean: Vec<f32>,
-    std: Vec<f32>,
+    loaded: InferenceModel,
     enc: MiniLm,
     opts: Options,
     fit: Fit,
-    step: usize,
-    /// Longest motion the checkpoint's model was built for (`model.max_frames`).
-    max_frames: usize,
     checkpoint: std::path::PathBuf,
 }
 
@@ -323,18 +314,16 @@ impl Generator {
         let device = crate::device::parse(&a.device)?;
         // Exact transition guidance differentiates through the denoiser.
         let device = if matches!(a.tg_mode, TgModeArg::Exact) { device.autodiff() } else { device };
-        let (cfg, model, step) = load_for_inference(&a.checkpoint, &device)?;
-        let (mean, std) = RunDir::of(&a.checkpoint).normalisation(&cfg)?;
-        let schedule = Schedule::by_name(&cfg.diffusion.schedule, cfg.diffusion.steps)
-            .with_context(|| format!("{}: unknown diffusion schedule '{}' in the checkpoint's config (cosine, linear)", a.checkpoint.display(), cfg.diffusion.schedule))?;
-        if a.steps > schedule.steps {
+        let loaded = InferenceModel::load(&a.checkpoint, &device)?;
+        if a.steps > loaded.schedule.steps {
             bail!(
                 "--steps: {} is more than the checkpoint's {} diffusion steps",
                 a.steps,
-                schedule.steps
+                loaded.schedule.steps
             );
         }
-        let place = PlaceGuidance::for_model(a.place_guidance, &model, &mean, &std)?;
+        let place =
+            PlaceGuidance::for_model(a.place_guidance, &loaded.model, &loaded.mean, &loaded.std)?;
         let opts = Options {
             sampler: a.sampler.sampler(a.steps),
             kf_guidance: a.kf_guidance,
@@ -351,18 +340,17 @@ impl Generator {
             impose_track: false,
         };
         let enc = MiniLm::load(&text::default_dir(), &Device::flex())?;
-        Ok(Generator {
-            model,
-            schedule,
-            mean,
-            std,
-            enc,
-            opts,
-            fit: a.fit.fit(),
-            step,
-            max_frames: cfg.model.max_frames,
-            checkpoint: a.checkpoint.clone(),
-        })
+        Ok(Generator { loaded, enc, opts, fit: a.fit.fit(), checkpoint: a.checkpoint.clone() })
+    }
+
+    /// The checkpoint's step.
+    fn step(&self) -> usize {
+        self.loaded.step
+    }
+
+    /// Longest motion the checkpoint's model was built for (`model.max_frames`).
+    fn max_frames(&self) -> usize {
+        self.loaded.cfg.model.max_frames
     }
 
     fn embed(&self, text: &str, flag: &str) -> Result<Vec<f32>> {
@@ -370,7 +358,7 @@ impl Generator {
     }
 
     /// A request for `b` motions of `n` frames of the text `emb`; item i observes `keys[i]`
-    /// (raw features [n, D], their mask, root keys `[n]`), or `keys[0]` when one is given.
+    /// (raw features `[n, D]`, their mask, root keys `[n]`), or `keys[0]` when one is given.
     fn request(
         &self,
         emb: &[f32],
@@ -378,59 +366,28 @@ impl Generator {
         b: usize,
         keys: &[(&[f32], &[f32], &[RootKey])],
     ) -> Request {
-        let d = T2M.feature_dim();
-        let (mean, std) = (&self.mean, &self.std);
-        let norm = |v: &[f32], m: &[f32]| -> Vec<f32> {
-            v.iter()
-                .zip(m)
-                .enumerate()
-                .map(|(k, (x, mk))| if *mk > 0.0 { (x - mean[k % d]) / std[k % d] } else { 0.0 })
-                .collect()
-        };
-        let item = |i: usize| keys[i.min(keys.len() - 1)];
-        let (mut kf, mut mask, mut root, mut root_mask) =
-            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-        for i in 0..b {
-            let (v, m, r) = item(i);
-            kf.extend(norm(v, m));
-            mask.extend_from_slice(m);
-            for k in r {
-                let (c, cm) = k.channels();
-                root.extend(c);
-                root_mask.extend(cm);
-            }
-        }
-        Request {
-            kf,
-            mask,
-            root,
-            root_mask,
-            ..Request::text_only(
-                n,
-                d,
-                emb.iter().copied().cycle().take(b * emb.len()).collect(),
-                emb.len(),
-                vec![n; b],
-            )
-        }
+        let items: Vec<KeyedItem> = (0..b)
+            .map(|i| {
+                let (values, mask, root) = keys[i.min(keys.len() - 1)];
+                KeyedItem { text: emb, length: n, values, mask, root }
+            })
+            .collect();
+        self.loaded.generator(&T2M).request(n, &items)
     }
 
     /// Sample, fit and check every motion of `req`; also the seconds the sampler took. A
     /// diverged sampler (extreme guidance) gives an error, not NaN files with exit 0.
     fn generate(&self, req: &Request, a: &SampleArgs) -> Result<(Vec<Fitted>, f64)> {
-        if req.frames > self.max_frames {
-            bail!("--length: {} frames, but {} was built for at most {} (model.max_frames); ask for fewer frames or use --timeline for longer motions", req.frames, self.checkpoint.display(), self.max_frames);
+        if req.frames > self.max_frames() {
+            bail!("--length: {} frames, but {} was built for at most {} (model.max_frames); ask for fewer frames or use --timeline for longer motions", req.frames, self.checkpoint.display(), self.max_frames());
         }
         let t0 = std::time::Instant::now();
-        let generator = pipeline::Generator {
-            model: &self.model,
-            schedule: &self.schedule,
-            mean: &self.mean,
-            std: &self.std,
-            skel: &T2M,
-        };
-        let fitted =
-            generator.generate(req, &self.opts, self.fit, crate::progress::bar("denoising"));
+        let fitted = self.loaded.generator(&T2M).generate(
+            req,
+            &self.opts,
+            self.fit,
+            crate::progress::bar("denoising"),
+        );
         let secs = t0.elapsed().as_secs_f64();
         for (i, f) in fitted.iter().map(|s| &s.features).enumerate() {
             let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());

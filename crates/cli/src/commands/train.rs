@@ -11,7 +11,7 @@ use diffkfc_model::run::config::RunConfig;
 use diffkfc_model::run::dir::RunDir;
 use diffkfc_model::run::lock::{Claim, RunLock};
 use diffkfc_model::text::cache::embed_captions;
-use diffkfc_model::training::optim::Home;
+use diffkfc_model::training::optim::StateLocation;
 use diffkfc_model::training::trainer::{Event, Trainer};
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -52,7 +52,7 @@ pub struct TrainArgs {
     /// default for flex and ndarray) or device (tensor operations on the device, weights never
     /// leave it: the default for wgpu and cuda). Checkpoints are the same either way.
     #[arg(long, value_name = "host|device")]
-    optimiser_state: Option<Home>,
+    optimiser_state: Option<StateLocation>,
     /// Overrides training.seed.
     #[arg(long)]
     seed: Option<u64>,
@@ -186,7 +186,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         train: &train,
         val: val.as_ref(),
         text: &text,
-        optimiser: a.optimiser_state.unwrap_or_else(|| Home::for_device(&device)),
+        optimiser: a.optimiser_state.unwrap_or_else(|| StateLocation::for_device(&device)),
         device,
         run_dir: run_dir.clone(),
         init: a.init.clone(),

@@ -12,7 +12,7 @@ use diffkfc_data::rng::Rng;
 use crate::diffusion::scheduler::Sampler;
 use crate::diffusion::Schedule;
 use crate::sampling::sampler::{self, Options, Request};
-use crate::training::optim::{Home, Optimiser};
+use crate::training::optim::{Optimiser, StateLocation};
 use crate::{network::params, Denoiser, DiffKfcConfig, Encoded};
 
 /// Random inputs of a fixed seed: `batch` motions of `frames` frames with 5% uniform keyframes.
@@ -76,7 +76,7 @@ impl TrainStep {
         device.seed(0);
         crate::network::dropout::seed(0);
         let model = cfg.init(&device);
-        let optim = Optimiser::new(&model, Home::for_device(&device), false);
+        let optim = Optimiser::new(&model, StateLocation::for_device(&device), false);
         let req = request(cfg, batch, frames, 1);
         let mut r = Rng::new(2);
         let shape = [batch, frames, cfg.feat_dim];

@@ -24,6 +24,18 @@ impl Default for DiffusionConfig {
     }
 }
 
+impl DiffusionConfig {
+    /// The noise schedule this section names.
+    pub fn schedule(&self) -> Result<crate::diffusion::Schedule> {
+        crate::diffusion::Schedule::by_name(&self.schedule, self.steps).ok_or_else(|| {
+            ModelError::Config(format!(
+                "diffusion.schedule: unknown '{}' (cosine, linear)",
+                self.schedule
+            ))
+        })
+    }
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DataConfig {
@@ -201,12 +213,7 @@ impl RunConfig {
                 return bad(key, &v, "must be at least 1");
             }
         }
-        if crate::diffusion::Schedule::by_name(&self.diffusion.schedule, 2).is_none() {
-            return Err(ModelError::Config(format!(
-                "diffusion.schedule: unknown '{}' (cosine, linear)",
-                self.diffusion.schedule
-            )));
-        }
+        self.diffusion.schedule()?;
         if !m.d_model.is_multiple_of(m.heads) {
             return Err(ModelError::Config(format!(
                 "model.heads: {} does not divide model.d_model ({})",

@@ -5,10 +5,13 @@ use std::path::Path;
 
 use burn::prelude::*;
 
+use crate::diffusion::Schedule;
 use crate::error::{ModelError, Result};
 use crate::network::params;
 use crate::run::checkpoint::Checkpoint;
 use crate::run::config::RunConfig;
+use crate::run::dir::RunDir;
+use crate::sampling::pipeline::Generator;
 use crate::Denoiser;
 
 /// The checkpoint a path names: a checkpoint file, a run directory (its newest checkpoint) or a
@@ -53,4 +56,36 @@ pub fn load_for_inference(run_dir: &Path, device: &Device) -> Result<(RunConfig,
     }
     let weights = ck.ema.as_ref().unwrap_or(&ck.model);
     Ok((cfg, params::load(model, weights), ck.step))
+}
+
+/// A model loaded for inference once: its stored config, network, noise schedule, the
+/// normalisation it was trained with, and its step.
+pub struct InferenceModel {
+    pub cfg: RunConfig,
+    pub model: Denoiser,
+    pub schedule: Schedule,
+    pub mean: Vec<f32>,
+    pub std: Vec<f32>,
+    pub step: usize,
+}
+
+impl InferenceModel {
+    /// Load a run directory, model directory or checkpoint file for sampling or evaluation.
+    pub fn load(path: &Path, device: &Device) -> Result<InferenceModel> {
+        let (cfg, model, step) = load_for_inference(path, device)?;
+        let (mean, std) = RunDir::of(path).normalisation(&cfg)?;
+        let schedule = cfg.diffusion.schedule().map_err(|e| e.in_file(path))?;
+        Ok(InferenceModel { cfg, model, schedule, mean, std, step })
+    }
+
+    /// The generator of this model for motions of `skel`.
+    pub fn generator<'a>(&'a self, skel: &'a diffkfc_data::Skeleton) -> Generator<'a> {
+        Generator {
+            model: &self.model,
+            schedule: &self.schedule,
+            mean: &self.mean,
+            std: &self.std,
+            skel,
+        }
+    }
 }

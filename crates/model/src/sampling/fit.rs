@@ -123,7 +123,7 @@ impl TrackReport {
 
 /// Sample `i` of the sampler's normalised output `x` [B, N, D], de-normalised, fitted to the
 /// request's keyframes and, with `fit.foot_lock`, its planted feet held (pose keyframes untouched).
-pub fn finish(
+pub fn fit_sample(
     x: &[f32],
     req: &Request,
     i: usize,

@@ -4,12 +4,12 @@
 
 use diffkfc_data::dataset::normalise;
 use diffkfc_data::motion::representation::recover_root_rot_pos;
-use diffkfc_data::motion::root_key::{self, ROOT_CHANNELS};
+use diffkfc_data::motion::root_key::{self, RootKey, ROOT_CHANNELS};
 use diffkfc_data::motion::root_track;
 use diffkfc_data::Skeleton;
 
 use crate::diffusion::Schedule;
-use crate::sampling::fit::{finish, Fit, Fitted, KeyframeFit, TrackReport};
+use crate::sampling::fit::{fit_sample, Fit, Fitted, KeyframeFit, TrackReport};
 use crate::sampling::sampler::{self, Options, Request};
 use crate::Denoiser;
 
@@ -23,7 +23,46 @@ pub struct Generator<'a> {
     pub skel: &'a Skeleton,
 }
 
+/// One motion to generate: its text embedding and length, and what its keyframes observe.
+pub struct KeyedItem<'a> {
+    /// The text embedding.
+    pub text: &'a [f32],
+    pub length: usize,
+    /// Raw (de-normalised) feature values `[length, D]`, read where `mask` is set.
+    pub values: &'a [f32],
+    /// `[length, D]`: 1 where a keyframe observes a feature.
+    pub mask: &'a [f32],
+    /// `[length]` keyed places and headings (the default where a frame has none).
+    pub root: &'a [RootKey],
+}
+
 impl Generator<'_> {
+    /// The request for `items`, padded to `frames` frames: keyframe values normalised with the
+    /// model's statistics where observed (zero elsewhere), root keys as the network's channels.
+    pub fn request(&self, frames: usize, items: &[KeyedItem]) -> Request {
+        let d = self.mean.len();
+        let text_dim = items.first().map_or(0, |i| i.text.len());
+        let lengths = items.iter().map(|i| i.length).collect();
+        let mut req = Request::text_only(frames, d, Vec::new(), text_dim, lengths);
+        for (r, it) in items.iter().enumerate() {
+            req.text.extend_from_slice(it.text);
+            let o = r * frames * d;
+            for (e, (&m, &v)) in it.mask.iter().zip(it.values).enumerate() {
+                req.mask[o + e] = m;
+                if m > 0.0 {
+                    req.kf[o + e] = (v - self.mean[e % d]) / self.std[e % d];
+                }
+            }
+            for (f, k) in it.root.iter().enumerate() {
+                let (v, m) = k.channels();
+                let at = (r * frames + f) * ROOT_CHANNELS;
+                req.root[at..at + ROOT_CHANNELS].copy_from_slice(&v);
+                req.root_mask[at..at + ROOT_CHANNELS].copy_from_slice(&m);
+            }
+        }
+        req
+    }
+
     /// Sample every motion of `req` and finish it with `fit`; `progress(done, total)` after
     /// every denoising step (of both stages with the track fit).
     pub fn generate(
@@ -38,7 +77,9 @@ impl Generator<'_> {
         let x =
             sampler::sample(self.model, self.schedule, req, opts, |k, n| progress(k, stages * n));
         let finish_all = |x: &[f32], fit: Fit| -> Vec<Fitted> {
-            (0..req.batch).map(|i| finish(x, req, i, self.mean, self.std, self.skel, fit)).collect()
+            (0..req.batch)
+                .map(|i| fit_sample(x, req, i, self.mean, self.std, self.skel, fit))
+                .collect()
         };
         if !two_stage {
             return finish_all(&x, fit);
@@ -52,7 +93,7 @@ impl Generator<'_> {
         // Stage 2: the whole motion again, with that root observed on every frame. The track
         // also overwrites the prediction's root velocities at every step (CondMDI's
         // imputation), so x_t carries it: observed through the condition alone, the fine-tuned
-        // reference model kept much of its own speed (README, "Keyframe fits").
+        // reference model kept much of its own speed (docs/track-fit.md).
         let opts2 = Options { impose_track: true, ..opts.clone() };
         let x2 = sampler::sample(self.model, self.schedule, &tracked, &opts2, |k, n| {
             progress(n + k, 2 * n)

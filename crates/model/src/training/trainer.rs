@@ -25,7 +25,7 @@ use crate::run::config::RunConfig;
 use crate::text::cache::EmbeddingCache;
 use crate::training::batch::to_tensors;
 use crate::training::losses::{losses, Kinematic};
-use crate::training::optim::{learning_rate, Home, Optimiser, Snapshot};
+use crate::training::optim::{learning_rate, Optimiser, Snapshot, StateLocation};
 use crate::training::parallel::{shard_objective, Combine, Counts};
 use crate::Denoiser;
 
@@ -68,8 +68,8 @@ pub struct Trainer<'a> {
     pub text: &'a EmbeddingCache,
     pub device: Device,
     pub run_dir: PathBuf,
-    /// Where the optimiser's state lives (`Home::for_device(&device)` unless overridden).
-    pub optimiser: Home,
+    /// Where the optimiser's state lives (`StateLocation::for_device(&device)` unless overridden).
+    pub optimiser: StateLocation,
     /// A fresh run starts from these weights (`warm_start`) instead of the initialisation.
     pub init: Option<PathBuf>,
 }
@@ -158,8 +158,7 @@ impl Trainer<'_> {
         shards: usize,
         combine: Combine,
     ) -> Vec<Vec<f32>> {
-        let dm = &self.cfg.diffusion;
-        let schedule = Schedule::by_name(&dm.schedule, dm.steps).expect("a validated config");
+        let schedule = self.cfg.diffusion.schedule().expect("a validated config");
         let device = model.devices().first().cloned().expect("a model device");
         let (n, d) = (b.frames, b.dim);
         let per = b.batch_size.div_ceil(shards.max(1));
@@ -271,14 +270,8 @@ impl Trainer<'_> {
 
     /// The schedule, after the checks a run must pass before it writes anything.
     fn checked_schedule(&self, max_steps: usize) -> Result<Schedule> {
-        let dm = &self.cfg.diffusion;
         self.cfg.training.check_stop(max_steps)?;
-        let schedule = Schedule::by_name(&dm.schedule, dm.steps).ok_or_else(|| {
-            ModelError::Config(format!(
-                "diffusion.schedule: unknown '{}' (cosine, linear)",
-                dm.schedule
-            ))
-        })?;
+        let schedule = self.cfg.diffusion.schedule()?;
         if self.cfg.model.absolute_root
             && VelocityStats::from_flat(&self.cfg.model.velocity_stats).is_none()
         {

@@ -193,7 +193,7 @@ fn results(
     json!({
         "text": a.text,
         "checkpoint": a.checkpoint.display().to_string(),
-        "checkpoint_step": gen.step,
+        "checkpoint_step": gen.step(),
         "length": keys.length,
         "source": a.from.as_ref().or(a.keyframes.as_ref()).map(|p| p.display().to_string()),
         "keyframes": keys.frames,

@@ -1,6 +1,6 @@
 //! The optimiser of every trainer here: Adam with global-norm gradient clipping, a warm-up /
 //! cosine learning-rate schedule and an EMA of the weights. Its state lives where the training
-//! device computes ([`Home`]): host vectors for the CPU backends, device tensors for the GPU
+//! device computes ([`StateLocation`]): host vectors for the CPU backends, device tensors for the GPU
 //! backends. Checkpoints see the same [`Snapshot`] from either, so a run may resume on the other.
 
 mod device;
@@ -17,7 +17,7 @@ pub use host::{clip_grad_norm, ema_update, Adam};
 /// Where the optimiser's state (moments, EMA, and for the host the weights' master copy) lives.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
-pub enum Home {
+pub enum StateLocation {
     /// Host vectors updated in one fused multithreaded pass; weights are read out of and loaded
     /// into the model every step, which costs nothing where device memory is host memory.
     Host,
@@ -25,29 +25,29 @@ pub enum Home {
     Device,
 }
 
-impl Home {
+impl StateLocation {
     /// Host for the CPU backends (flex, ndarray), the device for the rest.
-    pub fn for_device(device: &Device) -> Home {
+    pub fn for_device(device: &Device) -> StateLocation {
         let d = device.clone().inner();
         #[cfg(feature = "ndarray")]
         #[allow(deprecated)]
         if d == Device::ndarray() {
-            return Home::Host;
+            return StateLocation::Host;
         }
         if d == Device::flex() {
-            Home::Host
+            StateLocation::Host
         } else {
-            Home::Device
+            StateLocation::Device
         }
     }
 }
 
-impl std::str::FromStr for Home {
+impl std::str::FromStr for StateLocation {
     type Err = String;
-    fn from_str(s: &str) -> Result<Home, String> {
+    fn from_str(s: &str) -> Result<StateLocation, String> {
         match s {
-            "host" => Ok(Home::Host),
-            "device" => Ok(Home::Device),
+            "host" => Ok(StateLocation::Host),
+            "device" => Ok(StateLocation::Device),
             _ => Err(format!("'{s}' is not host or device")),
         }
     }
@@ -70,14 +70,14 @@ enum State {
     Device { adam: (f64, f64, f64), step: u64, state: device::DeviceState },
 }
 
-/// Adam, clipping and the EMA for one model, its state at its [`Home`].
+/// Adam, clipping and the EMA for one model, its state at its [`StateLocation`].
 pub struct Optimiser {
     state: State,
 }
 
 impl Optimiser {
     /// A fresh optimiser for `model` (zero moments; the EMA, when `ema`, starts at the weights).
-    pub fn new<M: Module>(model: &M, home: Home, ema: bool) -> Optimiser {
+    pub fn new<M: Module>(model: &M, home: StateLocation, ema: bool) -> Optimiser {
         let vals: Vec<Vec<f32>> =
             crate::network::params::values(model).into_iter().map(|(_, v)| v).collect();
         let zeros = || vals.iter().map(|v| vec![0.0; v.len()]).collect::<Vec<_>>();
@@ -92,21 +92,21 @@ impl Optimiser {
     }
 
     /// The optimiser of a checkpoint, and `model` with its weights.
-    pub fn restore<M: Module>(model: M, snap: Snapshot, home: Home) -> (M, Optimiser) {
+    pub fn restore<M: Module>(model: M, snap: Snapshot, home: StateLocation) -> (M, Optimiser) {
         let model = crate::network::params::load(model, &snap.model);
         let o = Optimiser::from_snapshot(snap, home, &model);
         (model, o)
     }
 
-    fn from_snapshot<M: Module>(snap: Snapshot, home: Home, model: &M) -> Optimiser {
+    fn from_snapshot<M: Module>(snap: Snapshot, home: StateLocation, model: &M) -> Optimiser {
         let hyper = Adam::new(&[]);
         let state = match home {
-            Home::Host => State::Host {
+            StateLocation::Host => State::Host {
                 vals: snap.model,
                 adam: Adam { step: snap.step, m: snap.m, v: snap.v, ..hyper },
                 ema: snap.ema,
             },
-            Home::Device => {
+            StateLocation::Device => {
                 let dev = device::flat(model).first().map(|t| t.device()).unwrap_or_default();
                 State::Device {
                     adam: (hyper.beta1, hyper.beta2, hyper.eps),
@@ -122,10 +122,10 @@ impl Optimiser {
         Optimiser { state }
     }
 
-    pub fn home(&self) -> Home {
+    pub fn home(&self) -> StateLocation {
         match self.state {
-            State::Host { .. } => Home::Host,
-            State::Device { .. } => Home::Device,
+            State::Host { .. } => StateLocation::Host,
+            State::Device { .. } => StateLocation::Device,
         }
     }
 
