@@ -80,42 +80,6 @@ impl Attention {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use burn::tensor::activation::softmax;
-    use burn::tensor::Distribution;
-
-    /// The fused op against softmax(QK^T/sqrt(dk) + mask) V written out by hand.
-    #[test]
-    fn matches_explicit_attention() {
-        let dev = Device::flex();
-        let (b, lq, lk, d, h) = (2, 7, 9, 16, 4);
-        let att = Attention::new(d, h, &dev);
-        let x = Tensor::<3>::random([b, lq, d], Distribution::Normal(0.0, 1.0), &dev);
-        let y = Tensor::<3>::random([b, lk, d], Distribution::Normal(0.0, 1.0), &dev);
-        let blocked: Vec<bool> =
-            (0..b * lq * lk).map(|i| i % lk != 0 && (i * 7919) % 3 == 0).collect();
-        let m = Mask::Full(std::sync::Arc::new(blocked.clone()));
-        let got = att.forward(x.clone(), y.clone(), m).into_data().try_to_vec::<f32>().unwrap();
-        let split = |t: Tensor<3>, l: usize| t.reshape([b, l, h, d / h]).swap_dims(1, 2);
-        let q = split(att.query.forward(x), lq);
-        let k = split(att.key.forward(y.clone()), lk);
-        let v = split(att.value.forward(y), lk);
-        let bias: Vec<f32> = blocked.iter().map(|&x| if x { -1e9 } else { 0.0 }).collect();
-        let bias = Tensor::<1>::from_floats(bias.as_slice(), &dev).reshape([b, 1, lq, lk]);
-        let w = softmax(q.matmul(k.transpose()).div_scalar(((d / h) as f32).sqrt()) + bias, 3);
-        let want = att
-            .output
-            .forward(w.matmul(v).swap_dims(1, 2).reshape([b, lq, d]))
-            .into_data()
-            .try_to_vec::<f32>()
-            .unwrap();
-        let e = got.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
-        assert!(e < 1e-5, "{e}");
-    }
-}
-
 /// A subset of the B x (1+N) token rows, as the index to gather them (None: all rows, or so
 /// many that gathering would cost more than it saves).
 pub struct Rows {
@@ -153,5 +117,41 @@ impl Rows {
             ),
             None => x,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::tensor::activation::softmax;
+    use burn::tensor::Distribution;
+
+    /// The fused op against softmax(QK^T/sqrt(dk) + mask) V written out by hand.
+    #[test]
+    fn matches_explicit_attention() {
+        let dev = Device::flex();
+        let (b, lq, lk, d, h) = (2, 7, 9, 16, 4);
+        let att = Attention::new(d, h, &dev);
+        let x = Tensor::<3>::random([b, lq, d], Distribution::Normal(0.0, 1.0), &dev);
+        let y = Tensor::<3>::random([b, lk, d], Distribution::Normal(0.0, 1.0), &dev);
+        let blocked: Vec<bool> =
+            (0..b * lq * lk).map(|i| i % lk != 0 && (i * 7919) % 3 == 0).collect();
+        let m = Mask::Full(std::sync::Arc::new(blocked.clone()));
+        let got = att.forward(x.clone(), y.clone(), m).into_data().try_to_vec::<f32>().unwrap();
+        let split = |t: Tensor<3>, l: usize| t.reshape([b, l, h, d / h]).swap_dims(1, 2);
+        let q = split(att.query.forward(x), lq);
+        let k = split(att.key.forward(y.clone()), lk);
+        let v = split(att.value.forward(y), lk);
+        let bias: Vec<f32> = blocked.iter().map(|&x| if x { -1e9 } else { 0.0 }).collect();
+        let bias = Tensor::<1>::from_floats(bias.as_slice(), &dev).reshape([b, 1, lq, lk]);
+        let w = softmax(q.matmul(k.transpose()).div_scalar(((d / h) as f32).sqrt()) + bias, 3);
+        let want = att
+            .output
+            .forward(w.matmul(v).swap_dims(1, 2).reshape([b, lq, d]))
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap();
+        let e = got.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+        assert!(e < 1e-5, "{e}");
     }
 }
