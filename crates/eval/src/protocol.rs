@@ -414,144 +414,177 @@ impl Protocol<'_> {
             .iter()
             .map(|s| RowResult { setting: Some(s.clone()), rate: s.rate, values: Values::new() })
             .collect();
-        let skel = self.ds.skeleton;
-        let all_joints: Vec<usize> = (0..skel.num_joints()).collect();
         for rep in 0..self.opts.replications {
             let items = self.items(rep);
             let captions: Vec<&str> = items.iter().map(|it| it.caption.as_str()).collect();
             let texts = finite(self.evaluator.embed_texts(&captions)?, "the text embeddings")?;
             let rep_seed = Rng::derive(self.opts.seed, 5, rep as u64).next_u64();
-            // The real motions' metrics are the same at every rate but K-TranS (keyframes differ).
-            let real_m = finite(
-                self.evaluator.embed_motions(&items.iter().map(|it| it.feats).collect::<Vec<_>>()),
-                "the real motions' embeddings",
-            )?;
-            let mut shared = Values::new();
-            self.text_motion(reference, &texts, &real_m, rep_seed, &mut shared);
-            if let Some(x) = mean(
-                &items.iter().map(|it| foot_skating_ratio(skel, &it.joints)).collect::<Vec<_>>(),
-            ) {
-                shared.insert("foot_skate", vec![x]);
-            }
-            for row in real.iter_mut() {
-                for (k, x) in &shared {
-                    row.values.entry(k).or_default().extend(x);
-                }
-                let keys = self.keys(rep, &items, row.rate);
-                let kt: Vec<f64> = items
-                    .iter()
-                    .zip(&keys)
-                    .filter_map(|(it, k)| k_trans(&it.joints, k, K_TRANS_WINDOW))
-                    .collect();
-                row.values.entry("k_trans").or_default().extend(mean(&kt));
-            }
+            self.real_rows(rep, &items, &texts, reference, rep_seed, &mut real)?;
             for row in rows.iter_mut() {
-                let s = row.setting.clone().expect("generated row");
-                // Two stages: a text-only proposal per item, whose MDO frames are the keys.
-                let proposals: Vec<Vec<f32>> = if s.suggested {
-                    let none: Vec<Vec<usize>> = vec![Vec::new(); items.len()];
-                    let text_only = Setting { rate: 0.0, suggested: false, ..s.clone() };
-                    self.generate(&items, &none, &text_only, 1, rep_seed ^ 0x5347, tick)
-                        .into_iter()
-                        .map(|mut g| g.swap_remove(0))
-                        .collect()
-                } else {
-                    Vec::new()
-                };
-                let staged: Vec<Item> = items
-                    .iter()
-                    .zip(&proposals)
-                    .map(|(it, f)| Item {
-                        len: it.len,
-                        caption: it.caption.clone(),
-                        feats: f,
-                        joints: joints_of(self.ds, f),
-                    })
-                    .collect();
-                let targets = if s.suggested { &staged } else { &items };
-                let keys = if s.suggested {
-                    let d = self.ds.dim();
-                    targets
-                        .iter()
-                        .map(|t| {
-                            keyframes::select(
-                                Strategy::Mdo,
-                                t.len,
-                                s.rate,
-                                t.feats,
-                                d,
-                                &mut Rng::new(0),
-                            )
-                        })
-                        .collect()
-                } else {
-                    self.keys(rep, &items, s.rate)
-                };
-                let k = self.opts.samples_for_ade.max(1);
-                let gens = self.generate(targets, &keys, &s, k, rep_seed, tick);
-                let mut per: BTreeMap<&'static str, Vec<f64>> = BTreeMap::new();
-                for ((it, key), samples) in targets.iter().zip(&keys).zip(&gens) {
-                    let joints: Vec<Joints> =
-                        samples.iter().map(|f| joints_of(self.ds, f)).collect();
-                    let ade = joints
-                        .iter()
-                        .filter_map(|j| displacement_error(j, &it.joints, key))
-                        .fold(f64::INFINITY, f64::min);
-                    let avg = |f: &dyn Fn(usize) -> Option<f64>| {
-                        mean(&(0..k).filter_map(f).collect::<Vec<_>>())
-                    };
-                    let entries = [
-                        ("ade", ade.is_finite().then_some(ade)),
-                        ("k_err", avg(&|j| k_err_global(&joints[j], &it.joints, key, &all_joints))),
-                        (
-                            "k_err_local",
-                            avg(&|j| k_err_local(skel, &samples[j], it.feats, key, &all_joints)),
-                        ),
-                        ("k_trans", avg(&|j| k_trans(&joints[j], key, K_TRANS_WINDOW))),
-                        ("k_trans_real", k_trans(&it.joints, key, K_TRANS_WINDOW)),
-                        ("foot_skate", avg(&|j| Some(foot_skating_ratio(skel, &joints[j])))),
-                    ];
-                    for (name, x) in entries {
-                        if let Some(x) = x {
-                            per.entry(name).or_default().push(x);
-                        }
-                    }
-                }
-                for (name, xs) in per {
-                    row.values.entry(name).or_default().extend(mean(&xs));
-                }
-                let first: Vec<&[f32]> = gens.iter().map(|g| g[0].as_slice()).collect();
-                let motions = finite(
-                    self.evaluator.embed_motions(&first),
-                    "the generated motions' embeddings",
-                )?;
-                self.text_motion(reference, &texts, &motions, rep_seed, &mut row.values);
-                if self.opts.multimodality > 0 {
-                    let m = self.opts.multimodality.min(items.len());
-                    let groups = self.generate(
-                        &targets[..m],
-                        &keys[..m],
-                        &s,
-                        MM_GENERATIONS,
-                        rep_seed ^ 0x4d4d,
-                        tick,
-                    );
-                    let emb: Vec<Vec<Vec<f64>>> = groups
-                        .iter()
-                        .map(|g| {
-                            let g: Vec<&[f32]> = g.iter().map(Vec::as_slice).collect();
-                            finite(self.evaluator.embed_motions(&g), "the MultiModality embeddings")
-                        })
-                        .collect::<crate::error::Result<_>>()?;
-                    row.values
-                        .entry("multimodality")
-                        .or_default()
-                        .push(multimodality(&emb, MM_PAIRS, rep_seed));
-                }
+                self.generated_row(rep, &items, &texts, reference, rep_seed, row, tick)?;
             }
         }
         real.extend(rows);
         Ok(real)
+    }
+
+    /// One replication's real-motion rows (one per keyframe rate): the text-motion metrics and
+    /// foot skating of the real motions (the same at every rate) and K-TranS at each rate's keys.
+    fn real_rows(
+        &self,
+        rep: usize,
+        items: &[Item],
+        texts: &[Vec<f64>],
+        reference: &Gaussian,
+        rep_seed: u64,
+        real: &mut [RowResult],
+    ) -> crate::error::Result<()> {
+        let real_m = finite(
+            self.evaluator.embed_motions(&items.iter().map(|it| it.feats).collect::<Vec<_>>()),
+            "the real motions' embeddings",
+        )?;
+        let mut shared = Values::new();
+        self.text_motion(reference, texts, &real_m, rep_seed, &mut shared);
+        let skel = self.ds.skeleton;
+        if let Some(x) =
+            mean(&items.iter().map(|it| foot_skating_ratio(skel, &it.joints)).collect::<Vec<_>>())
+        {
+            shared.insert("foot_skate", vec![x]);
+        }
+        for row in real.iter_mut() {
+            for (k, x) in &shared {
+                row.values.entry(k).or_default().extend(x);
+            }
+            let keys = self.keys(rep, items, row.rate);
+            let kt: Vec<f64> = items
+                .iter()
+                .zip(&keys)
+                .filter_map(|(it, k)| k_trans(&it.joints, k, K_TRANS_WINDOW))
+                .collect();
+            row.values.entry("k_trans").or_default().extend(mean(&kt));
+        }
+        Ok(())
+    }
+
+    /// One replication of a generated row: its keys (drawn as in training, or the MDO frames of
+    /// a text-only proposal for the two-stage row), the generations, every metric.
+    #[allow(clippy::too_many_arguments)]
+    fn generated_row(
+        &self,
+        rep: usize,
+        items: &[Item],
+        texts: &[Vec<f64>],
+        reference: &Gaussian,
+        rep_seed: u64,
+        row: &mut RowResult,
+        tick: &mut dyn FnMut(),
+    ) -> crate::error::Result<()> {
+        let s = row.setting.clone().expect("generated row");
+        // Two stages: a text-only proposal per item, whose MDO frames are the keys.
+        let proposals: Vec<Vec<f32>> = if s.suggested {
+            let none: Vec<Vec<usize>> = vec![Vec::new(); items.len()];
+            let text_only = Setting { rate: 0.0, suggested: false, ..s.clone() };
+            self.generate(items, &none, &text_only, 1, rep_seed ^ 0x5347, tick)
+                .into_iter()
+                .map(|mut g| g.swap_remove(0))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let staged: Vec<Item> = items
+            .iter()
+            .zip(&proposals)
+            .map(|(it, f)| Item {
+                len: it.len,
+                caption: it.caption.clone(),
+                feats: f,
+                joints: joints_of(self.ds, f),
+            })
+            .collect();
+        let targets = if s.suggested { &staged[..] } else { items };
+        let keys = if s.suggested {
+            let d = self.ds.dim();
+            targets
+                .iter()
+                .map(|t| {
+                    keyframes::select(Strategy::Mdo, t.len, s.rate, t.feats, d, &mut Rng::new(0))
+                })
+                .collect()
+        } else {
+            self.keys(rep, items, s.rate)
+        };
+        let k = self.opts.samples_for_ade.max(1);
+        let gens = self.generate(targets, &keys, &s, k, rep_seed, tick);
+        for (name, xs) in self.keyframe_scores(targets, &keys, &gens) {
+            row.values.entry(name).or_default().extend(mean(&xs));
+        }
+        let first: Vec<&[f32]> = gens.iter().map(|g| g[0].as_slice()).collect();
+        let motions =
+            finite(self.evaluator.embed_motions(&first), "the generated motions' embeddings")?;
+        self.text_motion(reference, texts, &motions, rep_seed, &mut row.values);
+        if self.opts.multimodality > 0 {
+            let m = self.opts.multimodality.min(items.len());
+            let groups = self.generate(
+                &targets[..m],
+                &keys[..m],
+                &s,
+                MM_GENERATIONS,
+                rep_seed ^ 0x4d4d,
+                tick,
+            );
+            let emb: Vec<Vec<Vec<f64>>> = groups
+                .iter()
+                .map(|g| {
+                    let g: Vec<&[f32]> = g.iter().map(Vec::as_slice).collect();
+                    finite(self.evaluator.embed_motions(&g), "the MultiModality embeddings")
+                })
+                .collect::<crate::error::Result<_>>()?;
+            row.values
+                .entry("multimodality")
+                .or_default()
+                .push(multimodality(&emb, MM_PAIRS, rep_seed));
+        }
+        Ok(())
+    }
+
+    /// Per item, the keyframe metrics of its generations `gens` against its target: ADE (the
+    /// best of the samples), K-Err, K-TranS (and the target's), foot skating.
+    fn keyframe_scores(
+        &self,
+        targets: &[Item],
+        keys: &[Vec<usize>],
+        gens: &[Vec<Vec<f32>>],
+    ) -> BTreeMap<&'static str, Vec<f64>> {
+        let skel = self.ds.skeleton;
+        let all_joints: Vec<usize> = (0..skel.num_joints()).collect();
+        let k = self.opts.samples_for_ade.max(1);
+        let mut per: BTreeMap<&'static str, Vec<f64>> = BTreeMap::new();
+        for ((it, key), samples) in targets.iter().zip(keys).zip(gens) {
+            let joints: Vec<Joints> = samples.iter().map(|f| joints_of(self.ds, f)).collect();
+            let ade = joints
+                .iter()
+                .filter_map(|j| displacement_error(j, &it.joints, key))
+                .fold(f64::INFINITY, f64::min);
+            let avg =
+                |f: &dyn Fn(usize) -> Option<f64>| mean(&(0..k).filter_map(f).collect::<Vec<_>>());
+            let entries = [
+                ("ade", ade.is_finite().then_some(ade)),
+                ("k_err", avg(&|j| k_err_global(&joints[j], &it.joints, key, &all_joints))),
+                (
+                    "k_err_local",
+                    avg(&|j| k_err_local(skel, &samples[j], it.feats, key, &all_joints)),
+                ),
+                ("k_trans", avg(&|j| k_trans(&joints[j], key, K_TRANS_WINDOW))),
+                ("k_trans_real", k_trans(&it.joints, key, K_TRANS_WINDOW)),
+                ("foot_skate", avg(&|j| Some(foot_skating_ratio(skel, &joints[j])))),
+            ];
+            for (name, x) in entries {
+                if let Some(x) = x {
+                    per.entry(name).or_default().push(x);
+                }
+            }
+        }
+        per
     }
 }
 

@@ -301,13 +301,8 @@ fn settings(a: &RunArgs) -> Result<Vec<Setting>> {
     Ok(rows.settings())
 }
 
-fn evaluate(a: RunArgs) -> Result<()> {
-    let (Some(run_dir), Some(eval_dir), Some(data)) =
-        (a.checkpoint.clone(), a.evaluator.clone(), a.data.clone())
-    else {
-        bail!("eval: needs --checkpoint, --evaluator and --data")
-    };
-    let settings = settings(&a)?;
+/// The counts in their bounds; the keyframe strategy.
+fn check_counts(a: &RunArgs) -> Result<Strategy> {
     a.fit.check()?;
     for (v, flag, max, why) in [
         (a.replications, "--replications", MAX_REPLICATIONS, "each generates --num-items motions"),
@@ -319,10 +314,46 @@ fn evaluate(a: RunArgs) -> Result<()> {
             bail!("{flag}: {v} must be 1 to {max} ({why})");
         }
     }
-    let strategy: Strategy = a
-        .keyframe_strategy
-        .parse()
-        .map_err(|e: String| anyhow::anyhow!("--keyframe-strategy: {e}"))?;
+    a.keyframe_strategy.parse().map_err(|e: String| anyhow::anyhow!("--keyframe-strategy: {e}"))
+}
+
+/// `--evaluator`: a directory of `eval train-evaluator`, or `t2m:DIR` (the official one).
+fn load_evaluator<'a>(
+    eval_dir: &std::path::Path,
+    ds: &Dataset,
+    split: &str,
+    text: &'a diffkfc_model::text::cache::EmbeddingCache,
+    device: &burn::prelude::Device,
+) -> Result<Box<dyn TextMotionEvaluator + 'a>> {
+    let ev: Box<dyn TextMotionEvaluator + 'a> =
+        match eval_dir.to_str().and_then(|s| s.strip_prefix("t2m:")) {
+            Some(dir) => Box::new(T2mEvaluator::load(
+                std::path::Path::new(dir),
+                &split_captions(ds, split)?,
+                device,
+            )?),
+            None => Box::new(ContrastiveEvaluator::load(eval_dir, text, device)?),
+        };
+    if ev.feature_dim() != ds.dim() {
+        bail!(
+            "--evaluator: {} reads {}-d features, {} has {}",
+            eval_dir.display(),
+            ev.feature_dim(),
+            ds.root.display(),
+            ds.dim()
+        );
+    }
+    Ok(ev)
+}
+
+fn evaluate(a: RunArgs) -> Result<()> {
+    let (Some(run_dir), Some(eval_dir), Some(data)) =
+        (a.checkpoint.clone(), a.evaluator.clone(), a.data.clone())
+    else {
+        bail!("eval: needs --checkpoint, --evaluator and --data")
+    };
+    let settings = settings(&a)?;
+    let strategy = check_counts(&a)?;
     let device = crate::device::parse(&a.device)?;
     let loaded = InferenceModel::load(&run_dir, &device)?;
     let (cfg, step) = (&loaded.cfg, loaded.step);
@@ -344,24 +375,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
         bail!("--num-items: {num_items} items (split '{}' of {} has {}); R-precision needs at least {}", a.split, data.display(), split.items.len(), protocol::R_BATCH);
     }
     let text = embed_captions(&ds, &[&split], crate::progress::bar("embedding"))?;
-    let ev: Box<dyn TextMotionEvaluator + '_> =
-        match eval_dir.to_str().and_then(|s| s.strip_prefix("t2m:")) {
-            Some(dir) => Box::new(T2mEvaluator::load(
-                std::path::Path::new(dir),
-                &split_captions(&ds, &a.split)?,
-                &device,
-            )?),
-            None => Box::new(ContrastiveEvaluator::load(&eval_dir, &text, &device)?),
-        };
-    if ev.feature_dim() != ds.dim() {
-        bail!(
-            "--evaluator: {} reads {}-d features, {} has {}",
-            eval_dir.display(),
-            ev.feature_dim(),
-            data.display(),
-            ds.dim()
-        );
-    }
+    let ev = load_evaluator(&eval_dir, &ds, &a.split, &text, &device)?;
     let (_, real) = embed_split(ev.as_ref(), &ds, &split)?;
     let reference = Gaussian::fit(&real);
     let sampler = a.sampler.sampler(a.steps);

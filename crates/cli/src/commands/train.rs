@@ -10,9 +10,9 @@ use diffkfc_data::dataset::Dataset;
 use diffkfc_model::run::config::RunConfig;
 use diffkfc_model::run::dir::RunDir;
 use diffkfc_model::run::lock::{Claim, RunLock};
-use diffkfc_model::text::cache::embed_captions;
+use diffkfc_model::text::cache::{embed_captions, EmbeddingCache};
 use diffkfc_model::training::optim::StateLocation;
-use diffkfc_model::training::trainer::{Event, Trainer};
+use diffkfc_model::training::trainer::{Event, Outcome, Trainer};
 use indicatif::{ProgressBar, ProgressStyle};
 
 #[derive(Args)]
@@ -94,81 +94,25 @@ fn check_memory(cfg: &RunConfig, device: &str) -> Result<()> {
 }
 
 pub fn run(a: TrainArgs) -> Result<()> {
-    let mut cfg = RunConfig::load(&a.config)?;
-    if let Some(s) = a.seed {
-        cfg.training.seed = s;
-    }
-    if let Some(d) = &a.data {
-        cfg.data.dir = Some(d.display().to_string());
-    }
-    let data = cfg.data.dir.clone().map(PathBuf::from).context(
-        "--data: no dataset given (make one with `diffkfc data synth --out work/synth`)",
-    )?;
-    let max_steps = a.max_steps.unwrap_or(cfg.training.max_steps);
-    if max_steps == 0 {
-        let flag = if a.max_steps.is_some() { "--max-steps" } else { "training.max_steps" };
-        bail!("{flag}: 0 trains nothing and writes no checkpoint; give at least 1");
-    }
-    cfg.training.check_stop(max_steps)?;
-    let stem = a
-        .config
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "run".into());
-    let run = RunDir::new(a.out.clone().unwrap_or_else(|| PathBuf::from("runs").join(stem)));
-    let run_dir = run.path.clone();
+    let (mut cfg, data, max_steps) = resolve_config(&a)?;
+    let run = RunDir::new(a.out.clone().unwrap_or_else(|| {
+        let stem = a.config.file_stem().map(|s| s.to_string_lossy().into_owned());
+        PathBuf::from("runs").join(stem.unwrap_or_else(|| "run".into()))
+    }));
     let claim = if a.resume { Claim::Resume } else { Claim::New { force: a.force } };
-    RunLock::check(&run_dir, claim)?;
+    RunLock::check(&run.path, claim)?;
     if let Some(p) = a.init.as_ref().filter(|p| !p.exists()) {
         bail!("--init: {} does not exist", p.display());
     }
     let device = crate::device::parse(&a.device)?;
     check_memory(&cfg, &a.device)?;
-    let ds = Dataset::open(&data)?;
-    if ds.dim() != cfg.model.feat_dim {
-        bail!(
-            "{}: features are {}-dimensional but model.feat_dim is {}",
-            data.display(),
-            ds.dim(),
-            cfg.model.feat_dim
-        );
-    }
-    let cache_dir = default_cache_dir(&ds);
-    let train = PackedSplit::open(
-        &ds,
-        &cfg.data.train_split,
-        &cache_dir,
-        crate::progress::bar("caching train"),
-    )?;
-    if train.items.is_empty() {
-        bail!(
-            "{}: split '{}' has no usable items (run `diffkfc data check`)",
-            data.display(),
-            cfg.data.train_split
-        );
-    }
-    let val = PackedSplit::open(
-        &ds,
-        &cfg.data.val_split,
-        &cache_dir,
-        crate::progress::bar("caching val"),
-    )
-    .ok();
-    for (id, why) in train.skipped.iter().take(3) {
-        eprintln!("warning: skipped clip {id}: {why}");
-    }
-    let mut splits = vec![&train];
-    splits.extend(val.as_ref());
-    let text = embed_captions(&ds, &splits, crate::progress::bar("embedding"))?;
-    if text.dim != cfg.model.text_dim {
-        bail!("model.text_dim is {} but the text encoder gives {}", cfg.model.text_dim, text.dim);
-    }
-    cfg.bind_dataset(&ds.mean, &ds.std);
-    let _held = RunLock::claim(&run_dir, claim)?;
+    let d = TrainingData::open(&cfg, &data)?;
+    cfg.bind_dataset(&d.ds.mean, &d.ds.std);
+    let _held = RunLock::claim(&run.path, claim)?;
     if a.resume {
-        run.check_resumable(&cfg, &ds.mean)?;
+        run.check_resumable(&cfg, &d.ds.mean)?;
     }
-    run.prepare(&cfg, &ds.mean, &ds.std)?;
+    run.prepare(&cfg, &d.ds.mean, &d.ds.std)?;
 
     let signal = crate::signals::StopSignal::install()?;
     let started = Instant::now();
@@ -182,13 +126,13 @@ pub fn run(a: TrainArgs) -> Result<()> {
     );
     let trainer = Trainer {
         cfg: &cfg,
-        ds: &ds,
-        train: &train,
-        val: val.as_ref(),
-        text: &text,
+        ds: &d.ds,
+        train: &d.train,
+        val: d.val.as_ref(),
+        text: &d.text,
         optimiser: a.optimiser_state.unwrap_or_else(|| StateLocation::for_device(&device)),
         device,
-        run_dir: run_dir.clone(),
+        run_dir: run.path.clone(),
         init: a.init.clone(),
     };
     let mut first: Option<(usize, f64)> = None;
@@ -208,11 +152,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         }),
     })?;
     pb.finish_and_clear();
-    let vals: Vec<(usize, f64)> =
-        run.metrics().iter().filter_map(|m| Some((m.step, m.val_loss?))).collect();
     run.write_loss_plot()?;
-    let secs = started.elapsed().as_secs_f64();
-    let steps = outcome.end_step - outcome.start_step;
     let why = if signal.requested() {
         " (interrupted)"
     } else if outcome.stopped_early {
@@ -220,23 +160,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
     } else {
         ""
     };
-    println!(
-        "{}: steps {}..{}{why} in {secs:.1} s ({:.2} s/step)",
-        run_dir.display(),
-        outcome.start_step,
-        outcome.end_step,
-        secs / steps.max(1) as f64
-    );
-    if let (Some((s0, l0)), Some(last)) = (first, &outcome.last) {
-        println!("  train loss: step {s0} {l0:.4} -> step {} {:.4}", last.step, last.loss);
-    }
-    if let (Some(a), Some(b)) = (vals.first(), vals.last()) {
-        println!(
-            "  validation loss (EMA weights): step {} {:.4} -> step {} {:.4}",
-            a.0, a.1, b.0, b.1
-        );
-    }
-    println!("  checkpoints, metrics.jsonl, loss.svg in {}", run_dir.display());
+    print_summary(&run, &outcome, first, why, started.elapsed().as_secs_f64());
     if let Some(code) = signal.exit_code() {
         // A script must be able to tell an interrupted run (checkpoint written) from a finished one.
         eprintln!(
@@ -247,6 +171,107 @@ pub fn run(a: TrainArgs) -> Result<()> {
         std::process::exit(code);
     }
     Ok(())
+}
+
+/// The config with the flags applied, the dataset it trains on and the step it stops at.
+fn resolve_config(a: &TrainArgs) -> Result<(RunConfig, PathBuf, usize)> {
+    let mut cfg = RunConfig::load(&a.config)?;
+    if let Some(s) = a.seed {
+        cfg.training.seed = s;
+    }
+    if let Some(d) = &a.data {
+        cfg.data.dir = Some(d.display().to_string());
+    }
+    let data = cfg.data.dir.clone().map(PathBuf::from).context(
+        "--data: no dataset given (make one with `diffkfc data synth --out work/synth`)",
+    )?;
+    let max_steps = a.max_steps.unwrap_or(cfg.training.max_steps);
+    if max_steps == 0 {
+        let flag = if a.max_steps.is_some() { "--max-steps" } else { "training.max_steps" };
+        bail!("{flag}: 0 trains nothing and writes no checkpoint; give at least 1");
+    }
+    cfg.training.check_stop(max_steps)?;
+    Ok((cfg, data, max_steps))
+}
+
+/// A dataset ready for training: its packed train and validation splits and the captions'
+/// text embeddings.
+struct TrainingData {
+    ds: Dataset,
+    train: PackedSplit,
+    val: Option<PackedSplit>,
+    text: EmbeddingCache,
+}
+
+impl TrainingData {
+    fn open(cfg: &RunConfig, data: &std::path::Path) -> Result<TrainingData> {
+        let ds = Dataset::open(data)?;
+        if ds.dim() != cfg.model.feat_dim {
+            bail!(
+                "{}: features are {}-dimensional but model.feat_dim is {}",
+                data.display(),
+                ds.dim(),
+                cfg.model.feat_dim
+            );
+        }
+        let cache_dir = default_cache_dir(&ds);
+        let split = |name: &str, what: &str| {
+            PackedSplit::open(&ds, name, &cache_dir, crate::progress::bar(what))
+        };
+        let train = split(&cfg.data.train_split, "caching train")?;
+        if train.items.is_empty() {
+            bail!(
+                "{}: split '{}' has no usable items (run `diffkfc data check`)",
+                data.display(),
+                cfg.data.train_split
+            );
+        }
+        let val = split(&cfg.data.val_split, "caching val").ok();
+        for (id, why) in train.skipped.iter().take(3) {
+            eprintln!("warning: skipped clip {id}: {why}");
+        }
+        let mut splits = vec![&train];
+        splits.extend(val.as_ref());
+        let text = embed_captions(&ds, &splits, crate::progress::bar("embedding"))?;
+        if text.dim != cfg.model.text_dim {
+            bail!(
+                "model.text_dim is {} but the text encoder gives {}",
+                cfg.model.text_dim,
+                text.dim
+            );
+        }
+        Ok(TrainingData { ds, train, val, text })
+    }
+}
+
+/// What a training call did: steps, time, first and last training loss, validation loss.
+fn print_summary(
+    run: &RunDir,
+    outcome: &Outcome,
+    first: Option<(usize, f64)>,
+    why: &str,
+    secs: f64,
+) {
+    let steps = outcome.end_step - outcome.start_step;
+    println!(
+        "{}: steps {}..{}{why} in {secs:.1} s ({:.2} s/step)",
+        run.path.display(),
+        outcome.start_step,
+        outcome.end_step,
+        secs / steps.max(1) as f64
+    );
+    if let (Some((s0, l0)), Some(last)) = (first, &outcome.last) {
+        println!("  train loss: step {s0} {l0:.4} -> step {} {:.4}", last.step, last.loss);
+    }
+    let vals: Vec<(usize, f64)> =
+        run.metrics().iter().filter_map(|m| Some((m.step, m.val_loss?))).collect();
+    if let (Some(a), Some(b)) = (vals.first(), vals.last()) {
+        println!(
+            "  validation loss (EMA weights): step {} {:.4} -> step {} {:.4}",
+            a.0, a.1, b.0, b.1
+        );
+    }
+    println!("  checkpoints, metrics.jsonl, loss.svg in {}", run.path.display());
 }
 
 #[cfg(test)]
