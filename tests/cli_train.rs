@@ -351,10 +351,15 @@ fn bad_train_arguments() {
         &diffkfc(&["train", "--config", s(&cos), "--data", s(&d), "--max-steps", "7"]),
         &["--max-steps", "7", "training.max_steps 6"],
     );
-    // A batch that fits the machine but not the process's limit (`ulimit -v 8 GB`) is refused
-    // too (it used to abort in the allocator after a minute).
+    // A batch of about 12 GB under a process limit of 8 GB (`ulimit -v`) is refused whatever
+    // the machine has free (it used to abort in the allocator after a minute).
+    use diffkfc_model::training::memory;
+    let tiny = diffkfc_model::run::config::RunConfig::parse(CFG).unwrap();
+    let batch =
+        ((12e9 - memory::fixed_bytes(&tiny)) / memory::per_sample_bytes(&tiny, 196)) as usize;
     let limited = d.join("limited.json");
-    std::fs::write(&limited, CFG.replace("\"batch_size\": 4", "\"batch_size\": 2048")).unwrap();
+    std::fs::write(&limited, CFG.replace("\"batch_size\": 4", &format!("\"batch_size\": {batch}")))
+        .unwrap();
     let line = format!(
         "ulimit -v 8000000; exec {} train --config {} --data {}",
         env!("CARGO_BIN_EXE_diffkfc"),
@@ -362,7 +367,7 @@ fn bad_train_arguments() {
         s(&d)
     );
     let o = Command::new("sh").args(["-c", &line]).output().unwrap();
-    assert_one_line_error(&o, &["training.batch_size", "2048", "ulimit", "fits"]);
+    assert_one_line_error(&o, &["training.batch_size", &batch.to_string(), "ulimit", "fits"]);
     // A batch the machine cannot hold is refused before anything is loaded (it used to grow
     // until the kernel killed it).
     if diffkfc_model::training::memory::available_bytes().is_some_and(|b| b > 50e9) {

@@ -99,6 +99,107 @@ pub fn zyx_degrees(q: Quat, prev: Option<[f64; 3]>) -> [f64; 3] {
     [best[0], best[1], best[2]]
 }
 
+/// The HIERARCHY section: one ROOT and its JOINTs (parents before children), their offsets,
+/// channels and End Sites; at least one offset not zero.
+fn parse_hierarchy(hier: &str) -> Result<Vec<BvhJoint>, DataError> {
+    let mut joints: Vec<BvhJoint> = Vec::new();
+    // Stack of open blocks: Some(joint) or None for an End Site.
+    let mut stack: Vec<Option<usize>> = Vec::new();
+    let (mut pending, mut in_end) = (None::<usize>, false);
+    let mut end_offset = [0.0; 3];
+    let open_joint = |stack: &[Option<usize>], what: &str| {
+        stack.last().copied().flatten().ok_or_else(|| bad(format!("{what} outside a joint")))
+    };
+    for line in hier.lines().map(str::trim) {
+        let mut it = line.split_whitespace();
+        match it.next() {
+            Some(kw @ ("ROOT" | "JOINT")) => {
+                if joints.is_empty() && kw != "ROOT" {
+                    return Err(bad("the hierarchy starts with a JOINT, not a ROOT"));
+                }
+                let parent = stack.last().copied().flatten();
+                if parent.is_none() && !joints.is_empty() {
+                    return Err(bad("a second ROOT (one skeleton per file is read)"));
+                }
+                let name = it.collect::<Vec<_>>().join(" ");
+                if name.is_empty() {
+                    return Err(bad("joint without a name"));
+                }
+                joints.push(BvhJoint {
+                    name,
+                    parent,
+                    offset: [0.0; 3],
+                    channels: Vec::new(),
+                    end_site: None,
+                });
+                pending = Some(joints.len() - 1);
+            }
+            Some("End") => in_end = true,
+            Some("{") => stack.push(if in_end { None } else { pending }),
+            Some("}") => match stack.pop() {
+                Some(None) => {
+                    in_end = false;
+                    joints[open_joint(&stack, "End Site")?].end_site = Some(end_offset);
+                }
+                Some(Some(_)) => {}
+                None => return Err(bad("unbalanced '}'")),
+            },
+            Some("OFFSET") if in_end => end_offset = parse_offset(it)?,
+            Some("OFFSET") => joints[open_joint(&stack, "OFFSET")?].offset = parse_offset(it)?,
+            Some("CHANNELS") => {
+                let k = open_joint(&stack, "CHANNELS")?;
+                joints[k].channels = parse_channels(it, &joints[k].name)?;
+            }
+            _ => {}
+        }
+    }
+    if joints.is_empty() {
+        return Err(bad("no ROOT joint"));
+    }
+    if !stack.is_empty() {
+        return Err(bad("unclosed '{' in HIERARCHY"));
+    }
+    if joints.iter().all(|j| j.offset == [0.0; 3] && j.end_site.is_none_or(|e| e == [0.0; 3])) {
+        return Err(bad("every OFFSET is zero: the hierarchy has no bones"));
+    }
+    Ok(joints)
+}
+
+/// The three finite numbers after `OFFSET`.
+fn parse_offset<'a>(it: impl Iterator<Item = &'a str>) -> Result<Vec3, DataError> {
+    let v: Vec<f64> = it
+        .map(|x| x.parse().map_err(|_| bad(format!("OFFSET value '{x}' is not a number"))))
+        .collect::<Result<_, _>>()?;
+    if v.len() != 3 || v.iter().any(|x| !x.is_finite()) {
+        return Err(bad("OFFSET needs three finite numbers"));
+    }
+    Ok([v[0], v[1], v[2]])
+}
+
+/// The count and names after `CHANNELS` of joint `name`: 3 rotations, optionally after 3
+/// positions.
+fn parse_channels<'a>(
+    mut it: impl Iterator<Item = &'a str>,
+    name: &str,
+) -> Result<Vec<Channel>, DataError> {
+    let n: usize =
+        it.next().and_then(|n| n.parse().ok()).ok_or_else(|| bad("CHANNELS needs a count"))?;
+    let ch: Vec<Channel> = it
+        .map(|c| {
+            Channel::parse(c).ok_or_else(|| bad(format!("joint '{name}': unknown channel '{c}'")))
+        })
+        .collect::<Result<_, _>>()?;
+    if ch.len() != n {
+        return Err(bad(format!("joint '{name}': CHANNELS says {n} but lists {}", ch.len())));
+    }
+    if ch.iter().filter(|c| matches!(c, Channel::Rotation(_))).count() % 3 != 0 || ch.len() > 6 {
+        return Err(bad(format!(
+            "joint '{name}': channels must be 3 rotations, optionally after 3 positions"
+        )));
+    }
+    Ok(ch)
+}
+
 /// Largest channel value read: a position of 100 km in metres (or 1 km in centimetres) or
 /// 1e5 degrees is a broken file, not a motion.
 const MAX_CHANNEL_VALUE: f64 = 1e5;
@@ -176,114 +277,7 @@ impl Bvh {
     /// Parse BVH text; errors name what is wrong (and the frame, for values).
     pub fn parse(text: &str) -> Result<Bvh, DataError> {
         let (hier, motion) = text.split_once("MOTION").ok_or_else(|| bad("no MOTION section"))?;
-        let mut joints: Vec<BvhJoint> = Vec::new();
-        // Stack of open blocks: Some(joint) or None for an End Site.
-        let mut stack: Vec<Option<usize>> = Vec::new();
-        let (mut pending, mut in_end) = (None::<usize>, false);
-        let mut end_offset = [0.0; 3];
-        for line in hier.lines().map(str::trim) {
-            let mut it = line.split_whitespace();
-            match it.next() {
-                Some(kw @ ("ROOT" | "JOINT")) => {
-                    if joints.is_empty() && kw != "ROOT" {
-                        return Err(bad("the hierarchy starts with a JOINT, not a ROOT"));
-                    }
-                    let parent = stack.last().copied().flatten();
-                    if parent.is_none() && !joints.is_empty() {
-                        return Err(bad("a second ROOT (one skeleton per file is read)"));
-                    }
-                    let name = it.collect::<Vec<_>>().join(" ");
-                    if name.is_empty() {
-                        return Err(bad("joint without a name"));
-                    }
-                    joints.push(BvhJoint {
-                        name,
-                        parent,
-                        offset: [0.0; 3],
-                        channels: Vec::new(),
-                        end_site: None,
-                    });
-                    pending = Some(joints.len() - 1);
-                }
-                Some("End") => in_end = true,
-                Some("{") => stack.push(if in_end { None } else { pending }),
-                Some("}") => match stack.pop() {
-                    Some(None) => {
-                        in_end = false;
-                        let k = stack
-                            .last()
-                            .copied()
-                            .flatten()
-                            .ok_or_else(|| bad("End Site outside a joint"))?;
-                        joints[k].end_site = Some(end_offset);
-                    }
-                    Some(Some(_)) => {}
-                    None => return Err(bad("unbalanced '}'")),
-                },
-                Some("OFFSET") => {
-                    let v: Vec<f64> = it
-                        .map(|x| {
-                            x.parse()
-                                .map_err(|_| bad(format!("OFFSET value '{x}' is not a number")))
-                        })
-                        .collect::<Result<_, _>>()?;
-                    if v.len() != 3 || v.iter().any(|x| !x.is_finite()) {
-                        return Err(bad("OFFSET needs three finite numbers"));
-                    }
-                    if in_end {
-                        end_offset = [v[0], v[1], v[2]];
-                    } else {
-                        let k = stack
-                            .last()
-                            .copied()
-                            .flatten()
-                            .ok_or_else(|| bad("OFFSET outside a joint"))?;
-                        joints[k].offset = [v[0], v[1], v[2]];
-                    }
-                }
-                Some("CHANNELS") => {
-                    let k = stack
-                        .last()
-                        .copied()
-                        .flatten()
-                        .ok_or_else(|| bad("CHANNELS outside a joint"))?;
-                    let n: usize = it
-                        .next()
-                        .and_then(|n| n.parse().ok())
-                        .ok_or_else(|| bad("CHANNELS needs a count"))?;
-                    let ch: Vec<Channel> = it
-                        .map(|c| {
-                            Channel::parse(c).ok_or_else(|| {
-                                bad(format!("joint '{}': unknown channel '{c}'", joints[k].name))
-                            })
-                        })
-                        .collect::<Result<_, _>>()?;
-                    if ch.len() != n {
-                        return Err(bad(format!(
-                            "joint '{}': CHANNELS says {n} but lists {}",
-                            joints[k].name,
-                            ch.len()
-                        )));
-                    }
-                    if ch.iter().filter(|c| matches!(c, Channel::Rotation(_))).count() % 3 != 0
-                        || ch.len() > 6
-                    {
-                        return Err(bad(format!("joint '{}': channels must be 3 rotations, optionally after 3 positions", joints[k].name)));
-                    }
-                    joints[k].channels = ch;
-                }
-                _ => {}
-            }
-        }
-        if joints.is_empty() {
-            return Err(bad("no ROOT joint"));
-        }
-        if !stack.is_empty() {
-            return Err(bad("unclosed '{' in HIERARCHY"));
-        }
-        if joints.iter().all(|j| j.offset == [0.0; 3] && j.end_site.is_none_or(|e| e == [0.0; 3])) {
-            return Err(bad("every OFFSET is zero: the hierarchy has no bones"));
-        }
+        let joints = parse_hierarchy(hier)?;
         let (frame_time, frames) = parse_motion(motion, &joints)?;
         Ok(Bvh { joints, frame_time, frames })
     }
