@@ -212,184 +212,179 @@ fn clip_attempt(seed: u64, index: usize, attempt: u64) -> Clip {
     #[allow(clippy::approx_constant)]
     let start = Pose::standing(r.range(-1.0, 1.0), r.range(-1.0, 1.0), r.range(-3.14, 3.14));
     let pattern = PATTERNS[[0, 0, 0, 1, 1, 2, 2, 3][r.below(8)]];
-    let max = 195; // +1 position frame -> at most 195 feature frames (< 196)
-    let mut spans = Vec::new();
-    let mut realisation = None;
-    let caps: Vec<String>;
-    let poses: Vec<Pose>;
-    let pick_phrase = |r: &mut Rng, name: &str, side: Option<&str>, ing: bool| {
-        let (p, g) = *r.pick(actions::by_name(name).phrases);
-        captions::fill(if ing { g } else { p }, side)
+    let d = match pattern {
+        Pattern::Single => single(&mut r, &start),
+        Pattern::Sequence | Pattern::Ambiguous => sequence_or_ambiguous(&mut r, &start, pattern),
+        Pattern::Simultaneous => simultaneous(&mut r, &start),
     };
-    // Half the time, say coarsely what the parameters are ("slowly", "twice").
-    let modify = |r: &mut Rng, phrase: String, params: &Value| {
-        let m = captions::modifiers(params);
-        if !m.is_empty() && r.chance(0.5) {
-            format!("{phrase} {}", r.pick(&m))
-        } else {
-            phrase
-        }
-    };
-    match pattern {
-        Pattern::Single => {
-            let a = r.pick(ACTIONS);
-            let n = frames_in(&mut r, a.frames, max).max(40);
-            let seg = perform(&mut r, a.name, &start, n);
-            spans.push(ActionSpan { action: a.name, start: 0, end: n, params: seg.params.clone() });
-            caps = (0..3)
-                .map(|_| {
-                    let p = pick_phrase(&mut r, a.name, seg.side, false);
-                    let p = modify(&mut r, p, &seg.params);
-                    captions::sentence(&mut r, &p)
-                })
-                .collect();
-            poses = seg.poses;
-        }
-        Pattern::Sequence | Pattern::Ambiguous => {
-            let (names, amb) = if pattern == Pattern::Sequence {
-                let a = r.pick(ACTIONS).name;
-                let mut b = r.pick(ACTIONS).name;
-                while b == a {
-                    b = r.pick(ACTIONS).name;
-                }
-                ([a, b], None)
-            } else {
-                let amb = r.pick(AMBIGUOUS);
-                (amb.sequence, Some(amb))
-            };
-            let simultaneous = amb.is_some() && r.chance(0.5);
-            if let (Some(amb), true) = (amb, simultaneous) {
-                realisation = Some("simultaneous");
-                let (lower, upper) = amb.simultaneous;
-                let n = frames_in(&mut r, (100, 195), max);
-                let base = (actions::by_name(lower).gen)(&mut r, &start, n);
-                let seg = match upper {
-                    "" => base,
-                    "bent" => {
-                        let bend = r.range(0.6, 0.9);
-                        let poses = base
-                            .poses
-                            .iter()
-                            .map(|p| Pose { pitch: p.pitch + bend, head_pitch: -0.3, ..*p })
-                            .collect();
-                        Segment {
-                            poses,
-                            params: json!({"base": base.params, "spine_bend": bend}),
-                            side: None,
-                        }
-                    }
-                    u => overlay(&mut r, base, u),
-                };
-                spans.push(ActionSpan {
-                    action: lower,
-                    start: 0,
-                    end: n,
-                    params: seg.params.clone(),
-                });
-                if !upper.is_empty() && upper != "bent" {
-                    spans.push(ActionSpan {
-                        action: upper,
-                        start: 0,
-                        end: n,
-                        params: seg.params["upper"].clone(),
-                    });
-                }
-                poses = seg.poses;
-            } else {
-                realisation = amb.map(|_| "sequence");
-                let n1 = frames_in(&mut r, (45, 100), 100);
-                let n2 = frames_in(&mut r, (45, 95), max - n1);
-                let s1 = perform(&mut r, names[0], &start, n1);
-                let s2 = perform(&mut r, names[1], &end_pose(s1.poses.last().unwrap()), n2);
-                spans.push(ActionSpan {
-                    action: names[0],
-                    start: 0,
-                    end: n1,
-                    params: s1.params.clone(),
-                });
-                spans.push(ActionSpan {
-                    action: names[1],
-                    start: n1,
-                    end: n1 + n2,
-                    params: s2.params.clone(),
-                });
-                poses = concat(&s1.poses, &s2.poses, 8);
-                if amb.is_none() {
-                    caps = (0..3)
-                        .map(|_| {
-                            let p1 = pick_phrase(&mut r, names[0], s1.side, false);
-                            let p1 = modify(&mut r, p1, &s1.params);
-                            let (p2, g2) = (
-                                pick_phrase(&mut r, names[1], s2.side, false),
-                                pick_phrase(&mut r, names[1], s2.side, true),
-                            );
-                            let pred = match r.below(4) {
-                                0 => format!("{p1}, then {p2}"),
-                                1 => format!("{p1} and then {p2}"),
-                                2 => format!("first {p1}, then {p2}"),
-                                _ => format!("{p1} before {g2}"),
-                            };
-                            captions::sentence(&mut r, &pred)
-                        })
-                        .collect();
-                    return finish(index, pattern, realisation, poses, spans, caps);
-                }
-            }
-            let amb = amb.unwrap();
-            caps = (0..3)
-                .map(|_| {
-                    let p = r.pick(amb.phrases).to_string();
-                    captions::sentence(&mut r, &p)
-                })
-                .collect();
-            spans.insert(
-                0,
-                ActionSpan { action: amb.name, start: 0, end: poses.len(), params: json!({}) },
-            );
-        }
-        Pattern::Simultaneous => {
-            let lower = *r.pick(OVERLAY_BASES);
-            let uppers: Vec<&str> =
-                ACTIONS.iter().filter(|a| a.part == Part::Upper).map(|a| a.name).collect();
-            let upper = *r.pick(&uppers);
-            let n = frames_in(&mut r, actions::by_name(lower).frames, max).max(60);
-            let base = (actions::by_name(lower).gen)(&mut r, &start, n);
-            let base_side = base.side;
-            let seg = overlay(&mut r, base, upper);
-            spans.push(ActionSpan {
-                action: lower,
-                start: 0,
-                end: n,
-                params: seg.params["base"].clone(),
-            });
-            spans.push(ActionSpan {
-                action: upper,
-                start: 0,
-                end: n,
-                params: seg.params["upper"].clone(),
-            });
-            caps = (0..3)
-                .map(|_| {
-                    let (l, lg) = (
-                        pick_phrase(&mut r, lower, base_side, false),
-                        pick_phrase(&mut r, lower, base_side, true),
-                    );
-                    let (u, ug) = (
-                        pick_phrase(&mut r, upper, seg.side, false),
-                        pick_phrase(&mut r, upper, seg.side, true),
-                    );
-                    let pred = match r.below(3) {
-                        0 => format!("{l} while {ug}"),
-                        1 => format!("{u} while {lg}"),
-                        _ => format!("{l} and {u} at the same time"),
-                    };
-                    captions::sentence(&mut r, &pred)
-                })
-                .collect();
-            poses = seg.poses;
-        }
+    finish(index, pattern, d.realisation, d.poses, d.spans, d.caps)
+}
+
+/// Most feature frames of a clip (+1 position frame -> at most 195 feature frames, < 196).
+const MAX_CLIP_FRAMES: usize = 195;
+
+/// A clip's motion, its action spans, its captions and, for ambiguous captions, which
+/// realisation it shows.
+struct Draft {
+    poses: Vec<Pose>,
+    spans: Vec<ActionSpan>,
+    caps: Vec<String>,
+    realisation: Option<&'static str>,
+}
+
+/// One of action `name`'s phrases, its plain or its -ing form.
+fn pick_phrase(r: &mut Rng, name: &str, side: Option<&str>, ing: bool) -> String {
+    let (p, g) = *r.pick(actions::by_name(name).phrases);
+    captions::fill(if ing { g } else { p }, side)
+}
+
+/// Half the time, say coarsely what the parameters are ("slowly", "twice").
+fn modify(r: &mut Rng, phrase: String, params: &Value) -> String {
+    let m = captions::modifiers(params);
+    if !m.is_empty() && r.chance(0.5) {
+        format!("{phrase} {}", r.pick(&m))
+    } else {
+        phrase
     }
-    finish(index, pattern, realisation, poses, spans, caps)
+}
+
+/// One action.
+fn single(r: &mut Rng, start: &Pose) -> Draft {
+    let a = r.pick(ACTIONS);
+    let n = frames_in(r, a.frames, MAX_CLIP_FRAMES).max(40);
+    let seg = perform(r, a.name, start, n);
+    let spans = vec![ActionSpan { action: a.name, start: 0, end: n, params: seg.params.clone() }];
+    let caps = (0..3)
+        .map(|_| {
+            let p = pick_phrase(r, a.name, seg.side, false);
+            let p = modify(r, p, &seg.params);
+            captions::sentence(r, &p)
+        })
+        .collect();
+    Draft { poses: seg.poses, spans, caps, realisation: None }
+}
+
+/// Two actions one after the other, or an ambiguous caption shown as a sequence or as both
+/// at once.
+fn sequence_or_ambiguous(r: &mut Rng, start: &Pose, pattern: Pattern) -> Draft {
+    let (names, amb) = if pattern == Pattern::Sequence {
+        let a = r.pick(ACTIONS).name;
+        let mut b = r.pick(ACTIONS).name;
+        while b == a {
+            b = r.pick(ACTIONS).name;
+        }
+        ([a, b], None)
+    } else {
+        let amb = r.pick(AMBIGUOUS);
+        (amb.sequence, Some(amb))
+    };
+    let simultaneous = amb.is_some() && r.chance(0.5);
+    let (poses, mut spans, realisation) = if let (Some(amb), true) = (amb, simultaneous) {
+        let (poses, spans) = ambiguous_at_once(r, start, amb);
+        (poses, spans, Some("simultaneous"))
+    } else {
+        let n1 = frames_in(r, (45, 100), 100);
+        let n2 = frames_in(r, (45, 95), MAX_CLIP_FRAMES - n1);
+        let s1 = perform(r, names[0], start, n1);
+        let s2 = perform(r, names[1], &end_pose(s1.poses.last().unwrap()), n2);
+        let spans = vec![
+            ActionSpan { action: names[0], start: 0, end: n1, params: s1.params.clone() },
+            ActionSpan { action: names[1], start: n1, end: n1 + n2, params: s2.params.clone() },
+        ];
+        let poses = concat(&s1.poses, &s2.poses, 8);
+        if amb.is_none() {
+            let caps = (0..3).map(|_| sequence_caption(r, names, &s1, &s2)).collect();
+            return Draft { poses, spans, caps, realisation: None };
+        }
+        (poses, spans, Some("sequence"))
+    };
+    let amb = amb.expect("an ambiguous caption");
+    let caps = (0..3)
+        .map(|_| {
+            let p = r.pick(amb.phrases).to_string();
+            captions::sentence(r, &p)
+        })
+        .collect();
+    spans.insert(0, ActionSpan { action: amb.name, start: 0, end: poses.len(), params: json!({}) });
+    Draft { poses, spans, caps, realisation }
+}
+
+/// "A, then B" and its variants for two actions performed one after the other.
+fn sequence_caption(r: &mut Rng, names: [&str; 2], s1: &Segment, s2: &Segment) -> String {
+    let p1 = pick_phrase(r, names[0], s1.side, false);
+    let p1 = modify(r, p1, &s1.params);
+    let (p2, g2) =
+        (pick_phrase(r, names[1], s2.side, false), pick_phrase(r, names[1], s2.side, true));
+    let pred = match r.below(4) {
+        0 => format!("{p1}, then {p2}"),
+        1 => format!("{p1} and then {p2}"),
+        2 => format!("first {p1}, then {p2}"),
+        _ => format!("{p1} before {g2}"),
+    };
+    captions::sentence(r, &pred)
+}
+
+/// An ambiguous caption's simultaneous realisation: its lower-body action with its upper-body
+/// one (or a bent spine) on top.
+fn ambiguous_at_once(r: &mut Rng, start: &Pose, amb: &Ambiguous) -> (Vec<Pose>, Vec<ActionSpan>) {
+    let (lower, upper) = amb.simultaneous;
+    let n = frames_in(r, (100, 195), MAX_CLIP_FRAMES);
+    let base = (actions::by_name(lower).gen)(r, start, n);
+    let seg = match upper {
+        "" => base,
+        "bent" => {
+            let bend = r.range(0.6, 0.9);
+            let poses = base
+                .poses
+                .iter()
+                .map(|p| Pose { pitch: p.pitch + bend, head_pitch: -0.3, ..*p })
+                .collect();
+            Segment { poses, params: json!({"base": base.params, "spine_bend": bend}), side: None }
+        }
+        u => overlay(r, base, u),
+    };
+    let mut spans =
+        vec![ActionSpan { action: lower, start: 0, end: n, params: seg.params.clone() }];
+    if !upper.is_empty() && upper != "bent" {
+        spans.push(ActionSpan {
+            action: upper,
+            start: 0,
+            end: n,
+            params: seg.params["upper"].clone(),
+        });
+    }
+    (seg.poses, spans)
+}
+
+/// A lower-body action with an upper-body one at the same time.
+fn simultaneous(r: &mut Rng, start: &Pose) -> Draft {
+    let lower = *r.pick(OVERLAY_BASES);
+    let uppers: Vec<&str> =
+        ACTIONS.iter().filter(|a| a.part == Part::Upper).map(|a| a.name).collect();
+    let upper = *r.pick(&uppers);
+    let n = frames_in(r, actions::by_name(lower).frames, MAX_CLIP_FRAMES).max(60);
+    let base = (actions::by_name(lower).gen)(r, start, n);
+    let base_side = base.side;
+    let seg = overlay(r, base, upper);
+    let spans = vec![
+        ActionSpan { action: lower, start: 0, end: n, params: seg.params["base"].clone() },
+        ActionSpan { action: upper, start: 0, end: n, params: seg.params["upper"].clone() },
+    ];
+    let caps = (0..3)
+        .map(|_| {
+            let (l, lg) =
+                (pick_phrase(r, lower, base_side, false), pick_phrase(r, lower, base_side, true));
+            let (u, ug) =
+                (pick_phrase(r, upper, seg.side, false), pick_phrase(r, upper, seg.side, true));
+            let pred = match r.below(3) {
+                0 => format!("{l} while {ug}"),
+                1 => format!("{u} while {lg}"),
+                _ => format!("{l} and {u} at the same time"),
+            };
+            captions::sentence(r, &pred)
+        })
+        .collect();
+    Draft { poses: seg.poses, spans, caps, realisation: None }
 }
 
 fn finish(
