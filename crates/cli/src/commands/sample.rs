@@ -7,7 +7,6 @@ use burn::prelude::*;
 use clap::{Args, ValueEnum};
 use diffkfc_data::keyframes::{self, Strategy};
 use diffkfc_data::motion::root_key::{self, RootKey};
-use diffkfc_data::postprocess::warp;
 use diffkfc_data::render::viewer::{self, escape, ViewMotion};
 use diffkfc_data::rng::Rng;
 use diffkfc_data::{io::npy, motion::representation as rep, render, T2M};
@@ -353,6 +352,11 @@ impl Generator {
         self.loaded.cfg.model.max_frames
     }
 
+    /// The library's generator of the loaded model.
+    fn pipeline(&self) -> diffkfc_model::sampling::pipeline::Generator<'_> {
+        self.loaded.generator(&T2M)
+    }
+
     fn embed(&self, text: &str, flag: &str) -> Result<Vec<f32>> {
         Ok(self.enc.embed(&[text]).context(flag.to_string())?.remove(0))
     }
@@ -372,7 +376,7 @@ impl Generator {
                 KeyedItem { text: emb, length: n, values, mask, root }
             })
             .collect();
-        self.loaded.generator(&T2M).request(n, &items)
+        self.pipeline().request(n, &items)
     }
 
     /// Sample, fit and check every motion of `req`; also the seconds the sampler took. A
@@ -382,12 +386,8 @@ impl Generator {
             bail!("--length: {} frames, but {} was built for at most {} (model.max_frames); ask for fewer frames or use --timeline for longer motions", req.frames, self.checkpoint.display(), self.max_frames());
         }
         let t0 = std::time::Instant::now();
-        let fitted = self.loaded.generator(&T2M).generate(
-            req,
-            &self.opts,
-            self.fit,
-            crate::progress::bar("denoising"),
-        );
+        let fitted =
+            self.pipeline().generate(req, &self.opts, self.fit, crate::progress::bar("denoising"));
         let secs = t0.elapsed().as_secs_f64();
         for (i, f) in fitted.iter().map(|s| &s.features).enumerate() {
             let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());

@@ -1,13 +1,12 @@
-//! `sample --text-lower ... --text-upper ...`: body-part prompts (MotionDiffuse's idea on
-//! DiffKFC's keyframes). The lower body carries the path, so it goes first: a whole motion from
-//! the lower body's text (with the user's keyframes, if any); then the upper body from its own
-//! text, with the first motion's lower body (and place and heading) given as keyframes on every
-//! frame, so it is kept exactly while the arms, spine and head are generated anew. That pass
-//! runs at keyframe guidance `--part-guidance` (0 by default: with the lower body keyed on
-//! every frame, the keyframe branch brings back the first motion's own arms and drowns the text).
+//! `sample --text-lower ... --text-upper ...`: body-part prompts (`diffkfc_model::sampling::parts`):
+//! a whole motion from the lower body's text (with the user's keyframes, if any), then the upper
+//! body from its own text with that lower body keyed on every frame. The second pass runs at
+//! keyframe guidance `--part-guidance` (0 by default: with the lower body keyed on every frame,
+//! the keyframe branch brings back the first motion's own arms and drowns the text).
 
 use super::*;
 use crate::args::MAX_GUIDANCE;
+use diffkfc_model::sampling::parts::upper_body_keys;
 
 pub(super) fn run(a: SampleArgs) -> Result<()> {
     let (Some(lower), Some(upper)) = (a.text_lower.clone(), a.text_upper.clone()) else {
@@ -24,7 +23,7 @@ pub(super) fn run(a: SampleArgs) -> Result<()> {
     }
     let keys = request_keys(&a)?;
     let mut gen = Generator::load(&a)?;
-    let (n, d, b) = (keys.length, T2M.feature_dim(), a.num_samples);
+    let (n, b) = (keys.length, a.num_samples);
     let req = gen.request(
         &gen.embed(&lower, "--text-lower")?,
         n,
@@ -33,21 +32,9 @@ pub(super) fn run(a: SampleArgs) -> Result<()> {
     );
     let (first, secs1) = gen.generate(&req, &a)?;
 
-    let lower_joints = T2M.part("lower_body").map(|p| p.joints.to_vec()).unwrap_or_default();
-    let dims = keyframes::dim_mask(&T2M, Some(&lower_joints));
-    let every: Vec<usize> = (0..n).collect();
-    let lower_mask = keyframes::frame_mask(n, &every, &dims);
     let items: Vec<(Vec<f32>, Vec<f32>, Vec<RootKey>)> = first
         .iter()
-        .map(|f| {
-            // The first motion's lower body on every frame, and the user's keys elsewhere.
-            let mask: Vec<f32> =
-                lower_mask.iter().zip(&keys.mask).map(|(l, u)| l.max(*u)).collect();
-            let values: Vec<f32> = (0..n * d)
-                .map(|k| if lower_mask[k] > 0.0 { f.features[k] } else { keys.values[k] })
-                .collect();
-            (values, mask, root_key::root_trajectory(&f.features, d))
-        })
+        .map(|f| upper_body_keys(&T2M, &f.features, &keys.values, &keys.mask, n))
         .collect();
     let refs: Vec<(&[f32], &[f32], &[RootKey])> =
         items.iter().map(|(v, m, r)| (v.as_slice(), m.as_slice(), r.as_slice())).collect();

@@ -1,20 +1,14 @@
-//! `sample --timeline`: one long motion from a timeline of prompts, window after window
-//! (`diffkfc_data::keyframes::timeline` plans the windows). Each window after the first is given the last
-//! [`OVERLAP`] frames of the motion so far as keyframes (every feature, place and heading, in
-//! the window's own frame), and its frames from the last repeated one on replace the motion's.
+//! `sample --timeline`: the flags, the windows' progress and the output folder of one long
+//! motion from a timeline of prompts (`diffkfc_model::sampling::timeline` generates it; each
+//! window after the first repeats the last [`OVERLAP`] frames of the motion so far).
 
-use diffkfc_data::keyframes::timeline::{self as tl, Window};
-use diffkfc_data::postprocess::footlock::LockReport;
+use diffkfc_data::keyframes::timeline as tl;
+use diffkfc_model::sampling::timeline::{self, joins, TimelineKeys};
 
 use super::*;
 
 /// Frames each window repeats from the motion before it (0.5 s).
 pub(super) const OVERLAP: usize = 10;
-
-/// The first frame of every window after the first: where two windows join.
-pub(super) fn joins(windows: &[Window]) -> Vec<usize> {
-    windows.iter().skip(1).map(|w| w.start + w.keyed).collect()
-}
 
 pub(super) fn run(a: SampleArgs, spec_arg: &str) -> Result<()> {
     check_flags(&a)?;
@@ -47,59 +41,29 @@ pub(super) fn run(a: SampleArgs, spec_arg: &str) -> Result<()> {
     let windows = tl::windows(&segments, window, OVERLAP);
     let embs =
         segments.iter().map(|s| gen.embed(&s.text, "--timeline")).collect::<Result<Vec<_>>>()?;
-    let b = a.num_samples;
-    let mut motion: Vec<Vec<f32>> = vec![Vec::with_capacity(total * d); b];
-    let mut corrections: Vec<Vec<warp::Correction>> = vec![Vec::new(); b];
-    let mut feet = vec![LockReport::default(); b];
+    let tkeys = TimelineKeys {
+        frames: &keys.frames,
+        values: &keys.values,
+        mask: &keys.mask,
+        root: &keys.root,
+    };
     let mut secs = 0.0;
-    for (wi, w) in windows.iter().enumerate() {
-        let n = w.end - w.start;
-        let items: Vec<(Vec<f32>, Vec<f32>, Vec<RootKey>)> =
-            motion.iter().map(|so_far| window_keys(so_far, &keys, w, d)).collect();
-        let refs: Vec<(&[f32], &[f32], &[RootKey])> =
-            items.iter().map(|(v, m, r)| (v.as_slice(), m.as_slice(), r.as_slice())).collect();
-        let req = gen.request(&embs[w.segment], n, b, &refs);
-        eprintln!(
-            "window {}/{}: frames {}..{} ({} repeated), \"{}\"",
-            wi + 1,
-            windows.len(),
-            w.start,
-            w.end,
-            w.keyed,
-            segments[w.segment].text
-        );
-        let (fitted, s) = gen.generate(&req, &a)?;
-        secs += s;
-        for (i, f) in fitted.into_iter().enumerate() {
-            // From the last repeated frame on: its pose is the motion's own (keyed), but the
-            // fit may have changed its root velocities to reach the window's later keys, and
-            // the new frames are placed by them.
-            let from = w.keyed.saturating_sub(1);
-            motion[i].truncate((w.start + from) * d);
-            motion[i].extend_from_slice(&f.features[from * d..]);
-            corrections[i].extend(
-                f.corrections
-                    .into_iter()
-                    .filter(|c| c.frame >= w.keyed)
-                    .map(|c| warp::Correction { frame: c.frame + w.start, ..c }),
+    let fitted =
+        timeline::generate(&gen.pipeline(), &windows, &embs, &tkeys, a.num_samples, |wi, req| {
+            let w = &windows[wi];
+            eprintln!(
+                "window {}/{}: frames {}..{} ({} repeated), \"{}\"",
+                wi + 1,
+                windows.len(),
+                w.start,
+                w.end,
+                w.keyed,
+                segments[w.segment].text
             );
-            feet[i].frames += f.feet.frames;
-            feet[i].dragged += f.feet.dragged;
-            feet[i].out_of_reach += f.feet.out_of_reach;
-            feet[i].max_shift_m = feet[i].max_shift_m.max(f.feet.max_shift_m);
-        }
-    }
-    let fitted: Vec<Fitted> = motion
-        .into_iter()
-        .zip(corrections)
-        .zip(feet)
-        .map(|((features, corrections), feet)| Fitted {
-            features,
-            corrections,
-            feet,
-            ..Default::default()
-        })
-        .collect();
+            let (fitted, s) = gen.generate(req, &a)?;
+            secs += s;
+            Ok::<_, anyhow::Error>(fitted)
+        })?;
     let joins = joins(&windows);
     let away: Vec<usize> = (5..total.saturating_sub(5))
         .step_by(10)
@@ -137,37 +101,4 @@ pub(super) fn run(a: SampleArgs, spec_arg: &str) -> Result<()> {
         .collect::<Vec<_>>()
         .join(" | ");
     write_outputs(&a, &gen, Outputs { keys: &keys, fitted, secs, extra, segments: &marks })
-}
-
-/// Keyframes of one window for one motion: its first `keyed` frames repeat the motion so far
-/// (every feature, place and heading), and the user's keys among its new frames move into the
-/// window's frame (which stands where the motion so far is at the window's first frame).
-fn window_keys(
-    so_far: &[f32],
-    keys: &Keys,
-    w: &Window,
-    d: usize,
-) -> (Vec<f32>, Vec<f32>, Vec<RootKey>) {
-    let n = w.end - w.start;
-    let (mut v, mut m, mut root) =
-        (vec![0f32; n * d], vec![0f32; n * d], vec![RootKey::default(); n]);
-    if w.keyed > 0 {
-        let tail = &so_far[w.start * d..];
-        let traj = root_key::root_trajectory(tail, d);
-        v[..w.keyed * d].copy_from_slice(&tail[..w.keyed * d]);
-        m[..w.keyed * d].fill(1.0);
-        root[..w.keyed].copy_from_slice(&traj[..w.keyed]);
-    }
-    let origin = if w.start == 0 {
-        RootKey::default()
-    } else {
-        root_key::root_trajectory(so_far, d)[w.start]
-    };
-    for &g in keys.frames.iter().filter(|&&g| g >= w.start + w.keyed && g < w.end) {
-        let f = g - w.start;
-        v[f * d..(f + 1) * d].copy_from_slice(&keys.values[g * d..(g + 1) * d]);
-        m[f * d..(f + 1) * d].copy_from_slice(&keys.mask[g * d..(g + 1) * d]);
-        root[f] = diffkfc_data::io::keyframe_file::relative_to(keys.root[g], origin);
-    }
-    (v, m, root)
 }
