@@ -152,7 +152,7 @@ mod tests {
             e.contains("the motion embeddings hold NaN") && e.contains("train-evaluator"),
             "{e}"
         );
-        // What a NaN evaluator used to report: R-precision 1.0 beside FID NaN.
+        // What a NaN evaluator would report as scores: FID NaN (beside R-precision 1.0).
         let nan = vec![vec![f64::NAN; 4]; 32];
         assert!(fid(&nan, &nan).is_nan());
     }

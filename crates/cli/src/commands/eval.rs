@@ -422,19 +422,45 @@ fn evaluate(a: RunArgs) -> Result<()> {
     let rows = p.run(&settings, &reference, &mut || pb.inc(1))?;
     pb.finish_and_clear();
     let secs = t0.elapsed().as_secs_f64();
+    let run =
+        Ran { run_dir: &run_dir, step, eval_dir: &eval_dir, evaluator: ev.name(), data: &data };
+    write_report(&a, &run, &rows, &settings, num_items, real.len(), secs)
+}
+
+/// What an evaluation ran on, for its report.
+struct Ran<'a> {
+    run_dir: &'a std::path::Path,
+    step: usize,
+    eval_dir: &'a std::path::Path,
+    evaluator: String,
+    data: &'a std::path::Path,
+}
+
+/// report.json (every replication's value and the settings) and report.md (the tables under a
+/// header saying what produced them) in `--out`, and the tables on stdout.
+fn write_report(
+    a: &RunArgs,
+    run: &Ran,
+    rows: &[protocol::RowResult],
+    settings: &[Setting],
+    num_items: usize,
+    reference_motions: usize,
+    secs: f64,
+) -> Result<()> {
+    let (sampler, fit, step) = (a.sampler.sampler(a.steps), a.fit.fit(), run.step);
     let meta = serde_json::json!({
-        "checkpoint": run_dir.display().to_string(), "checkpoint_step": step, "evaluator": eval_dir.display().to_string(), "evaluator_name": ev.name(),
-        "data": data.display().to_string(), "split": a.split, "replications": a.replications, "num_items": num_items,
+        "checkpoint": run.run_dir.display().to_string(), "checkpoint_step": step, "evaluator": run.eval_dir.display().to_string(), "evaluator_name": run.evaluator,
+        "data": run.data.display().to_string(), "split": a.split, "replications": a.replications, "num_items": num_items,
         "samples_for_ade": a.samples_for_ade, "sampler": format!("{sampler:?}"), "kf_guidance": a.kf_guidance, "place_guidance": a.place_guidance,
         "keyframe_strategy": a.keyframe_strategy, "keyframe_fit": fit.keyframes, "foot_lock": fit.foot_lock, "foot_lock_reach_m": fit.lock_reach, "root_keys": !a.no_root_keys, "multimodality_texts": if a.multimodality { a.mm_texts } else { 0 },
-        "seed": a.seed, "seconds": secs, "reference_motions": real.len(),
+        "seed": a.seed, "seconds": secs, "reference_motions": reference_motions,
     });
     let header = format!(
         "Checkpoint `{}` (step {step}), evaluator: {}, split `{}` of `{}`: {} replication(s) x {num_items} items, {sampler:?}, keyframe guidance {}, {} keyframes, ADE over {} sample(s), keyframe fit {:?}, foot lock {}, root keyframes {}; {:.0} s.",
-        run_dir.display(),
-        ev.name(),
+        run.run_dir.display(),
+        run.evaluator,
         a.split,
-        data.display(),
+        run.data.display(),
         a.replications,
         a.kf_guidance,
         a.keyframe_strategy,
@@ -444,12 +470,12 @@ fn evaluate(a: RunArgs) -> Result<()> {
         if a.no_root_keys { "off" } else { "on" },
         secs
     );
-    let md = report::to_markdown(&rows, &header, settings[0].rate, &settings[0].name);
+    let md = report::to_markdown(rows, &header, settings[0].rate, &settings[0].name);
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("--out: creating {}", a.out.display()))?;
     diffkfc_data::write_atomic(
         &a.out.join("report.json"),
-        serde_json::to_string_pretty(&report::to_json(&rows, meta))?.as_bytes(),
+        serde_json::to_string_pretty(&report::to_json(rows, meta))?.as_bytes(),
     )?;
     diffkfc_data::write_atomic(&a.out.join("report.md"), md.as_bytes())?;
     println!(

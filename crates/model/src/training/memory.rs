@@ -1,5 +1,5 @@
-//! How much memory a training run will take, estimated before it starts (a batch too large for
-//! the machine used to grow until the kernel killed the process).
+//! How much memory a training run will take, estimated before it starts, so that a batch too
+//! large for the memory the process may use is refused instead of killed by the kernel.
 //!
 //! Calibrated on the flex backend (peak resident memory over two training steps, 2026-11-23):
 //! tiny at batch 8 / 32 / 256: 246 / 246 / 1689 MB; small at batch 16 / 64: 603 / 1966 MB. Per
