@@ -28,8 +28,8 @@ Examples:
 
 #[derive(Args)]
 pub struct BenchArgs {
-    /// Model: a preset (paper, small, tiny; torch-tiny is the PyTorch reference's own small
-    /// network) or a run config file.
+    /// Model: a preset (paper, small, mid, tiny; torch-tiny is the PyTorch reference's own
+    /// small network) or a run config file.
     #[arg(long, default_value = "paper")]
     config: String,
     /// Comma-separated cases: train, call, call-cached, ddim, loader.
@@ -76,12 +76,16 @@ fn model_config(spec: &str) -> Result<DiffKfcConfig> {
     if std::path::Path::new(spec).exists() {
         return Ok(RunConfig::load(std::path::Path::new(spec))?.model);
     }
-    bail!("--config: '{spec}' is neither a preset (paper, small, tiny, torch-tiny) nor a file")
+    bail!("--config: '{spec}' is neither a preset (paper, small, mid, tiny, torch-tiny) nor a file")
 }
 
 /// Median wall time in ms of `runs` calls of `f` after one warm-up call.
-fn time_ms<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, Vec<f64>) {
+/// Median wall time (ms) of `runs` timed calls after one warm-up, every run's time, and the
+/// process's CPU utilisation over the timed calls (CPU seconds / wall seconds: 2.0 keeps two
+/// cores busy), where the platform reports CPU time.
+fn time_ms<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, Vec<f64>, Option<f64>) {
     std::hint::black_box(f());
+    let (cpu0, wall0) = (cpu_seconds(), Instant::now());
     let mut ms: Vec<f64> = (0..runs.max(1))
         .map(|_| {
             let t0 = Instant::now();
@@ -89,17 +93,38 @@ fn time_ms<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, Vec<f64>) {
             t0.elapsed().as_secs_f64() * 1e3
         })
         .collect();
+    let wall = wall0.elapsed().as_secs_f64();
+    let util = cpu0.zip(cpu_seconds()).map(|(a, b)| (b - a) / wall.max(1e-9));
     let runs = ms.clone();
     ms.sort_by(f64::total_cmp);
-    (ms[ms.len() / 2], runs)
+    (ms[ms.len() / 2], runs, util)
+}
+
+/// CPU time (user + system, seconds) this process has used, where the platform reports it.
+fn cpu_seconds() -> Option<f64> {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        // SAFETY: getrusage writes one plain struct that we own and read only after success.
+        let mut u: libc::rusage = unsafe { std::mem::zeroed() };
+        if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut u) } == 0 {
+            let t = |v: libc::timeval| v.tv_sec as f64 + v.tv_usec as f64 * 1e-6;
+            return Some(t(u.ru_utime) + t(u.ru_stime));
+        }
+    }
+    None
 }
 
 /// This run's measured matrix-product peak (GFLOP/s), for each line's fraction of it.
 static PEAK: std::sync::OnceLock<f64> = std::sync::OnceLock::new();
 
-fn line(case: &str, ms: f64, runs: &[f64], gflop: f64, extra: Value) -> Value {
+fn line(
+    case: &str,
+    (ms, runs, util): (f64, Vec<f64>, Option<f64>),
+    gflop: f64,
+    extra: Value,
+) -> Value {
     let rate = gflop / (ms / 1e3);
-    let mut v = json!({"case": case, "impl": "diffkfc", "ms": ms, "runs_ms": runs, "gflop": gflop, "gflops": rate, "fraction_of_peak": rate / PEAK.get().copied().unwrap_or(f64::NAN)});
+    let mut v = json!({"case": case, "impl": "diffkfc", "ms": ms, "runs_ms": runs, "gflop": gflop, "gflops": rate, "fraction_of_peak": rate / PEAK.get().copied().unwrap_or(f64::NAN), "cpu_utilisation": util});
     if let (Some(o), Value::Object(e)) = (v.as_object_mut(), extra) {
         o.extend(e);
     }
@@ -240,13 +265,12 @@ fn model_cases(
     let mut ours = BTreeMap::new();
     if cases.contains(&"train") {
         let mut w = TrainStep::new(cfg, b, n, device);
-        let (ms, r) = time_ms(runs, || w.step());
-        ours.insert("train_step", ms);
+        let t = time_ms(runs, || w.step());
+        ours.insert("train_step", t.0);
         let [f, bw, up] = w.phases.map(|s| s * 1e3);
         emit(line(
             "train_step",
-            ms,
-            &r,
+            t,
             w.flops(cfg) / 1e9,
             json!({"batch": b, "last_step_phases_ms": {"forward": f, "backward": bw, "host_update": up}, "common": common}),
         ));
@@ -259,23 +283,21 @@ fn model_cases(
     let s = Sampling::new(&model, cfg, 1, n);
     let f = s.flops(cfg);
     if cases.contains(&"call") {
-        let (ms, r) = time_ms(runs * 3, || s.call(true));
-        ours.insert("sampling_call", ms);
+        let t = time_ms(runs * 3, || s.call(true));
+        ours.insert("sampling_call", t.0);
         emit(line(
             "sampling_call",
-            ms,
-            &r,
+            t,
             f.total() / 1e9,
             json!({"batch": 2, "encoder": true, "common": common}),
         ));
     }
     if cases.contains(&"call-cached") {
-        let (ms, r) = time_ms(runs * 3, || s.call(false));
-        ours.insert("sampling_call_cached", ms);
+        let t = time_ms(runs * 3, || s.call(false));
+        ours.insert("sampling_call_cached", t.0);
         emit(line(
             "sampling_call_cached",
-            ms,
-            &r,
+            t,
             f.decoder / 1e9,
             json!({"batch": 2, "encoder": false, "common": common}),
         ));
@@ -283,12 +305,10 @@ fn model_cases(
     if ddim {
         let steps = if a.quick { 2 } else { a.ddim_steps };
         let mut finite = true;
-        let (ms, r) =
-            time_ms(runs.min(2), || finite &= s.sample(steps).iter().all(|v| v.is_finite()));
+        let t = time_ms(runs.min(2), || finite &= s.sample(steps).iter().all(|v| v.is_finite()));
         emit(line(
             "ddim",
-            ms,
-            &r,
+            t,
             (f.encoder + steps as f64 * f.decoder) / 1e9,
             json!({"steps": steps, "kf_guidance": 2.5, "transition_guidance": 100.0, "finite": finite, "common": common}),
         ));

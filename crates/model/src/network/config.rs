@@ -80,6 +80,12 @@ impl DiffKfcConfig {
             .with_dma_sizes(vec![2, 4, 8, 0])
     }
 
+    /// Between tiny and small, for training a better model on a CPU: d 128, 4 heads, FFN 256,
+    /// 3 decoder layers, DMA {2,4,N}.
+    pub fn mid() -> Self {
+        Self::tiny().with_d_model(128).with_ffn(256).with_dec_layers(3)
+    }
+
     /// Fast on a CPU: for tests, the quick start and smoke benchmarks.
     pub fn tiny() -> Self {
         Self::new()
@@ -101,6 +107,7 @@ impl DiffKfcConfig {
         match name {
             "paper" => Some(Self::paper()),
             "small" => Some(Self::small()),
+            "mid" => Some(Self::mid()),
             "tiny" => Some(Self::tiny()),
             "torch-tiny" => Some(Self::torch_tiny()),
             _ => None,

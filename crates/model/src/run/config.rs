@@ -149,10 +149,10 @@ impl RunConfig {
         let model = v.get_mut("model").ok_or(bad("missing section 'model'".into()))?;
         let base = match model {
             serde_json::Value::String(name) => DiffKfcConfig::preset(name)
-                .ok_or(bad(format!("model: unknown preset '{name}' (tiny, small, paper)")))?,
+                .ok_or(bad(format!("model: unknown preset '{name}' (tiny, mid, small, paper)")))?,
             serde_json::Value::Object(m) => match m.remove("preset") {
                 Some(serde_json::Value::String(name)) => DiffKfcConfig::preset(&name).ok_or(
-                    bad(format!("model.preset: unknown preset '{name}' (tiny, small, paper)")),
+                    bad(format!("model.preset: unknown preset '{name}' (tiny, mid, small, paper)")),
                 )?,
                 Some(other) => {
                     return Err(bad(format!("model.preset: expected a preset name, got {other}")))
