@@ -35,7 +35,15 @@ fn bench_suite_smoke() {
     let cases: Vec<&str> = lines.iter().map(|v| v["case"].as_str().unwrap()).collect();
     assert_eq!(
         cases,
-        ["machine", "train_step", "sampling_call", "sampling_call_cached", "ddim", "loader"]
+        [
+            "machine",
+            "train_step",
+            "sampling_call",
+            "sampling_call_cached",
+            "ddim",
+            "loader",
+            "train_throughput"
+        ]
     );
     // The machine first: its vector flags and measured matrix-product peak; each case's rate
     // as a fraction of it.
@@ -57,6 +65,10 @@ fn bench_suite_smoke() {
     // The cached call skips the encoder: fewer FLOPs than the full call.
     assert!(lines[2]["gflop"].as_f64() < lines[1]["gflop"].as_f64());
     assert!(lines[4]["items_per_s"].as_f64().unwrap() > 0.0);
+    // Throughput with the loader: the step and the batch's loading add up.
+    let step_s = lines[0]["ms"].as_f64().unwrap() / 1e3;
+    let mps = lines[5]["motions_per_s"].as_f64().unwrap();
+    assert!(mps > 0.0 && mps < 2.0 / step_s, "{}", lines[5]);
     assert_one_line_error(
         &diffkfc(&["bench", "--config", "tiny", "--cases", "train,fly"]),
         &["--cases", "fly"],

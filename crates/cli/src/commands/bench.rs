@@ -209,7 +209,10 @@ pub fn run(a: BenchArgs) -> Result<()> {
         // DDIM and the loader have no PyTorch counterpart: first round only.
         let ours = model_cases(&a, &cfg, &cases, runs, &device, round == 1)?;
         if round == 1 && cases.contains(&"loader") {
-            loader_case(&a)?;
+            let items_per_s = loader_case(&a)?;
+            if let (Some(&ms), Some(ips)) = (ours.get("train_step"), items_per_s) {
+                emit(throughput_line(a.batch, ms, ips));
+            }
         }
         let Some(py) = &a.torch else { continue };
         let t = torch_reference(py, &a.reference, preset, a.batch, a.frames, runs)?;
@@ -316,7 +319,18 @@ fn model_cases(
     Ok(ours)
 }
 
-fn loader_case(a: &BenchArgs) -> Result<()> {
+/// Training throughput with the loader, from the two measured cases (the trainer draws each
+/// batch on its own thread before the step, so their times add): motions per second and hours
+/// per 10 000 steps.
+fn throughput_line(batch: usize, step_ms: f64, loader_items_per_s: f64) -> Value {
+    let step_s = step_ms / 1e3 + batch as f64 / loader_items_per_s;
+    json!({"case": "train_throughput", "impl": "diffkfc", "batch": batch,
+        "motions_per_s": batch as f64 / step_s, "hours_per_10k_steps": step_s * 1e4 / 3600.0,
+        "derived_from": ["train_step", "loader"]})
+}
+
+/// The loader case; its batches' items per second.
+fn loader_case(a: &BenchArgs) -> Result<Option<f64>> {
     let tmp = std::env::temp_dir().join(format!("diffkfc-bench-{}", std::process::id()));
     let dir = match &a.data {
         Some(d) => d.clone(),
@@ -334,8 +348,10 @@ fn loader_case(a: &BenchArgs) -> Result<()> {
         crate::progress::bar("caching"),
     );
     let _ = std::fs::remove_dir_all(&tmp);
-    emit(v?);
-    Ok(())
+    let v = v?;
+    let items_per_s = v["items_per_s"].as_f64();
+    emit(v);
+    Ok(items_per_s)
 }
 
 fn rayon_threads() -> usize {
