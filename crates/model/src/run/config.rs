@@ -192,12 +192,15 @@ impl RunConfig {
     /// Every value in its range, checked before anything is built from it (a zero width or
     /// batch would divide by zero, a huge one exhaust memory, a NaN train silently).
     pub fn validate(&self) -> Result<()> {
+        self.check_sizes()?;
+        self.check_model_options()?;
+        self.check_training()
+    }
+
+    /// Sizes: at least 1, heads dividing d_model, small enough to fit any machine; a known schedule.
+    fn check_sizes(&self) -> Result<()> {
         let m = &self.model;
         let t = &self.training;
-        let k = &self.keyframes;
-        let bad = |key: &str, v: &dyn std::fmt::Display, want: &str| {
-            Err(ModelError::Config(format!("{key}: {v} {want}")))
-        };
         let positive = [
             ("model.feat_dim", m.feat_dim),
             ("model.text_dim", m.text_dim),
@@ -239,6 +242,12 @@ impl RunConfig {
         if m.dma_sizes.len() > 64 {
             return bad("model.dma_sizes", &m.dma_sizes.len(), "blocks is too many (at most 64)");
         }
+        Ok(())
+    }
+
+    /// The model's options in their ranges (dropout, root channels, temporal kernel).
+    fn check_model_options(&self) -> Result<()> {
+        let m = &self.model;
         if !(0.0..1.0).contains(&m.dropout) {
             return bad("model.dropout", &m.dropout, "must be in [0, 1)");
         }
@@ -258,6 +267,14 @@ impl RunConfig {
                 "must be 0 (none) or an odd number up to 31",
             );
         }
+        Ok(())
+    }
+
+    /// Rates in [0, 1], loss weights finite and non-negative, lr positive; no kinematic losses with an absolute root.
+    fn check_training(&self) -> Result<()> {
+        let m = &self.model;
+        let t = &self.training;
+        let k = &self.keyframes;
         let unit = [
             ("keyframes.rate", k.rate),
             ("keyframes.drop_prob", k.drop_prob),
@@ -308,6 +325,11 @@ impl RunConfig {
     pub fn to_json(&self) -> String {
         serde_json::to_string_pretty(self).expect("config serialises")
     }
+}
+
+/// The error of a config value out of its range.
+fn bad(key: &str, v: &dyn std::fmt::Display, want: &str) -> Result<()> {
+    Err(ModelError::Config(format!("{key}: {v} {want}")))
 }
 
 #[cfg(test)]

@@ -436,10 +436,32 @@ pub fn write_dataset(
     threads: usize,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<SynthSummary, DataError> {
-    let io = |p: &Path| {
-        let p = p.to_path_buf();
-        move |e| DataError::Io { path: p, err: e }
-    };
+    let tmp = staging_dir(out)?;
+    let dim = T2M.feature_dim();
+    let Written { mut metas, sum, sq, frames } = write_clips(&tmp, n, seed, threads, progress)?;
+    write_texts_and_splits(&tmp, &mut metas)?;
+    let (mean, std) = mean_std(&sum, &sq, frames);
+    npy::write(tmp.join("Mean.npy"), &[dim], &mean)?;
+    npy::write(tmp.join("Std.npy"), &[dim], &std)?;
+    let manifest = json!({"generator": "diffkfc data synth", "version": env!("CARGO_PKG_VERSION"), "seed": seed, "clips": metas});
+    crate::write_atomic(
+        &tmp.join("manifest.json"),
+        &serde_json::to_vec_pretty(&manifest).expect("json"),
+    )?;
+    if out.exists() {
+        std::fs::remove_dir(out).map_err(io_at(out))?;
+    }
+    std::fs::rename(&tmp, out).map_err(io_at(out))?;
+    Ok(SynthSummary { clips: n, frames, out: out.to_path_buf() })
+}
+
+fn io_at(p: &Path) -> impl Fn(std::io::Error) -> DataError + '_ {
+    move |err| DataError::Io { path: p.to_path_buf(), err }
+}
+
+/// The hidden sibling `.NAME.partial<PID>` the set is built in (`out` must be new or empty);
+/// what dead runs left beside it is removed first (up to hundreds of MB each).
+fn staging_dir(out: &Path) -> Result<PathBuf, DataError> {
     if out.exists() && std::fs::read_dir(out).map(|mut d| d.next().is_some()).unwrap_or(true) {
         return Err(DataError::Invalid(format!(
             "{}: already exists and is not empty",
@@ -449,16 +471,35 @@ pub fn write_dataset(
     let name =
         out.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "synth".into());
     let tmp = out.with_file_name(format!(".{name}.partial{}", std::process::id()));
-    // What interrupted runs left (up to hundreds of MB each).
     let parent = tmp.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     crate::io::atomic::remove_dead_leftovers(parent, &format!(".{name}"), "partial");
     let _ = std::fs::remove_dir_all(&tmp);
     for sub in ["new_joint_vecs", "new_joints", "texts"] {
-        std::fs::create_dir_all(tmp.join(sub)).map_err(io(&tmp))?;
+        std::fs::create_dir_all(tmp.join(sub)).map_err(io_at(&tmp))?;
     }
+    Ok(tmp)
+}
+
+/// What the clips' files add up to: their metadata in index order, per-feature sums and sums
+/// of squares, and the frame count.
+struct Written {
+    metas: Vec<ClipMeta>,
+    sum: Vec<f64>,
+    sq: Vec<f64>,
+    frames: usize,
+}
+
+/// Every clip's features and joints in `tmp`, `threads` at a time (each clip depends only on
+/// (seed, index), so the bytes do not depend on the thread count).
+fn write_clips(
+    tmp: &Path,
+    n: usize,
+    seed: u64,
+    threads: usize,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Written, DataError> {
     let dim = T2M.feature_dim();
     let done = std::sync::atomic::AtomicUsize::new(0);
-    // Each clip depends only on (seed, index); threads just share the work.
     type Out = (ClipMeta, Vec<f64>, Vec<f64>, usize);
     let work = |i: usize| -> Result<Out, DataError> {
         let (c, feats) = clip(seed, i);
@@ -497,25 +538,34 @@ pub fn write_dataset(
             });
         }
     });
-    let mut metas = Vec::with_capacity(n);
-    let (mut sum, mut sq, mut frames) = (vec![0.0; dim], vec![0.0; dim], 0usize);
+    let mut w = Written {
+        metas: Vec::with_capacity(n),
+        sum: vec![0.0; dim],
+        sq: vec![0.0; dim],
+        frames: 0,
+    };
     for r in results {
         let (m, s1, s2, t) = r.expect("every clip generated")?;
         for k in 0..dim {
-            sum[k] += s1[k];
-            sq[k] += s2[k];
+            w.sum[k] += s1[k];
+            w.sq[k] += s2[k];
         }
-        frames += t;
-        metas.push(m);
+        w.frames += t;
+        w.metas.push(m);
     }
-    // Splits, balanced within each (pattern, first action) group.
+    Ok(w)
+}
+
+/// The clips' caption files and the split lists, splits balanced within each (pattern, first
+/// action) group.
+fn write_texts_and_splits(tmp: &Path, metas: &mut [ClipMeta]) -> Result<(), DataError> {
     let mut counts = std::collections::HashMap::new();
-    for m in &mut metas {
+    for m in metas.iter_mut() {
         let k = counts.entry((m.pattern as u8, m.actions[0].action)).or_insert(0usize);
         m.split = split_of(*k);
         *k += 1;
     }
-    for m in &metas {
+    for m in metas.iter() {
         let lines: Vec<String> = m
             .captions
             .iter()
@@ -534,19 +584,7 @@ pub fn write_dataset(
             metas.iter().filter(|m| m.split == split).map(|m| m.id.as_str()).collect();
         crate::write_atomic(&tmp.join(format!("{split}.txt")), (ids.join("\n") + "\n").as_bytes())?;
     }
-    let (mean, std) = mean_std(&sum, &sq, frames);
-    npy::write(tmp.join("Mean.npy"), &[dim], &mean)?;
-    npy::write(tmp.join("Std.npy"), &[dim], &std)?;
-    let manifest = json!({"generator": "diffkfc data synth", "version": env!("CARGO_PKG_VERSION"), "seed": seed, "clips": metas});
-    crate::write_atomic(
-        &tmp.join("manifest.json"),
-        &serde_json::to_vec_pretty(&manifest).expect("json"),
-    )?;
-    if out.exists() {
-        std::fs::remove_dir(out).map_err(io(out))?;
-    }
-    std::fs::rename(&tmp, out).map_err(io(out))?;
-    Ok(SynthSummary { clips: n, frames, out: out.to_path_buf() })
+    Ok(())
 }
 
 /// Per-dim mean, and std averaged within each feature group as HumanML3D does.
