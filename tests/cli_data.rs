@@ -406,6 +406,15 @@ fn broken_files_are_refused(d: &Path, bvh: &Path, joints: &Path) {
         );
     }
     assert_eq!(std::fs::read(bvh).unwrap(), before);
+    // render's output naming its input (a motion file called .gif), spelt another way.
+    let gif_named = d.join("m.gif");
+    std::fs::copy(joints, &gif_named).unwrap();
+    let spelt = format!("{}/./m.gif", d.display());
+    assert_one_line_error(
+        &diffkfc(&["render", s(&gif_named), "-o", &spelt]),
+        &["-o", "is the input file"],
+    );
+    assert_eq!(std::fs::read(&gif_named).unwrap(), std::fs::read(joints).unwrap());
     // A picture under a name that says otherwise, and a sheet with no columns.
     assert_one_line_error(
         &diffkfc(&["render", s(joints), "-o", s(&d.join("r.txt"))]),

@@ -176,18 +176,7 @@ fn train_resume_and_outputs() {
     let other = d.join("other-lr.json");
     std::fs::write(&other, CFG.replace("\"batch_size\": 4", "\"batch_size\": 4, \"lr\": 0.01"))
         .unwrap();
-    let o = diffkfc(&[
-        "train",
-        "--config",
-        s(&other),
-        "--data",
-        s(&data),
-        "--out",
-        s(&run),
-        "--resume",
-        "--max-steps",
-        "8",
-    ]);
+    let o = resume_to(&other, &data, &run, 8);
     assert_one_line_error(&o, &["--resume", "training.lr 0.0001 -> 0.01", "--init"]);
     // Two checkpoints kept.
     assert!(

@@ -1,7 +1,7 @@
 //! Command-line argument groups more than one command takes: how a BVH input is read, what
 //! follows the last denoising step, which sampler and which keyframe method.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
@@ -175,4 +175,21 @@ impl SamplerArg {
             SamplerArg::Dpm => Sampler::DpmSolver(steps),
         }
     }
+}
+
+/// `-o` must not name an input, however it is spelt (`./x`, a symlink): the command would
+/// replace a file it reads.
+pub(crate) fn refuse_overwriting_input(inputs: &[&Path], output: &Path) -> anyhow::Result<()> {
+    // The output may not exist yet: compare through its folder.
+    let real_output = output.canonicalize().ok().or_else(|| {
+        let dir = output.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        Some(dir.canonicalize().ok()?.join(output.file_name()?))
+    });
+    let named =
+        real_output.is_some_and(|o| inputs.iter().any(|i| i.canonicalize().is_ok_and(|i| i == o)));
+    if named {
+        let which = if inputs.len() == 1 { "the input file" } else { "one of the input files" };
+        anyhow::bail!("-o: {} is {which}; write the result to another file", output.display());
+    }
+    Ok(())
 }

@@ -1,16 +1,16 @@
 //! `diffkfc data ...`: motion-file conversions (and, later, dataset tools).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
 use diffkfc_data::io::motion_file::{
-    is_bvh, load_bvh, load_features, load_joints, load_motion, MIN_MOTION_FRAMES,
+    is_bvh, load_bvh, load_feature_joints, load_joints, load_motion,
 };
 use diffkfc_data::motion::representation::{self as rep, FOOT_CONTACT_THRESHOLD};
 
-use crate::args::BvhInputArgs;
-use diffkfc_data::{dataset::loader_bench, io::rig, motion::magnitude};
+use crate::args::{refuse_overwriting_input, BvhInputArgs};
+use diffkfc_data::{dataset::loader_bench, io::rig};
 use diffkfc_data::{io::npy, Skeleton};
 
 #[derive(Args)]
@@ -256,25 +256,8 @@ fn check(a: CheckArgs) -> Result<()> {
     Ok(())
 }
 
-/// `-o` must not name the input: the conversion would replace the file it reads.
-fn refuse_overwriting_input(input: &Path, output: &Path) -> Result<()> {
-    let real = |p: &Path| -> Option<PathBuf> {
-        let name = p.file_name()?;
-        let dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-        Some(dir.canonicalize().ok()?.join(name))
-    };
-    let same = match (input.canonicalize().ok(), real(output)) {
-        (Some(i), Some(o)) => i == o || o.canonicalize().is_ok_and(|o| o == i),
-        _ => false,
-    };
-    if same {
-        bail!("-o: {} is the input file; write the result to another file", output.display());
-    }
-    Ok(())
-}
-
 fn features(a: FeaturesArgs) -> Result<()> {
-    refuse_overwriting_input(&a.input, &a.output)?;
+    refuse_overwriting_input(&[&a.input], &a.output)?;
     if !(a.feet_threshold.is_finite() && a.feet_threshold > 0.0) {
         bail!("--feet-threshold: {} must be a positive number (squared metres per frame; HumanML3D: 0.002)", a.feet_threshold);
     }
@@ -319,16 +302,12 @@ fn features(a: FeaturesArgs) -> Result<()> {
 }
 
 fn joints(a: JointsArgs) -> Result<()> {
-    refuse_overwriting_input(&a.input, &a.output)?;
+    refuse_overwriting_input(&[&a.input], &a.output)?;
     let skel = a.skeleton.skeleton();
     let joints = if is_bvh(&a.input) {
         load_bvh(&a.input, skel, &a.bvh.options()?)?
     } else {
-        let feats = load_features(&a.input, skel, MIN_MOTION_FRAMES)?;
-        let j =
-            rep::recover_from_ric(skel, &feats.data.iter().map(|&v| v as f64).collect::<Vec<_>>());
-        magnitude::check_positions(skel, &j).map_err(|m| anyhow!("{}: {m}", a.input.display()))?;
-        j
+        load_feature_joints(&a.input, skel)?
     };
     let jn = skel.num_joints();
     npy::write(&a.output, &[joints.len(), jn, 3], &rep::joints_to_f32(&joints))
@@ -338,7 +317,7 @@ fn joints(a: JointsArgs) -> Result<()> {
 }
 
 fn bvh(a: BvhArgs) -> Result<()> {
-    refuse_overwriting_input(&a.input, &a.output)?;
+    refuse_overwriting_input(&[&a.input], &a.output)?;
     let skel = a.skeleton.skeleton();
     let joints = load_motion(&a.input, skel, &a.bvh.options()?)?;
     let b = rig::export(skel, &joints);

@@ -60,9 +60,8 @@ fn check_output(a: &RenderArgs) -> Result<()> {
     if !(1..=64).contains(&a.columns) {
         bail!("--columns: {} must be 1 to 64", a.columns);
     }
-    if a.inputs.iter().any(|i| i == &a.output) {
-        bail!("-o: {} is an input file; write the picture to another file", a.output.display());
-    }
+    let inputs: Vec<&std::path::Path> = a.inputs.iter().map(PathBuf::as_path).collect();
+    crate::args::refuse_overwriting_input(&inputs, &a.output)?;
     Ok(())
 }
 

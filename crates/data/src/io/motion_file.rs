@@ -113,14 +113,19 @@ pub fn load_motion(path: &Path, skel: &Skeleton, bvh: &ImportOptions) -> Result<
         return load_bvh(path, skel, bvh);
     }
     if npy::read_f64(path)?.ndim() == 2 {
-        let f = load_features(path, skel, MIN_MOTION_FRAMES)?;
-        let j = rep::recover_from_ric(skel, &f.data.iter().map(|&v| v as f64).collect::<Vec<_>>());
-        // Small steps add up: a path past 1 km is refused here rather than drawn.
-        magnitude::check_positions(skel, &j).map_err(|m| invalid(path, m))?;
-        Ok(j)
+        load_feature_joints(path, skel)
     } else {
         load_joints(path, skel, MIN_MOTION_FRAMES)
     }
+}
+
+/// The joint positions a features file (T, D) recovers to (HumanML3D's `recover_from_ric`).
+pub fn load_feature_joints(path: &Path, skel: &Skeleton) -> Result<Joints, DataError> {
+    let f = load_features(path, skel, MIN_MOTION_FRAMES)?;
+    let j = rep::recover_from_ric(skel, &f.data.iter().map(|&v| v as f64).collect::<Vec<_>>());
+    // Small steps add up: a path past 1 km is refused here rather than drawn.
+    magnitude::check_positions(skel, &j).map_err(|m| invalid(path, m))?;
+    Ok(j)
 }
 
 /// Features (T, D) of a motion file: features as they are, joints or BVH through

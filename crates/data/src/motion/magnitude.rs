@@ -23,16 +23,15 @@ pub fn within(x: f64, max: f64) -> bool {
     x.is_finite() && x.abs() <= max
 }
 
-/// The length of the left leg (ankle up to the root) in frame `f`, in the skeleton's units.
-fn leg_length(skel: &Skeleton, frame: &[[f64; 3]]) -> f64 {
+/// The bones (joint, parent) of the left leg, from the ankle up to the root.
+fn leg_bones(skel: &Skeleton) -> Vec<(usize, usize)> {
     let parents = skel.parents();
-    let (mut j, mut len) = (skel.feet_left[0], 0.0);
+    let (mut j, mut bones) = (skel.feet_left[0], Vec::new());
     while parents[j] >= 0 {
-        let p = parents[j] as usize;
-        len += quat::norm(quat::sub(frame[j], frame[p]));
-        j = p;
+        bones.push((j, parents[j] as usize));
+        j = parents[j] as usize;
     }
-    len
+    bones
 }
 
 /// Joint positions within [`MAX_POSITION_M`] of the origin; the error names the frame and joint.
@@ -56,7 +55,11 @@ pub fn check_joints(skel: &Skeleton, j: &Joints) -> Result<(), String> {
 /// A human's leg length (a wrong unit is the likely cause of any other).
 fn check_leg(skel: &Skeleton, j: &Joints) -> Result<(), String> {
     let mpu = skel.metres_per_unit;
-    let mut legs: Vec<f64> = j.iter().map(|fr| leg_length(skel, fr) * mpu).collect();
+    let bones = leg_bones(skel);
+    let leg = |fr: &[[f64; 3]]| -> f64 {
+        bones.iter().map(|&(a, b)| quat::norm(quat::sub(fr[a], fr[b]))).sum::<f64>() * mpu
+    };
+    let mut legs: Vec<f64> = j.iter().map(|fr| leg(fr)).collect();
     legs.sort_by(f64::total_cmp);
     let Some(&leg) = legs.get(legs.len() / 2) else {
         return Ok(());
