@@ -294,4 +294,33 @@ fn evaluate_tiny_checkpoint(
         &[],
         &["missing evaluator.safetensors", "convert-t2m-evaluator.py"],
     );
+    // A checkpoint built for shorter motions than the split's items is refused before any work.
+    let short = d.join("short-run");
+    std::fs::write(
+        d.join("short.json"),
+        TWO_STEP_RUN.replace("\"dma_sizes\": [2, 0]", "\"dma_sizes\": [2, 0], \"max_frames\": 30"),
+    )
+    .unwrap();
+    let o = diffkfc(&[
+        "train",
+        "--config",
+        s(&d.join("short.json")),
+        "--data",
+        s(data),
+        "--out",
+        s(&short),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = diffkfc(&[
+        "eval",
+        "--checkpoint",
+        s(&short),
+        "--evaluator",
+        s(evaluator),
+        "--data",
+        s(data),
+        "--out",
+        s(&raw),
+    ]);
+    assert_one_line_error(&o, &["--checkpoint", "at most 30 frames (model.max_frames)"]);
 }

@@ -8,7 +8,9 @@ use clap::{Args, Subcommand};
 use diffkfc_data::dataset::cache::{default_cache_dir, PackedSplit};
 use diffkfc_data::dataset::Dataset;
 use diffkfc_data::keyframes::Strategy;
-use diffkfc_eval::evaluator::{ContrastiveEvaluator, EvaluatorConfig, TextMotionEvaluator};
+use diffkfc_eval::evaluator::{
+    eval_length, ContrastiveEvaluator, EvaluatorConfig, TextMotionEvaluator,
+};
 use diffkfc_eval::protocol::{self, Protocol, Setting};
 use diffkfc_eval::report;
 use diffkfc_eval::t2m::{split_captions, T2mEvaluator};
@@ -373,6 +375,11 @@ fn evaluate(a: RunArgs) -> Result<()> {
     let num_items = a.num_items.min(split.items.len());
     if num_items < protocol::R_BATCH {
         bail!("--num-items: {num_items} items (split '{}' of {} has {}); R-precision needs at least {}", a.split, data.display(), split.items.len(), protocol::R_BATCH);
+    }
+    // Items are generated at their ground-truth lengths: the model must be built for them.
+    let longest = split.items.iter().map(|it| eval_length(it.len)).max().unwrap_or(0);
+    if longest > cfg.model.max_frames {
+        bail!("--checkpoint: {} was built for motions of at most {} frames (model.max_frames), but split '{}' of {} has items of {longest}", run_dir.display(), cfg.model.max_frames, a.split, data.display());
     }
     let text = embed_captions(&ds, &[&split], crate::progress::bar("embedding"))?;
     let ev = load_evaluator(&eval_dir, &ds, &a.split, &text, &device)?;
