@@ -122,8 +122,7 @@ impl FitArgs {
 
 /// Largest keyframe and transition guidance accepted: far beyond any useful value, small
 /// enough that the sampler stays finite.
-pub(crate) const MAX_GUIDANCE: f64 = 100.0;
-pub(crate) const MAX_TRANSITION: f64 = 1e5;
+pub(crate) use diffkfc_model::sampling::guidance::MAX_GUIDANCE;
 
 /// The guidance and step flags of `sample` and `eval`, in their ranges.
 pub(crate) fn check_guidance(
@@ -132,16 +131,13 @@ pub(crate) fn check_guidance(
     transition: f64,
     steps: usize,
 ) -> anyhow::Result<()> {
-    let within = |v: f64, max: f64| v.is_finite() && (0.0..=max).contains(&v);
-    if !within(kf, MAX_GUIDANCE) {
-        anyhow::bail!("--kf-guidance: {kf} must be a number from 0 to {MAX_GUIDANCE} (1 = no guidance, 2.5 = the paper)");
-    }
-    if !within(place, MAX_TRANSITION) {
-        anyhow::bail!("--place-guidance: {place} must be a number from 0 to {MAX_TRANSITION}");
-    }
-    if !within(transition, MAX_TRANSITION) {
-        anyhow::bail!("--transition-guidance: {transition} must be a number from 0 to {MAX_TRANSITION} (100 = the paper)");
-    }
+    use diffkfc_model::sampling::guidance::{check_range, MAX_STRENGTH};
+    check_range("--kf-guidance", kf, MAX_GUIDANCE, " (1 = no guidance, 2.5 = the paper)")
+        .and_then(|_| check_range("--place-guidance", place, MAX_STRENGTH, ""))
+        .and_then(|_| {
+            check_range("--transition-guidance", transition, MAX_STRENGTH, " (100 = the paper)")
+        })
+        .map_err(anyhow::Error::msg)?;
     if steps == 0 || steps > 1000 {
         anyhow::bail!("--steps: {steps} must be 1 to 1000 (the schedule's length)");
     }

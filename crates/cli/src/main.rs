@@ -47,6 +47,9 @@ enum Command {
         after_help = "Example:\n  diffkfc keyframes suggest --checkpoint models/tiny-synth --text \"a person jumps forward.\" --count 4 -o keys.json"
     )]
     Keyframes(commands::sample::suggest::KeyframesArgs),
+    /// The keyframe editor in the browser: pose keys, drag them in time and space, type a
+    /// prompt and see the motion between them regenerate at once.
+    Serve(commands::serve::ServeArgs),
     /// Evaluate a checkpoint: FID, R-precision, Diversity, ADE, K-Err, K-TranS (Tables 2 and 4);
     /// `eval train-evaluator` trains the text-motion evaluator first.
     #[command(after_help = commands::eval::AFTER_HELP)]
@@ -114,6 +117,7 @@ fn main() {
         Command::Train(args) => commands::train::run(args),
         Command::Sample(args) => commands::sample::run(args),
         Command::Keyframes(args) => commands::sample::suggest::run(args),
+        Command::Serve(args) => commands::serve::run(args),
         Command::Eval(args) => commands::eval::run(args),
         Command::TextEmbed(args) => commands::model::text_embed(args),
     };

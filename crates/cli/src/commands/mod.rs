@@ -4,4 +4,5 @@ pub mod eval;
 pub mod model;
 pub mod render;
 pub mod sample;
+pub mod serve;
 pub mod train;

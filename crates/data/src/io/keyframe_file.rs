@@ -10,7 +10,7 @@
 //! Poses are joint positions in metres (or raw features); `root` is the pelvis place and height
 //! and `heading` its facing in degrees (0 faces +Z, 90 faces +X), both in the output's frame.
 
-use serde::Deserialize;
+use serde::{de::DeserializeOwned, Deserialize, Serialize};
 
 use crate::keyframes;
 use crate::motion::pose;
@@ -23,29 +23,71 @@ use crate::DataError;
 const MAX_ABS: f64 = 1e4;
 
 /// A keyframe file as written.
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct KeyframeSpec {
     /// Frames of the motion (absent: the caller's length).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub length: Option<usize>,
     /// Body parts or joints every keyframe observes (absent: all).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub joints: Option<String>,
     pub keyframes: Vec<KeySpec>,
     /// Where the keys came from and how they were picked (`keyframes suggest` writes them; read
     /// and ignored).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub source: Option<serde_json::Value>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub strategy: Option<serde_json::Value>,
 }
 
 /// One keyframe: a pose (joint positions or features) and/or a place and a heading.
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct KeySpec {
     pub frame: usize,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub joints: Option<Vec<Vec3>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub features: Option<Vec<f64>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub root: Option<Vec3>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub heading: Option<f64>,
+}
+
+impl KeySpec {
+    /// Keys at `frames` of a motion: its pose (joints, metres), the pelvis place and height and
+    /// its heading (degrees) from `traj`, rounded to 0.1 mm and 0.0001 degree.
+    pub fn from_motion(joints: &[Vec<Vec3>], traj: &[RootKey], frames: &[usize]) -> Vec<KeySpec> {
+        let round = |v: f64| (v * 1e4).round() / 1e4;
+        frames
+            .iter()
+            .map(|&f| {
+                let [x, z] = traj[f].place.unwrap_or([0.0, 0.0]);
+                KeySpec {
+                    frame: f,
+                    joints: Some(joints[f].iter().map(|p| p.map(round)).collect()),
+                    features: None,
+                    root: Some([round(x), round(joints[f][0][1]), round(z)]),
+                    heading: Some(round(traj[f].heading.unwrap_or(0.0).to_degrees())),
+                }
+            })
+            .collect()
+    }
+}
+
+/// JSON `text` read as `T`; errors name where in the text the problem is and, for a misspelt
+/// field, the name that was meant.
+pub fn parse_json<T: DeserializeOwned>(text: &str) -> Result<T, DataError> {
+    let de = &mut serde_json::Deserializer::from_str(text);
+    let v = serde_path_to_error::deserialize(&mut *de).map_err(|e| {
+        let at = e.path().to_string();
+        let msg = with_suggestion(&e.into_inner().to_string());
+        DataError::Invalid(if at == "." { msg } else { format!("{at}: {msg}") })
+    })?;
+    de.end().map_err(|e| DataError::Invalid(format!("after the JSON object: {e}")))?;
+    Ok(v)
 }
 
 /// Keyframes resolved for a motion of `length` frames.
@@ -89,14 +131,7 @@ fn with_suggestion(msg: &str) -> String {
 impl KeyframeSpec {
     /// Parse the JSON text; errors name where in the file the problem is.
     pub fn parse(text: &str) -> Result<KeyframeSpec, DataError> {
-        let de = &mut serde_json::Deserializer::from_str(text);
-        let spec = serde_path_to_error::deserialize(&mut *de).map_err(|e| {
-            let at = e.path().to_string();
-            let msg = with_suggestion(&e.into_inner().to_string());
-            DataError::Invalid(if at == "." { msg } else { format!("{at}: {msg}") })
-        })?;
-        de.end().map_err(|e| DataError::Invalid(format!("after the keyframe object: {e}")))?;
-        Ok(spec)
+        parse_json(text)
     }
 
     /// The keyframes for `skel`: `length` overrides the file's, `joints` its body parts;
@@ -196,6 +231,26 @@ pub fn relative_to_first_frame(root: &mut [RootKey]) {
     }
 }
 
+/// The inverse of [`relative_to`]: a place and heading given in the frame that stands at
+/// `origin` re-expressed in the world.
+pub fn from_frame(k: RootKey, origin: RootKey) -> RootKey {
+    let h0 = origin.heading.unwrap_or(0.0);
+    RootKey {
+        place: k.place.map(|[x, z]| {
+            let p = point_from_frame([x, 0.0, z], origin);
+            [p[0], p[2]]
+        }),
+        heading: k.heading.map(|h| h + h0),
+    }
+}
+
+/// A point given in the frame that stands at `origin` (heading about +Y) in the world.
+pub fn point_from_frame(p: Vec3, origin: RootKey) -> Vec3 {
+    let [ox, oz] = origin.place.unwrap_or([0.0, 0.0]);
+    let (s, c) = origin.heading.unwrap_or(0.0).sin_cos();
+    [p[0] * c + p[2] * s + ox, p[1], -p[0] * s + p[2] * c + oz]
+}
+
 /// A keyed place and heading re-expressed in the frame that stands at `origin`'s place facing
 /// its heading (a missing place or heading of the origin: the origin, facing +Z).
 pub fn relative_to(k: RootKey, origin: RootKey) -> RootKey {
@@ -214,6 +269,21 @@ pub fn relative_to(k: RootKey, origin: RootKey) -> RootKey {
 
 #[cfg(test)]
 mod tests {
+    /// `from_frame` undoes `relative_to` (places and headings), and a key one step ahead of an
+    /// origin facing +X (90 degrees) lies one step along +X in the world.
+    #[test]
+    fn from_frame_inverts_relative_to() {
+        let origin = RootKey { place: Some([1.5, -2.0]), heading: Some(0.7) };
+        let k = RootKey { place: Some([0.3, 4.0]), heading: Some(-1.1) };
+        let back = from_frame(relative_to(k, origin), origin);
+        let (p, q) = (back.place.unwrap(), k.place.unwrap());
+        assert!((p[0] - q[0]).abs() < 1e-12 && (p[1] - q[1]).abs() < 1e-12, "{p:?}");
+        assert!((back.heading.unwrap() - k.heading.unwrap()).abs() < 1e-12);
+        let east = RootKey { place: Some([0.0, 0.0]), heading: Some(90f64.to_radians()) };
+        let p = point_from_frame([0.0, 0.9, 1.0], east);
+        assert!((p[0] - 1.0).abs() < 1e-12 && p[2].abs() < 1e-12 && p[1] == 0.9, "{p:?}");
+    }
+
     use super::*;
     use crate::T2M;
 
@@ -258,7 +328,7 @@ mod tests {
                 "keyframes[0].heding: unknown field `heding`, expected one of `frame`, `joints`, `features`, `root`, `heading` (did you mean `heading`?) at line 1",
             ),
             (r#"{"lenght": 20, "keyframes": []}"#, "(did you mean `length`?)"),
-            (r#"{"length": 20, "keyframes": []} trailing"#, "after the keyframe object: trailing characters"),
+            (r#"{"length": 20, "keyframes": []} trailing"#, "after the JSON object: trailing characters"),
         ] {
             let e = KeyframeSpec::parse(text).map(|_| ()).unwrap_err().to_string();
             assert!(e.contains(needle), "{text}: {e}");

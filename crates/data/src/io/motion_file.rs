@@ -24,7 +24,16 @@ pub fn load_features(
     skel: &Skeleton,
     min_frames: usize,
 ) -> Result<Array<f32>, DataError> {
-    let arr = npy::read_f32(path)?;
+    check_features(path, npy::read_f32(path)?, skel, min_frames)
+}
+
+/// `arr` (read from `path`) checked as features (T, D) for `skel`.
+fn check_features(
+    path: &Path,
+    arr: Array<f32>,
+    skel: &Skeleton,
+    min_frames: usize,
+) -> Result<Array<f32>, DataError> {
     let dim = skel.feature_dim();
     if arr.ndim() != 2 || arr.shape[1] != dim {
         return Err(invalid(
@@ -51,7 +60,16 @@ pub fn load_features(
 /// Joint positions (T, J, 3): J equal to the skeleton's joint count, or for t2m the 52 joints of
 /// SMPL-H (body first), of which the first 22 are used.
 pub fn load_joints(path: &Path, skel: &Skeleton, min_frames: usize) -> Result<Joints, DataError> {
-    let arr = npy::read_f64(path)?;
+    check_joints(path, npy::read_f64(path)?, skel, min_frames)
+}
+
+/// `arr` (read from `path`) checked as joint positions (T, J, 3) for `skel`.
+fn check_joints(
+    path: &Path,
+    arr: Array<f64>,
+    skel: &Skeleton,
+    min_frames: usize,
+) -> Result<Joints, DataError> {
     let jn = skel.num_joints();
     let ok_joints = |j: usize| j == jn || (skel.name == "t2m" && (j == 52 || j == 24));
     if arr.ndim() != 3 || arr.shape[2] != 3 || !ok_joints(arr.shape[1]) {
@@ -95,7 +113,17 @@ pub fn is_bvh(path: &Path) -> bool {
 pub fn load_bvh(path: &Path, skel: &Skeleton, opts: &ImportOptions) -> Result<Joints, DataError> {
     let text = std::fs::read_to_string(path)
         .map_err(|err| DataError::Io { path: path.to_path_buf(), err })?;
-    let j = rig::read(skel, &text, opts).map_err(|e| e.in_file(path))?;
+    bvh_joints(path, &text, skel, opts)
+}
+
+/// The joints of BVH `text` (read from `path`), checked.
+fn bvh_joints(
+    path: &Path,
+    text: &str,
+    skel: &Skeleton,
+    opts: &ImportOptions,
+) -> Result<Joints, DataError> {
+    let j = rig::read(skel, text, opts).map_err(|e| e.in_file(path))?;
     magnitude::check_joints(skel, &j).map_err(|m| invalid(path, m))?;
     if j.len() < MIN_MOTION_FRAMES {
         return Err(invalid(
@@ -135,15 +163,32 @@ pub fn load_motion_features(
     skel: &Skeleton,
     bvh: &ImportOptions,
 ) -> Result<Vec<f32>, DataError> {
-    let joints = if is_bvh(path) {
-        load_bvh(path, skel, bvh)?
-    } else if npy::read_f64(path)?.ndim() == 2 {
-        return Ok(load_features(path, skel, MIN_MOTION_FRAMES)?.data);
+    let bytes =
+        std::fs::read(path).map_err(|err| DataError::Io { path: path.to_path_buf(), err })?;
+    motion_features_from_bytes(path, &bytes, skel, bvh)
+}
+
+/// Features (T, D) of a motion file's bytes (an upload held in memory): a BVH (by `name`'s
+/// extension or its `HIERARCHY` line) or a features or joints `.npy`; `name` names it in errors.
+pub fn motion_features_from_bytes(
+    name: &Path,
+    bytes: &[u8],
+    skel: &Skeleton,
+    bvh: &ImportOptions,
+) -> Result<Vec<f32>, DataError> {
+    let joints = if is_bvh(name) || bytes.starts_with(b"HIERARCHY") {
+        let text = std::str::from_utf8(bytes)
+            .map_err(|_| invalid(name, "is not text (a BVH file is)".into()))?;
+        bvh_joints(name, text, skel, bvh)?
     } else {
-        load_joints(path, skel, MIN_MOTION_FRAMES)?
+        let arr = npy::decode_f64(name, bytes)?.0;
+        if arr.ndim() == 2 {
+            return Ok(check_features(name, arr.map(|x| x as f32), skel, MIN_MOTION_FRAMES)?.data);
+        }
+        check_joints(name, arr, skel, MIN_MOTION_FRAMES)?
     };
     rep::features_from_joints(skel, &joints, rep::FOOT_CONTACT_THRESHOLD)
-        .map_err(|e| e.in_file(path))
+        .map_err(|e| e.in_file(name))
 }
 
 #[cfg(test)]

@@ -16,42 +16,23 @@
   const J = D.parents.length;
   const T = Math.max(...D.motions.map((m) => m.frames));
   const LANE = 1.3;
-  const COLORS = { left: "#2563eb", right: "#dc2626", centre: "#374151", key: "#f97316", path: "#7c3aed", planted: "#16a34a" };
+  const S = DiffkfcScene;
+  const COLORS = S.COLORS;
   const side = D.parents.map((_, j) => (D.left.includes(j) ? "left" : D.right.includes(j) ? "right" : "centre"));
   D.motions.forEach((m, i) => { m.dx = (i - (D.motions.length - 1) / 2) * LANE; });
   const cam = { yaw: 0.6, pitch: 0.25, dist: 2.2 + 0.8 * D.motions.length, zoom: 1, target: [0, 0.9, 0] };
   let frame = 0, playing = true, last = null, acc = 0;
   slider.max = String(T - 1);
 
-  const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-  const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-  const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
-  const norm = (a) => { const l = Math.hypot(a[0], a[1], a[2]) || 1; return [a[0] / l, a[1] / l, a[2] / l]; };
+  const sub = S.sub;
 
   function joint(m, flat, f, j) {
     const o = (Math.min(f, m.frames - 1) * J + j) * 3;
     return [flat[o] + m.dx, flat[o + 1], flat[o + 2]];
   }
 
-  function camera(w, h) {
-    const c = Math.cos(cam.pitch);
-    const eye = [cam.target[0] + cam.dist * c * Math.sin(cam.yaw), cam.target[1] + cam.dist * Math.sin(cam.pitch), cam.target[2] + cam.dist * c * Math.cos(cam.yaw)];
-    const f = norm(sub(cam.target, eye));
-    const r = norm(cross(f, [0, 1, 0]));
-    const u = cross(r, f);
-    const focal = 0.5 * h / Math.tan(0.45);
-    return (p) => {
-      const d = sub(p, eye);
-      const z = dot(d, f);
-      return z < 0.05 ? null : [w / 2 + focal * dot(d, r) / z, h / 2 - focal * dot(d, u) / z, z, focal];
-    };
-  }
-
   function draw() {
-    const dpr = window.devicePixelRatio || 1;
-    const w = cv.clientWidth, h = cv.clientHeight;
-    if (cv.width !== Math.round(w * dpr)) { cv.width = Math.round(w * dpr); cv.height = Math.round(h * dpr); }
-    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+    const { w, h, dpr } = S.fit(cv, ctx);
     ctx.fillStyle = "#f8fafc";
     ctx.fillRect(0, 0, w, h);
     if (followBox.checked) {
@@ -62,15 +43,8 @@
       cam.target = [(lo[0] + hi[0]) / 2, 0.9, (lo[1] + hi[1]) / 2];
       cam.dist = Math.max(2.2 + 0.8 * D.motions.length, 1.3 * Math.max(hi[0] - lo[0], hi[1] - lo[1]) + 2) * cam.zoom;
     }
-    const proj = camera(w, h);
-    // Ground grid (0.5 m) around the target.
-    ctx.strokeStyle = "#e2e8f0";
-    ctx.lineWidth = 1;
-    const gx = Math.round(cam.target[0] * 2) / 2, gz = Math.round(cam.target[2] * 2) / 2, R = Math.max(6, Math.ceil(cam.dist));
-    for (let k = -R; k <= R; k += 0.5) {
-      line(proj([gx + k, 0, gz - R]), proj([gx + k, 0, gz + R]));
-      line(proj([gx - R, 0, gz + k]), proj([gx + R, 0, gz + k]));
-    }
+    const proj = S.camera(cam, w, h).proj;
+    S.grid(ctx, proj, cam);
     const segs = [];
     D.motions.forEach((m) => {
       // The root's path on the ground, up to this frame.
@@ -114,31 +88,9 @@
           if (a > 0) segs.push({ a: joint(flat, pose, 0, D.parents[j]), b: joint(flat, pose, 0, j), color: COLORS.key, alpha: 0.55 * a, width: 0.06 });
         }
       }
-      for (let j = 1; j < J; j++) {
-        segs.push({ a: joint(m, m.joints, frame, D.parents[j]), b: joint(m, m.joints, frame, j), color: COLORS[side[j]], alpha: frame < m.frames ? 1 : 0.35, width: 0.045 });
-      }
-      segs.push({ head: joint(m, m.joints, frame, D.head), color: COLORS.centre, alpha: frame < m.frames ? 1 : 0.35 });
+      S.figure(segs, D.parents, side, D.head, (j) => joint(m, m.joints, frame, j), { alpha: frame < m.frames ? 1 : 0.35 });
     });
-    const pr = segs.map((s) => (s.head ? { s, p: proj(s.head) } : { s, p: proj(s.a), q: proj(s.b) })).filter((x) => x.p && (x.s.head || x.q));
-    pr.sort((x, y) => (y.p[2] + (y.q ? y.q[2] : y.p[2])) - (x.p[2] + (x.q ? x.q[2] : x.p[2])));
-    ctx.lineCap = "round";
-    for (const { s, p, q } of pr) {
-      ctx.globalAlpha = s.alpha;
-      if (s.head) {
-        ctx.fillStyle = s.color;
-        ctx.beginPath();
-        ctx.arc(p[0], p[1], Math.max(2, 0.09 * p[3] / p[2]), 0, 2 * Math.PI);
-        ctx.fill();
-      } else {
-        ctx.strokeStyle = s.color;
-        ctx.lineWidth = Math.max(1, s.width * p[3] / ((p[2] + q[2]) / 2));
-        ctx.beginPath();
-        ctx.moveTo(p[0], p[1]);
-        ctx.lineTo(q[0], q[1]);
-        ctx.stroke();
-      }
-    }
-    ctx.globalAlpha = 1;
+    S.draw(ctx, proj, segs);
     ctx.fillStyle = "#0f172a";
     ctx.font = "13px sans-serif";
     ctx.textAlign = "center";
@@ -156,14 +108,6 @@
     frameLabel.textContent = `frame ${frame} / ${T - 1} (${(frame / D.fps).toFixed(2)} s)`;
     drawTimeline();
     if (!playing) report(w, h, dpr);
-  }
-
-  function line(a, b) {
-    if (!a || !b) return;
-    ctx.beginPath();
-    ctx.moveTo(a[0], a[1]);
-    ctx.lineTo(b[0], b[1]);
-    ctx.stroke();
   }
 
   function drawTimeline() {

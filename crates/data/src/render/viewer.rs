@@ -8,6 +8,8 @@ use crate::motion::representation::Joints;
 use crate::motion::skeleton::Skeleton;
 
 const SCRIPT: &str = include_str!("viewer.js");
+/// The camera, grid and figure drawing shared with the keyframe editor's page.
+pub const SCENE_JS: &str = include_str!("scene.js");
 
 /// One motion on the page.
 #[derive(Clone, Debug, Default)]
@@ -111,6 +113,7 @@ body{{font-family:system-ui,sans-serif;margin:16px;color:#0f172a;max-width:1200p
 <p class=legend>drag to orbit, wheel to zoom, space to play/pause, arrows step frames;<span style="background:#2563eb"></span>left<span style="background:#dc2626"></span>right<span style="background:#f97316"></span>keyed pose (near its frame; ticks on the timeline)<span style="background:#7c3aed"></span>root path followed<span style="background:#16a34a"></span>planted foot <output id=status></output></p>
 <div class=cards>{cards}</div>
 <script type="application/json" id="motion-data">{data}</script>
+<script>{SCENE_JS}</script>
 <script>{SCRIPT}</script>
 </html>
 "#,

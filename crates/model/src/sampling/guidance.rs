@@ -6,6 +6,21 @@ use burn::prelude::*;
 
 use crate::Condition;
 
+/// Largest keyframe guidance scale accepted (at 100 the sampler already diverges).
+pub const MAX_GUIDANCE: f64 = 100.0;
+/// Largest transition or place guidance strength accepted.
+pub const MAX_STRENGTH: f64 = 1e5;
+
+/// A guidance scale or strength `v` named `name` (a flag or a request field) in 0..=`max`;
+/// `hint` ends the message (what values mean).
+pub fn check_range(name: &str, v: f64, max: f64, hint: &str) -> Result<(), String> {
+    if v.is_finite() && (0.0..=max).contains(&v) {
+        Ok(())
+    } else {
+        Err(format!("{name}: {v} must be a number from 0 to {max}{hint}"))
+    }
+}
+
 /// Whether sampling with keyframe guidance scale `s` runs both branches (a doubled batch): only
 /// when there are keyframes, the keyframe branch is used (not MDM-inp) and s is not 1 (where
 /// the combination is the conditional branch alone).

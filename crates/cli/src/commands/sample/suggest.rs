@@ -3,6 +3,7 @@
 //! a keyframe file that `sample --keyframes` reads: edit a few, then in-fill.
 
 use clap::{FromArgMatches, Subcommand};
+use diffkfc_data::io::keyframe_file::KeySpec;
 use diffkfc_data::io::motion_file::load_motion_features;
 
 use super::*;
@@ -112,19 +113,7 @@ fn suggest(a: SuggestArgs) -> Result<()> {
     let frames = keyframes::select(strategy, n, rate, &feats, d, &mut Rng::new(a.seed));
     let joints = rep::recover_from_ric(&T2M, &feats.iter().map(|&v| v as f64).collect::<Vec<_>>());
     let traj = root_key::root_trajectory(&feats, d);
-    let round = |v: f64| (v * 1e4).round() / 1e4;
-    let keys: Vec<_> = frames
-        .iter()
-        .map(|&f| {
-            let [x, z] = traj[f].place.unwrap_or([0.0, 0.0]);
-            json!({
-                "frame": f,
-                "joints": joints[f].iter().map(|p| p.map(round)).collect::<Vec<_>>(),
-                "root": [round(x), round(joints[f][0][1]), round(z)],
-                "heading": round(traj[f].heading.unwrap_or(0.0).to_degrees()),
-            })
-        })
-        .collect();
+    let keys = KeySpec::from_motion(&joints, &traj, &frames);
     let doc = json!({"length": n, "source": source, "strategy": a.strategy, "keyframes": keys});
     diffkfc_data::write_atomic(&a.out, serde_json::to_string_pretty(&doc)?.as_bytes())
         .with_context(|| format!("writing {}", a.out.display()))?;

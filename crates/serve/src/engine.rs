@@ -1,0 +1,166 @@
+//! The loaded model behind the API: prompt embeddings (cached), the shared generation pipeline
+//! (`diffkfc_model::sampling::pipeline`, the same as `sample`), and the motion in the editor's
+//! world frame (keys are given in the world; the representation starts every motion at the
+//! origin facing +Z, so a keyed first frame places the whole motion).
+
+use std::collections::HashMap;
+
+use burn::prelude::Device;
+use diffkfc_data::io::keyframe_file::{self, KeySpec, KeyframeSet, KeyframeSpec};
+use diffkfc_data::motion::representation::{self as rep, Joints};
+use diffkfc_data::motion::root_key::{self, RootKey};
+use diffkfc_data::{render, T2M};
+use diffkfc_model::diffusion::scheduler::Sampler;
+use diffkfc_model::run::load::InferenceModel;
+use diffkfc_model::sampling::fit::{Fit, Fitted};
+use diffkfc_model::sampling::pipeline::KeyedItem;
+use diffkfc_model::sampling::sampler::{Options, DEFAULT_STEPS};
+use diffkfc_model::text::{self, minilm::MiniLm, TextEncoder};
+
+use crate::api::{Limits, SampleRequest};
+use crate::error::{ApiError, ServeError};
+
+/// Prompts whose embeddings are kept (an editing session types a handful).
+const EMBEDDING_CACHE: usize = 256;
+
+/// The model, its text encoder and the request bounds it implies.
+pub struct Engine {
+    loaded: InferenceModel,
+    enc: MiniLm,
+    embeddings: HashMap<String, Vec<f32>>,
+    pub limits: Limits,
+}
+
+/// One generated motion, in the world frame of its keys.
+pub struct Generated {
+    pub length: usize,
+    /// De-normalised features [length, D] (the representation's own frame).
+    pub features: Vec<f32>,
+    /// Joint positions and per-frame place and heading, in the world.
+    pub joints: Joints,
+    pub traj: Vec<RootKey>,
+    /// The resolved keyframes (places relative to frame 0, as the sampler reads them).
+    pub keys: KeyframeSet,
+    /// Where frame 0 stands in the world.
+    pub origin: RootKey,
+    pub fitted: Fitted,
+    /// Milliseconds the pipeline (both stages and the fit) took.
+    pub generate_ms: f64,
+}
+
+impl Engine {
+    /// The model at `checkpoint` (a run or model folder, or a checkpoint file) on `device`, and
+    /// the cached text encoder.
+    pub fn load(checkpoint: &std::path::Path, device: &Device) -> Result<Engine, ServeError> {
+        let loaded = InferenceModel::load(checkpoint, device)
+            .map_err(|e| ServeError::Load(format!("--checkpoint {}: {e}", checkpoint.display())))?;
+        let enc = MiniLm::load(&text::default_dir(), &Device::flex())
+            .map_err(|e| ServeError::Load(format!("text encoder: {e}")))?;
+        let limits = Limits::for_model(loaded.cfg.model.max_frames, loaded.schedule.steps);
+        Ok(Engine { loaded, enc, embeddings: HashMap::new(), limits })
+    }
+
+    /// The checkpoint's training step.
+    pub fn step(&self) -> usize {
+        self.loaded.step
+    }
+
+    fn embed(&mut self, text: &str) -> Result<Vec<f32>, ApiError> {
+        if let Some(e) = self.embeddings.get(text) {
+            return Ok(e.clone());
+        }
+        let e =
+            self.enc.embed(&[text]).map_err(|e| ApiError::invalid(format!("text: {e}")))?.remove(0);
+        if self.embeddings.len() >= EMBEDDING_CACHE {
+            self.embeddings.clear();
+        }
+        self.embeddings.insert(text.to_string(), e.clone());
+        Ok(e)
+    }
+
+    /// Generate the motion `r` asks for: checked, sampled and fitted as `sample` does, then
+    /// placed in the world.
+    pub fn generate(&mut self, r: &SampleRequest) -> Result<Generated, ApiError> {
+        r.check(&self.limits)?;
+        let length = r.length(&self.limits)?;
+        let keys = r
+            .keyframes
+            .resolve(&T2M, Some(length), None, self.limits.max_frames)
+            .map_err(|e| ApiError::invalid(format!("keyframes: {e}")))?;
+        let text = self.embed(&r.text)?;
+        let t0 = std::time::Instant::now();
+        let opts = Options {
+            sampler: Sampler::DpmSolver(r.steps.unwrap_or(DEFAULT_STEPS)),
+            kf_guidance: r.kf_guidance.unwrap_or(1.0),
+            transition: r.transition_guidance.unwrap_or(Options::default().transition),
+            seed: r.seed,
+            ..Options::default()
+        };
+        let fit = Fit {
+            keyframes: r.fit.unwrap_or_default(),
+            foot_lock: r.foot_lock.unwrap_or(true),
+            ..Fit::default()
+        };
+        let gen = self.loaded.generator(&T2M);
+        let item = KeyedItem {
+            text: &text,
+            length,
+            values: &keys.values,
+            mask: &keys.mask,
+            root: &keys.root,
+        };
+        let req = gen.request(length, &[item]);
+        let fitted = gen.generate(&req, &opts, fit, |_, _| {}).remove(0);
+        let generate_ms = t0.elapsed().as_secs_f64() * 1e3;
+        let f64s: Vec<f64> = fitted.features.iter().map(|&v| v as f64).collect();
+        let local = rep::recover_from_ric(&T2M, &f64s);
+        if let Err(e) = render::check_drawable(&local).map_err(|e| e.to_string()).and(
+            f64s.iter().all(|v| v.is_finite()).then_some(()).ok_or("features not finite".into()),
+        ) {
+            return Err(ApiError::invalid(format!(
+                "the sample diverged ({e}); lower kf_guidance or transition_guidance"
+            )));
+        }
+        let origin = origin_of(&r.keyframes);
+        let joints = in_world(&local, origin);
+        let traj = root_key::root_trajectory(&fitted.features, T2M.feature_dim())
+            .into_iter()
+            .map(|k| keyframe_file::from_frame(k, origin))
+            .collect();
+        Ok(Generated {
+            length,
+            features: fitted.features.clone(),
+            joints,
+            traj,
+            keys,
+            origin,
+            fitted,
+            generate_ms,
+        })
+    }
+}
+
+/// Where the keys put frame 0: its keyed place and heading (the origin facing +Z otherwise).
+pub fn origin_of(spec: &KeyframeSpec) -> RootKey {
+    spec.keyframes
+        .iter()
+        .find(|k| k.frame == 0)
+        .map(|k| RootKey {
+            place: k.root.map(|p| [p[0], p[2]]),
+            heading: k.heading.map(f64::to_radians),
+        })
+        .unwrap_or_default()
+}
+
+/// Joint positions given in the frame that stands at `origin`, in the world.
+pub fn in_world(joints: &Joints, origin: RootKey) -> Joints {
+    joints
+        .iter()
+        .map(|f| f.iter().map(|&p| keyframe_file::point_from_frame(p, origin)).collect())
+        .collect()
+}
+
+/// Keys at `frames` of a generated motion (pose, world place and heading).
+pub fn keys_of(g: &Generated, frames: &[usize]) -> Vec<KeySpec> {
+    KeySpec::from_motion(&g.joints, &g.traj, frames)
+}
