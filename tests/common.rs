@@ -57,3 +57,19 @@ pub fn have_text_encoder() -> bool {
 /// sampling and evaluation can load.
 pub const TWO_STEP_RUN: &str = r#"{"model": {"preset": "tiny", "dec_layers": 1, "dma_sizes": [2, 0]},
   "training": {"batch_size": 4, "max_steps": 2, "checkpoint_every": 2, "val_every": 0}}"#;
+
+/// Debian's Chromium (or another Chrome on PATH); absent, the caller skips with a notice, unless
+/// DIFFKFC_REQUIRE_CHROMIUM=1 (set by .ci/run, which installs it) makes that a failure.
+pub fn chromium() -> Option<PathBuf> {
+    let path = std::env::var_os("PATH")?;
+    let found = std::env::split_paths(&path)
+        .flat_map(|d| ["chromium", "chromium-browser", "google-chrome"].map(|n| d.join(n)))
+        .find(|b| b.is_file());
+    if found.is_none() {
+        if std::env::var("DIFFKFC_REQUIRE_CHROMIUM").is_ok_and(|v| v == "1") {
+            panic!("chromium is not on PATH (apt-get install chromium)");
+        }
+        eprintln!("SKIPPED: chromium is not on PATH; the 3D page is not checked in a browser");
+    }
+    found
+}

@@ -4,25 +4,11 @@
 //! .ci/run, which installs it) makes that a failure.
 
 mod common;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
 
 use common::*;
 use diffkfc_data::testing::fixtures;
-
-fn chromium() -> Option<PathBuf> {
-    let path = std::env::var_os("PATH")?;
-    let found = std::env::split_paths(&path)
-        .flat_map(|d| ["chromium", "chromium-browser", "google-chrome"].map(|n| d.join(n)))
-        .find(|b| b.is_file());
-    if found.is_none() {
-        if std::env::var("DIFFKFC_REQUIRE_CHROMIUM").is_ok_and(|v| v == "1") {
-            panic!("chromium is not on PATH (apt-get install chromium)");
-        }
-        eprintln!("SKIPPED: chromium is not on PATH; the 3D page is not checked in a browser");
-    }
-    found
-}
 
 fn headless(chromium: &Path, extra: &[&str], url: &str) -> Output {
     let profile = std::env::temp_dir().join(format!("diffkfc-chromium-{}", std::process::id()));

@@ -121,7 +121,7 @@ pub fn sample_reply(g: &Generated, spec: &KeyframeSpec) -> Value {
     reply
 }
 
-/// A motion for the page: `length`, `fps`, `joints` [T * J * 3] and `root` [T] of
+/// A motion for the page: `length`, `fps`, `joints` `[T * J * 3]` and `root` `[T]` of
 /// [x, pelvis y, z, heading degrees], in the world, to 0.1 mm and 0.001 degree.
 pub fn motion_json(joints: &diffkfc_data::Joints, traj: &[RootKey]) -> Value {
     let flat: Vec<f64> = joints.iter().flatten().flatten().map(|&v| round(v, 1e-4)).collect();

@@ -45,10 +45,14 @@ impl Worker {
             };
             for job in rx {
                 // A panicking job drops its reply sender: that request gets a 500 and the
-                // model keeps serving the others.
-                let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| job(&mut engine)));
-                p.fetch_sub(1, Ordering::SeqCst);
-                d.fetch_add(1, Ordering::SeqCst);
+                // model keeps serving the others. A job that returns has counted itself done
+                // before answering, so a client never sees its own request pending.
+                let ran =
+                    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| job(&mut engine)));
+                if ran.is_err() {
+                    p.fetch_sub(1, Ordering::SeqCst);
+                    d.fetch_add(1, Ordering::SeqCst);
+                }
             }
         })?;
         let (mut limits, step) = ready_rx
@@ -64,8 +68,12 @@ impl Worker {
         f: impl FnOnce(&mut Engine) -> Result<T, ApiError> + Send + 'static,
     ) -> Result<T, ApiError> {
         let (reply, answer) = tokio::sync::oneshot::channel();
+        let (pending, done) = (self.pending.clone(), self.done.clone());
         let job: Job = Box::new(move |e| {
-            let _ = reply.send(f(e));
+            let out = f(e);
+            pending.fetch_sub(1, Ordering::SeqCst);
+            done.fetch_add(1, Ordering::SeqCst);
+            let _ = reply.send(out);
         });
         self.pending.fetch_add(1, Ordering::SeqCst);
         if let Err(e) = self.tx.try_send(job) {

@@ -48,6 +48,10 @@ pub fn check_positions(skel: &Skeleton, j: &Joints) -> Result<(), String> {
 /// Joint positions a user gives: within [`MAX_POSITION_M`] of the origin and with a human's leg
 /// length; the error says which frame and joint, or which unit the positions look like.
 pub fn check_joints(skel: &Skeleton, j: &Joints) -> Result<(), String> {
+    let jn = skel.num_joints();
+    if let Some((f, fr)) = j.iter().enumerate().find(|(_, fr)| fr.len() != jn) {
+        return Err(format!("a pose needs {jn} joints, got {} (frame {f})", fr.len()));
+    }
     check_leg(skel, j)?;
     check_positions(skel, j)
 }
@@ -132,6 +136,11 @@ mod tests {
         far[3][5][0] = 1e20;
         let e = check_joints(&T2M, &far).unwrap_err();
         assert!(e.contains("frame 3, joint 5"), "{e}");
+        // A frame with too few joints is named, not indexed past its end.
+        let mut short = j.clone();
+        short[2].truncate(1);
+        let e = check_joints(&T2M, &short).unwrap_err();
+        assert!(e.contains("needs 22 joints, got 1 (frame 2)"), "{e}");
     }
 
     #[test]
