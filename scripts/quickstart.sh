@@ -136,3 +136,4 @@ stage 7/8 "sample the first prompt from the demonstration run"
 stage 8/8 "page with the demonstration"
 page
 echo "done in $(( $(date +%s) - t0 )) s: open $work/out/index.html"
+echo "pose keys and regenerate in the browser: $bin serve --checkpoint $model  (then open http://127.0.0.1:7860/)"
