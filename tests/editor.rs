@@ -2,7 +2,9 @@
 //! the DevTools protocol with real mouse input. The page loads and generates; a 196-frame
 //! motion gets ten keys (the last added with the "add key" button); dragging that key's place
 //! on the ground regenerates a motion that hits the moved key (pose and place within 1 cm),
-//! the picture changes, and the time from the edit to the new motion drawn is reported.
+//! the picture changes, and the time from the edit to the new motion drawn is reported. Then
+//! the key is re-posed by dragging its wrist (IK keeps the arm's bones), the undo button brings
+//! the old pose back, and the key is dragged along the timeline to another frame.
 
 mod common;
 use std::io::{BufRead, BufReader};
@@ -207,6 +209,7 @@ fn drag_a_key_and_the_motion_follows() {
         latencies.push(st["latency"].as_f64().unwrap());
         server_ms.push(st["server"].as_f64().unwrap());
     }
+    repose_undo_and_retime(&mut page, (left, mid, w));
     let after = page.screenshot();
     // The README's picture: DIFFKFC_EDITOR_SCREENSHOT=docs/editor.png cargo test --test editor
     if let Some(p) = std::env::var_os("DIFFKFC_EDITOR_SCREENSHOT") {
@@ -225,4 +228,87 @@ fn drag_a_key_and_the_motion_follows() {
     // The target is 0.5 s on a quiet 2-core machine; the bound here leaves room for a loaded CI.
     assert!(latencies[2] < 3000.0, "edit to picture took {} ms", latencies[2]);
     let _ = std::fs::remove_dir_all(profile);
+}
+
+/// Drag from (x, y) by (dx, dy) in eight moves.
+fn drag(page: &mut Page, (x, y): (f64, f64), (dx, dy): (f64, f64)) {
+    page.mouse("mousePressed", x, y);
+    for k in 1..=8 {
+        let t = k as f64 / 8.0;
+        page.mouse("mouseMoved", x + dx * t, y + dy * t);
+    }
+    page.mouse("mouseReleased", x + dx, y + dy);
+}
+
+/// The selected key's pose and frame, and how the last motion hit it.
+fn selected(page: &mut Page) -> Value {
+    page.eval("(() => { const s = diffkfcEditor.state, k = s.keys[s.selected]; return {pose: k.pose, frame: k.frame, generation: s.generation, reply: s.motion.keys.find((r) => r.frame === k.frame)}; })()")
+}
+
+fn dist(a: &Value, b: &Value) -> f64 {
+    (0..3).map(|i| (a[i].as_f64().unwrap() - b[i].as_f64().unwrap()).powi(2)).sum::<f64>().sqrt()
+}
+
+fn repose_undo_and_retime(page: &mut Page, (left, mid, w): (f64, f64, f64)) {
+    let (shoulder, elbow, wrist) = (16, 18, 20);
+    let before = selected(page);
+    let key = page.eval("diffkfcEditor.state.selected");
+    let h = page.eval(&format!("diffkfcEditor.handle('joint', {key}, {wrist})"));
+    let view = page.eval("(() => { const r = document.getElementById('view').getBoundingClientRect(); return [r.left, r.top]; })()");
+    let at = (
+        h[0].as_f64().unwrap() + view[0].as_f64().unwrap(),
+        h[1].as_f64().unwrap() + view[1].as_f64().unwrap(),
+    );
+    drag(page, at, (15.0, -60.0));
+    page.wait_for(
+        &format!("diffkfcEditor.state.generation > {}", before["generation"]),
+        "the re-posed motion",
+    );
+    page.settle();
+    let after = selected(page);
+    let (p0, p1) = (&before["pose"], &after["pose"]);
+    assert!(
+        dist(&p0[wrist], &p1[wrist]) > 0.03,
+        "the wrist did not move: {}",
+        dist(&p0[wrist], &p1[wrist])
+    );
+    for (a, b) in [(shoulder, elbow), (elbow, wrist)] {
+        let (l0, l1) = (dist(&p0[a], &p0[b]), dist(&p1[a], &p1[b]));
+        assert!((l0 - l1).abs() < 1e-6, "bone {a}-{b} changed length: {l0} -> {l1}");
+    }
+    let e = after["reply"]["pose_err_m"].as_f64().unwrap();
+    assert!(e < 0.01, "the re-posed key is missed by {e} m");
+    let (ux, uy) = page.centre("undo");
+    page.click(ux, uy);
+    page.wait_for(
+        &format!("diffkfcEditor.state.generation > {}", after["generation"]),
+        "the undone motion",
+    );
+    page.settle();
+    let undone = selected(page);
+    assert!(dist(&undone["pose"][wrist], &p0[wrist]) < 1e-9, "undo did not restore the pose");
+    // Along the timeline: from its frame to 10 frames earlier (the next key is 20 frames away).
+    let f0 = undone["frame"].as_f64().unwrap();
+    let x = |f: f64| left + 8.0 + (w - 16.0) * f / 195.0;
+    drag(page, (x(f0), mid), (x(f0 - 10.0) - x(f0), 0.0));
+    page.wait_for(
+        &format!("diffkfcEditor.state.generation > {}", undone["generation"]),
+        "the retimed motion",
+    );
+    page.settle();
+    let moved = selected(page);
+    let f1 = moved["frame"].as_f64().unwrap();
+    assert!(
+        (f1 - (f0 - 10.0)).abs() <= 1.0,
+        "the key went from frame {f0} to {f1}, not {}",
+        f0 - 10.0
+    );
+    let (pose, place) = (
+        moved["reply"]["pose_err_m"].as_f64().unwrap(),
+        moved["reply"]["place_err_m"].as_f64().unwrap(),
+    );
+    assert!(
+        pose < 0.01 && place < 0.01,
+        "the retimed key is missed: pose {pose} m, place {place} m"
+    );
 }
