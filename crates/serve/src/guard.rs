@@ -22,17 +22,19 @@ pub struct Guard {
 }
 
 impl Guard {
-    /// For a server listening on `addr`: its own address, `localhost` for loopback, and the
-    /// extra names (`--allow-host`), each with the port.
+    /// For a server listening on `addr`: its own address, `localhost` and 127.0.0.1 when it
+    /// listens on loopback, and the extra names (`--allow-host`), each with the port.
     pub fn new(addr: std::net::SocketAddr, extra: &[String]) -> Guard {
         let port = addr.port();
         let mut hosts = vec![addr.to_string()];
-        if addr.ip().is_loopback() {
+        // Listening on every interface (0.0.0.0) includes loopback.
+        if addr.ip().is_loopback() || addr.ip().is_unspecified() {
             hosts.extend([format!("localhost:{port}"), format!("127.0.0.1:{port}")]);
         }
         hosts.extend(extra.iter().map(|h| format!("{h}:{port}")));
         hosts.iter_mut().for_each(|h| *h = h.to_ascii_lowercase());
-        hosts.dedup();
+        let mut seen = std::collections::HashSet::new();
+        hosts.retain(|h| seen.insert(h.clone()));
         Guard { hosts }
     }
 
@@ -79,5 +81,22 @@ pub async fn guard(State(g): State<Arc<Guard>>, req: Request, next: Next) -> Res
     match g.check(&req) {
         Ok(()) => next.run(req).await,
         Err(e) => e.into_response(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Loopback and every-interface servers answer to localhost; another address only to itself
+    /// and the names allowed.
+    #[test]
+    fn names_a_server_answers_to() {
+        let g = Guard::new("127.0.0.1:7860".parse().unwrap(), &[]);
+        assert_eq!(g.hosts, ["127.0.0.1:7860", "localhost:7860"]);
+        let g = Guard::new("0.0.0.0:80".parse().unwrap(), &["Studio.local".into()]);
+        assert_eq!(g.hosts, ["0.0.0.0:80", "localhost:80", "127.0.0.1:80", "studio.local:80"]);
+        let g = Guard::new("192.168.1.5:7860".parse().unwrap(), &[]);
+        assert_eq!(g.hosts, ["192.168.1.5:7860"]);
     }
 }

@@ -4,7 +4,7 @@
 use diffkfc_data::io::keyframe_file::{self, KeyframeSpec};
 use diffkfc_data::motion::plausibility::foot_skating_ratio;
 use diffkfc_data::motion::root_key::RootKey;
-use diffkfc_data::{Layout, T2M};
+use diffkfc_data::{keyframes, T2M};
 use diffkfc_eval::keyframe_metrics::{k_err_local, k_trans};
 use serde::Serialize;
 use serde_json::{json, Value};
@@ -40,14 +40,12 @@ fn round(v: f64, unit: f64) -> f64 {
 
 /// Every key of `spec` against the generated motion.
 pub fn key_reports(g: &Generated, spec: &KeyframeSpec) -> Vec<KeyReport> {
-    let d = T2M.feature_dim();
-    let ric = Layout::of(&T2M).ric();
     let mut keys: Vec<&keyframe_file::KeySpec> = spec.keyframes.iter().collect();
     keys.sort_by_key(|k| k.frame);
     keys.iter()
         .map(|k| {
             let f = k.frame;
-            let posed = g.keys.mask[f * d + ric.start..f * d + ric.end].iter().any(|&m| m > 0.0);
+            let posed = !keyframes::posed_frames(&T2M, &g.keys.mask, &[f]).is_empty();
             let pose_err_m = posed
                 .then(|| k_err_local(&T2M, &g.features, &g.keys.values, &[f], &g.keys.joints))
                 .flatten();

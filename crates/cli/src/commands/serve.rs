@@ -40,8 +40,9 @@ pub struct ServeArgs {
 pub fn run(a: ServeArgs) -> Result<()> {
     if !a.host.is_loopback() {
         eprintln!(
-            "warning: --host {}: the editor is reachable from other machines, and anyone who reaches it can make this machine generate",
-            a.host
+            "warning: --host {}: the editor is reachable from other machines, and anyone who reaches it can make this machine generate; browsers must use this address{} (others: --allow-host NAME)",
+            a.host,
+            if a.host.is_unspecified() { ", which they cannot: name the machine's address or name with --allow-host" } else { "" }
         );
     }
     if a.queue == 0 || a.queue > 1024 {

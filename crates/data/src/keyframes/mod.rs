@@ -116,6 +116,19 @@ pub fn select(
     }
 }
 
+/// The frames of `frames` whose mask `[T, D]` observes a pose (any root-relative joint
+/// position): a key with only a place or a heading has none to compare.
+pub fn posed_frames(skel: &Skeleton, mask: &[f32], frames: &[usize]) -> Vec<usize> {
+    let (d, ric) = (skel.feature_dim(), Layout::of(skel).ric());
+    frames
+        .iter()
+        .copied()
+        .filter(|&f| {
+            mask.get(f * d + ric.start..f * d + ric.end).is_some_and(|m| m.iter().any(|&v| v > 0.0))
+        })
+        .collect()
+}
+
 /// Feature dims owned by each joint: its RIC, 6D rotation and velocity, plus the foot
 /// contacts of foot joints; the root joint also owns the four root dims.
 pub fn joint_dims(skel: &Skeleton, joint: usize) -> Vec<usize> {
@@ -170,6 +183,15 @@ pub fn frame_mask(n: usize, frames: &[usize], dims: &[bool]) -> Vec<f32> {
 mod tests {
     use super::*;
     use crate::T2M;
+
+    /// A pose key (any body part) counts; a key observing only the root height (a place) does not.
+    #[test]
+    fn posed_frames_skip_place_only_keys() {
+        let d = T2M.feature_dim();
+        let mut mask = frame_mask(10, &[2], &dim_mask(&T2M, Some(&[7, 10])));
+        mask[5 * d + 3] = 1.0; // frame 5: root height only
+        assert_eq!(posed_frames(&T2M, &mask, &[2, 5, 9]), vec![2]);
+    }
 
     #[test]
     fn counts_and_uniform() {

@@ -125,7 +125,7 @@ fn write_sample(
         "root_path": done.root_path.is_some().then_some(&path_file),
         "track": done.track,
         "k_err_m": keys.source.as_ref().and_then(|s| k_err_global(&j, s, &keys.frames, &keys.joints)),
-        "k_err_root_relative_m": k_err_local(&T2M, f, &keys.values, &keys.frames, &keys.joints),
+        "k_err_root_relative_m": k_err_local(&T2M, f, &keys.values, &keyframes::posed_frames(&T2M, &keys.mask, &keys.frames), &keys.joints),
         "k_trans": k_trans(&j, &keys.frames, 2),
         "foot_skating": diffkfc_data::motion::plausibility::foot_skating_ratio(&T2M, &j),
         "corrections": done.corrections,
@@ -285,7 +285,7 @@ fn k_err_text(s: &serde_json::Value) -> String {
         (Some(g), Some(l)) => format!("K-Err {g:.4} m (root-relative {l:.4} m)"),
         (None, Some(l)) => format!("K-Err root-relative {l:.4} m (global: no source motion)"),
         (Some(g), None) => format!("K-Err {g:.4} m"),
-        (None, None) => "no keyframes".into(),
+        (None, None) => "no posed keyframes (K-Err: -)".into(),
     }
 }
 
