@@ -1,7 +1,9 @@
 //! What the server answers when a request cannot be served: a status and the same one-line
 //! message the CLI would print, as `{"error": "..."}`.
 
-use axum::http::StatusCode;
+use axum::extract::Request;
+use axum::http::{header, StatusCode};
+use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 
@@ -51,6 +53,26 @@ impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
         (self.status, Json(serde_json::json!({ "error": self.message }))).into_response()
     }
+}
+
+/// Axum's own refusals (a body over its limit, a wrong method) are plain text: this middleware
+/// answers them as `{"error": "<path>: <its one line>"}` like every other refusal.
+pub async fn json_errors(req: Request, next: Next) -> Response {
+    let path = req.uri().path().to_string();
+    let resp = next.run(req).await;
+    let status = resp.status();
+    let json = resp
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .is_some_and(|v| v.as_bytes().starts_with(b"application/json"));
+    if json || !(status.is_client_error() || status.is_server_error()) {
+        return resp;
+    }
+    let body = axum::body::to_bytes(resp.into_body(), 4096).await.unwrap_or_default();
+    let text = String::from_utf8_lossy(&body);
+    let line = text.lines().next().map(str::trim).filter(|l| !l.is_empty());
+    let line = line.unwrap_or(status.canonical_reason().unwrap_or("refused"));
+    ApiError::with_status(status, format!("{path}: {line}")).into_response()
 }
 
 /// Starting the server failed.

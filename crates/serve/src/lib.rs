@@ -77,6 +77,7 @@ pub fn router(state: handlers::AppState, guard: guard::Guard) -> Router {
         )
         .fallback(handlers::not_found)
         .layer(axum::middleware::from_fn_with_state(Arc::new(guard), guard::guard))
+        .layer(axum::middleware::from_fn(error::json_errors))
         .with_state(state)
 }
 
