@@ -74,18 +74,7 @@ fn evaluate_tiny_checkpoint(
     data: &std::path::Path,
     evaluator: &std::path::Path,
 ) {
-    std::fs::write(d.join("cfg.json"), TWO_STEP_RUN).unwrap();
-    let run = d.join("run");
-    let o = diffkfc(&[
-        "train",
-        "--config",
-        s(&d.join("cfg.json")),
-        "--data",
-        s(data),
-        "--out",
-        s(&run),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let run = two_step_run(d, data, "run", None);
     let rep = d.join("report");
     let common = [
         "eval",
@@ -295,22 +284,7 @@ fn evaluate_tiny_checkpoint(
         &["missing evaluator.safetensors", "convert-t2m-evaluator.py"],
     );
     // A checkpoint built for shorter motions than the split's items is refused before any work.
-    let short = d.join("short-run");
-    std::fs::write(
-        d.join("short.json"),
-        TWO_STEP_RUN.replace("\"dma_sizes\": [2, 0]", "\"dma_sizes\": [2, 0], \"max_frames\": 30"),
-    )
-    .unwrap();
-    let o = diffkfc(&[
-        "train",
-        "--config",
-        s(&d.join("short.json")),
-        "--data",
-        s(data),
-        "--out",
-        s(&short),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let short = two_step_run(d, data, "short-run", Some(30));
     let o = diffkfc(&[
         "eval",
         "--checkpoint",

@@ -15,18 +15,7 @@ fn sample_outputs_errors_and_determinism() {
     assert!(diffkfc(&["data", "synth", "--out", s(&data), "--clips", "12", "--seed", "3"])
         .status
         .success());
-    std::fs::write(d.join("cfg.json"), TWO_STEP_RUN).unwrap();
-    let run = d.join("run");
-    let o = diffkfc(&[
-        "train",
-        "--config",
-        s(&d.join("cfg.json")),
-        "--data",
-        s(&data),
-        "--out",
-        s(&run),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let run = two_step_run(&d, &data, "run", None);
     let src = data.join("new_joint_vecs/000000.npy");
     let out = d.join("out");
     let args = |out: &std::path::Path| -> Vec<String> {
@@ -232,22 +221,7 @@ fn sample_outputs_errors_and_determinism() {
     assert_eq!(std::fs::read_to_string(theirs.join("sample_05.npy")).unwrap(), "mine");
     assert!(theirs.join("sample_01.npy").exists() && theirs.join("results.json").exists());
     // A checkpoint built for shorter motions is not asked for longer ones.
-    let short = d.join("short-run");
-    std::fs::write(
-        d.join("short.json"),
-        TWO_STEP_RUN.replace("\"dma_sizes\": [2, 0]", "\"dma_sizes\": [2, 0], \"max_frames\": 30"),
-    )
-    .unwrap();
-    let o = diffkfc(&[
-        "train",
-        "--config",
-        s(&d.join("short.json")),
-        "--data",
-        s(&data),
-        "--out",
-        s(&short),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let short = two_step_run(&d, &data, "short-run", Some(30));
     let mut v = args(&d.join("short-out"));
     v[2] = s(&short).to_string();
     assert_one_line_error(

@@ -58,6 +58,23 @@ pub fn have_text_encoder() -> bool {
 pub const TWO_STEP_RUN: &str = r#"{"model": {"preset": "tiny", "dec_layers": 1, "dma_sizes": [2, 0]},
   "training": {"batch_size": 4, "max_steps": 2, "checkpoint_every": 2, "val_every": 0}}"#;
 
+/// Train [`TWO_STEP_RUN`] (with `model.max_frames` when given) on `data` into `dir/name`.
+pub fn two_step_run(dir: &Path, data: &Path, name: &str, max_frames: Option<usize>) -> PathBuf {
+    let cfg = dir.join(format!("{name}.json"));
+    let text = match max_frames {
+        Some(n) => TWO_STEP_RUN.replace(
+            "\"dma_sizes\": [2, 0]",
+            &format!("\"dma_sizes\": [2, 0], \"max_frames\": {n}"),
+        ),
+        None => TWO_STEP_RUN.to_string(),
+    };
+    std::fs::write(&cfg, text).unwrap();
+    let run = dir.join(name);
+    let o = diffkfc(&["train", "--config", s(&cfg), "--data", s(data), "--out", s(&run)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    run
+}
+
 /// Debian's Chromium (or another Chrome on PATH); absent, the caller skips with a notice, unless
 /// DIFFKFC_REQUIRE_CHROMIUM=1 (set by .ci/run, which installs it) makes that a failure.
 pub fn chromium() -> Option<PathBuf> {

@@ -105,6 +105,12 @@ impl Page {
         (r[0].as_f64().unwrap(), r[1].as_f64().unwrap())
     }
 
+    /// Where `diffkfcEditor.handle(args)` is drawn, in page pixels (the view's offset added).
+    fn handle(&mut self, args: &str) -> (f64, f64) {
+        let h = self.eval(&format!("(() => {{ const h = diffkfcEditor.handle({args}), r = document.getElementById('view').getBoundingClientRect(); return [h[0] + r.left, h[1] + r.top]; }})()"));
+        (h[0].as_f64().unwrap(), h[1].as_f64().unwrap())
+    }
+
     fn screenshot(&mut self) -> Vec<u8> {
         let r = self.call("Page.captureScreenshot", json!({"format": "png"}), true);
         base64::engine::general_purpose::STANDARD.decode(r["data"].as_str().unwrap()).unwrap()
@@ -180,17 +186,9 @@ fn drag_a_key_and_the_motion_follows() {
     for (dx, dy) in [(90.0, 30.0), (-60.0, 40.0), (70.0, -50.0), (-40.0, -30.0), (50.0, 20.0)] {
         let key = page.eval("diffkfcEditor.state.selected");
         let place0 = page.eval(&format!("diffkfcEditor.state.keys[{key}].place"));
-        let h = page.eval(&format!("diffkfcEditor.handle('place', {key})"));
-        let view = page.eval("(() => { const r = document.getElementById('view').getBoundingClientRect(); return [r.left, r.top]; })()");
-        let x = h[0].as_f64().unwrap() + view[0].as_f64().unwrap();
-        let y = h[1].as_f64().unwrap() + view[1].as_f64().unwrap();
+        let at = page.handle(&format!("'place', {key}"));
         let generation = page.eval("diffkfcEditor.state.generation").as_u64().unwrap();
-        page.mouse("mousePressed", x, y);
-        for k in 1..=8 {
-            let t = k as f64 / 8.0;
-            page.mouse("mouseMoved", x + dx * t, y + dy * t);
-        }
-        page.mouse("mouseReleased", x + dx, y + dy);
+        drag(&mut page, at, (dx, dy));
         page.wait_for(&format!("diffkfcEditor.state.generation > {generation}"), "a new motion");
         page.settle();
         let st = page.eval(&format!("(() => {{ const s = diffkfcEditor.state, k = s.keys[{key}]; return {{place: k.place, frame: k.frame, reply: s.motion.keys.find((r) => r.frame === k.frame), latency: s.latencyMs, server: s.serverMs}}; }})()"));
@@ -253,12 +251,7 @@ fn repose_undo_and_retime(page: &mut Page, (left, mid, w): (f64, f64, f64)) {
     let (shoulder, elbow, wrist) = (16, 18, 20);
     let before = selected(page);
     let key = page.eval("diffkfcEditor.state.selected");
-    let h = page.eval(&format!("diffkfcEditor.handle('joint', {key}, {wrist})"));
-    let view = page.eval("(() => { const r = document.getElementById('view').getBoundingClientRect(); return [r.left, r.top]; })()");
-    let at = (
-        h[0].as_f64().unwrap() + view[0].as_f64().unwrap(),
-        h[1].as_f64().unwrap() + view[1].as_f64().unwrap(),
-    );
+    let at = page.handle(&format!("'joint', {key}, {wrist}"));
     drag(page, at, (15.0, -60.0));
     page.wait_for(
         &format!("diffkfcEditor.state.generation > {}", before["generation"]),

@@ -6,8 +6,8 @@
 use std::collections::HashMap;
 
 use burn::prelude::Device;
-use diffkfc_data::io::keyframe_file::{self, KeySpec, KeyframeSet, KeyframeSpec};
-use diffkfc_data::motion::representation::{self as rep, Joints};
+use diffkfc_data::io::keyframe_file::{self, KeyframeSet, KeyframeSpec};
+use diffkfc_data::motion::representation::Joints;
 use diffkfc_data::motion::root_key::{self, RootKey};
 use diffkfc_data::{render, T2M};
 use diffkfc_model::diffusion::scheduler::Sampler;
@@ -33,9 +33,6 @@ pub struct Engine {
 
 /// One generated motion, in the world frame of its keys.
 pub struct Generated {
-    pub length: usize,
-    /// De-normalised features [length, D] (the representation's own frame).
-    pub features: Vec<f32>,
     /// Joint positions and per-frame place and heading, in the world.
     pub joints: Joints,
     pub traj: Vec<RootKey>,
@@ -43,6 +40,8 @@ pub struct Generated {
     pub keys: KeyframeSet,
     /// Where frame 0 stands in the world.
     pub origin: RootKey,
+    /// The fitted motion: de-normalised features `[length, D]` in the representation's own
+    /// frame, and what the fit did.
     pub fitted: Fitted,
     /// Milliseconds the pipeline (both stages and the fit) took.
     pub generate_ms: f64,
@@ -112,31 +111,30 @@ impl Engine {
         let req = gen.request(length, &[item]);
         let fitted = gen.generate(&req, &opts, fit, |_, _| {}).remove(0);
         let generate_ms = t0.elapsed().as_secs_f64() * 1e3;
-        let f64s: Vec<f64> = fitted.features.iter().map(|&v| v as f64).collect();
-        let local = rep::recover_from_ric(&T2M, &f64s);
-        if let Err(e) = render::check_drawable(&local).map_err(|e| e.to_string()).and(
-            f64s.iter().all(|v| v.is_finite()).then_some(()).ok_or("features not finite".into()),
-        ) {
-            return Err(ApiError::invalid(format!(
+        let local = render::drawable_joints(&T2M, &fitted.features).map_err(|e| {
+            ApiError::invalid(format!(
                 "the sample diverged ({e}); lower kf_guidance or transition_guidance"
-            )));
-        }
+            ))
+        })?;
         let origin = origin_of(&r.keyframes);
         let joints = in_world(&local, origin);
         let traj = root_key::root_trajectory(&fitted.features, T2M.feature_dim())
             .into_iter()
             .map(|k| keyframe_file::from_frame(k, origin))
             .collect();
-        Ok(Generated {
-            length,
-            features: fitted.features.clone(),
-            joints,
-            traj,
-            keys,
-            origin,
-            fitted,
-            generate_ms,
-        })
+        Ok(Generated { joints, traj, keys, origin, fitted, generate_ms })
+    }
+}
+
+impl Generated {
+    /// Frames of the motion.
+    pub fn length(&self) -> usize {
+        self.keys.length
+    }
+
+    /// De-normalised features `[length, D]`.
+    pub fn features(&self) -> &[f32] {
+        &self.fitted.features
     }
 }
 
@@ -158,9 +156,4 @@ pub fn in_world(joints: &Joints, origin: RootKey) -> Joints {
         .iter()
         .map(|f| f.iter().map(|&p| keyframe_file::point_from_frame(p, origin)).collect())
         .collect()
-}
-
-/// Keys at `frames` of a generated motion (pose, world place and heading).
-pub fn keys_of(g: &Generated, frames: &[usize]) -> Vec<KeySpec> {
-    KeySpec::from_motion(&g.joints, &g.traj, frames)
 }

@@ -10,7 +10,7 @@ use axum::extract::{RawQuery, State};
 use axum::http::{header, StatusCode, Uri};
 use axum::response::{Html, IntoResponse, Response};
 use axum::Json;
-use diffkfc_data::io::keyframe_file::{self, KeyframeSpec};
+use diffkfc_data::io::keyframe_file::{self, KeySpec, KeyframeSpec};
 use diffkfc_data::io::{motion_file, npy, rig};
 use diffkfc_data::motion::{representation as rep, root_key};
 use diffkfc_data::rng::Rng;
@@ -19,7 +19,7 @@ use serde::de::DeserializeOwned;
 use serde_json::{json, Value};
 
 use crate::api::{ExportFormat, Limits, SampleRequest, SuggestRequest};
-use crate::engine::{self, Generated};
+use crate::engine::Generated;
 use crate::error::ApiError;
 use crate::report;
 use crate::worker::Worker;
@@ -29,8 +29,8 @@ use crate::worker::Worker;
 pub struct AppState {
     pub worker: Worker,
     pub limits: Arc<Limits>,
-    /// The page (built once).
-    pub page: Arc<String>,
+    /// The page (built once; shared, not copied, by every GET).
+    pub page: Bytes,
 }
 
 fn parse<T: DeserializeOwned>(body: &[u8]) -> Result<T, ApiError> {
@@ -47,8 +47,8 @@ fn query_value(q: &Option<String>, key: &str) -> Option<String> {
     })
 }
 
-pub async fn index(State(s): State<AppState>) -> Html<String> {
-    Html(s.page.as_str().to_string())
+pub async fn index(State(s): State<AppState>) -> Html<Bytes> {
+    Html(s.page)
 }
 
 pub async fn status(State(s): State<AppState>) -> Json<Value> {
@@ -66,6 +66,7 @@ async fn generated<T: Send + 'static>(
     req: SampleRequest,
     then: impl FnOnce(&Generated, &SampleRequest) -> Result<T, ApiError> + Send + 'static,
 ) -> Result<(T, f64), ApiError> {
+    // Refused before it waits in the queue (the engine checks again for its other callers).
     req.check(&s.limits)?;
     let sent = Instant::now();
     s.worker
@@ -99,9 +100,9 @@ pub async fn export(
     let (bytes, _) = generated(&s, req, move |g, _| {
         Ok(match format {
             ExportFormat::Bvh => rig::export(&T2M, &g.joints).to_text().into_bytes(),
-            ExportFormat::Features => npy::encode(&[g.length, T2M.feature_dim()], &g.features),
+            ExportFormat::Features => npy::encode(&[g.length(), T2M.feature_dim()], g.features()),
             ExportFormat::Joints => {
-                npy::encode(&[g.length, T2M.num_joints(), 3], &rep::joints_to_f32(&g.joints))
+                npy::encode(&[g.length(), T2M.num_joints(), 3], &rep::joints_to_f32(&g.joints))
             }
         })
     })
@@ -125,12 +126,12 @@ pub async fn suggest(State(s): State<AppState>, body: Bytes) -> Result<Json<Valu
     let label = sr.strategy.clone().unwrap_or_else(|| "mdo".into());
     let (spec, _) = generated(&s, sr.request, move |g, r| {
         let d = T2M.feature_dim();
-        let rate = count as f64 / g.length as f64;
+        let rate = count as f64 / g.length() as f64;
         let frames =
-            keyframes::select(strategy, g.length, rate, &g.features, d, &mut Rng::new(r.seed));
+            keyframes::select(strategy, g.length(), rate, g.features(), d, &mut Rng::new(r.seed));
         Ok(KeyframeSpec {
-            length: Some(g.length),
-            keyframes: engine::keys_of(g, &frames),
+            length: Some(g.length()),
+            keyframes: KeySpec::from_motion(&g.joints, &g.traj, &frames),
             strategy: Some(Value::String(label)),
             ..KeyframeSpec::default()
         })

@@ -95,7 +95,7 @@ pub fn start(
         .map_err(|err| ServeError::Bind { addr: addr_text, err })?;
     let addr = listener.local_addr()?;
     let page = page::html(&limits, step);
-    let state = handlers::AppState { worker, limits: Arc::new(limits), page: Arc::new(page) };
+    let state = handlers::AppState { worker, limits: Arc::new(limits), page: page.into() };
     let app = router(state, guard::Guard::new(addr, &opts.allow_hosts));
     let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
     let thread = std::thread::Builder::new().name("diffkfc-http".into()).spawn(move || {

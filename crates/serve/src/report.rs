@@ -47,7 +47,7 @@ pub fn key_reports(g: &Generated, spec: &KeyframeSpec) -> Vec<KeyReport> {
             let f = k.frame;
             let posed = !keyframes::posed_frames(&T2M, &g.keys.mask, &[f]).is_empty();
             let pose_err_m = posed
-                .then(|| k_err_local(&T2M, &g.features, &g.keys.values, &[f], &g.keys.joints))
+                .then(|| k_err_local(&T2M, g.features(), &g.keys.values, &[f], &g.keys.joints))
                 .flatten();
             let at = g.traj[f];
             let place_err_m = k.root.map(|p| {

@@ -252,6 +252,15 @@ fn a_full_queue_answers_503() {
     srv.stop().unwrap();
 }
 
+fn numbers(v: &serde_json::Value) -> Vec<f64> {
+    v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect()
+}
+
+fn max_diff(a: &[f64], b: &[f64]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max)
+}
+
 /// Exported features and joints are `.npy` files of the motion; features read back through
 /// the upload give the same joints; the BVH reads back as a motion one frame shorter.
 #[test]
@@ -271,11 +280,8 @@ fn exports_read_back() {
         arr.data
     };
     let j = joints("/api/export?format=joints");
-    let worst = j
-        .iter()
-        .zip(m["joints"].as_array().unwrap())
-        .map(|(x, y)| (x - y.as_f64().unwrap()).abs())
-        .fold(0.0, f64::max);
+    let sample: Vec<f64> = numbers(&m["joints"]);
+    let worst = max_diff(&j, &sample);
     assert!(worst < 1e-3, "exported joints differ from the sample by {worst}");
     let feats = post(a, "/api/export?format=features", &req);
     let up = http(
@@ -287,13 +293,7 @@ fn exports_read_back() {
     );
     assert_eq!(up.status, 200, "{}", String::from_utf8_lossy(&up.body));
     let u = up.json();
-    let worst = u["joints"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .zip(m["joints"].as_array().unwrap())
-        .map(|(x, y)| (x.as_f64().unwrap() - y.as_f64().unwrap()).abs())
-        .fold(0.0, f64::max);
+    let worst = max_diff(&numbers(&u["joints"]), &sample);
     assert!(worst < 1e-3, "features read back differ by {worst} m");
     let bvh = post(a, "/api/export?format=bvh", &req);
     assert!(bvh

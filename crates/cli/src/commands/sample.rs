@@ -390,13 +390,7 @@ impl Generator {
             self.pipeline().generate(req, &self.opts, self.fit, crate::progress::bar("denoising"));
         let secs = t0.elapsed().as_secs_f64();
         for (i, f) in fitted.iter().map(|s| &s.features).enumerate() {
-            let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
-            if let Err(e) = render::check_drawable(&j).map_err(|e| e.to_string()).and(
-                f.iter()
-                    .all(|v| v.is_finite())
-                    .then_some(())
-                    .ok_or_else(|| "features not finite".to_string()),
-            ) {
+            if let Err(e) = render::drawable_joints(&T2M, f) {
                 bail!("sample {i} diverged ({e}); lower --kf-guidance ({}) or --transition-guidance ({})", a.kf_guidance, a.transition_guidance);
             }
         }

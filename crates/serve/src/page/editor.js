@@ -64,7 +64,6 @@
     const editAt = E.editAt;
     try {
       const m = await (await api("/api/sample", request())).json();
-      m.J = info.parents.length;
       E.motion = m; E.serverMs = m.server_ms; E.generation++;
       E.frame = Math.min(E.frame, m.length - 1);
       showError(null);
@@ -270,7 +269,7 @@
     if (!file) return;
     try {
       const u = await (await api("/api/import?name=" + encodeURIComponent(file.name), await file.arrayBuffer(), "application/octet-stream")).json();
-      u.J = info.parents.length; E.upload = u;
+      E.upload = u;
       $("upload-name").textContent = `${u.name}: ${u.length} frames (grey)`; $("add-upload-key").disabled = false;
       showError(null); draw();
     } catch (err) { showError(err); }

@@ -7,8 +7,10 @@ var DiffkfcEditorView = (function () {
   const S = DiffkfcScene, P = DiffkfcPose, C = S.COLORS;
   const HEADING_ARM = 0.45; // metres from a keyed place to its heading handle
 
+  // Joint j at frame f of a motion from the API ({length, joints: [T * J * 3]}).
   function motionJoint(m, f, j) {
-    const o = (Math.min(f, m.length - 1) * m.J + j) * 3;
+    const J = m.joints.length / (3 * m.length);
+    const o = (Math.min(f, m.length - 1) * J + j) * 3;
     return [m.joints[o], m.joints[o + 1], m.joints[o + 2]];
   }
 
@@ -17,7 +19,7 @@ var DiffkfcEditorView = (function () {
     return P.toWorld(k.pose, k.place, k.heading);
   }
 
-  function follow(E, w) {
+  function follow(E) {
     if (!E.follow || !E.motion) return;
     const p = motionJoint(E.motion, E.frame, 0);
     E.cam.target = [p[0], 0.9, p[2]];
@@ -49,7 +51,7 @@ var DiffkfcEditorView = (function () {
     const { w, h } = S.fit(cv, ctx);
     ctx.fillStyle = "#f8fafc";
     ctx.fillRect(0, 0, w, h);
-    follow(E, w);
+    follow(E);
     const camera = S.camera(E.cam, w, h);
     const proj = camera.proj;
     E.camera = camera;
