@@ -305,3 +305,16 @@ fn repose_undo_and_retime(page: &mut Page, (left, mid, w): (f64, f64, f64)) {
         "the retimed key is missed: pose {pose} m, place {place} m"
     );
 }
+
+/// `serve`'s own bad input: a queue out of range and a checkpoint that is not there are one-line
+/// errors naming the flag, and the command exits instead of serving.
+#[test]
+fn serve_refuses_bad_flags() {
+    let model = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/tiny-synth");
+    let o = diffkfc(&["serve", "--checkpoint", s(&model), "--port", "0", "--queue", "0"]);
+    assert_one_line_error(&o, &["--queue", "0", "1 to 1024"]);
+    let d = scratch("serve-bad");
+    let missing = d.join("no-such-model");
+    let o = diffkfc(&["serve", "--checkpoint", s(&missing), "--port", "0"]);
+    assert_one_line_error(&o, &["--checkpoint", "no-such-model"]);
+}
