@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # The GPU path end to end, in one command; run it first on any machine with a GPU.
-#   scripts/gpu-check.sh [wgpu|cuda] [--quick] [--torch PYTHON] [--json FILE]
+#   scripts/gpu-check.sh [wgpu|cuda] [--quick] [--torch PYTHON] [--json FILE] [--features LIST]
 # Builds the feature, runs the backend-parity test against flex (forward, training-step
 # gradients, Adam with its state on the device, a guided sample), trains on the device with
-# validation loss (the small config for 500 steps; --quick: a one-layer tiny config for 20),
+# validation loss (the small config for 500 steps; --quick: a one-layer tiny config for 30),
 # resumes that run on flex and a flex run on the device (the next steps must agree), samples the
 # reference model on the device and on flex, and runs one bench case (the paper config side by
 # side with PyTorch when --torch is given). Prints one table and writes it as JSON.
@@ -13,13 +13,16 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 dev="${1:-wgpu}"
 case "$dev" in wgpu|cuda) shift || true ;; -*) dev=wgpu ;; *) echo "error: device '$dev': wgpu or cuda" >&2; exit 2 ;; esac
-quick=0; torch=""; json=""
+quick=0; torch=""; json=""; extra=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --quick) quick=1; shift ;;
     --torch) torch="$2"; shift 2 ;;
     --json) json="$2"; shift 2 ;;
-    *) echo "error: unknown argument '$1' (usage: scripts/gpu-check.sh [wgpu|cuda] [--quick] [--torch PYTHON] [--json FILE])" >&2; exit 2 ;;
+    # More cargo features for the same build (CI adds diffkfc/ndarray so that backend's parity
+    # test reuses this build instead of compiling the Burn stack once more).
+    --features) extra="$2"; shift 2 ;;
+    *) echo "error: unknown argument '$1' (usage: scripts/gpu-check.sh [wgpu|cuda] [--quick] [--torch PYTHON] [--json FILE] [--features LIST])" >&2; exit 2 ;;
   esac
 done
 work="${DIFFKFC_WORK:-work}/gpu-check-$dev"
@@ -33,7 +36,7 @@ now() { date +%s.%N; }
 
 # One feature resolution for the binary and the parity test (an integration test of the cli
 # builds the binary), so the GPU stack compiles once.
-build=(cargo test --release -p diffkfc-model -p diffkfc --features "diffkfc/$dev" --test backend_parity)
+build=(cargo test --release -p diffkfc-model -p diffkfc --features "diffkfc/$dev${extra:+,$extra}" --test backend_parity)
 log "build --features $dev"
 t0=$(now)
 "${build[@]}" --test cli_model --no-run
@@ -43,7 +46,7 @@ cp "$bin" "$work/diffkfc-$dev"
 bin="$work/diffkfc-$dev"
 
 log "backend parity: flex against $dev"
-"${build[@]}" -- --nocapture 2>&1 | tee "$work/parity.log" || true  # judged by the report
+"${build[@]}" -- "$dev" --nocapture 2>&1 | tee "$work/parity.log" || true  # judged by the report
 
 log "data"
 clips=3000; [ "$quick" = 1 ] && clips=200
@@ -51,11 +54,11 @@ clips=3000; [ "$quick" = 1 ] && clips=200
 
 if [ "$quick" = 1 ]; then
   # A one-layer tiny network on 64-frame crops: small enough for a software driver.
-  steps=50; half=25
+  steps=30; half=15
   cat > "$work/train.json" <<'JSON'
 {"model": {"preset": "tiny", "dec_layers": 1, "dma_sizes": [2, 0], "max_frames": 64},
- "training": {"batch_size": 4, "lr": 0.001, "max_steps": 50, "warmup_steps": 2, "checkpoint_every": 25,
-              "keep_checkpoints": 3, "val_every": 25, "val_batches": 1, "log_every": 1, "seed": 0}}
+ "training": {"batch_size": 4, "lr": 0.001, "max_steps": 30, "warmup_steps": 2, "checkpoint_every": 15,
+              "keep_checkpoints": 3, "val_every": 15, "val_batches": 1, "log_every": 1, "seed": 0}}
 JSON
 else
   steps=500; half=250

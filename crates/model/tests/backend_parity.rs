@@ -1,11 +1,11 @@
 //! The network on flex (with the fused kernels) against another backend (Burn's composed ops)
 //! with the same weights: one forward, one training step (backward, clipping, Adam, and Adam
-//! with its state on the device) and a guided DDIM sample agree. The other backend is ndarray
-//! (`--features diffkfc-model/ndarray`) or wgpu (`--features diffkfc-model/wgpu`; in CI on
-//! Mesa's lavapipe, a software Vulkan: `VK_ICD_FILENAMES=.../lvp_icd.x86_64.json`). `.ci/run`
-//! runs both: `cargo test --release --workspace --features diffkfc-model/ndarray --test
-//! backend_parity`, and `scripts/gpu-check.sh wgpu --quick` for wgpu.
-#![cfg(any(feature = "ndarray", feature = "wgpu"))]
+//! with its state on the device) and a guided DDIM sample agree. The other backends are ndarray
+//! (`--features diffkfc-model/ndarray`), wgpu (`--features diffkfc-model/wgpu`; in CI on
+//! Mesa's lavapipe, a software Vulkan: `VK_ICD_FILENAMES=.../lvp_icd.x86_64.json`) and cuda, one test
+//! each, so one build with both features serves both (`.ci/run` builds them once through
+//! `scripts/gpu-check.sh wgpu --quick --features diffkfc/ndarray`).
+#![cfg(any(feature = "ndarray", feature = "wgpu", feature = "cuda"))]
 #![allow(deprecated)] // Burn marks its ndarray backend deprecated; it is the reference here
 
 use burn::prelude::*;
@@ -41,20 +41,29 @@ fn rel(a: &[f32], b: &[f32]) -> f64 {
     (num / den.max(1e-30)).sqrt()
 }
 
-/// The backend compared with flex, and the bounds of its forward and sample differences: ndarray
-/// runs the same f32 arithmetic on the CPU (measured 2e-7 and 3e-6); a GPU's reductions and
-/// transcendental functions differ more (the bounds: 1e-4 and 1e-3).
-fn other() -> (&'static str, Device, f64, f64) {
-    #[cfg(feature = "ndarray")]
-    return ("ndarray", Device::ndarray(), 1e-5, 1e-4);
-    #[cfg(not(feature = "ndarray"))]
-    return ("wgpu", Device::wgpu(burn::tensor::DeviceKind::DefaultDevice), 1e-4, 1e-3);
+/// ndarray runs the same f32 arithmetic on the CPU (measured 2e-7 forward and 3e-6 sample).
+#[cfg(feature = "ndarray")]
+#[test]
+fn flex_and_ndarray_agree() {
+    agree("ndarray", Device::ndarray(), 1e-5, 1e-4);
 }
 
+/// A GPU's reductions and transcendental functions differ more (the bounds: 1e-4 and 1e-3).
+#[cfg(feature = "wgpu")]
 #[test]
-fn flex_and_another_backend_agree() {
+fn flex_and_wgpu_agree() {
+    agree("wgpu", Device::wgpu(burn::tensor::DeviceKind::DefaultDevice), 1e-4, 1e-3);
+}
+
+#[cfg(feature = "cuda")]
+#[test]
+fn flex_and_cuda_agree() {
+    agree("cuda", Device::cuda(0), 1e-4, 1e-3);
+}
+
+/// Flex against `nd` (called `name`), with the bounds of the forward and sample differences.
+fn agree(name: &str, nd: Device, fwd_bound: f64, sample_bound: f64) {
     let flex = Device::flex();
-    let (name, nd, fwd_bound, sample_bound) = other();
     eprintln!("flex against {name}");
     flex.seed(1);
     let init = DiffKfcConfig::tiny().with_dropout(0.0).init(&flex);
