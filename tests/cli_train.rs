@@ -290,6 +290,31 @@ fn bad_train_arguments() {
         &diffkfc(&["train", "--config", s(&cfg), "--optimiser-state", "gpu"]),
         &["--optimiser-state", "gpu", "host or device"],
     );
+    // Data-parallel training needs CUDA devices (Burn 0.22 all-reduces only there): said
+    // before anything is written.
+    let dp = d.join("dp");
+    let train_on = |devices: &str| {
+        diffkfc(&[
+            "train",
+            "--config",
+            s(&cfg),
+            "--data",
+            s(&d),
+            "--out",
+            s(&dp),
+            "--devices",
+            devices,
+        ])
+    };
+    assert_one_line_error(&train_on("flex,flex"), &["--devices flex,flex", "CUDA devices only"]);
+    assert_one_line_error(
+        &train_on("cuda:0,cuda:1"),
+        &["--devices cuda:0,cuda:1", "this build lacks it"],
+    );
+    assert_one_line_error(&train_on("cuda:one"), &["cuda:one", "must be a number"]);
+    assert!(!dp.exists());
+    let o = diffkfc(&["train", "--config", s(&cfg), "--device", "flex", "--devices", "flex,flex"]);
+    assert!(!o.status.success() && stderr(&o).contains("cannot be used with"), "{}", stderr(&o));
     // Nothing to train, or an impossible pair of flags.
     assert_one_line_error(
         &diffkfc(&["train", "--config", s(&cfg), "--data", s(&d), "--max-steps", "0"]),

@@ -1,20 +1,78 @@
-//! `--device`: which Burn backend runs the model.
+//! `--device` and `--devices`: which Burn backend runs the model, and on which devices.
 
-use anyhow::{bail, Result};
+use anyhow::{anyhow, bail, Result};
 use burn::prelude::Device;
+use diffkfc_model::training::data_parallel::DataParallel;
 
+/// A device name: flex (or cpu), ndarray, wgpu, cuda; a GPU's may carry an index (`cuda:1`,
+/// `wgpu:1`: the second discrete GPU).
 pub fn parse(name: &str) -> Result<Device> {
-    match name {
+    let (kind, index) = match name.split_once(':') {
+        Some((k, i)) => {
+            let i: usize = i.parse().map_err(|_| {
+                anyhow!("--device {name}: the index after ':' must be a number (e.g. cuda:1)")
+            })?;
+            if !matches!(k, "wgpu" | "cuda") {
+                bail!("--device {name}: only wgpu and cuda devices take an index");
+            }
+            (k, Some(i))
+        }
+        None => (name, None),
+    };
+    let _ = index; // read only by the GPU arms of builds that have them
+    match kind {
         "flex" | "cpu" => Ok(Device::flex()),
         #[cfg(feature = "ndarray")]
         #[allow(deprecated)]
         "ndarray" => Ok(Device::ndarray()),
         #[cfg(feature = "wgpu")]
-        "wgpu" => Ok(Device::wgpu(burn::tensor::DeviceKind::DefaultDevice)),
+        "wgpu" => Ok(Device::wgpu(match index {
+            Some(i) => burn::tensor::DeviceKind::DiscreteGpu(i),
+            None => burn::tensor::DeviceKind::DefaultDevice,
+        })),
         #[cfg(feature = "cuda")]
-        "cuda" => Ok(Device::cuda(0)),
+        "cuda" => Ok(Device::cuda(index.unwrap_or(0))),
         // A guard, not a pattern: in builds with a backend its name is matched above.
-        n if matches!(n, "ndarray" | "wgpu" | "cuda") => bail!("--device {name}: this build lacks it; rebuild with `cargo build --release --features {name}`"),
-        other => bail!("--device: unknown device '{other}' (flex, ndarray, wgpu, cuda)"),
+        n if matches!(n, "ndarray" | "wgpu" | "cuda") => bail!("--device {name}: this build lacks it; rebuild with `cargo build --release --features {n}`"),
+        other => bail!("--device: unknown device '{other}' (flex, ndarray, wgpu, cuda; a GPU with an index: cuda:1)"),
+    }
+}
+
+/// `--devices cuda:0,cuda:1,...`: the devices of a data-parallel run, checked (two or more,
+/// each one Burn can all-reduce gradients on, none twice).
+pub fn parse_many(list: &str) -> Result<DataParallel> {
+    let devices = list
+        .split(',')
+        .map(|n| parse(n.trim()).map_err(|e| anyhow!("--devices {list}: {e}")))
+        .collect::<Result<Vec<_>>>()?;
+    DataParallel::new(devices).map_err(|e| anyhow!("--devices {list}: {e}"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_and_indices() {
+        assert!(parse("flex").is_ok() && parse("cpu").is_ok());
+        let e = parse("cuda:x").unwrap_err().to_string();
+        assert!(e.contains("must be a number"), "{e}");
+        let e = parse("flex:1").unwrap_err().to_string();
+        assert!(e.contains("only wgpu and cuda"), "{e}");
+        let e = parse("tpu").unwrap_err().to_string();
+        assert!(e.contains("unknown device 'tpu'"), "{e}");
+    }
+
+    #[test]
+    fn devices_name_the_list_and_the_problem() {
+        let e = parse_many("flex,flex").unwrap_err().to_string();
+        assert!(e.starts_with("--devices flex,flex: ") && e.contains("CUDA devices only"), "{e}");
+        let e = parse_many("flex").unwrap_err().to_string();
+        assert!(e.contains("two or more"), "{e}");
+        #[cfg(not(feature = "cuda"))]
+        {
+            let e = parse_many("cuda:0,cuda:1").unwrap_err().to_string();
+            assert!(e.contains("this build lacks it"), "{e}");
+        }
     }
 }

@@ -114,6 +114,7 @@ fn keyframes_reproduce_a_clip_far_better_than_text() {
         optimiser: StateLocation::Host,
         run_dir: run_dir.clone(),
         init: None,
+        parallel: None,
     };
     tr.run(false, steps, &|| false, &mut |_| {}).unwrap();
     let train_s = t0.elapsed().as_secs_f64();

@@ -86,6 +86,7 @@ fn resume_is_exact_and_checkpoints_rotate() {
         optimiser: StateLocation::Host,
         run_dir: root.join(dir),
         init: None,
+        parallel: None,
     };
     let never = || false;
 
@@ -163,6 +164,7 @@ fn device_resident_optimiser_matches_host_and_resumes_exactly() {
         optimiser,
         run_dir: root.join(dir),
         init: None,
+        parallel: None,
     };
     let never = || false;
     let mut norms = Vec::new();
@@ -228,6 +230,7 @@ fn tiny_config_lowers_validation_loss() {
         optimiser: StateLocation::Host,
         run_dir: root.join("run"),
         init: None,
+        parallel: None,
     };
     tr.run(false, 120, &|| false, &mut |_| {}).unwrap();
     let vals: Vec<(u64, f64)> = std::fs::read_to_string(root.join("run/metrics.jsonl"))
@@ -330,6 +333,7 @@ fn shard_gradients_weighted_by_counts_equal_the_batch_gradient() {
         optimiser: StateLocation::Host,
         run_dir: root.join("run"),
         init: None,
+        parallel: None,
     };
     let device = Device::flex().autodiff();
     device.seed(5);
@@ -358,4 +362,79 @@ fn shard_gradients_weighted_by_counts_equal_the_batch_gradient() {
     assert!(by_counts < 1e-5, "{by_counts}");
     assert!(by_mean > 1e-3, "{by_mean}");
     std::fs::remove_dir_all(root).unwrap();
+}
+
+/// Data-parallel training (`train --devices`) with two replicas, here both on flex with their
+/// gradients summed on the host (Burn's all-reduce exists for CUDA only): each replica trains on
+/// its half of every batch with that half's timesteps, noise and dropout masks, and the run
+/// follows the one-device run; its checkpoints are the one-device format and resume there.
+#[test]
+fn data_parallel_replicas_follow_the_one_device_run() {
+    use diffkfc_model::training::data_parallel::DataParallel;
+    let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let (root, ds, train, val, text) = prepared("data-parallel", 24);
+    let cfg = config();
+    let mk = |dir: &str, replicas: usize| Trainer {
+        cfg: &cfg,
+        ds: &ds,
+        train: &train,
+        val: Some(&val),
+        text: &text,
+        device: Device::flex(),
+        optimiser: StateLocation::Host,
+        run_dir: root.join(dir),
+        init: None,
+        parallel: (replicas > 1)
+            .then(|| DataParallel::host_sum(vec![Device::flex(); replicas]).unwrap()),
+    };
+    let never = || false;
+    let mut norms = [Vec::new(), Vec::new()];
+    for (i, (dir, k)) in [("one", 1), ("two", 2)].into_iter().enumerate() {
+        mk(dir, k)
+            .run(false, 6, &never, &mut |e| {
+                if let Event::Step(r) = e {
+                    norms[i].push(r.grad_norm)
+                }
+            })
+            .unwrap();
+    }
+    let (a, b) = (losses(&root.join("one")), losses(&root.join("two")));
+    let worst =
+        a.iter().zip(&b).map(|((_, x), (_, y))| (x - y).abs() / x.abs()).fold(0.0, f64::max);
+    let worst_norm =
+        norms[0].iter().zip(&norms[1]).map(|(x, y)| (x - y).abs() / x).fold(0.0, f64::max);
+    eprintln!("one device vs two replicas, 6 steps: loss {worst:.2e}, gradient norm {worst_norm:.2e} (largest relative difference)");
+    assert_eq!(a.len(), 6);
+    assert!(worst < 1e-5 && worst_norm < 1e-4, "loss {worst:e}, gradient norm {worst_norm:e}");
+    let last = |dir: &str| Checkpoint::latest(&root.join(dir)).unwrap().unwrap();
+    let (c1, c2) = (last("one"), last("two"));
+    assert_eq!((c2.step, c2.adam_step, &c2.names, &c2.shapes), (6, 6, &c1.names, &c1.shapes));
+    for (what, x, y) in [
+        ("weights", &c1.model, &c2.model),
+        ("ema", c1.ema.as_ref().unwrap(), c2.ema.as_ref().unwrap()),
+        ("adam m", &c1.adam_m, &c2.adam_m),
+        ("adam v", &c1.adam_v, &c2.adam_v),
+    ] {
+        let r = rel(x, y);
+        eprintln!("{what}: one device vs two replicas after 6 steps: relative L2 {r:e}");
+        assert!(r < 1e-4, "{what}: differ by {r:e} (relative L2)");
+    }
+    // Three steps on two replicas resumed on one device continue the same run.
+    mk("split", 2).run(false, 3, &never, &mut |_| {}).unwrap();
+    mk("split", 1).run(true, 6, &never, &mut |_| {}).unwrap();
+    let s = losses(&root.join("split"));
+    let worst =
+        a.iter().zip(&s).map(|((_, x), (_, y))| (x - y).abs() / x.abs()).fold(0.0, f64::max);
+    assert!(worst < 1e-5, "resumed on one device: loss differs by {worst:e}");
+    // A batch smaller than the replicas is refused before anything is written.
+    let e = Trainer {
+        parallel: Some(DataParallel::host_sum(vec![Device::flex(); 5]).unwrap()),
+        ..mk("five", 1)
+    }
+    .run(false, 1, &never, &mut |_| {})
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("batch_size 4 is smaller than the 5 devices"), "{e}");
+    assert!(!root.join("five").exists());
+    let _ = std::fs::remove_dir_all(&root);
 }

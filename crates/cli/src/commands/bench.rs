@@ -11,6 +11,7 @@ use burn::prelude::Device;
 use clap::Args;
 use diffkfc_model::bench::{Sampling, TrainStep};
 use diffkfc_model::run::config::RunConfig;
+use diffkfc_model::training::memory::device_memory;
 use diffkfc_model::DiffKfcConfig;
 use serde_json::{json, Value};
 
@@ -253,6 +254,17 @@ fn emit(v: Value) {
     println!("{v}");
 }
 
+/// What a GPU device's memory pools hold after a case (MB; null on the CPU backends): the
+/// reserved bytes are the high-water mark of the run so far.
+fn memory(device: &Device) -> Value {
+    match device_memory(device) {
+        Some(m) => {
+            json!({"in_use_mb": m.in_use as f64 / 1e6, "reserved_mb": m.reserved as f64 / 1e6})
+        }
+        None => Value::Null,
+    }
+}
+
 /// Times the model cases asked for, printing a line each; returns the medians by case name.
 fn model_cases(
     a: &BenchArgs,
@@ -275,7 +287,7 @@ fn model_cases(
             "train_step",
             t,
             w.flops(cfg) / 1e9,
-            json!({"batch": b, "last_step_phases_ms": {"forward": f, "backward": bw, "host_update": up}, "common": common}),
+            json!({"batch": b, "last_step_phases_ms": {"forward": f, "backward": bw, "host_update": up}, "device_memory": memory(device), "common": common}),
         ));
     }
     let ddim = with_ddim && cases.contains(&"ddim");
@@ -292,7 +304,7 @@ fn model_cases(
             "sampling_call",
             t,
             f.total() / 1e9,
-            json!({"batch": 2, "encoder": true, "common": common}),
+            json!({"batch": 2, "encoder": true, "device_memory": memory(device), "common": common}),
         ));
     }
     if cases.contains(&"call-cached") {
@@ -302,7 +314,7 @@ fn model_cases(
             "sampling_call_cached",
             t,
             f.decoder / 1e9,
-            json!({"batch": 2, "encoder": false, "common": common}),
+            json!({"batch": 2, "encoder": false, "device_memory": memory(device), "common": common}),
         ));
     }
     if ddim {
@@ -313,7 +325,7 @@ fn model_cases(
             "ddim",
             t,
             (f.encoder + steps as f64 * f.decoder) / 1e9,
-            json!({"steps": steps, "kf_guidance": 2.5, "transition_guidance": 100.0, "finite": finite, "common": common}),
+            json!({"steps": steps, "kf_guidance": 2.5, "transition_guidance": 100.0, "finite": finite, "device_memory": memory(device), "common": common}),
         ));
     }
     Ok(ours)

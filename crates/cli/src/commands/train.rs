@@ -48,6 +48,11 @@ pub struct TrainArgs {
     /// cargo feature.
     #[arg(long, default_value = "flex", value_name = "flex|ndarray|wgpu|cuda")]
     device: String,
+    /// Train data-parallel on these devices (cuda:0,cuda:1,...): a replica of the model on
+    /// each, a shard of every batch each, gradients summed by Burn's all-reduce (CUDA only in
+    /// Burn 0.22). Checkpoints and resume are those of a one-device run.
+    #[arg(long, conflicts_with = "device", value_name = "cuda:0,cuda:1,...")]
+    devices: Option<String>,
     /// Where Adam's moments and the EMA live: host (one fused pass over host vectors: the
     /// default for flex and ndarray) or device (tensor operations on the device, weights never
     /// leave it: the default for wgpu and cuda). Checkpoints are the same either way.
@@ -104,8 +109,12 @@ pub fn run(a: TrainArgs) -> Result<()> {
     if let Some(p) = a.init.as_ref().filter(|p| !p.exists()) {
         bail!("--init: {} does not exist", p.display());
     }
-    let device = crate::device::parse(&a.device)?;
-    check_memory(&cfg, &a.device)?;
+    let parallel = a.devices.as_deref().map(crate::device::parse_many).transpose()?;
+    let device = match &parallel {
+        Some(dp) => dp.devices()[0].clone(),
+        None => crate::device::parse(&a.device)?,
+    };
+    check_memory(&cfg, if parallel.is_some() { "cuda" } else { &a.device })?;
     let d = TrainingData::open(&cfg, &data)?;
     cfg.bind_dataset(&d.ds.mean, &d.ds.std);
     let _held = RunLock::claim(&run.path, claim)?;
@@ -134,13 +143,21 @@ pub fn run(a: TrainArgs) -> Result<()> {
         device,
         run_dir: run.path.clone(),
         init: a.init.clone(),
+        parallel,
     };
     let mut first: Option<(usize, f64)> = None;
     let outcome = trainer.run(a.resume, max_steps, &stop, &mut |e| match e {
         Event::Step(r) => {
             first.get_or_insert((r.step, r.loss));
             pb.set_position(r.step as u64);
-            pb.set_message(format!("loss {:.4}", r.loss));
+            let mem = r.device_memory.map_or(String::new(), |m| {
+                format!(
+                    ", device memory {:.0} MB in use, {:.0} MB reserved",
+                    m.in_use as f64 / 1e6,
+                    m.reserved as f64 / 1e6
+                )
+            });
+            pb.set_message(format!("loss {:.4}{mem}", r.loss));
         }
         Event::Checkpoint(_, _) => {}
         Event::WarmStart(fresh) => pb.suspend(|| {

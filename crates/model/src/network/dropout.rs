@@ -3,32 +3,51 @@
 //! folded in: Burn's dropout draws every element through ChaCha and a generic sampler and
 //! multiplies twice, about 5% of a paper training step. Active only on an autodiff device
 //! (training), as Burn's. `seed` (the trainer calls it every step) makes the masks reproducible,
-//! so resumed runs repeat the same masks.
+//! so resumed runs repeat the same masks. The stream is per thread: data-parallel replicas run
+//! on their own threads, each on a shard of the batch (`seed_shard`).
 
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::cell::Cell;
 
 use burn::prelude::*;
 use diffkfc_data::rng::Rng;
 use rayon::prelude::*;
 
-static SEED: AtomicU64 = AtomicU64::new(0);
-static CALLS: AtomicU64 = AtomicU64::new(0);
-
-/// Restart the mask stream (process-wide, like Burn's device RNG).
-pub fn seed(seed: u64) {
-    SEED.store(seed, Ordering::SeqCst);
-    CALLS.store(0, Ordering::SeqCst);
+/// This thread's stream: seed, calls so far, and the shard (first sample, samples).
+#[derive(Clone, Copy)]
+struct Stream {
+    seed: u64,
+    calls: u64,
+    first: usize,
+    samples: usize,
 }
 
-/// The mask of `n` elements: 1 / keep where kept, 0 where dropped.
-fn mask(n: usize, prob: f64, key: u64) -> Vec<f32> {
+thread_local! {
+    static STREAM: Cell<Stream> = const { Cell::new(Stream { seed: 0, calls: 0, first: 0, samples: 0 }) };
+}
+
+/// Restart this thread's mask stream on a whole batch.
+pub fn seed(seed: u64) {
+    seed_shard(seed, 0, 0);
+}
+
+/// Restart this thread's mask stream for a shard of a batch: `samples` samples from sample
+/// `first`. Every tensor dropout sees has the sample as its outermost dimension, so an element's
+/// index in the whole batch is its index in the shard plus `first` times the shard's elements
+/// per sample, and the shard draws exactly the whole batch's mask for its samples.
+pub fn seed_shard(seed: u64, first: usize, samples: usize) {
+    STREAM.set(Stream { seed, calls: 0, first, samples });
+}
+
+/// The mask of `n` elements: 1 / keep where kept, 0 where dropped; element `i` is hashed as
+/// `offset + i`.
+fn mask(n: usize, prob: f64, key: u64, offset: usize) -> Vec<f32> {
     let keep = 1.0 - prob;
     let threshold = (keep * u64::MAX as f64) as u64;
     let scale = (1.0 / keep) as f32;
     let mut m = vec![0f32; n];
     m.par_chunks_mut(1 << 16).enumerate().for_each(|(c, chunk)| {
         for (i, v) in chunk.iter_mut().enumerate() {
-            let h = Rng::hash(key ^ ((c << 16) + i) as u64);
+            let h = Rng::hash(key ^ (offset + (c << 16) + i) as u64);
             *v = if h < threshold { scale } else { 0.0 };
         }
     });
@@ -60,9 +79,12 @@ impl Dropout {
         if self.prob <= 0.0 || !x.device().is_autodiff() {
             return None;
         }
-        let call = CALLS.fetch_add(1, Ordering::SeqCst);
-        let key = Rng::hash(SEED.load(Ordering::SeqCst) ^ Rng::hash(call.wrapping_add(1)));
-        Some(mask(x.shape().num_elements(), self.prob, key))
+        let s = STREAM.get();
+        STREAM.set(Stream { calls: s.calls + 1, ..s });
+        let key = Rng::hash(s.seed ^ Rng::hash(s.calls.wrapping_add(1)));
+        let n = x.shape().num_elements();
+        let offset = n.checked_div(s.samples).map_or(0, |per| s.first * per);
+        Some(mask(n, self.prob, key, offset))
     }
 }
 
@@ -72,15 +94,32 @@ mod tests {
 
     #[test]
     fn mask_keeps_the_right_share_with_the_right_scale() {
-        let m = mask(200_000, 0.1, 7);
+        let m = mask(200_000, 0.1, 7, 0);
         let kept = m.iter().filter(|&&v| v > 0.0).count() as f64 / m.len() as f64;
         assert!((kept - 0.9).abs() < 0.005, "{kept}");
         assert!(m.iter().all(|&v| v == 0.0 || (v - 1.0 / 0.9).abs() < 1e-6));
         // Expectation preserved; same key, same mask; another key, another mask.
         let mean = m.iter().map(|&v| v as f64).sum::<f64>() / m.len() as f64;
         assert!((mean - 1.0).abs() < 0.01, "{mean}");
-        assert_eq!(m, mask(200_000, 0.1, 7));
-        assert_ne!(m, mask(200_000, 0.1, 8));
+        assert_eq!(m, mask(200_000, 0.1, 7, 0));
+        assert_ne!(m, mask(200_000, 0.1, 8, 0));
+    }
+
+    #[test]
+    fn a_shard_draws_the_whole_batch_mask_for_its_samples() {
+        let dev = Device::flex().autodiff();
+        let x = |b: usize| Tensor::<3>::zeros([b, 3, 50], &dev);
+        let d = Dropout::new(0.3);
+        seed(11);
+        let whole = [d.host_mask(&x(4)).unwrap(), d.host_mask(&x(4)).unwrap()];
+        let per = 3 * 50;
+        for (first, samples) in [(0, 2), (2, 2), (1, 3)] {
+            seed_shard(11, first, samples);
+            for w in &whole {
+                let m = d.host_mask(&x(samples)).unwrap();
+                assert_eq!(m, w[first * per..(first + samples) * per]);
+            }
+        }
     }
 
     #[test]

@@ -63,6 +63,27 @@ pub fn grads<M: Module>(m: &M, grads: &GradientsParams) -> Vec<Vec<f32>> {
     v.out
 }
 
+struct Register<'a> {
+    vals: std::slice::Iter<'a, Vec<f32>>,
+    out: GradientsParams,
+}
+impl ModuleVisitor for Register<'_> {
+    fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
+        let v = self.vals.next().expect("one gradient per parameter").clone();
+        let t = p.val();
+        let g = Tensor::<D>::from_data(TensorData::new(v, t.shape()), &t.inner().device());
+        self.out.register(p.id, g);
+    }
+}
+
+/// Gradients (visit order, as `grads` gives them) as Burn's gradients of `m`'s parameters, on
+/// each parameter's device without autodiff.
+pub fn gradients<M: Module>(m: &M, vals: &[Vec<f32>]) -> GradientsParams {
+    let mut r = Register { vals: vals.iter(), out: GradientsParams::new() };
+    m.visit(&mut r);
+    r.out
+}
+
 struct Load<'a> {
     vals: &'a [Vec<f32>],
     i: usize,

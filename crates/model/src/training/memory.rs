@@ -1,5 +1,6 @@
 //! How much memory a training run will take, estimated before it starts, so that a batch too
-//! large for the memory the process may use is refused instead of killed by the kernel.
+//! large for the memory the process may use is refused instead of killed by the kernel; and
+//! how much a GPU device holds while it runs (`device_memory`).
 //!
 //! Calibrated on the flex backend (peak resident memory over two training steps, 2026-11-23):
 //! tiny at batch 8 / 32 / 256: 246 / 246 / 1689 MB; small at batch 16 / 64: 603 / 1966 MB. Per
@@ -61,6 +62,29 @@ pub fn available_bytes() -> Option<f64> {
     .flatten()
     .map(|b| b.max(0.0))
     .reduce(f64::min)
+}
+
+/// What a GPU device's memory pools hold (CubeCL's report, every stream of the device).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct DeviceMemory {
+    /// Bytes of live tensors.
+    pub in_use: u64,
+    /// Bytes the pools hold from the driver. Pools keep their pages until cleaned up, so this
+    /// is the high-water mark of the run so far (like PyTorch's max_memory_reserved).
+    pub reserved: u64,
+}
+
+/// The memory of `device` where Burn runs it through CubeCL (wgpu, cuda); None for the CPU
+/// backends (their memory is the process's: `available_bytes`, the run's resident size).
+/// It waits for the device's queued work, so read it once per step, not inside one.
+pub fn device_memory(device: &burn::prelude::Device) -> Option<DeviceMemory> {
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    if let burn::backend::DispatchDevice::Cube(d) = device.as_dispatch().clone().inner() {
+        let u = d.client().memory_report(burn::cubecl::MemoryScope::Device).usage();
+        return Some(DeviceMemory { in_use: u.bytes_in_use, reserved: u.bytes_reserved });
+    }
+    let _ = device;
+    None
 }
 
 /// A `Name:   123 kB` line of /proc, in bytes.

@@ -66,6 +66,34 @@ pub enum Combine {
     Mean,
 }
 
+/// A shard's weight on each loss term: its share of the batch's count that term divides by.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Shares {
+    pub free: f64,
+    pub observed: f64,
+    pub frames: f64,
+    pub pairs: f64,
+}
+
+impl Shares {
+    /// The whole batch.
+    pub const ONE: Shares = Shares { free: 1.0, observed: 1.0, frames: 1.0, pairs: 1.0 };
+
+    pub fn of(mine: &Counts, all: &Counts, shards: usize, combine: Combine) -> Shares {
+        let share = |m: f64, a: f64| match combine {
+            Combine::ByCounts if a > 0.0 => m / a,
+            Combine::ByCounts => 0.0,
+            Combine::Mean => 1.0 / shards as f64,
+        };
+        Shares {
+            free: share(mine.free, all.free),
+            observed: share(mine.observed, all.observed),
+            frames: share(mine.frames, all.frames),
+            pairs: share(mine.pairs, all.pairs),
+        }
+    }
+}
+
 /// One shard's objective: backward of it on every shard, gradients summed, gives the gradient
 /// of `Losses::total` over the whole batch (`Combine::ByCounts`).
 pub(crate) fn shard_objective(
@@ -76,21 +104,17 @@ pub(crate) fn shard_objective(
     shards: usize,
     combine: Combine,
 ) -> Tensor<1> {
-    let share = |m: f64, a: f64| match combine {
-        Combine::ByCounts if a > 0.0 => m / a,
-        Combine::ByCounts => 0.0,
-        Combine::Mean => 1.0 / shards as f64,
-    };
-    let mut t = l.simple.clone() * share(mine.free, all.free);
-    for (term, w, m, a) in [
-        (&l.key, k.keyframe_loss, mine.observed, all.observed),
-        (&l.smooth, k.smooth_loss, mine.pairs, all.pairs),
-        (&l.pos, k.lambda_pos, mine.frames, all.frames),
-        (&l.vel, k.lambda_vel, mine.pairs, all.pairs),
-        (&l.foot, k.lambda_foot, mine.pairs, all.pairs),
+    let s = Shares::of(mine, all, shards, combine);
+    let mut t = l.simple.clone() * s.free;
+    for (term, w, share) in [
+        (&l.key, k.keyframe_loss, s.observed),
+        (&l.smooth, k.smooth_loss, s.pairs),
+        (&l.pos, k.lambda_pos, s.frames),
+        (&l.vel, k.lambda_vel, s.pairs),
+        (&l.foot, k.lambda_foot, s.pairs),
     ] {
         if let Some(x) = term {
-            t = t + x.clone() * (w * share(m, a));
+            t = t + x.clone() * (w * share);
         }
     }
     t

@@ -6,9 +6,7 @@
 //! Every random draw is derived from (seed, step): the batch, the timesteps, the noise and the
 //! dropout masks. A run of 2N steps and a run of N steps resumed to 2N are the same run.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use burn::prelude::*;
 use diffkfc_data::dataset::batch::{Batch, Loader};
@@ -24,10 +22,44 @@ use crate::run::checkpoint::Checkpoint;
 use crate::run::config::RunConfig;
 use crate::text::cache::EmbeddingCache;
 use crate::training::batch::to_tensors;
+use crate::training::data_parallel::{
+    self, on_replicas, DataParallel, GradSum, HostSum, Replica, Shard,
+};
+use crate::training::losses::Losses;
 use crate::training::losses::{losses, Kinematic};
+use crate::training::memory::{device_memory, DeviceMemory};
 use crate::training::optim::{learning_rate, Optimiser, Snapshot, StateLocation};
-use crate::training::parallel::{shard_objective, Combine, Counts};
+use crate::training::parallel::{shard_objective, Combine, Shares};
+use crate::training::run_files::{non_finite, RunFiles};
 use crate::Denoiser;
+
+/// A step's loss and its terms (each term unweighted, as `Losses` has it).
+#[derive(Clone, Copy, Debug)]
+struct Terms {
+    total: f64,
+    simple: f64,
+    key: Option<f64>,
+    smooth: Option<f64>,
+    pos: Option<f64>,
+    vel: Option<f64>,
+    foot: Option<f64>,
+}
+
+impl Terms {
+    /// The batch's terms from its shards' (each already weighted by its share).
+    fn add(self, o: Terms) -> Terms {
+        let plus = |a: Option<f64>, b: Option<f64>| a.zip(b).map(|(a, b)| a + b);
+        Terms {
+            total: self.total + o.total,
+            simple: self.simple + o.simple,
+            key: plus(self.key, o.key),
+            smooth: plus(self.smooth, o.smooth),
+            pos: plus(self.pos, o.pos),
+            vel: plus(self.vel, o.vel),
+            foot: plus(self.foot, o.foot),
+        }
+    }
+}
 
 /// One optimisation step's record (a line of metrics.jsonl).
 #[derive(Clone, Debug, serde::Serialize)]
@@ -50,6 +82,9 @@ pub struct StepRecord {
     pub wall_s: f64,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub val_loss: Option<f64>,
+    /// A GPU device's memory after the step (None on the CPU backends).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub device_memory: Option<DeviceMemory>,
 }
 
 pub enum Event<'a> {
@@ -72,6 +107,8 @@ pub struct Trainer<'a> {
     pub optimiser: StateLocation,
     /// A fresh run starts from these weights (`warm_start`) instead of the initialisation.
     pub init: Option<PathBuf>,
+    /// Train data-parallel on these devices (`device` is then the first of them).
+    pub parallel: Option<DataParallel>,
 }
 
 /// How a training call ended.
@@ -113,33 +150,34 @@ impl Trainer<'_> {
         }
     }
 
-    /// Timesteps and noise of a step, from (seed, stream, index) only.
+    /// Timesteps and noise ([B * N * D]) of a step, from (seed, stream, index) only.
     fn draw(
         &self,
         stream: u64,
         index: u64,
         [b, n, d]: [usize; 3],
         steps: usize,
-        device: &Device,
-    ) -> (Vec<usize>, Tensor<3>) {
+    ) -> (Vec<usize>, Vec<f32>) {
         let mut r = Rng::derive(self.cfg.training.seed, stream, index);
         let t: Vec<usize> = (0..b).map(|_| r.below(steps)).collect();
         let noise: Vec<f32> = (0..b * n * d).map(|_| r.normal() as f32).collect();
-        (t, Tensor::<1>::from_floats(noise.as_slice(), device).reshape([b, n, d]))
+        (t, noise)
     }
 
-    /// Loss of the model on a batch at the given timesteps and noise.
+    /// Loss of the model on a batch at the given timesteps and noise ([B * N * D]).
     fn batch_loss(
         &self,
         model: &Denoiser,
         schedule: &Schedule,
         b: &Batch,
         t: &[usize],
-        noise: Tensor<3>,
+        noise: &[f32],
         device: &Device,
-    ) -> crate::training::losses::Losses {
+    ) -> Losses {
         let abs = self.cfg.model.absolute();
         let tb = to_tensors(b, &self.text_of(b), self.text.dim, abs.as_ref(), device);
+        let noise =
+            Tensor::<1>::from_floats(noise, device).reshape([b.batch_size, b.frames, b.dim]);
         let x_t = schedule.q_sample(tb.x0.clone(), t, noise);
         let pred = model.forward(x_t, t, &tb.cond);
         losses(tb.x0, pred, tb.cond.kf_mask, tb.valid, &self.kinematic())
@@ -160,19 +198,10 @@ impl Trainer<'_> {
     ) -> Vec<Vec<f32>> {
         let schedule = self.cfg.diffusion.schedule().expect("a validated config");
         let device = model.devices().first().cloned().expect("a model device");
-        let (n, d) = (b.frames, b.dim);
-        let per = b.batch_size.div_ceil(shards.max(1));
-        let ranges: Vec<_> =
-            (0..b.batch_size).step_by(per.max(1)).map(|s| s..(s + per).min(b.batch_size)).collect();
-        let parts: Vec<Batch> = ranges.iter().map(|r| b.shard(r.clone())).collect();
-        let counts: Vec<Counts> = parts.iter().map(Counts::of).collect();
-        let all = Counts::sum(&counts);
         let mut sum: Vec<Vec<f32>> = Vec::new();
-        for ((part, r), mine) in parts.iter().zip(&ranges).zip(&counts) {
-            let nz = Tensor::<1>::from_floats(&noise[r.start * n * d..r.end * n * d], &device)
-                .reshape([r.len(), n, d]);
-            let l = self.batch_loss(model, &schedule, part, &t[r.clone()], nz, &device);
-            let obj = shard_objective(&l, &self.kinematic(), mine, &all, ranges.len(), combine);
+        for sh in data_parallel::shards(b, t, noise, shards) {
+            let l = self.batch_loss(model, &schedule, &sh.batch, sh.t, sh.noise, &device);
+            let obj = shard_objective(&l, &self.kinematic(), &sh.mine, &sh.all, sh.shards, combine);
             let grads = burn::optim::GradientsParams::from_grads(obj.backward(), model);
             let g = params::grads(model, &grads);
             if sum.is_empty() {
@@ -203,8 +232,8 @@ impl Trainer<'_> {
         for k in 0..n {
             let b = loader.batch(0, k);
             let (t, noise) =
-                self.draw(0xFA11, k as u64, [b.batch_size, b.frames, b.dim], schedule.steps, &dev);
-            let l = self.batch_loss(&model, schedule, &b, &t, noise, &dev);
+                self.draw(0xFA11, k as u64, [b.batch_size, b.frames, b.dim], schedule.steps);
+            let l = self.batch_loss(&model, schedule, &b, &t, &noise, &dev);
             total += scalar(l.total(&self.kinematic()));
         }
         Some(total / n as f64)
@@ -221,39 +250,50 @@ impl Trainer<'_> {
     ) -> Result<Outcome> {
         let tc = &self.cfg.training;
         let schedule = self.checked_schedule(max_steps)?;
+        if let Some(dp) = self.parallel.as_ref().filter(|dp| dp.devices().len() > tc.batch_size) {
+            return Err(ModelError::Config(format!(
+                "training.batch_size {} is smaller than the {} devices of a data-parallel run",
+                tc.batch_size,
+                dp.devices().len()
+            )));
+        }
         std::fs::create_dir_all(&self.run_dir).map_err(ModelError::io(&self.run_dir))?;
         let device = self.device.clone().autodiff();
         device.seed(tc.seed);
-        let (mut model, mut optim, start) = self.starting_point(resume, &device, on_event)?;
+        let (model, optim, start) = self.starting_point(resume, &device, on_event)?;
         let mut files = RunFiles::open(self, &model, start)?;
+        // One replica per device; the context of Burn's all-reduce lives as long as they do.
+        let (mut reps, _comm) = match &self.parallel {
+            Some(dp) => dp.replicas(self.cfg, optim.snapshot(&model)),
+            None => (vec![Replica::new(device, model, optim)], None),
+        };
+        let host_sum = self.parallel.as_ref().is_some_and(|dp| dp.sum() == GradSum::Host);
         let loader =
             Loader::new(self.ds, self.train, tc.batch_size, tc.seed, self.cfg.keyframes.clone());
         let (mut step, mut last, mut stopped) = (start, None, false);
+        let eval = |reps: &[Replica]| reps[0].optim.eval_weights(reps[0].model()).into_owned();
         // Validation lines without a training loss: before the first step of a fresh run, and
         // where a run is stopped early, so start and end are always measured.
         if start == 0 && tc.val_every > 0 && step < max_steps {
-            files.validation(0, self.validate(&optim.eval_weights(&model), &schedule))?;
+            files.validation(0, self.validate(&eval(&reps), &schedule))?;
         }
         while step < max_steps {
             if stop() {
                 stopped = true;
                 if tc.val_every > 0 && step > start {
-                    files
-                        .validation(step, self.validate(&optim.eval_weights(&model), &schedule))?;
+                    files.validation(step, self.validate(&eval(&reps), &schedule))?;
                 }
                 break;
             }
-            let (updated, mut rec) =
-                self.step(model, &mut optim, &loader, &schedule, step, &device, &files)?;
-            model = updated;
+            let mut rec = self.step(&mut reps, host_sum, &loader, &schedule, step, &files)?;
             step += 1;
             if tc.val_every > 0 && (step % tc.val_every == 0 || step == max_steps) {
-                rec.val_loss = self.validate(&optim.eval_weights(&model), &schedule);
+                rec.val_loss = self.validate(&eval(&reps), &schedule);
             }
             files.record(&rec)?;
             on_event(Event::Step(&rec));
             if step % tc.checkpoint_every.max(1) == 0 || step == max_steps {
-                let p = files.checkpoint(step, optim.snapshot(&model))?;
+                let p = files.checkpoint(step, reps[0].optim.snapshot(reps[0].model()))?;
                 on_event(Event::Checkpoint(step, &p));
             }
             last = Some(rec);
@@ -262,7 +302,7 @@ impl Trainer<'_> {
             && step > start
             && !Checkpoint::list(&self.run_dir).iter().any(|(s, _)| *s == step)
         {
-            let p = files.checkpoint(step, optim.snapshot(&model))?;
+            let p = files.checkpoint(step, reps[0].optim.snapshot(reps[0].model()))?;
             on_event(Event::Checkpoint(step, &p));
         }
         Ok(Outcome { start_step: start, end_step: step, stopped_early: stopped, last })
@@ -326,155 +366,89 @@ impl Trainer<'_> {
     }
 
     /// One optimisation step from `step` (its batch, timesteps, noise and dropout derived from
-    /// the seed and the step): the updated model and the step's record.
-    #[allow(clippy::too_many_arguments)]
+    /// the seed and the step) on every replica, each on its shard of the batch: the step's record.
     fn step(
         &self,
-        model: Denoiser,
-        optim: &mut Optimiser,
+        reps: &mut [Replica],
+        host_sum: bool,
         loader: &Loader,
         schedule: &Schedule,
         step: usize,
-        device: &Device,
         files: &RunFiles,
-    ) -> Result<(Denoiser, StepRecord)> {
+    ) -> Result<StepRecord> {
         let tc = &self.cfg.training;
         let step_seed = tc.seed.wrapping_mul(0x9E37_79B9).wrapping_add(step as u64);
-        device.seed(step_seed);
-        crate::network::dropout::seed(step_seed);
         let per_epoch = loader.batches_per_epoch().max(1);
         let b = loader.batch((step / per_epoch) as u64, step % per_epoch);
         let (t, noise) =
-            self.draw(0x7EA1, step as u64, [b.batch_size, b.frames, b.dim], schedule.steps, device);
-        let l = self.batch_loss(&model, schedule, &b, &t, noise, device);
-        let total = l.total(&self.kinematic());
+            self.draw(0x7EA1, step as u64, [b.batch_size, b.frames, b.dim], schedule.steps);
         let lr = learning_rate(tc.lr, step, tc.warmup_steps, tc.cosine_decay, tc.max_steps);
-        let loss = scalar(total.clone());
-        if !loss.is_finite() {
-            // Stop before the step is taken: the weights and every checkpoint stay finite.
-            return Err(non_finite(step + 1, "loss", loss, &self.run_dir));
+        // Early in training the EMA follows closely (as in common EMA warm-ups).
+        let decay = tc.ema_decay.min((1.0 + step as f64) / (10.0 + step as f64));
+        let hyper = (tc.grad_clip, lr, decay);
+        let shards = data_parallel::shards(&b, &t, &noise, reps.len());
+        let forward = |r: &Replica, sh: &Shard| {
+            r.device.seed(step_seed);
+            crate::network::dropout::seed_shard(step_seed, sh.first, sh.batch.batch_size);
+            let (obj, terms) = self.shard_loss(r, schedule, sh);
+            let finite = terms.total.is_finite();
+            (obj, terms, finite)
+        };
+        let outs = if let [r] = reps {
+            // One device: on this thread, no barrier.
+            let (obj, terms, finite) = forward(r, &shards[0]);
+            vec![(terms, finite.then(|| r.descend(obj, hyper, None)))]
+        } else {
+            let sum = host_sum.then(|| HostSum::new(reps.len()));
+            on_replicas(reps, &shards, &forward, &|r, obj| r.descend(obj, hyper, sum.as_ref()))?
+        };
+        let terms = outs.iter().map(|o| o.0).reduce(Terms::add).expect("a replica");
+        if !terms.total.is_finite() {
+            // Stopped before the step is taken: the weights and every checkpoint stay finite.
+            return Err(non_finite(step + 1, "loss", terms.total, &self.run_dir));
         }
-        let (model, grad_norm) = optim.descend(model, total, tc.grad_clip, lr);
+        let grad_norm = outs[0].1.expect("every replica descends when the loss is finite");
         if !grad_norm.is_finite() {
             return Err(non_finite(step + 1, "gradient norm", grad_norm, &self.run_dir));
         }
-        // Early in training the EMA follows closely (as in common EMA warm-ups).
-        let decay = tc.ema_decay.min((1.0 + step as f64) / (10.0 + step as f64));
-        optim.update_ema(&model, decay);
-        let rec = StepRecord {
+        Ok(StepRecord {
             step: step + 1,
-            loss,
-            l_simple: scalar(l.simple),
-            l_key: l.key.map(scalar),
-            l_smooth: l.smooth.map(scalar),
-            l_pos: l.pos.map(scalar),
-            l_vel: l.vel.map(scalar),
-            l_foot: l.foot.map(scalar),
+            loss: terms.total,
+            l_simple: terms.simple,
+            l_key: terms.key,
+            l_smooth: terms.smooth,
+            l_pos: terms.pos,
+            l_vel: terms.vel,
+            l_foot: terms.foot,
             lr,
             grad_norm,
             wall_s: files.elapsed(),
             val_loss: None,
-        };
-        Ok((model, rec))
-    }
-}
-
-/// What a run writes while it trains: metrics.jsonl lines and checkpoints (with the tensor
-/// names and shapes, config and seed they carry).
-struct RunFiles {
-    run_dir: PathBuf,
-    metrics: std::fs::File,
-    metrics_path: PathBuf,
-    started: Instant,
-    shapes: Vec<Vec<usize>>,
-    names: Vec<String>,
-    config: String,
-    seed: u64,
-    keep: usize,
-}
-
-impl RunFiles {
-    /// The run's files from step `start` on (a resumed run drops the metrics lines after it).
-    fn open(t: &Trainer, model: &Denoiser, start: usize) -> Result<RunFiles> {
-        let run = crate::run::dir::RunDir::new(&t.run_dir);
-        let metrics_path = run.metrics_path();
-        run.truncate_metrics(start)?;
-        let metrics = std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(&metrics_path)
-            .map_err(ModelError::io(&metrics_path))?;
-        Ok(RunFiles {
-            run_dir: t.run_dir.clone(),
-            metrics,
-            metrics_path,
-            started: Instant::now(),
-            shapes: params::shapes(model),
-            names: params::names(model),
-            config: t.cfg.to_json(),
-            seed: t.cfg.training.seed,
-            keep: t.cfg.training.keep_checkpoints,
+            device_memory: device_memory(&self.device),
         })
     }
 
-    fn elapsed(&self) -> f64 {
-        self.started.elapsed().as_secs_f64()
-    }
-
-    fn line(&mut self, line: &str) -> Result<()> {
-        writeln!(self.metrics, "{line}").map_err(ModelError::io(&self.metrics_path))
-    }
-
-    /// A validation line without a training loss (when there is a validation split).
-    fn validation(&mut self, step: usize, val: Option<f64>) -> Result<()> {
-        match val {
-            Some(v) => self.line(
-                &serde_json::json!({"step": step, "val_loss": v, "wall_s": self.elapsed()})
-                    .to_string(),
-            ),
-            None => Ok(()),
-        }
-    }
-
-    fn record(&mut self, rec: &StepRecord) -> Result<()> {
-        self.line(&serde_json::to_string(rec).expect("json"))
-    }
-
-    /// Write the checkpoint of `step` and rotate old ones away; never for non-finite weights
-    /// (so rotation never removes the last good checkpoint).
-    fn checkpoint(&self, step: usize, snap: Snapshot) -> Result<PathBuf> {
-        if let Some(x) = snap
-            .model
-            .iter()
-            .chain(snap.ema.iter().flatten())
-            .flat_map(|v| v.iter())
-            .find(|x| !x.is_finite())
-        {
-            return Err(non_finite(step, "a weight", *x as f64, &self.run_dir));
-        }
-        let ck = Checkpoint {
-            step,
-            shapes: self.shapes.clone(),
-            model: snap.model,
-            ema: snap.ema,
-            adam_step: snap.step,
-            adam_m: snap.m,
-            adam_v: snap.v,
-            config: self.config.clone(),
-            seed: self.seed,
-            names: self.names.clone(),
+    /// A replica's objective on its shard (the batch's loss when it is the only one) and the
+    /// values of its terms, each weighted by the shard's share of the batch.
+    fn shard_loss(&self, r: &Replica, schedule: &Schedule, sh: &Shard) -> (Tensor<1>, Terms) {
+        let l = self.batch_loss(r.model(), schedule, &sh.batch, sh.t, sh.noise, &r.device);
+        let k = self.kinematic();
+        let (obj, shares) = if sh.shards == 1 {
+            (l.total(&k), Shares::ONE)
+        } else {
+            let obj = shard_objective(&l, &k, &sh.mine, &sh.all, sh.shards, Combine::ByCounts);
+            (obj, Shares::of(&sh.mine, &sh.all, sh.shards, Combine::ByCounts))
         };
-        let p = ck.save(&self.run_dir)?;
-        Checkpoint::prune(&self.run_dir, self.keep);
-        Ok(p)
+        let read = |t: &Option<Tensor<1>>, w: f64| t.clone().map(|x| scalar(x) * w);
+        let terms = Terms {
+            total: scalar(obj.clone()),
+            simple: scalar(l.simple.clone()) * shares.free,
+            key: read(&l.key, shares.observed),
+            smooth: read(&l.smooth, shares.pairs),
+            pos: read(&l.pos, shares.frames),
+            vel: read(&l.vel, shares.pairs),
+            foot: read(&l.foot, shares.pairs),
+        };
+        (obj, terms)
     }
-}
-
-/// The error of a training run that went non-finite (no checkpoint is written for that step).
-fn non_finite(step: usize, what: &str, value: f64, run_dir: &Path) -> ModelError {
-    let kept = Checkpoint::list(run_dir)
-        .last()
-        .map(|(s, _)| format!("the newest checkpoint (step {s}) is kept"))
-        .unwrap_or_else(|| "no checkpoint was written".into());
-    ModelError::Diverged(format!("{}: step {step}: {what} is {value} (not finite): training stopped; {kept}. Lower training.lr, check the data with `diffkfc data check`, or resume from the checkpoint", run_dir.display()))
 }

@@ -80,6 +80,8 @@ impl ModuleMapper for Update<'_> {
     fn map_float<const D: usize>(&mut self, p: Param<Tensor<D>>) -> Param<Tensor<D>> {
         let (id, t, mapper) = p.consume();
         let autodiff = t.is_autodiff();
+        // A data-parallel replica's parameters stay marked for Burn's gradient all-reduce.
+        let distributed = autodiff && t.is_distributed();
         let shape = t.shape();
         let n = shape.num_elements();
         let mut g = self.grads.next().expect("one gradient per parameter");
@@ -102,6 +104,9 @@ impl ModuleMapper for Update<'_> {
         let mut new = t.inner().reshape([n]).sub(delta).reshape(shape);
         if autodiff {
             new = Tensor::from_inner(new).require_grad();
+        }
+        if distributed {
+            new = new.set_distributed(id);
         }
         Param::from_mapped_value(id, new, mapper)
     }

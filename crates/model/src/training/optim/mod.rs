@@ -154,14 +154,26 @@ impl Optimiser {
         let t0 = std::time::Instant::now();
         let grads = GradientsParams::from_grads(loss.backward(), &model);
         let t1 = std::time::Instant::now();
-        let (model, norm) = match &mut self.state {
+        let (model, norm) = self.apply(model, grads, clip, lr);
+        (model, norm, [(t1 - t0).as_secs_f64(), t1.elapsed().as_secs_f64()])
+    }
+
+    /// The update of `descend` from gradients already computed (a data-parallel replica's,
+    /// summed over the replicas).
+    pub fn apply<M: Module>(
+        &mut self,
+        model: M,
+        grads: GradientsParams,
+        clip: f64,
+        lr: f64,
+    ) -> (M, f64) {
+        match &mut self.state {
             State::Host { vals, adam, .. } => host::descend(model, grads, vals, adam, clip, lr),
             State::Device { adam, step, state } => {
                 *step += 1;
                 device::descend(model, grads, state, *step, *adam, clip, lr)
             }
-        };
-        (model, norm, [(t1 - t0).as_secs_f64(), t1.elapsed().as_secs_f64()])
+        }
     }
 
     /// ema = decay * ema + (1 - decay) * weights of `model` (nothing when no EMA is kept).
