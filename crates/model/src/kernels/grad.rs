@@ -11,6 +11,7 @@ use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Flex};
 use burn::tensor::Shape;
 use rayon::prelude::*;
+use std::sync::Arc;
 
 use super::{attn_shape, host, slice, tensor, AttnArgs, DropMask, FusedOps, LN_EPS};
 
@@ -141,21 +142,18 @@ impl Backward<Flex, 3> for LinearGeluBackward {
 struct AttentionBackward;
 
 impl Backward<Flex, 3> for AttentionBackward {
-    /// (q, k, v, args)
-    type State = (FlexTensor, FlexTensor, FlexTensor, AttnArgs);
+    /// (q, k, v, args, the rows' log-sum-exp where the flash kernel ran)
+    type State = (FlexTensor, FlexTensor, FlexTensor, AttnArgs, Option<Arc<Vec<f32>>>);
 
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
         let dout = grads.consume::<Flex>(&ops.node);
-        let (q, k, v, args) = ops.state;
+        let (q, k, v, args, lse) = ops.state;
         let s = attn_shape(&q, &k, args.heads);
-        let (dq, dk, dv) = super::mha::attention_backward(
-            &slice(&q),
-            &slice(&k),
-            &slice(&v),
-            &slice(&dout),
-            &s,
-            &args.mask,
-        );
+        let (qs, ks, vs, g) = (slice(&q), slice(&k), slice(&v), slice(&dout));
+        let (dq, dk, dv) = match lse {
+            Some(lse) => super::flash::backward((&qs, &ks, &vs), &g, &lse, &s, &args.mask),
+            None => super::mha::attention_backward(&qs, &ks, &vs, &g, &s, &args.mask),
+        };
         register(
             grads,
             ops.parents.map(|p| p.map(|n| n.id)),
@@ -247,10 +245,8 @@ impl<C: CheckpointStrategy> FusedOps for Autodiff<Flex, C> {
             AttentionBackward,
             [q, k, v],
             |[q, k, v]| {
-                (
-                    Flex::fused_attention(q.clone(), k.clone(), v.clone(), args.clone()),
-                    (q, k, v, args),
-                )
+                let (out, lse) = super::attention_with_lse(&q, &k, &v, &args);
+                (out, (q, k, v, args, lse))
             },
             |[q, k, v]| Flex::fused_attention(q, k, v, plain),
         )

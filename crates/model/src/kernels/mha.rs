@@ -34,30 +34,30 @@ pub struct AttnShape {
 }
 
 impl AttnShape {
-    fn dh(&self) -> usize {
+    pub(super) fn dh(&self) -> usize {
         self.d / self.heads
     }
 
-    fn scale(&self) -> f32 {
+    pub(super) fn scale(&self) -> f32 {
         1.0 / (self.dh() as f32).sqrt()
     }
 
     /// Head h of sample b of a [B, L, d] tensor as an [L, dh] view.
-    fn head(&self, x: &[f32], l: usize, b: usize, h: usize) -> View {
+    pub(super) fn head(&self, x: &[f32], l: usize, b: usize, h: usize) -> View {
         View { ptr: x[(b * l) * self.d + h * self.dh()..].as_ptr(), rs: self.d as isize, cs: 1 }
     }
 }
 
 /// The keys of one sample that some query may see, and the mask restricted to them.
-struct Compact {
-    cols: Vec<usize>,
+pub(super) struct Compact {
+    pub(super) cols: Vec<usize>,
     /// [Lq, cols] per query (Full masks) or nothing blocked (Keys masks).
     open: Open,
 }
 
 /// Per sample: its seen keys where gathering them is worth it (`worth_gathering`), else None
 /// (the kernel runs on every key).
-fn compact(mask: &Mask, s: &AttnShape) -> Vec<Option<Compact>> {
+pub(super) fn compact(mask: &Mask, s: &AttnShape) -> Vec<Option<Compact>> {
     let (lq, lk) = (s.lq, s.lk);
     let worth = |cols: &[usize]| super::worth_gathering(cols.len(), lk);
     (0..s.batch)
@@ -83,18 +83,18 @@ fn compact(mask: &Mask, s: &AttnShape) -> Vec<Option<Compact>> {
 
 /// Keys and values of head (b, h) as the core sees them: the sample's own rows, or the
 /// compacted ones gathered into `buf` ([Lc, dh] each, row-major).
-struct HeadKeys<'a> {
-    k: View,
-    v: View,
-    lk: usize,
-    open: &'a Open,
+pub(super) struct HeadKeys<'a> {
+    pub(super) k: View,
+    pub(super) v: View,
+    pub(super) lk: usize,
+    pub(super) open: &'a Open,
     /// The row of `open` that belongs to this sample.
-    sample: usize,
+    pub(super) sample: usize,
 }
 
 impl<'a> HeadKeys<'a> {
     #[allow(clippy::too_many_arguments)]
-    fn new(
+    pub(super) fn new(
         k: &[f32],
         v: &[f32],
         s: &AttnShape,

@@ -6,6 +6,7 @@
 //! backend, or with `DIFFKFC_KERNELS=burn`, the same math is composed from Burn tensor ops, which
 //! is also the reference the tests compare against.
 
+mod flash;
 mod grad;
 pub mod host;
 mod mha;
@@ -148,10 +149,30 @@ impl FusedOps for Flex {
     }
 
     fn fused_attention(q: FlexTensor, k: FlexTensor, v: FlexTensor, args: AttnArgs) -> FlexTensor {
-        let s = attn_shape(&q, &k, args.heads);
-        let out = mha::attention_forward(&slice(&q), &slice(&k), &slice(&v), &s, &args.mask);
-        tensor(out, q.layout().shape().clone())
+        attention_with_lse(&q, &k, &v, &args).0
     }
+}
+
+/// The flex attention and, where the flash kernel ran (small heads), its rows' log-sum-exp for
+/// the backward. `DIFFKFC_ATTENTION=head` keeps every head on the per-head path (A/B runs).
+fn attention_with_lse(
+    q: &FlexTensor,
+    k: &FlexTensor,
+    v: &FlexTensor,
+    args: &AttnArgs,
+) -> (FlexTensor, Option<Arc<Vec<f32>>>) {
+    static PER_HEAD: OnceLock<bool> = OnceLock::new();
+    let per_head =
+        *PER_HEAD.get_or_init(|| std::env::var("DIFFKFC_ATTENTION").is_ok_and(|v| v == "head"));
+    let s = attn_shape(q, k, args.heads);
+    let (q, k, v) = (slice(q), slice(k), slice(v));
+    let (out, lse) = if flash::serves(s.dh()) && !per_head {
+        let (out, lse) = flash::forward(&q, &k, &v, &s, &args.mask);
+        (out, Some(Arc::new(lse)))
+    } else {
+        (mha::attention_forward(&q, &k, &v, &s, &args.mask), None)
+    };
+    (tensor(out, [s.batch, s.lq, s.d].into()), lse)
 }
 
 /// Whether the fused kernels serve this device: flex, with or without autodiff, unless

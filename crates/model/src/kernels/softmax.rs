@@ -55,11 +55,11 @@ fn exp_neg(x: f32) -> f32 {
 
 const LANES: usize = 16;
 
-/// softmax over the open entries of `row` in place (blocked ones 0; all blocked: all 0).
-/// Whole 16-wide chunks go lane by lane (the compiler keeps them in vector registers), the
-/// tail one by one.
+/// softmax over the open entries of `row` in place (blocked ones 0; all blocked: all 0);
+/// returns the row's log-sum-exp over its open entries (all blocked: -inf). Whole 16-wide
+/// chunks go lane by lane (the compiler keeps them in vector registers), the tail one by one.
 #[inline(always)]
-fn row_softmax(row: &mut [f32], open: &[f32]) {
+pub(super) fn row_softmax(row: &mut [f32], open: &[f32]) -> f32 {
     let n = row.len();
     let whole = n / LANES * LANES;
     if !open.is_empty() {
@@ -79,7 +79,7 @@ fn row_softmax(row: &mut [f32], open: &[f32]) {
     }
     if max == f32::NEG_INFINITY {
         row.fill(0.0);
-        return;
+        return f32::NEG_INFINITY;
     }
     let mut sums = [0f32; LANES];
     for c in row[..whole].chunks_exact_mut(LANES) {
@@ -108,14 +108,31 @@ fn row_softmax(row: &mut [f32], open: &[f32]) {
             sum += *x;
         }
     }
-    let inv = 1.0 / (sums.iter().sum::<f32>() + sum);
+    let total = sums.iter().sum::<f32>() + sum;
+    let inv = 1.0 / total;
     row.iter_mut().for_each(|x| *x *= inv);
+    max + total.ln()
+}
+
+/// The softmax of `row` from its log-sum-exp `lse` (what `row_softmax` returned for these
+/// scores): exp(score - lse) on open entries, 0 on blocked ones and on fully blocked rows.
+#[inline(always)]
+pub(super) fn row_exp(row: &mut [f32], open: &[f32], lse: f32) {
+    if lse == f32::NEG_INFINITY {
+        row.fill(0.0);
+        return;
+    }
+    // Scores never exceed lse; the min keeps rounding from pushing an argument above 0.
+    row.iter_mut().for_each(|x| *x = exp_neg((*x - lse).min(0.0)));
+    if !open.is_empty() {
+        row.iter_mut().zip(open).for_each(|(x, &o)| *x *= o);
+    }
 }
 
 #[inline(always)]
 fn rows_generic(p: &mut [f32], s: &AttnShape, open: &Open, b: usize) {
     for (i, row) in p.chunks_mut(s.lk).enumerate() {
-        row_softmax(row, open.row(s, b, i));
+        let _ = row_softmax(row, open.row(s, b, i));
     }
 }
 

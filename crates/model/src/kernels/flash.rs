@@ -1,0 +1,709 @@
+//! Attention for small heads (dh <= 32: the tiny and mid networks' 16 and 32), flash-style: one
+//! pass per block of `R` query rows computes their scores against every key, the masked softmax
+//! and the product with the values, the block's [R, Lk] scores staying in L1. (The per-head path
+//! of `mha.rs` writes a head's whole [Lq, Lk] scores out and reads them back three times, and its
+//! `gemm` calls pack operands whose inner dimension is only 16.) The forward keeps each row's
+//! log-sum-exp; the backward recomputes a block's probabilities from it in one pass (no max, no
+//! sum) and accumulates dK and dV over the blocks. Products run on register tiles of `R` rows by
+//! `W` keys (scores) or by the head width (values), padded to `P` = 16 or 32 channels, compiled
+//! for AVX-512, for AVX2 + FMA and for the baseline, chosen at run time.
+
+use rayon::prelude::*;
+
+use super::host::Out;
+use super::mha::{compact, AttnShape, Compact, HeadKeys, Mask};
+use super::softmax::{self, Open};
+
+/// Query rows per block.
+const R: usize = 4;
+/// Keys per register chunk of a score row (one AVX-512 register).
+const W: usize = 16;
+
+/// Whether this kernel serves heads of `dh` channels.
+pub fn serves(dh: usize) -> bool {
+    dh <= 32
+}
+
+/// One head's operands laid out for the blocks: rows of `P` channels (zero beyond dh), key
+/// columns padded to `n16`, query rows to a multiple of `R`.
+struct Layout {
+    p: usize,
+    n: usize,
+    n16: usize,
+    lq: usize,
+}
+
+impl Layout {
+    fn new(s: &AttnShape, n: usize) -> Layout {
+        let p = if s.dh() <= 16 { 16 } else { 32 };
+        Layout { p, n, n16: n.div_ceil(W) * W, lq: s.lq.div_ceil(R) * R }
+    }
+
+    /// Rows `rows` of a head view ([rows, dh], stride `rs`) as [len, P] rows.
+    fn rows(
+        &self,
+        src: *const f32,
+        rs: usize,
+        rows: usize,
+        len: usize,
+        dh: usize,
+        buf: &mut Vec<f32>,
+    ) {
+        buf.clear();
+        buf.resize(len * self.p, 0.0);
+        for i in 0..rows {
+            // SAFETY: the view has `rows` rows of `dh` channels at stride `rs`.
+            let row = unsafe { std::slice::from_raw_parts(src.add(i * rs), dh) };
+            buf[i * self.p..i * self.p + dh].copy_from_slice(row);
+        }
+    }
+
+    /// The same rows transposed: [P, n16].
+    fn columns(&self, src: *const f32, rs: usize, dh: usize, buf: &mut Vec<f32>) {
+        buf.clear();
+        buf.resize(self.p * self.n16, 0.0);
+        for j in 0..self.n {
+            for d in 0..dh {
+                // SAFETY: as in `rows`, for the head's n key rows.
+                buf[d * self.n16 + j] = unsafe { *src.add(j * rs + d) };
+            }
+        }
+    }
+}
+
+/// The three products of a block, on a CPU's vector registers.
+trait Lanes {
+    /// out[r][j] = scale * a[r] . bt[.][j] for the block's R rows `a` ([R, P]) and every column
+    /// of `bt` ([P, n16]); out is [R, n16].
+    fn dots<const P: usize>(a: &[f32], bt: &[f32], n16: usize, scale: f32, out: &mut [f32]);
+    /// out[r] = sum_j w[r][j] m[j] for the block's weights `w` ([R, n16]) over the first `n`
+    /// rows of `m` ([n, P]); out is [R, P].
+    fn mix<const P: usize>(w: &[f32], n16: usize, n: usize, m: &[f32], out: &mut [f32]);
+    /// acc[j] += sum_r w[r][j] x[r] for the first `n` rows of acc ([n, P]), the block's weights
+    /// `w` ([R, n16]) and rows `x` ([R, P]).
+    fn spread<const P: usize>(w: &[f32], n16: usize, n: usize, x: &[f32], acc: &mut [f32]);
+}
+
+/// Plain loops: any CPU.
+struct Scalar;
+
+impl Lanes for Scalar {
+    #[inline(always)]
+    fn dots<const P: usize>(a: &[f32], bt: &[f32], n16: usize, scale: f32, out: &mut [f32]) {
+        for j0 in (0..n16).step_by(W) {
+            let mut acc = [[0f32; W]; R];
+            for d in 0..P {
+                let b = &bt[d * n16 + j0..][..W];
+                for (r, acc) in acc.iter_mut().enumerate() {
+                    let x = a[r * P + d];
+                    for l in 0..W {
+                        acc[l] += x * b[l];
+                    }
+                }
+            }
+            for (r, acc) in acc.iter().enumerate() {
+                for l in 0..W {
+                    out[r * n16 + j0 + l] = acc[l] * scale;
+                }
+            }
+        }
+    }
+
+    #[inline(always)]
+    fn mix<const P: usize>(w: &[f32], n16: usize, n: usize, m: &[f32], out: &mut [f32]) {
+        out[..R * P].fill(0.0);
+        for j in 0..n {
+            for r in 0..R {
+                let x = w[r * n16 + j];
+                for l in 0..P {
+                    out[r * P + l] += x * m[j * P + l];
+                }
+            }
+        }
+    }
+
+    #[inline(always)]
+    fn spread<const P: usize>(w: &[f32], n16: usize, n: usize, x: &[f32], acc: &mut [f32]) {
+        for j in 0..n {
+            for r in 0..R {
+                let c = w[r * n16 + j];
+                for l in 0..P {
+                    acc[j * P + l] += c * x[r * P + l];
+                }
+            }
+        }
+    }
+}
+
+/// AVX2 + FMA intrinsics (8 lanes): LLVM does not vectorise the scalar loops' register tiles
+/// (it unrolls them into scalar code), so the tiles are written out.
+#[cfg(target_arch = "x86_64")]
+struct Avx2;
+
+#[cfg(target_arch = "x86_64")]
+impl Lanes for Avx2 {
+    #[inline(always)]
+    fn dots<const P: usize>(a: &[f32], bt: &[f32], n16: usize, scale: f32, out: &mut [f32]) {
+        assert!(a.len() >= R * P && bt.len() >= P * n16 && out.len() >= R * n16);
+        // SAFETY: the lengths checked above; called only from the AVX2 + FMA builds.
+        unsafe { avx2::dots::<P>(a.as_ptr(), bt.as_ptr(), n16, scale, out.as_mut_ptr()) }
+    }
+
+    #[inline(always)]
+    fn mix<const P: usize>(w: &[f32], n16: usize, n: usize, m: &[f32], out: &mut [f32]) {
+        assert!(w.len() >= R * n16 && n <= n16 && m.len() >= n * P && out.len() >= R * P);
+        // SAFETY: as above.
+        unsafe { avx2::mix::<P>(w.as_ptr(), n16, n, m.as_ptr(), out.as_mut_ptr()) }
+    }
+
+    #[inline(always)]
+    fn spread<const P: usize>(w: &[f32], n16: usize, n: usize, x: &[f32], acc: &mut [f32]) {
+        assert!(w.len() >= R * n16 && n <= n16 && x.len() >= R * P && acc.len() >= n * P);
+        // SAFETY: as above.
+        unsafe { avx2::spread::<P>(w.as_ptr(), n16, n, x.as_ptr(), acc.as_mut_ptr()) }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use std::arch::x86_64::*;
+
+    use super::{R, W};
+
+    /// P / 8 registers per row, P <= 32.
+    const MAX: usize = 4;
+
+    #[target_feature(enable = "avx2,fma")]
+    pub(super) unsafe fn dots<const P: usize>(
+        a: *const f32,
+        bt: *const f32,
+        n16: usize,
+        scale: f32,
+        out: *mut f32,
+    ) {
+        let sc = _mm256_set1_ps(scale);
+        for j0 in (0..n16).step_by(W) {
+            let mut acc = [[_mm256_setzero_ps(); 2]; R];
+            for d in 0..P {
+                let b0 = _mm256_loadu_ps(bt.add(d * n16 + j0));
+                let b1 = _mm256_loadu_ps(bt.add(d * n16 + j0 + 8));
+                for (r, acc) in acc.iter_mut().enumerate() {
+                    let x = _mm256_broadcast_ss(&*a.add(r * P + d));
+                    acc[0] = _mm256_fmadd_ps(x, b0, acc[0]);
+                    acc[1] = _mm256_fmadd_ps(x, b1, acc[1]);
+                }
+            }
+            for (r, acc) in acc.iter().enumerate() {
+                _mm256_storeu_ps(out.add(r * n16 + j0), _mm256_mul_ps(acc[0], sc));
+                _mm256_storeu_ps(out.add(r * n16 + j0 + 8), _mm256_mul_ps(acc[1], sc));
+            }
+        }
+    }
+
+    #[target_feature(enable = "avx2,fma")]
+    pub(super) unsafe fn mix<const P: usize>(
+        w: *const f32,
+        n16: usize,
+        n: usize,
+        m: *const f32,
+        out: *mut f32,
+    ) {
+        let c = P / 8;
+        let mut acc = [[_mm256_setzero_ps(); MAX]; R];
+        for j in 0..n {
+            let mut row = [_mm256_setzero_ps(); MAX];
+            for (k, v) in row.iter_mut().enumerate().take(c) {
+                *v = _mm256_loadu_ps(m.add(j * P + k * 8));
+            }
+            for (r, acc) in acc.iter_mut().enumerate() {
+                let x = _mm256_broadcast_ss(&*w.add(r * n16 + j));
+                for k in 0..c {
+                    acc[k] = _mm256_fmadd_ps(x, row[k], acc[k]);
+                }
+            }
+        }
+        for (r, acc) in acc.iter().enumerate() {
+            for (k, v) in acc.iter().enumerate().take(c) {
+                _mm256_storeu_ps(out.add(r * P + k * 8), *v);
+            }
+        }
+    }
+
+    #[target_feature(enable = "avx2,fma")]
+    pub(super) unsafe fn spread<const P: usize>(
+        w: *const f32,
+        n16: usize,
+        n: usize,
+        x: *const f32,
+        acc: *mut f32,
+    ) {
+        let c = P / 8;
+        let mut xs = [[_mm256_setzero_ps(); MAX]; R];
+        for (r, xr) in xs.iter_mut().enumerate() {
+            for (k, v) in xr.iter_mut().enumerate().take(c) {
+                *v = _mm256_loadu_ps(x.add(r * P + k * 8));
+            }
+        }
+        for j in 0..n {
+            let mut t = [_mm256_setzero_ps(); MAX];
+            for (k, v) in t.iter_mut().enumerate().take(c) {
+                *v = _mm256_loadu_ps(acc.add(j * P + k * 8));
+            }
+            for (r, xr) in xs.iter().enumerate() {
+                let cr = _mm256_broadcast_ss(&*w.add(r * n16 + j));
+                for k in 0..c {
+                    t[k] = _mm256_fmadd_ps(cr, xr[k], t[k]);
+                }
+            }
+            for (k, v) in t.iter().enumerate().take(c) {
+                _mm256_storeu_ps(acc.add(j * P + k * 8), *v);
+            }
+        }
+    }
+}
+
+/// A block's scores to probabilities in place: the forward's softmax (each row's log-sum-exp to
+/// `lse`), or the backward's exp(score - lse) from it; padding rows and columns become 0. (No
+/// closure: a closure's body would be compiled without the caller's target features.)
+#[inline(always)]
+fn probabilities(
+    sc: &mut [f32],
+    g: &Layout,
+    keys: &HeadKeys,
+    s: &AttnShape,
+    i0: usize,
+    lse: &mut [f32],
+    forward: bool,
+) {
+    let shape = AttnShape { lk: g.n, ..*s };
+    for (r, row) in sc.chunks_mut(g.n16).enumerate() {
+        let i = i0 + r;
+        if i >= s.lq {
+            row.fill(0.0);
+            continue;
+        }
+        let open = keys.open.row(&shape, keys.sample, i);
+        if forward {
+            lse[i] = softmax::row_softmax(&mut row[..g.n], open);
+        } else {
+            softmax::row_exp(&mut row[..g.n], open, lse[i]);
+        }
+        row[g.n..].fill(0.0);
+    }
+}
+
+/// d[j] = p[j] (d[j] - p . d) * scale for each row of a block (p and d [R, n16]): the softmax's
+/// backward, dS from dP. The dot product in W lanes, so that it vectorises.
+#[inline(always)]
+fn softmax_grad(p: &[f32], d: &mut [f32], n16: usize, scale: f32) {
+    for (pr, dr) in p.chunks_exact(n16).zip(d.chunks_exact_mut(n16)) {
+        let mut lanes = [0f32; W];
+        for (pc, dc) in pr.chunks_exact(W).zip(dr.chunks_exact(W)) {
+            for l in 0..W {
+                lanes[l] += pc[l] * dc[l];
+            }
+        }
+        let dot: f32 = lanes.iter().sum();
+        for (x, &pv) in dr.iter_mut().zip(pr) {
+            *x = pv * (*x - dot) * scale;
+        }
+    }
+}
+
+/// Scratch of one worker: the head's operands and one block's rows.
+#[derive(Default)]
+struct Scratch {
+    q: Vec<f32>,
+    kt: Vec<f32>,
+    v: Vec<f32>,
+    sc: Vec<f32>,
+    out: Vec<f32>,
+    gather: (Vec<f32>, Vec<f32>),
+    // Backward only.
+    g: Vec<f32>,
+    vt: Vec<f32>,
+    k: Vec<f32>,
+    dp: Vec<f32>,
+    dk: Vec<f32>,
+    dv: Vec<f32>,
+    lse: Vec<f32>,
+}
+
+/// What every head of one call shares: the inputs, the shape and the mask.
+struct Call<'a> {
+    q: &'a [f32],
+    k: &'a [f32],
+    v: &'a [f32],
+    s: &'a AttnShape,
+    open: Open,
+    comp: Vec<Option<Compact>>,
+}
+
+impl<'a> Call<'a> {
+    fn new((q, k, v): Qkv<'a>, s: &'a AttnShape, mask: &Mask) -> Call<'a> {
+        Call { q, k, v, s, open: Open::new(mask), comp: compact(mask, s) }
+    }
+
+    fn keys<'b>(
+        &'b self,
+        (b, h): (usize, usize),
+        buf: &'b mut (Vec<f32>, Vec<f32>),
+    ) -> HeadKeys<'b> {
+        HeadKeys::new(self.k, self.v, self.s, &self.open, &self.comp[b], b, h, buf)
+    }
+}
+
+/// Forward of head (b, h) into `dst` (its [Lq, dh] block of the output, row stride d) and its
+/// rows' log-sum-exp into `lse` ([Lq]).
+#[inline(always)]
+fn head_forward<const P: usize, L: Lanes>(
+    c: &Call,
+    (b, h): (usize, usize),
+    dst: *mut f32,
+    lse: &mut [f32],
+    w: &mut Scratch,
+) {
+    let (s, dh) = (c.s, c.s.dh());
+    let keys = c.keys((b, h), &mut w.gather);
+    let g = Layout::new(s, keys.lk);
+    g.rows(s.head(c.q, s.lq, b, h).ptr, s.d, s.lq, g.lq, dh, &mut w.q);
+    g.columns(keys.k.ptr, keys.k.rs as usize, dh, &mut w.kt);
+    g.rows(keys.v.ptr, keys.v.rs as usize, g.n, g.n, dh, &mut w.v);
+    w.sc.resize(R * g.n16, 0.0);
+    w.out.resize(R * P, 0.0);
+    for i0 in (0..g.lq).step_by(R) {
+        L::dots::<P>(&w.q[i0 * P..], &w.kt, g.n16, s.scale(), &mut w.sc);
+        probabilities(&mut w.sc, &g, &keys, s, i0, lse, true);
+        L::mix::<P>(&w.sc, g.n16, g.n, &w.v, &mut w.out);
+        for r in 0..R.min(s.lq - i0) {
+            // SAFETY: row i0 + r of the head's block, dh channels.
+            unsafe {
+                std::ptr::copy_nonoverlapping(w.out[r * P..].as_ptr(), dst.add((i0 + r) * s.d), dh)
+            };
+        }
+    }
+}
+
+/// Backward of head (b, h): dQ into its block of `dq` (row stride d), dK and dV into the rows of
+/// the keys it saw in `dk` and `dv` ([Lk, d] blocks of sample b), from the forward's `lse`.
+#[inline(always)]
+fn head_backward<const P: usize, L: Lanes>(
+    c: &Call,
+    dout: &[f32],
+    (b, h): (usize, usize),
+    lse: &[f32],
+    (dq, dk, dv): (Out, Out, Out),
+    w: &mut Scratch,
+) {
+    let (s, dh, scale) = (c.s, c.s.dh(), c.s.scale());
+    let mut lse_rows = std::mem::take(&mut w.lse);
+    lse_rows.clear();
+    lse_rows.extend_from_slice(lse);
+    let keys = c.keys((b, h), &mut w.gather);
+    let g = Layout::new(s, keys.lk);
+    let (n, n16) = (g.n, g.n16);
+    g.rows(s.head(c.q, s.lq, b, h).ptr, s.d, s.lq, g.lq, dh, &mut w.q);
+    g.rows(s.head(dout, s.lq, b, h).ptr, s.d, s.lq, g.lq, dh, &mut w.g);
+    g.columns(keys.k.ptr, keys.k.rs as usize, dh, &mut w.kt);
+    g.columns(keys.v.ptr, keys.v.rs as usize, dh, &mut w.vt);
+    g.rows(keys.k.ptr, keys.k.rs as usize, n, n, dh, &mut w.k);
+    for acc in [&mut w.dk, &mut w.dv] {
+        acc.clear();
+        acc.resize(n * P, 0.0);
+    }
+    w.sc.resize(R * n16, 0.0);
+    w.dp.resize(R * n16, 0.0);
+    w.out.resize(R * P, 0.0);
+    let dq_at = unsafe { dq.0.add(b * s.lq * s.d + h * dh) };
+    for i0 in (0..g.lq).step_by(R) {
+        let (qb, gb) = (&w.q[i0 * P..(i0 + R) * P], &w.g[i0 * P..(i0 + R) * P]);
+        L::dots::<P>(qb, &w.kt, n16, scale, &mut w.sc);
+        probabilities(&mut w.sc, &g, &keys, s, i0, &mut lse_rows, false);
+        // dV += P^T dO; dP = dO V^T; dS = P o (dP - rowsum(P o dP)) * scale.
+        L::spread::<P>(&w.sc, n16, n, gb, &mut w.dv);
+        L::dots::<P>(gb, &w.vt, n16, 1.0, &mut w.dp);
+        softmax_grad(&w.sc, &mut w.dp, n16, scale);
+        // dQ = dS K; dK += dS^T Q.
+        L::mix::<P>(&w.dp, n16, n, &w.k, &mut w.out);
+        for r in 0..R.min(s.lq - i0) {
+            // SAFETY: row i0 + r of the head's dQ block, dh channels.
+            unsafe {
+                std::ptr::copy_nonoverlapping(
+                    w.out[r * P..].as_ptr(),
+                    dq_at.add((i0 + r) * s.d),
+                    dh,
+                )
+            };
+        }
+        L::spread::<P>(&w.dp, n16, n, qb, &mut w.dk);
+    }
+    w.lse = lse_rows;
+    for j in 0..n {
+        let row = c.comp[b].as_ref().map_or(j, |cp| cp.cols[j]);
+        let at = (b * s.lk + row) * s.d + h * dh;
+        // SAFETY: key row `row` of sample b, head h's dh channels: only this head writes them.
+        unsafe {
+            std::ptr::copy_nonoverlapping(w.dk[j * P..].as_ptr(), dk.0.add(at), dh);
+            std::ptr::copy_nonoverlapping(w.dv[j * P..].as_ptr(), dv.0.add(at), dh);
+        }
+    }
+}
+
+macro_rules! compiled_for {
+    ($generic:ident, $avx512:ident, $avx2:ident, ($($arg:ident: $ty:ty),*)) => {
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx512f,avx2,fma")]
+        #[allow(clippy::too_many_arguments)]
+        fn $avx512<const P: usize>($($arg: $ty),*) {
+            $generic::<P, Avx2>($($arg),*)
+        }
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::too_many_arguments)]
+        fn $avx2<const P: usize>($($arg: $ty),*) {
+            $generic::<P, Avx2>($($arg),*)
+        }
+    };
+}
+
+/// Calls the build of a head function for this CPU and head width.
+macro_rules! dispatch {
+    ($wide:expr, $generic:ident, $avx512:ident, $avx2:ident, ($($a:expr),*)) => {
+        match (isa(), $wide) {
+            // SAFETY: the CPU has the features each build was compiled for.
+            #[cfg(target_arch = "x86_64")]
+            (Isa::Avx512, false) => unsafe { $avx512::<16>($($a),*) },
+            #[cfg(target_arch = "x86_64")]
+            (Isa::Avx512, true) => unsafe { $avx512::<32>($($a),*) },
+            #[cfg(target_arch = "x86_64")]
+            (Isa::Avx2, false) => unsafe { $avx2::<16>($($a),*) },
+            #[cfg(target_arch = "x86_64")]
+            (Isa::Avx2, true) => unsafe { $avx2::<32>($($a),*) },
+            (_, false) => $generic::<16, Scalar>($($a),*),
+            (_, true) => $generic::<32, Scalar>($($a),*),
+        }
+    };
+}
+
+/// Which build of the loops this CPU runs.
+#[derive(Clone, Copy)]
+enum Isa {
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+    Avx512,
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+    Avx2,
+    Base,
+}
+
+fn isa() -> Isa {
+    static ISA: std::sync::OnceLock<Isa> = std::sync::OnceLock::new();
+    *ISA.get_or_init(|| {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::is_x86_feature_detected!("avx512f") {
+                return Isa::Avx512;
+            }
+            if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
+                return Isa::Avx2;
+            }
+        }
+        Isa::Base
+    })
+}
+
+type Qkv<'a> = (&'a [f32], &'a [f32], &'a [f32]);
+
+compiled_for!(head_forward, head_forward_avx512, head_forward_avx2,
+    (c: &Call, bh: (usize, usize), dst: *mut f32, lse: &mut [f32], w: &mut Scratch));
+compiled_for!(head_backward, head_backward_avx512, head_backward_avx2,
+    (c: &Call, dout: &[f32], bh: (usize, usize), lse: &[f32], d: (Out, Out, Out), w: &mut Scratch));
+
+/// softmax(Q K^T / sqrt(dh) + mask) V per head -> ([B, Lq, d], log-sum-exp [B, H, Lq]).
+pub fn forward(
+    q: &[f32],
+    k: &[f32],
+    v: &[f32],
+    s: &AttnShape,
+    mask: &Mask,
+) -> (Vec<f32>, Vec<f32>) {
+    let c = Call::new((q, k, v), s, mask);
+    let mut out: Vec<f32> = vec![0.0; s.batch * s.lq * s.d];
+    let mut lse = vec![0f32; s.batch * s.heads * s.lq];
+    let dst = Out(out.as_mut_ptr());
+    let wide = s.dh() > 16;
+    lse.par_chunks_mut(s.lq).enumerate().for_each_init(Scratch::default, |w, (bh, lse)| {
+        let (b, h) = (bh / s.heads, bh % s.heads);
+        let d = dst;
+        // SAFETY: head (b, h) writes only its own dh columns of sample b's rows.
+        let at = unsafe { d.0.add(b * s.lq * s.d + h * s.dh()) };
+        dispatch!(
+            wide,
+            head_forward,
+            head_forward_avx512,
+            head_forward_avx2,
+            (&c, (b, h), at, lse, w)
+        );
+    });
+    (out, lse)
+}
+
+/// Gradients (dQ, dK, dV) of [`forward`] for the output gradient `dout` [B, Lq, d], from the
+/// forward's log-sum-exp.
+pub fn backward(
+    x: Qkv,
+    dout: &[f32],
+    lse: &[f32],
+    s: &AttnShape,
+    mask: &Mask,
+) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+    let c = Call::new(x, s, mask);
+    // dK and dV start at 0: keys that no query sees get no gradient.
+    let mut dq = vec![0f32; s.batch * s.lq * s.d];
+    let (mut dk, mut dv) = (vec![0f32; s.batch * s.lk * s.d], vec![0f32; s.batch * s.lk * s.d]);
+    let outs = (Out(dq.as_mut_ptr()), Out(dk.as_mut_ptr()), Out(dv.as_mut_ptr()));
+    let wide = s.dh() > 16;
+    lse.par_chunks(s.lq).enumerate().for_each_init(Scratch::default, |w, (bh, lse)| {
+        let (b, h) = (bh / s.heads, bh % s.heads);
+        dispatch!(
+            wide,
+            head_backward,
+            head_backward_avx512,
+            head_backward_avx2,
+            (&c, dout, (b, h), lse, outs, w)
+        );
+    });
+    (dq, dk, dv)
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use super::*;
+    use crate::kernels::mha::{attention_backward, attention_forward};
+
+    fn data(n: usize, seed: usize) -> Vec<f32> {
+        (0..n).map(|i| ((i * 7919 + seed * 104_729) % 1013) as f32 / 506.0 - 1.0).collect()
+    }
+
+    fn worst(a: &[f32], b: &[f32]) -> f32 {
+        let scale = b.iter().fold(1e-6f32, |m, x| m.max(x.abs()));
+        a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max) / scale
+    }
+
+    /// The flash kernel against the per-head path (itself tested against Burn's composed ops in
+    /// tests/kernels.rs): head widths below, at and between the two paddings, query counts off
+    /// the block size, key counts off the chunk size, masks with fully blocked rows and with keys
+    /// few enough to be gathered.
+    #[test]
+    fn matches_the_per_head_kernel_forward_and_backward() {
+        for (dh, heads, lq, lk) in [(16, 4, 7, 37), (8, 2, 5, 16), (32, 2, 9, 40), (24, 3, 4, 3)] {
+            let (b, d) = (2, dh * heads);
+            let s = AttnShape { batch: b, lq, lk, heads, d };
+            let (q, k, v, g) = (
+                data(b * lq * d, 1),
+                data(b * lk * d, 2),
+                data(b * lk * d, 3),
+                data(b * lq * d, 4),
+            );
+            let keys: Vec<bool> = (0..b * lk).map(|i| i % lk > lk / 2 && i % 3 != 0).collect();
+            let full: Vec<bool> =
+                (0..b * lq * lk).map(|i| (i / lk) % lq == 1 || (i * 31) % 7 < 3).collect();
+            let sparse: Vec<bool> = (0..b * lq * lk).map(|i| i % lk > 2).collect();
+            for mask in [
+                Mask::None,
+                Mask::Keys(Arc::new(keys.clone())),
+                Mask::Full(Arc::new(full.clone())),
+                Mask::Full(Arc::new(sparse.clone())),
+            ] {
+                let (out, lse) = forward(&q, &k, &v, &s, &mask);
+                let want = attention_forward(&q, &k, &v, &s, &mask);
+                let e = worst(&out, &want);
+                assert!(e < 1e-5, "dh {dh} lq {lq} lk {lk} {mask:?}: forward {e}");
+                let got = backward((&q, &k, &v), &g, &lse, &s, &mask);
+                let want = attention_backward(&q, &k, &v, &g, &s, &mask);
+                for (name, a, w) in
+                    [("dq", got.0, want.0), ("dk", got.1, want.1), ("dv", got.2, want.2)]
+                {
+                    let e = worst(&a, &w);
+                    assert!(e < 1e-5, "dh {dh} lq {lq} lk {lk} {mask:?}: {name} {e}");
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod timing {
+    use super::*;
+    use crate::kernels::mha::{attention_backward, attention_forward};
+
+    /// `cargo test --release -p diffkfc-model --lib flash::timing -- --ignored --nocapture`
+    #[test]
+    #[ignore]
+    fn per_head_against_flash() {
+        let (b, heads, l, dh) = (32, 4, 197, 16);
+        let s = AttnShape { batch: b, lq: l, lk: l, heads, d: heads * dh };
+        let x: Vec<f32> =
+            (0..b * l * s.d).map(|i| ((i * 7919) % 1013) as f32 / 506.0 - 1.0).collect();
+        let mask = Mask::None;
+        let t = |f: &dyn Fn()| {
+            let mut v: Vec<f64> = (0..7)
+                .map(|_| {
+                    let t0 = std::time::Instant::now();
+                    f();
+                    t0.elapsed().as_secs_f64() * 1e3
+                })
+                .collect();
+            v.sort_by(f64::total_cmp);
+            v[3]
+        };
+        let (_, lse) = forward(&x, &x, &x, &s, &mask);
+        for _ in 0..2 {
+            eprintln!(
+                "forward: per head {:.1} ms, flash {:.1} ms; backward: per head {:.1} ms, flash {:.1} ms",
+                t(&|| drop(attention_forward(&x, &x, &x, &s, &mask))),
+                t(&|| drop(forward(&x, &x, &x, &s, &mask))),
+                t(&|| drop(attention_backward(&x, &x, &x, &x, &s, &mask))),
+                t(&|| drop(backward((&x, &x, &x), &x, &lse, &s, &mask))),
+            );
+        }
+    }
+}
+
+#[cfg(all(test, target_arch = "x86_64"))]
+mod lanes {
+    use super::*;
+
+    /// The AVX2 tiles compute what the plain loops compute (the kernel test above runs whichever
+    /// build the CPU picks; this one runs both).
+    #[test]
+    fn avx2_tiles_match_the_plain_loops() {
+        if !(std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")) {
+            eprintln!("notice: no AVX2 + FMA here; the AVX2 tiles are not compared");
+            return;
+        }
+        fn check<const P: usize>() {
+            let (n, n16) = (37, 48);
+            let v = |len: usize, k: usize| -> Vec<f32> {
+                (0..len).map(|i| ((i * k) % 97) as f32 / 48.0 - 1.0).collect()
+            };
+            let (a, bt, w, m) = (v(R * P, 3), v(P * n16, 5), v(R * n16, 7), v(n * P, 11));
+            let close = |x: &[f32], y: &[f32]| x.iter().zip(y).all(|(p, q)| (p - q).abs() < 1e-4);
+            let (mut o1, mut o2) = (vec![0f32; R * n16], vec![0f32; R * n16]);
+            Scalar::dots::<P>(&a, &bt, n16, 0.25, &mut o1);
+            Avx2::dots::<P>(&a, &bt, n16, 0.25, &mut o2);
+            assert!(close(&o1, &o2), "dots P={P}");
+            let (mut o1, mut o2) = (vec![0f32; R * P], vec![0f32; R * P]);
+            Scalar::mix::<P>(&w, n16, n, &m, &mut o1);
+            Avx2::mix::<P>(&w, n16, n, &m, &mut o2);
+            assert!(close(&o1, &o2), "mix P={P}");
+            let (mut o1, mut o2) = (m.clone(), m.clone());
+            Scalar::spread::<P>(&w, n16, n, &a, &mut o1);
+            Avx2::spread::<P>(&w, n16, n, &a, &mut o2);
+            assert!(close(&o1, &o2), "spread P={P}");
+        }
+        check::<16>();
+        check::<32>();
+    }
+}
