@@ -4,9 +4,9 @@
 //! of `mha.rs` writes a head's whole [Lq, Lk] scores out and reads them back three times, and its
 //! `gemm` calls pack operands whose inner dimension is only 16.) The forward keeps each row's
 //! log-sum-exp; the backward recomputes a block's probabilities from it in one pass (no max, no
-//! sum) and accumulates dK and dV over the blocks. Products run on register tiles of `R` rows by
-//! `W` keys (scores) or by the head width (values), padded to `P` = 16 or 32 channels, compiled
-//! for AVX-512, for AVX2 + FMA and for the baseline, chosen at run time.
+//! sum) and accumulates dK and dV over the blocks. Products run on register tiles (`tiles.rs`) of
+//! `R` rows by `W` keys (scores) or by the head width (values), padded to `P` = 16 or 32
+//! channels: AVX2 + FMA intrinsics where the CPU has them (chosen at run time), else plain loops.
 
 use rayon::prelude::*;
 
@@ -14,10 +14,9 @@ use super::host::Out;
 use super::mha::{compact, AttnShape, Compact, HeadKeys, Mask};
 use super::softmax::{self, Open};
 
-/// Query rows per block.
-const R: usize = 4;
-/// Keys per register chunk of a score row (one AVX-512 register).
-const W: usize = 16;
+#[cfg(target_arch = "x86_64")]
+use super::tiles::Avx2;
+use super::tiles::{Lanes, Scalar, R, W};
 
 /// Whether this kernel serves heads of `dh` channels.
 pub fn serves(dh: usize) -> bool {
@@ -66,197 +65,6 @@ impl Layout {
             for d in 0..dh {
                 // SAFETY: as in `rows`, for the head's n key rows.
                 buf[d * self.n16 + j] = unsafe { *src.add(j * rs + d) };
-            }
-        }
-    }
-}
-
-/// The three products of a block, on a CPU's vector registers.
-trait Lanes {
-    /// out[r][j] = scale * a[r] . bt[.][j] for the block's R rows `a` ([R, P]) and every column
-    /// of `bt` ([P, n16]); out is [R, n16].
-    fn dots<const P: usize>(a: &[f32], bt: &[f32], n16: usize, scale: f32, out: &mut [f32]);
-    /// out[r] = sum_j w[r][j] m[j] for the block's weights `w` ([R, n16]) over the first `n`
-    /// rows of `m` ([n, P]); out is [R, P].
-    fn mix<const P: usize>(w: &[f32], n16: usize, n: usize, m: &[f32], out: &mut [f32]);
-    /// acc[j] += sum_r w[r][j] x[r] for the first `n` rows of acc ([n, P]), the block's weights
-    /// `w` ([R, n16]) and rows `x` ([R, P]).
-    fn spread<const P: usize>(w: &[f32], n16: usize, n: usize, x: &[f32], acc: &mut [f32]);
-}
-
-/// Plain loops: any CPU.
-struct Scalar;
-
-impl Lanes for Scalar {
-    #[inline(always)]
-    fn dots<const P: usize>(a: &[f32], bt: &[f32], n16: usize, scale: f32, out: &mut [f32]) {
-        for j0 in (0..n16).step_by(W) {
-            let mut acc = [[0f32; W]; R];
-            for d in 0..P {
-                let b = &bt[d * n16 + j0..][..W];
-                for (r, acc) in acc.iter_mut().enumerate() {
-                    let x = a[r * P + d];
-                    for l in 0..W {
-                        acc[l] += x * b[l];
-                    }
-                }
-            }
-            for (r, acc) in acc.iter().enumerate() {
-                for l in 0..W {
-                    out[r * n16 + j0 + l] = acc[l] * scale;
-                }
-            }
-        }
-    }
-
-    #[inline(always)]
-    fn mix<const P: usize>(w: &[f32], n16: usize, n: usize, m: &[f32], out: &mut [f32]) {
-        out[..R * P].fill(0.0);
-        for j in 0..n {
-            for r in 0..R {
-                let x = w[r * n16 + j];
-                for l in 0..P {
-                    out[r * P + l] += x * m[j * P + l];
-                }
-            }
-        }
-    }
-
-    #[inline(always)]
-    fn spread<const P: usize>(w: &[f32], n16: usize, n: usize, x: &[f32], acc: &mut [f32]) {
-        for j in 0..n {
-            for r in 0..R {
-                let c = w[r * n16 + j];
-                for l in 0..P {
-                    acc[j * P + l] += c * x[r * P + l];
-                }
-            }
-        }
-    }
-}
-
-/// AVX2 + FMA intrinsics (8 lanes): LLVM does not vectorise the scalar loops' register tiles
-/// (it unrolls them into scalar code), so the tiles are written out.
-#[cfg(target_arch = "x86_64")]
-struct Avx2;
-
-#[cfg(target_arch = "x86_64")]
-impl Lanes for Avx2 {
-    #[inline(always)]
-    fn dots<const P: usize>(a: &[f32], bt: &[f32], n16: usize, scale: f32, out: &mut [f32]) {
-        assert!(a.len() >= R * P && bt.len() >= P * n16 && out.len() >= R * n16);
-        // SAFETY: the lengths checked above; called only from the AVX2 + FMA builds.
-        unsafe { avx2::dots::<P>(a.as_ptr(), bt.as_ptr(), n16, scale, out.as_mut_ptr()) }
-    }
-
-    #[inline(always)]
-    fn mix<const P: usize>(w: &[f32], n16: usize, n: usize, m: &[f32], out: &mut [f32]) {
-        assert!(w.len() >= R * n16 && n <= n16 && m.len() >= n * P && out.len() >= R * P);
-        // SAFETY: as above.
-        unsafe { avx2::mix::<P>(w.as_ptr(), n16, n, m.as_ptr(), out.as_mut_ptr()) }
-    }
-
-    #[inline(always)]
-    fn spread<const P: usize>(w: &[f32], n16: usize, n: usize, x: &[f32], acc: &mut [f32]) {
-        assert!(w.len() >= R * n16 && n <= n16 && x.len() >= R * P && acc.len() >= n * P);
-        // SAFETY: as above.
-        unsafe { avx2::spread::<P>(w.as_ptr(), n16, n, x.as_ptr(), acc.as_mut_ptr()) }
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-mod avx2 {
-    use std::arch::x86_64::*;
-
-    use super::{R, W};
-
-    /// P / 8 registers per row, P <= 32.
-    const MAX: usize = 4;
-
-    #[target_feature(enable = "avx2,fma")]
-    pub(super) unsafe fn dots<const P: usize>(
-        a: *const f32,
-        bt: *const f32,
-        n16: usize,
-        scale: f32,
-        out: *mut f32,
-    ) {
-        let sc = _mm256_set1_ps(scale);
-        for j0 in (0..n16).step_by(W) {
-            let mut acc = [[_mm256_setzero_ps(); 2]; R];
-            for d in 0..P {
-                let b0 = _mm256_loadu_ps(bt.add(d * n16 + j0));
-                let b1 = _mm256_loadu_ps(bt.add(d * n16 + j0 + 8));
-                for (r, acc) in acc.iter_mut().enumerate() {
-                    let x = _mm256_broadcast_ss(&*a.add(r * P + d));
-                    acc[0] = _mm256_fmadd_ps(x, b0, acc[0]);
-                    acc[1] = _mm256_fmadd_ps(x, b1, acc[1]);
-                }
-            }
-            for (r, acc) in acc.iter().enumerate() {
-                _mm256_storeu_ps(out.add(r * n16 + j0), _mm256_mul_ps(acc[0], sc));
-                _mm256_storeu_ps(out.add(r * n16 + j0 + 8), _mm256_mul_ps(acc[1], sc));
-            }
-        }
-    }
-
-    #[target_feature(enable = "avx2,fma")]
-    pub(super) unsafe fn mix<const P: usize>(
-        w: *const f32,
-        n16: usize,
-        n: usize,
-        m: *const f32,
-        out: *mut f32,
-    ) {
-        let c = P / 8;
-        let mut acc = [[_mm256_setzero_ps(); MAX]; R];
-        for j in 0..n {
-            let mut row = [_mm256_setzero_ps(); MAX];
-            for (k, v) in row.iter_mut().enumerate().take(c) {
-                *v = _mm256_loadu_ps(m.add(j * P + k * 8));
-            }
-            for (r, acc) in acc.iter_mut().enumerate() {
-                let x = _mm256_broadcast_ss(&*w.add(r * n16 + j));
-                for k in 0..c {
-                    acc[k] = _mm256_fmadd_ps(x, row[k], acc[k]);
-                }
-            }
-        }
-        for (r, acc) in acc.iter().enumerate() {
-            for (k, v) in acc.iter().enumerate().take(c) {
-                _mm256_storeu_ps(out.add(r * P + k * 8), *v);
-            }
-        }
-    }
-
-    #[target_feature(enable = "avx2,fma")]
-    pub(super) unsafe fn spread<const P: usize>(
-        w: *const f32,
-        n16: usize,
-        n: usize,
-        x: *const f32,
-        acc: *mut f32,
-    ) {
-        let c = P / 8;
-        let mut xs = [[_mm256_setzero_ps(); MAX]; R];
-        for (r, xr) in xs.iter_mut().enumerate() {
-            for (k, v) in xr.iter_mut().enumerate().take(c) {
-                *v = _mm256_loadu_ps(x.add(r * P + k * 8));
-            }
-        }
-        for j in 0..n {
-            let mut t = [_mm256_setzero_ps(); MAX];
-            for (k, v) in t.iter_mut().enumerate().take(c) {
-                *v = _mm256_loadu_ps(acc.add(j * P + k * 8));
-            }
-            for (r, xr) in xs.iter().enumerate() {
-                let cr = _mm256_broadcast_ss(&*w.add(r * n16 + j));
-                for k in 0..c {
-                    t[k] = _mm256_fmadd_ps(cr, xr[k], t[k]);
-                }
-            }
-            for (k, v) in t.iter().enumerate().take(c) {
-                _mm256_storeu_ps(acc.add(j * P + k * 8), *v);
             }
         }
     }
@@ -449,17 +257,11 @@ fn head_backward<const P: usize, L: Lanes>(
     }
 }
 
+/// The AVX2 + FMA build of a head function (its tiles inline into it with those features).
 macro_rules! compiled_for {
-    ($generic:ident, $avx512:ident, $avx2:ident, ($($arg:ident: $ty:ty),*)) => {
-        #[cfg(target_arch = "x86_64")]
-        #[target_feature(enable = "avx512f,avx2,fma")]
-        #[allow(clippy::too_many_arguments)]
-        fn $avx512<const P: usize>($($arg: $ty),*) {
-            $generic::<P, Avx2>($($arg),*)
-        }
+    ($generic:ident, $avx2:ident, ($($arg:ident: $ty:ty),*)) => {
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = "avx2,fma")]
-        #[allow(clippy::too_many_arguments)]
         fn $avx2<const P: usize>($($arg: $ty),*) {
             $generic::<P, Avx2>($($arg),*)
         }
@@ -468,54 +270,35 @@ macro_rules! compiled_for {
 
 /// Calls the build of a head function for this CPU and head width.
 macro_rules! dispatch {
-    ($wide:expr, $generic:ident, $avx512:ident, $avx2:ident, ($($a:expr),*)) => {
-        match (isa(), $wide) {
-            // SAFETY: the CPU has the features each build was compiled for.
+    ($wide:expr, $generic:ident, $avx2:ident, ($($a:expr),*)) => {
+        match (avx2(), $wide) {
+            // SAFETY: the CPU has the features the build was compiled for.
             #[cfg(target_arch = "x86_64")]
-            (Isa::Avx512, false) => unsafe { $avx512::<16>($($a),*) },
+            (true, false) => unsafe { $avx2::<16>($($a),*) },
             #[cfg(target_arch = "x86_64")]
-            (Isa::Avx512, true) => unsafe { $avx512::<32>($($a),*) },
-            #[cfg(target_arch = "x86_64")]
-            (Isa::Avx2, false) => unsafe { $avx2::<16>($($a),*) },
-            #[cfg(target_arch = "x86_64")]
-            (Isa::Avx2, true) => unsafe { $avx2::<32>($($a),*) },
+            (true, true) => unsafe { $avx2::<32>($($a),*) },
             (_, false) => $generic::<16, Scalar>($($a),*),
             (_, true) => $generic::<32, Scalar>($($a),*),
         }
     };
 }
 
-/// Which build of the loops this CPU runs.
-#[derive(Clone, Copy)]
-enum Isa {
-    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
-    Avx512,
-    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
-    Avx2,
-    Base,
-}
-
-fn isa() -> Isa {
-    static ISA: std::sync::OnceLock<Isa> = std::sync::OnceLock::new();
-    *ISA.get_or_init(|| {
+/// Whether this CPU runs the AVX2 + FMA tiles.
+fn avx2() -> bool {
+    static AVX2: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *AVX2.get_or_init(|| {
         #[cfg(target_arch = "x86_64")]
-        {
-            if std::is_x86_feature_detected!("avx512f") {
-                return Isa::Avx512;
-            }
-            if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
-                return Isa::Avx2;
-            }
-        }
-        Isa::Base
+        return std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma");
+        #[cfg(not(target_arch = "x86_64"))]
+        false
     })
 }
 
 type Qkv<'a> = (&'a [f32], &'a [f32], &'a [f32]);
 
-compiled_for!(head_forward, head_forward_avx512, head_forward_avx2,
+compiled_for!(head_forward, head_forward_avx2,
     (c: &Call, bh: (usize, usize), dst: *mut f32, lse: &mut [f32], w: &mut Scratch));
-compiled_for!(head_backward, head_backward_avx512, head_backward_avx2,
+compiled_for!(head_backward, head_backward_avx2,
     (c: &Call, dout: &[f32], bh: (usize, usize), lse: &[f32], d: (Out, Out, Out), w: &mut Scratch));
 
 /// softmax(Q K^T / sqrt(dh) + mask) V per head -> ([B, Lq, d], log-sum-exp [B, H, Lq]).
@@ -536,13 +319,7 @@ pub fn forward(
         let d = dst;
         // SAFETY: head (b, h) writes only its own dh columns of sample b's rows.
         let at = unsafe { d.0.add(b * s.lq * s.d + h * s.dh()) };
-        dispatch!(
-            wide,
-            head_forward,
-            head_forward_avx512,
-            head_forward_avx2,
-            (&c, (b, h), at, lse, w)
-        );
+        dispatch!(wide, head_forward, head_forward_avx2, (&c, (b, h), at, lse, w));
     });
     (out, lse)
 }
@@ -564,13 +341,7 @@ pub fn backward(
     let wide = s.dh() > 16;
     lse.par_chunks(s.lq).enumerate().for_each_init(Scratch::default, |w, (bh, lse)| {
         let (b, h) = (bh / s.heads, bh % s.heads);
-        dispatch!(
-            wide,
-            head_backward,
-            head_backward_avx512,
-            head_backward_avx2,
-            (&c, dout, (b, h), lse, outs, w)
-        );
+        dispatch!(wide, head_backward, head_backward_avx2, (&c, dout, (b, h), lse, outs, w));
     });
     (dq, dk, dv)
 }
@@ -668,42 +439,5 @@ mod timing {
                 t(&|| drop(backward((&x, &x, &x), &x, &lse, &s, &mask))),
             );
         }
-    }
-}
-
-#[cfg(all(test, target_arch = "x86_64"))]
-mod lanes {
-    use super::*;
-
-    /// The AVX2 tiles compute what the plain loops compute (the kernel test above runs whichever
-    /// build the CPU picks; this one runs both).
-    #[test]
-    fn avx2_tiles_match_the_plain_loops() {
-        if !(std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")) {
-            eprintln!("notice: no AVX2 + FMA here; the AVX2 tiles are not compared");
-            return;
-        }
-        fn check<const P: usize>() {
-            let (n, n16) = (37, 48);
-            let v = |len: usize, k: usize| -> Vec<f32> {
-                (0..len).map(|i| ((i * k) % 97) as f32 / 48.0 - 1.0).collect()
-            };
-            let (a, bt, w, m) = (v(R * P, 3), v(P * n16, 5), v(R * n16, 7), v(n * P, 11));
-            let close = |x: &[f32], y: &[f32]| x.iter().zip(y).all(|(p, q)| (p - q).abs() < 1e-4);
-            let (mut o1, mut o2) = (vec![0f32; R * n16], vec![0f32; R * n16]);
-            Scalar::dots::<P>(&a, &bt, n16, 0.25, &mut o1);
-            Avx2::dots::<P>(&a, &bt, n16, 0.25, &mut o2);
-            assert!(close(&o1, &o2), "dots P={P}");
-            let (mut o1, mut o2) = (vec![0f32; R * P], vec![0f32; R * P]);
-            Scalar::mix::<P>(&w, n16, n, &m, &mut o1);
-            Avx2::mix::<P>(&w, n16, n, &m, &mut o2);
-            assert!(close(&o1, &o2), "mix P={P}");
-            let (mut o1, mut o2) = (m.clone(), m.clone());
-            Scalar::spread::<P>(&w, n16, n, &a, &mut o1);
-            Avx2::spread::<P>(&w, n16, n, &a, &mut o2);
-            assert!(close(&o1, &o2), "spread P={P}");
-        }
-        check::<16>();
-        check::<32>();
     }
 }

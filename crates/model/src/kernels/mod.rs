@@ -11,6 +11,7 @@ mod grad;
 pub mod host;
 mod mha;
 mod softmax;
+mod tiles;
 
 use std::sync::{Arc, OnceLock};
 
