@@ -2,6 +2,8 @@
 //! config errors.
 
 mod common;
+use std::path::Path;
+
 use common::*;
 
 fn config(name: &str) -> String {
@@ -156,11 +158,27 @@ fn bench_suite_smoke() {
         &diffkfc(&["bench", "--config", "tiny", "--cases", "call", "--rounds", "0"]),
         &["--rounds"],
     );
-    // The reference has no counterpart of our tiny preset: a ratio would compare two networks.
+    // The shared reference script has no counterpart of our tiny preset (a ratio would compare
+    // two networks); scripts/torch_reference.py has, and --torch-compile reaches it.
+    let shared = d.join("reference_diffkfc.py");
+    std::fs::copy(&script, &shared).unwrap();
+    let bench_with = |config: &str, reference: &Path, more: &[&str]| {
+        let args = ["bench", "--config", config, "--frames", "24", "--batch", "2", "--quick"];
+        let tail = ["--cases", "call", "--torch", "python3", "--reference", s(reference)];
+        diffkfc(&[&args[..], &tail[..], more].concat())
+    };
     assert_one_line_error(
-        &diffkfc(&["bench", "--config", "tiny", "--quick", "--torch", "python3"]),
-        &["--torch", "torch-tiny", "'tiny'"],
+        &bench_with("tiny", &shared, &[]),
+        &["--torch", "reference_diffkfc.py", "--config tiny"],
     );
+    let echo = d.join("torch_reference.py");
+    std::fs::write(&echo, "import json, sys\nprint(json.dumps({'train_step_ms': 1e9, 'cfg_call_ms': 1e9, 'args': sys.argv[1:]}))\n").unwrap();
+    let o = bench_with("mid", &echo, &["--torch-compile"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let line = stdout(&o).lines().find(|l| l.contains("\"pytorch\"")).unwrap().to_string();
+    let args =
+        serde_json::from_str::<serde_json::Value>(&line).unwrap()["reference"]["args"].to_string();
+    assert!(args.contains("\"mid\"") && args.contains("--compile"), "{args}");
     assert_one_line_error(
         &diffkfc(&[
             "bench",

@@ -58,9 +58,15 @@ pub struct BenchArgs {
     /// every round's ratios and their median (this machine's timings drift between minutes).
     #[arg(long, default_value_t = 1)]
     rounds: usize,
-    /// The PyTorch reference script.
-    #[arg(long, default_value = "../shared/bench/reference_diffkfc.py")]
+    /// The PyTorch reference: scripts/torch_reference.py runs ../shared/bench's network at every
+    /// preset (eager, or compiled with --torch-compile); ../shared/bench/reference_diffkfc.py
+    /// itself knows only paper and torch-tiny.
+    #[arg(long, default_value = "scripts/torch_reference.py")]
     reference: PathBuf,
+    /// With --torch: run the reference under torch.compile (inductor; its first step, the
+    /// compilation, is reported apart and not timed).
+    #[arg(long, requires = "torch")]
+    torch_compile: bool,
     /// Smoke test: one run per case, 2 DDIM steps, 20 loader batches.
     #[arg(long)]
     quick: bool,
@@ -132,31 +138,38 @@ fn line(
     v
 }
 
-fn torch_reference(
-    python: &PathBuf,
-    script: &PathBuf,
-    preset: &str,
-    batch: usize,
-    frames: usize,
-    repeats: usize,
-) -> Result<Value> {
-    if !script.exists() {
-        bail!("--reference: {} not found", script.display());
+/// The reference's name for `--config`: the shared script calls torch-tiny "tiny" and has only
+/// that and paper; scripts/torch_reference.py takes every preset by its own name.
+fn reference_preset(a: &BenchArgs) -> Result<String> {
+    let shared = a.reference.file_name().is_some_and(|n| n == "reference_diffkfc.py");
+    match (a.config.as_str(), shared) {
+        (c, false) if ["paper", "small", "mid", "tiny", "torch-tiny"].contains(&c) => Ok(c.into()),
+        ("paper", true) => Ok("paper".into()),
+        ("torch-tiny", true) => Ok("tiny".into()),
+        _ if a.torch.is_none() => Ok(String::new()),
+        (c, _) => bail!("--torch: {} has no network for --config {c} (scripts/torch_reference.py has paper, small, mid, tiny, torch-tiny)", a.reference.display()),
     }
-    let out = Command::new(python)
-        .arg(script)
-        .args([
-            "--config",
-            preset,
-            "--batch",
-            &batch.to_string(),
-            "--frames",
-            &frames.to_string(),
-            "--steps",
-            &repeats.max(1).to_string(),
-        ])
-        .output()
-        .with_context(|| format!("--torch: running {}", python.display()))?;
+}
+
+fn torch_reference(python: &PathBuf, a: &BenchArgs, preset: &str, repeats: usize) -> Result<Value> {
+    if !a.reference.exists() {
+        bail!("--reference: {} not found", a.reference.display());
+    }
+    let mut cmd = Command::new(python);
+    cmd.arg(&a.reference).args([
+        "--config",
+        preset,
+        "--batch",
+        &a.batch.to_string(),
+        "--frames",
+        &a.frames.to_string(),
+        "--steps",
+        &repeats.max(1).to_string(),
+    ]);
+    if a.torch_compile {
+        cmd.arg("--compile");
+    }
+    let out = cmd.output().with_context(|| format!("--torch: running {}", python.display()))?;
     let text = String::from_utf8_lossy(&out.stdout);
     let last = text.lines().rev().find(|l| l.trim_start().starts_with('{'));
     match (out.status.success(), last) {
@@ -187,14 +200,7 @@ pub fn run(a: BenchArgs) -> Result<()> {
     }
     let device = crate::device::parse(&a.device)?;
     let runs = if a.quick { 1 } else { a.repeats };
-    // The reference's name for the same network (its "tiny" is our torch-tiny preset).
-    let preset = match (&a.torch, a.config.as_str()) {
-        (None, _) | (_, "paper") => "paper",
-        (_, "torch-tiny") => "tiny",
-        (Some(_), other) => {
-            bail!("--torch: the reference has only the paper network and its own small one (--config torch-tiny), not '{other}'")
-        }
-    };
+    let preset = reference_preset(&a)?;
     // Every run records the machine: CPU, vector extensions, threads, matrix-product peak; each
     // model case's GFLOP/s then reads as a fraction of it.
     let machine = diffkfc_model::bench::machine(
@@ -216,7 +222,7 @@ pub fn run(a: BenchArgs) -> Result<()> {
             }
         }
         let Some(py) = &a.torch else { continue };
-        let t = torch_reference(py, &a.reference, preset, a.batch, a.frames, runs)?;
+        let t = torch_reference(py, &a, &preset, runs)?;
         emit(json!({"case": "pytorch", "round": round, "reference": t}));
         let keys = [
             ("train_step", "train_step_ms"),

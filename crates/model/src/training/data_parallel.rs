@@ -13,9 +13,8 @@
 //! gradients summed through host memory instead (`GradSum::Host`).
 
 use std::ops::Range;
-use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Barrier, Mutex};
+use std::sync::{mpsc, Arc, Barrier, Mutex};
 
 use burn::module::{ModuleMapper, Param};
 use burn::optim::GradientsParams;
@@ -222,24 +221,35 @@ impl HostSum {
 }
 
 /// One shard of a step: its samples, timesteps and noise, and its counts beside the batch's.
-pub(crate) struct Shard<'a> {
+pub(crate) struct Shard {
     pub batch: Batch,
     pub first: usize,
-    pub t: &'a [usize],
-    pub noise: &'a [f32],
+    t: Arc<Vec<usize>>,
+    noise: Arc<Vec<f32>>,
     pub mine: Counts,
     pub all: Counts,
     pub shards: usize,
 }
 
-/// The shards of a step's batch `b` with timesteps `t` and noise `noise` ([B * N * D]).
-pub(crate) fn shards<'a>(b: &Batch, t: &'a [usize], noise: &'a [f32], k: usize) -> Vec<Shard<'a>> {
-    let per_sample = b.frames * b.dim;
+impl Shard {
+    pub fn t(&self) -> &[usize] {
+        &self.t[self.first..self.first + self.batch.batch_size]
+    }
+
+    /// [b * N * D]
+    pub fn noise(&self) -> &[f32] {
+        let per = self.batch.frames * self.batch.dim;
+        &self.noise[self.first * per..(self.first + self.batch.batch_size) * per]
+    }
+}
+
+/// The `k` shards of a step's batch `b` with its timesteps `t` and noise ([B * N * D]).
+pub(crate) fn shards(b: &Batch, t: Vec<usize>, noise: Vec<f32>, k: usize) -> Vec<Shard> {
     let ranges = shard_ranges(b.batch_size, k);
     let parts: Vec<Batch> = ranges.iter().map(|r| b.shard(r.clone())).collect();
     let counts: Vec<Counts> = parts.iter().map(Counts::of).collect();
     let all = Counts::sum(&counts);
-    let shards = ranges.len();
+    let (t, noise, shards) = (Arc::new(t), Arc::new(noise), ranges.len());
     parts
         .into_iter()
         .zip(ranges)
@@ -247,8 +257,8 @@ pub(crate) fn shards<'a>(b: &Batch, t: &'a [usize], noise: &'a [f32], k: usize) 
         .map(|((batch, r), mine)| Shard {
             batch,
             first: r.start,
-            t: &t[r.clone()],
-            noise: &noise[r.start * per_sample..r.end * per_sample],
+            t: t.clone(),
+            noise: noise.clone(),
             mine,
             all,
             shards,
@@ -256,48 +266,102 @@ pub(crate) fn shards<'a>(b: &Batch, t: &'a [usize], noise: &'a [f32], k: usize) 
         .collect()
 }
 
-/// Runs `forward` on every replica's thread with its shard; when every replica's loss is finite
-/// (all wait for all), `descend` follows on the same threads. Returns each replica's forward
-/// result and, where it descended, its gradient norm. A replica that panics in `forward` stops
-/// every replica before the backward pass and is reported as an error.
-pub(crate) fn on_replicas<T: Send>(
-    reps: &mut [Replica],
-    shards: &[Shard],
-    forward: &(dyn Fn(&Replica, &Shard) -> (Tensor<1>, T, bool) + Sync),
-    descend: &(dyn Fn(&mut Replica, Tensor<1>) -> f64 + Sync),
-) -> Result<Vec<(T, Option<f64>)>> {
-    if shards.len() != reps.len() {
-        return Err(ModelError::Config(format!(
-            "a batch of {} shards for {} devices: training.batch_size must be at least the number of devices",
-            shards.len(),
-            reps.len()
-        )));
+/// What the replicas of one step share: whether every forward pass gave a finite loss (no
+/// replica starts its backward pass before all know), and the host sum of `GradSum::Host`.
+pub(crate) struct StepSync {
+    go: AtomicBool,
+    barrier: Barrier,
+    pub host: Option<HostSum>,
+}
+
+impl StepSync {
+    pub fn new(replicas: usize, host_sum: bool) -> StepSync {
+        StepSync {
+            go: AtomicBool::new(true),
+            barrier: Barrier::new(replicas),
+            host: host_sum.then(|| HostSum::new(replicas)),
+        }
     }
-    let go = AtomicBool::new(true);
-    let barrier = Barrier::new(reps.len());
-    let outs: Vec<Option<(T, Option<f64>)>> = std::thread::scope(|s| {
-        let handles: Vec<_> = reps
-            .iter_mut()
-            .zip(shards)
-            .map(|(r, shard)| {
-                let (go, barrier) = (&go, &barrier);
-                s.spawn(move || {
-                    let fwd = catch_unwind(AssertUnwindSafe(|| forward(r, shard)));
-                    if !matches!(fwd, Ok((_, _, true))) {
-                        go.store(false, Ordering::SeqCst);
-                    }
-                    barrier.wait();
-                    let (obj, out, _) = fwd.ok()?;
-                    let norm = go.load(Ordering::SeqCst).then(|| descend(r, obj));
-                    Some((out, norm))
-                })
+
+    /// This replica's forward pass went well or not; once every replica has said, whether all did.
+    pub fn arrive(&self, ok: bool) -> bool {
+        if !ok {
+            self.go.store(false, Ordering::SeqCst);
+        }
+        self.barrier.wait();
+        self.go.load(Ordering::SeqCst)
+    }
+}
+
+/// One replica's part of a step: Some((its forward's result, its gradient norm when every
+/// replica descended)), None when its forward pass panicked.
+pub(crate) type Part<T> = Option<(T, Option<f64>)>;
+
+type Job<'s> = Box<dyn FnOnce(&mut Replica) + Send + 's>;
+
+/// What `Workers::each` runs on every replica.
+pub(crate) type EachFn<'s, P, T> = Arc<dyn Fn(&mut Replica, P) -> T + Send + Sync + 's>;
+
+/// The replicas of a run, each owned by its own thread for the whole run (CubeCL keeps a stream
+/// per thread: a replica's tensors stay on one), running the jobs sent to them.
+pub(crate) struct Workers<'s> {
+    jobs: Vec<mpsc::Sender<Job<'s>>>,
+}
+
+impl<'s> Workers<'s> {
+    pub fn spawn<'e>(scope: &'s std::thread::Scope<'s, 'e>, reps: Vec<Replica>) -> Workers<'s> {
+        let jobs = reps
+            .into_iter()
+            .map(|mut r| {
+                let (tx, rx) = mpsc::channel::<Job<'s>>();
+                scope.spawn(move || rx.into_iter().for_each(|job| job(&mut r)));
+                tx
             })
             .collect();
-        handles.into_iter().map(|h| h.join().ok().flatten()).collect()
-    });
-    outs.into_iter().collect::<Option<Vec<_>>>().ok_or_else(|| {
-        ModelError::Config("a data-parallel replica failed in its forward pass".into())
-    })
+        Workers { jobs }
+    }
+
+    pub fn len(&self) -> usize {
+        self.jobs.len()
+    }
+
+    /// `f(replica, payload)` on every replica's thread, payload k to replica k; the results in
+    /// replica order, or an error when a replica's thread is gone.
+    pub fn each<P, T>(&self, payloads: Vec<P>, f: EachFn<'s, P, T>) -> Result<Vec<T>>
+    where
+        P: Send + 's,
+        T: Send + 's,
+    {
+        let (tx, rx) = mpsc::channel();
+        for (k, (jobs, p)) in self.jobs.iter().zip(payloads).enumerate() {
+            let (tx, f) = (tx.clone(), f.clone());
+            let job: Job<'s> = Box::new(move |r| {
+                let _ = tx.send((k, f(r, p)));
+            });
+            jobs.send(job).map_err(|_| gone())?;
+        }
+        drop(tx);
+        let mut out: Vec<(usize, T)> = rx.iter().collect();
+        if out.len() != self.jobs.len() {
+            return Err(gone());
+        }
+        out.sort_by_key(|(k, _)| *k);
+        Ok(out.into_iter().map(|(_, t)| t).collect())
+    }
+
+    /// `f(replica 0)` on its thread (validation and checkpoints read replica 0).
+    pub fn first<T: Send + 's>(&self, f: impl FnOnce(&mut Replica) -> T + Send + 's) -> Result<T> {
+        let (tx, rx) = mpsc::channel();
+        let job: Job<'s> = Box::new(move |r| {
+            let _ = tx.send(f(r));
+        });
+        self.jobs[0].send(job).map_err(|_| gone())?;
+        rx.recv().map_err(|_| gone())
+    }
+}
+
+fn gone() -> ModelError {
+    ModelError::Config("a data-parallel replica's thread stopped (it panicked)".into())
 }
 
 #[cfg(test)]

@@ -6,7 +6,9 @@
 //! Every random draw is derived from (seed, step): the batch, the timesteps, the noise and the
 //! dropout masks. A run of 2N steps and a run of N steps resumed to 2N are the same run.
 
+use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use burn::prelude::*;
 use diffkfc_data::dataset::batch::{Batch, Loader};
@@ -23,7 +25,7 @@ use crate::run::config::RunConfig;
 use crate::text::cache::EmbeddingCache;
 use crate::training::batch::to_tensors;
 use crate::training::data_parallel::{
-    self, on_replicas, DataParallel, GradSum, HostSum, Replica, Shard,
+    self, DataParallel, GradSum, Part, Replica, Shard, StepSync, Workers,
 };
 use crate::training::losses::Losses;
 use crate::training::losses::{losses, Kinematic};
@@ -32,6 +34,39 @@ use crate::training::optim::{learning_rate, Optimiser, Snapshot, StateLocation};
 use crate::training::parallel::{shard_objective, Combine, Shares};
 use crate::training::run_files::{non_finite, RunFiles};
 use crate::Denoiser;
+
+/// A step's settings every replica uses: the seed of its draws, and (clip, learning rate, EMA
+/// decay).
+#[derive(Clone, Copy)]
+struct StepCtx {
+    step_seed: u64,
+    hyper: (f64, f64, f64),
+}
+
+/// Where a run's replicas live: the one of a one-device run on this thread, or one per device
+/// on its own thread.
+enum Learners<'s> {
+    One(Box<Replica>),
+    Many(Workers<'s>),
+}
+
+impl Learners<'_> {
+    /// Replica 0's weights for validation (its EMA when there is one).
+    fn eval_weights(&mut self) -> Result<Vec<Vec<f32>>> {
+        match self {
+            Learners::One(r) => Ok(r.optim.eval_weights(r.model()).into_owned()),
+            Learners::Many(w) => w.first(|r| r.optim.eval_weights(r.model()).into_owned()),
+        }
+    }
+
+    /// Replica 0's weights, EMA and moments for a checkpoint.
+    fn snapshot(&mut self) -> Result<Snapshot> {
+        match self {
+            Learners::One(r) => Ok(r.optim.snapshot(r.model())),
+            Learners::Many(w) => w.first(|r| r.optim.snapshot(r.model())),
+        }
+    }
+}
 
 /// A step's loss and its terms (each term unweighted, as `Losses` has it).
 #[derive(Clone, Copy, Debug)]
@@ -199,8 +234,8 @@ impl Trainer<'_> {
         let schedule = self.cfg.diffusion.schedule().expect("a validated config");
         let device = model.devices().first().cloned().expect("a model device");
         let mut sum: Vec<Vec<f32>> = Vec::new();
-        for sh in data_parallel::shards(b, t, noise, shards) {
-            let l = self.batch_loss(model, &schedule, &sh.batch, sh.t, sh.noise, &device);
+        for sh in data_parallel::shards(b, t.to_vec(), noise.to_vec(), shards) {
+            let l = self.batch_loss(model, &schedule, &sh.batch, sh.t(), sh.noise(), &device);
             let obj = shard_objective(&l, &self.kinematic(), &sh.mine, &sh.all, sh.shards, combine);
             let grads = burn::optim::GradientsParams::from_grads(obj.backward(), model);
             let g = params::grads(model, &grads);
@@ -262,38 +297,62 @@ impl Trainer<'_> {
         device.seed(tc.seed);
         let (model, optim, start) = self.starting_point(resume, &device, on_event)?;
         let mut files = RunFiles::open(self, &model, start)?;
-        // One replica per device; the context of Burn's all-reduce lives as long as they do.
-        let (mut reps, _comm) = match &self.parallel {
-            Some(dp) => dp.replicas(self.cfg, optim.snapshot(&model)),
-            None => (vec![Replica::new(device, model, optim)], None),
-        };
-        let host_sum = self.parallel.as_ref().is_some_and(|dp| dp.sum() == GradSum::Host);
+        let steps = start..max_steps;
+        match &self.parallel {
+            None => {
+                let mut one = Learners::One(Box::new(Replica::new(device, model, optim)));
+                self.train_loop(&mut one, &mut files, &schedule, steps, stop, on_event)
+            }
+            Some(dp) => {
+                // The context of Burn's all-reduce outlives the replicas' threads.
+                let (reps, _comm) = dp.replicas(self.cfg, optim.snapshot(&model));
+                drop(model);
+                std::thread::scope(|scope| {
+                    let mut many = Learners::Many(Workers::spawn(scope, reps));
+                    self.train_loop(&mut many, &mut files, &schedule, steps, stop, on_event)
+                })
+            }
+        }
+    }
+
+    /// The steps `steps` (from its start, where the run stands) on `learners`, with validation,
+    /// metrics and checkpoints.
+    fn train_loop<'s>(
+        &'s self,
+        learners: &mut Learners<'s>,
+        files: &mut RunFiles,
+        schedule: &'s Schedule,
+        steps: std::ops::Range<usize>,
+        stop: &dyn Fn() -> bool,
+        on_event: &mut dyn FnMut(Event),
+    ) -> Result<Outcome> {
+        let tc = &self.cfg.training;
+        let (start, max_steps) = (steps.start, steps.end);
         let loader =
             Loader::new(self.ds, self.train, tc.batch_size, tc.seed, self.cfg.keyframes.clone());
         let (mut step, mut last, mut stopped) = (start, None, false);
-        let eval = |reps: &[Replica]| reps[0].optim.eval_weights(reps[0].model()).into_owned();
         // Validation lines without a training loss: before the first step of a fresh run, and
         // where a run is stopped early, so start and end are always measured.
         if start == 0 && tc.val_every > 0 && step < max_steps {
-            files.validation(0, self.validate(&eval(&reps), &schedule))?;
+            files.validation(0, self.validate(&learners.eval_weights()?, schedule))?;
         }
         while step < max_steps {
             if stop() {
                 stopped = true;
                 if tc.val_every > 0 && step > start {
-                    files.validation(step, self.validate(&eval(&reps), &schedule))?;
+                    files.validation(step, self.validate(&learners.eval_weights()?, schedule))?;
                 }
                 break;
             }
-            let mut rec = self.step(&mut reps, host_sum, &loader, &schedule, step, &files)?;
+            let mut rec = self.step(learners, &loader, schedule, step, files)?;
             step += 1;
             if tc.val_every > 0 && (step % tc.val_every == 0 || step == max_steps) {
-                rec.val_loss = self.validate(&eval(&reps), &schedule);
+                rec.val_loss = self.validate(&learners.eval_weights()?, schedule);
             }
             files.record(&rec)?;
             on_event(Event::Step(&rec));
             if step % tc.checkpoint_every.max(1) == 0 || step == max_steps {
-                let p = files.checkpoint(step, reps[0].optim.snapshot(reps[0].model()))?;
+                let p = files.checkpoint(step, learners.snapshot()?)?;
                 on_event(Event::Checkpoint(step, &p));
             }
             last = Some(rec);
@@ -302,7 +361,7 @@ impl Trainer<'_> {
             && step > start
             && !Checkpoint::list(&self.run_dir).iter().any(|(s, _)| *s == step)
         {
-            let p = files.checkpoint(step, reps[0].optim.snapshot(reps[0].model()))?;
+            let p = files.checkpoint(step, learners.snapshot()?)?;
             on_event(Event::Checkpoint(step, &p));
         }
         Ok(Outcome { start_step: start, end_step: step, stopped_early: stopped, last })
@@ -367,41 +426,46 @@ impl Trainer<'_> {
 
     /// One optimisation step from `step` (its batch, timesteps, noise and dropout derived from
     /// the seed and the step) on every replica, each on its shard of the batch: the step's record.
-    fn step(
-        &self,
-        reps: &mut [Replica],
-        host_sum: bool,
+    fn step<'s>(
+        &'s self,
+        learners: &mut Learners<'s>,
         loader: &Loader,
-        schedule: &Schedule,
+        schedule: &'s Schedule,
         step: usize,
         files: &RunFiles,
     ) -> Result<StepRecord> {
         let tc = &self.cfg.training;
-        let step_seed = tc.seed.wrapping_mul(0x9E37_79B9).wrapping_add(step as u64);
         let per_epoch = loader.batches_per_epoch().max(1);
         let b = loader.batch((step / per_epoch) as u64, step % per_epoch);
         let (t, noise) =
             self.draw(0x7EA1, step as u64, [b.batch_size, b.frames, b.dim], schedule.steps);
         let lr = learning_rate(tc.lr, step, tc.warmup_steps, tc.cosine_decay, tc.max_steps);
-        // Early in training the EMA follows closely (as in common EMA warm-ups).
-        let decay = tc.ema_decay.min((1.0 + step as f64) / (10.0 + step as f64));
-        let hyper = (tc.grad_clip, lr, decay);
-        let shards = data_parallel::shards(&b, &t, &noise, reps.len());
-        let forward = |r: &Replica, sh: &Shard| {
-            r.device.seed(step_seed);
-            crate::network::dropout::seed_shard(step_seed, sh.first, sh.batch.batch_size);
-            let (obj, terms) = self.shard_loss(r, schedule, sh);
-            let finite = terms.total.is_finite();
-            (obj, terms, finite)
+        let ctx = StepCtx {
+            step_seed: tc.seed.wrapping_mul(0x9E37_79B9).wrapping_add(step as u64),
+            // Early in training the EMA follows closely (as in common EMA warm-ups).
+            hyper: (tc.grad_clip, lr, tc.ema_decay.min((1.0 + step as f64) / (10.0 + step as f64))),
         };
-        let outs = if let [r] = reps {
-            // One device: on this thread, no barrier.
-            let (obj, terms, finite) = forward(r, &shards[0]);
-            vec![(terms, finite.then(|| r.descend(obj, hyper, None)))]
-        } else {
-            let sum = host_sum.then(|| HostSum::new(reps.len()));
-            on_replicas(reps, &shards, &forward, &|r, obj| r.descend(obj, hyper, sum.as_ref()))?
+        let host_sum = self.parallel.as_ref().is_some_and(|dp| dp.sum() == GradSum::Host);
+        let outs: Vec<Part<Terms>> = match learners {
+            Learners::One(r) => {
+                let sh = data_parallel::shards(&b, t, noise, 1).remove(0);
+                vec![self.replica_step(r, &sh, schedule, &StepSync::new(1, false), ctx)]
+            }
+            Learners::Many(w) => {
+                let shards = data_parallel::shards(&b, t, noise, w.len());
+                let sync = Arc::new(StepSync::new(shards.len(), host_sum));
+                let (tr, schedule) = (self, schedule);
+                w.each(
+                    shards,
+                    Arc::new(move |r: &mut Replica, sh: Shard| {
+                        tr.replica_step(r, &sh, schedule, &sync, ctx)
+                    }),
+                )?
+            }
         };
+        let outs = outs.into_iter().collect::<Option<Vec<_>>>().ok_or_else(|| {
+            ModelError::Config(format!("step {}: a replica's forward pass panicked", step + 1))
+        })?;
         let terms = outs.iter().map(|o| o.0).reduce(Terms::add).expect("a replica");
         if !terms.total.is_finite() {
             // Stopped before the step is taken: the weights and every checkpoint stay finite.
@@ -428,10 +492,31 @@ impl Trainer<'_> {
         })
     }
 
+    /// One replica's part of a step: its shard's forward pass and, once every replica's loss is
+    /// known to be finite (`sync`), its backward pass, the gradient sum and the update.
+    fn replica_step(
+        &self,
+        r: &mut Replica,
+        sh: &Shard,
+        schedule: &Schedule,
+        sync: &StepSync,
+        ctx: StepCtx,
+    ) -> Part<Terms> {
+        let fwd = catch_unwind(AssertUnwindSafe(|| {
+            r.device.seed(ctx.step_seed);
+            crate::network::dropout::seed_shard(ctx.step_seed, sh.first, sh.batch.batch_size);
+            self.shard_loss(r, schedule, sh)
+        }));
+        let ok = matches!(&fwd, Ok((_, terms)) if terms.total.is_finite());
+        let go = sync.arrive(ok);
+        let (obj, terms) = fwd.ok()?;
+        Some((terms, go.then(|| r.descend(obj, ctx.hyper, sync.host.as_ref()))))
+    }
+
     /// A replica's objective on its shard (the batch's loss when it is the only one) and the
     /// values of its terms, each weighted by the shard's share of the batch.
     fn shard_loss(&self, r: &Replica, schedule: &Schedule, sh: &Shard) -> (Tensor<1>, Terms) {
-        let l = self.batch_loss(r.model(), schedule, &sh.batch, sh.t, sh.noise, &r.device);
+        let l = self.batch_loss(r.model(), schedule, &sh.batch, sh.t(), sh.noise(), &r.device);
         let k = self.kinematic();
         let (obj, shares) = if sh.shards == 1 {
             (l.total(&k), Shares::ONE)
