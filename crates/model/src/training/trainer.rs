@@ -35,6 +35,9 @@ use crate::training::parallel::{shard_objective, Combine, Shares};
 use crate::training::run_files::{non_finite, RunFiles};
 use crate::Denoiser;
 
+/// A training step's batch, timesteps ([B]) and noise ([B * N * D]).
+type Draws = (Batch, Vec<usize>, Vec<f32>);
+
 /// A step's settings every replica uses: the seed of its draws, and (clip, learning rate, EMA
 /// decay).
 #[derive(Clone, Copy)]
@@ -185,6 +188,15 @@ impl Trainer<'_> {
         }
     }
 
+    /// The batch, timesteps and noise of training step `step` (a function of the seed and the
+    /// step only, so it can be drawn ahead, on another thread).
+    fn draws(&self, loader: &Loader, steps: usize, step: usize) -> Draws {
+        let per_epoch = loader.batches_per_epoch().max(1);
+        let b = loader.batch((step / per_epoch) as u64, step % per_epoch);
+        let (t, noise) = self.draw(0x7EA1, step as u64, [b.batch_size, b.frames, b.dim], steps);
+        (b, t, noise)
+    }
+
     /// Timesteps and noise ([B * N * D]) of a step, from (seed, stream, index) only.
     fn draw(
         &self,
@@ -331,6 +343,10 @@ impl Trainer<'_> {
         let loader =
             Loader::new(self.ds, self.train, tc.batch_size, tc.seed, self.cfg.keyframes.clone());
         let (mut step, mut last, mut stopped) = (start, None, false);
+        // The next step's batch and noise are drawn on another thread while this one trains
+        // (single-threaded work that would otherwise leave a core idle).
+        let ahead = |s: usize| (s < max_steps).then(|| self.draws(&loader, schedule.steps, s));
+        let mut pending: Option<Draws> = None;
         // Validation lines without a training loss: before the first step of a fresh run, and
         // where a run is stopped early, so start and end are always measured.
         if start == 0 && tc.val_every > 0 && step < max_steps {
@@ -344,7 +360,14 @@ impl Trainer<'_> {
                 }
                 break;
             }
-            let mut rec = self.step(learners, &loader, schedule, step, files)?;
+            let draws = pending.take().unwrap_or_else(|| self.draws(&loader, schedule.steps, step));
+            let (rec, next) = std::thread::scope(|scope| {
+                let next = scope.spawn(|| ahead(step + 1));
+                let rec = self.step(learners, draws, schedule, step, files);
+                (rec, next.join().expect("drawing a batch does not panic"))
+            });
+            let mut rec = rec?;
+            pending = next;
             step += 1;
             if tc.val_every > 0 && (step % tc.val_every == 0 || step == max_steps) {
                 rec.val_loss = self.validate(&learners.eval_weights()?, schedule);
@@ -429,16 +452,12 @@ impl Trainer<'_> {
     fn step<'s>(
         &'s self,
         learners: &mut Learners<'s>,
-        loader: &Loader,
+        (b, t, noise): Draws,
         schedule: &'s Schedule,
         step: usize,
         files: &RunFiles,
     ) -> Result<StepRecord> {
         let tc = &self.cfg.training;
-        let per_epoch = loader.batches_per_epoch().max(1);
-        let b = loader.batch((step / per_epoch) as u64, step % per_epoch);
-        let (t, noise) =
-            self.draw(0x7EA1, step as u64, [b.batch_size, b.frames, b.dim], schedule.steps);
         let lr = learning_rate(tc.lr, step, tc.warmup_steps, tc.cosine_decay, tc.max_steps);
         let ctx = StepCtx {
             step_seed: tc.seed.wrapping_mul(0x9E37_79B9).wrapping_add(step as u64),
