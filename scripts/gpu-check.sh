@@ -27,7 +27,10 @@ while [ $# -gt 0 ]; do
 done
 work="${DIFFKFC_WORK:-work}/gpu-check-$dev"
 json="${json:-$work/gpu-check.json}"
-bin="${CARGO_TARGET_DIR:-target}/release/diffkfc"
+# --quick builds with the gpu-quick profile (Cargo.toml: optimisation level 1), which shortens
+# the GPU stack's build; its timings are not meant to be read.
+profile=release; [ "$quick" = 1 ] && profile=gpu-quick
+bin="${CARGO_TARGET_DIR:-target}/$profile/diffkfc"
 mkdir -p "$work"
 # Vulkan's loader warns on every start without one (headless machines, CI).
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"
@@ -36,7 +39,7 @@ now() { date +%s.%N; }
 
 # One feature resolution for the binary and the parity test (an integration test of the cli
 # builds the binary), so the GPU stack compiles once.
-build=(cargo test --release -p diffkfc-model -p diffkfc --features "diffkfc/$dev${extra:+,$extra}" --test backend_parity)
+build=(cargo test --profile "$profile" -p diffkfc-model -p diffkfc --features "diffkfc/$dev${extra:+,$extra}" --test backend_parity)
 log "build --features $dev"
 t0=$(now)
 "${build[@]}" --test cli_model --no-run
