@@ -39,17 +39,40 @@ fn embeddings(train: &PackedSplit, val: &PackedSplit) -> EmbeddingCache {
 }
 
 /// A synthetic dataset with its opened splits and caption embeddings.
-fn prepared(
-    name: &str,
-    clips: usize,
-) -> (PathBuf, Dataset, PackedSplit, PackedSplit, EmbeddingCache) {
-    let root = dataset(name, clips);
-    let ds = Dataset::open(&root).unwrap();
-    let cache = root.join(".diffkfc-cache");
-    let train = PackedSplit::open(&ds, "train", &cache, |_, _| {}).unwrap();
-    let val = PackedSplit::open(&ds, "val", &cache, |_, _| {}).unwrap();
-    let text = embeddings(&train, &val);
-    (root, ds, train, val, text)
+struct Prepared {
+    root: PathBuf,
+    ds: Dataset,
+    train: PackedSplit,
+    val: PackedSplit,
+    text: EmbeddingCache,
+}
+
+impl Prepared {
+    fn new(name: &str, clips: usize) -> Prepared {
+        let root = dataset(name, clips);
+        let ds = Dataset::open(&root).unwrap();
+        let cache = root.join(".diffkfc-cache");
+        let train = PackedSplit::open(&ds, "train", &cache, |_, _| {}).unwrap();
+        let val = PackedSplit::open(&ds, "val", &cache, |_, _| {}).unwrap();
+        let text = embeddings(&train, &val);
+        Prepared { root, ds, train, val, text }
+    }
+
+    /// A one-device flex trainer of `cfg` writing to `dir` under the dataset, host optimiser.
+    fn trainer<'a>(&'a self, cfg: &'a RunConfig, dir: &str) -> Trainer<'a> {
+        Trainer {
+            cfg,
+            ds: &self.ds,
+            train: &self.train,
+            val: Some(&self.val),
+            text: &self.text,
+            device: Device::flex(),
+            optimiser: StateLocation::Host,
+            run_dir: self.root.join(dir),
+            init: None,
+            parallel: None,
+        }
+    }
 }
 
 fn config() -> RunConfig {
@@ -74,20 +97,10 @@ fn losses(run: &Path) -> Vec<(u64, f64)> {
 #[test]
 fn resume_is_exact_and_checkpoints_rotate() {
     let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let (root, ds, train, val, text) = prepared("resume", 24);
+    let p = Prepared::new("resume", 24);
+    let root = &p.root;
     let cfg = config();
-    let mk = |dir: &str| Trainer {
-        cfg: &cfg,
-        ds: &ds,
-        train: &train,
-        val: Some(&val),
-        text: &text,
-        device: Device::flex(),
-        optimiser: StateLocation::Host,
-        run_dir: root.join(dir),
-        init: None,
-        parallel: None,
-    };
+    let mk = |dir: &str| p.trainer(&cfg, dir);
     let never = || false;
 
     let full = mk("full");
@@ -136,6 +149,20 @@ fn resume_is_exact_and_checkpoints_rotate() {
     std::fs::remove_dir_all(root).unwrap();
 }
 
+/// Weights, EMA and both Adam moments of two checkpoints within `bound` (relative L2).
+fn same_state(a: &Checkpoint, b: &Checkpoint, what: &str, bound: f64) {
+    for (part, x, y) in [
+        ("weights", &a.model, &b.model),
+        ("ema", a.ema.as_ref().unwrap(), b.ema.as_ref().unwrap()),
+        ("adam m", &a.adam_m, &b.adam_m),
+        ("adam v", &a.adam_v, &b.adam_v),
+    ] {
+        let r = rel(x, y);
+        eprintln!("{part}: {what}: relative L2 {r:e}");
+        assert!(r < bound, "{part}: {what}: differ by {r:e} (relative L2)");
+    }
+}
+
 /// Relative L2 distance of two lists of vectors.
 fn rel(a: &[Vec<f32>], b: &[Vec<f32>]) -> f64 {
     let (mut d, mut n) = (0.0, 0.0);
@@ -152,20 +179,10 @@ fn rel(a: &[Vec<f32>], b: &[Vec<f32>]) -> f64 {
 #[test]
 fn device_resident_optimiser_matches_host_and_resumes_exactly() {
     let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let (root, ds, train, val, text) = prepared("device-optim", 24);
+    let p = Prepared::new("device-optim", 24);
+    let root = &p.root;
     let cfg = config();
-    let mk = |dir: &str, optimiser: StateLocation| Trainer {
-        cfg: &cfg,
-        ds: &ds,
-        train: &train,
-        val: Some(&val),
-        text: &text,
-        device: Device::flex(),
-        optimiser,
-        run_dir: root.join(dir),
-        init: None,
-        parallel: None,
-    };
+    let mk = |dir: &str, optimiser: StateLocation| Trainer { optimiser, ..p.trainer(&cfg, dir) };
     let never = || false;
     let mut norms = Vec::new();
     mk("host", StateLocation::Host).run(false, 6, &never, &mut |_| {}).unwrap();
@@ -184,16 +201,7 @@ fn device_resident_optimiser_matches_host_and_resumes_exactly() {
     let last = |dir: &str| Checkpoint::latest(&root.join(dir)).unwrap().unwrap();
     let (ch, cd) = (last("host"), last("device"));
     assert_eq!((ch.step, cd.step, ch.adam_step, cd.adam_step), (6, 6, 6, 6));
-    for (what, a, b) in [
-        ("weights", &ch.model, &cd.model),
-        ("ema", ch.ema.as_ref().unwrap(), cd.ema.as_ref().unwrap()),
-        ("adam m", &ch.adam_m, &cd.adam_m),
-        ("adam v", &ch.adam_v, &cd.adam_v),
-    ] {
-        let r = rel(a, b);
-        eprintln!("{what}: host vs device after 6 steps: relative L2 {r:e}");
-        assert!(r < 1e-5, "{what}: host and device differ by {r:e} (relative L2)");
-    }
+    same_state(&ch, &cd, "host vs device after 6 steps", 1e-5);
     // 3 + 3 steps on the device path equal 6, and a host checkpoint resumes on the device.
     mk("split", StateLocation::Device).run(false, 3, &never, &mut |_| {}).unwrap();
     mk("split", StateLocation::Device).run(true, 6, &never, &mut |_| {}).unwrap();
@@ -210,7 +218,8 @@ fn device_resident_optimiser_matches_host_and_resumes_exactly() {
 #[test]
 fn tiny_config_lowers_validation_loss() {
     let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let (root, ds, train, val, text) = prepared("learn", 300);
+    let p = Prepared::new("learn", 300);
+    let root = &p.root;
     let mut cfg =
         RunConfig::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/tiny.json"))
             .unwrap();
@@ -220,18 +229,7 @@ fn tiny_config_lowers_validation_loss() {
     cfg.training.checkpoint_every = 120;
     cfg.training.val_every = 120;
     cfg.training.val_batches = 2;
-    let tr = Trainer {
-        cfg: &cfg,
-        ds: &ds,
-        train: &train,
-        val: Some(&val),
-        text: &text,
-        device: Device::flex(),
-        optimiser: StateLocation::Host,
-        run_dir: root.join("run"),
-        init: None,
-        parallel: None,
-    };
+    let tr = p.trainer(&cfg, "run");
     tr.run(false, 120, &|| false, &mut |_| {}).unwrap();
     let vals: Vec<(u64, f64)> = std::fs::read_to_string(root.join("run/metrics.jsonl"))
         .unwrap()
@@ -317,29 +315,19 @@ fn checkpoint_without_root_channels_loads() {
 fn shard_gradients_weighted_by_counts_equal_the_batch_gradient() {
     use diffkfc_model::training::parallel::{Combine, Counts};
     let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let (root, ds, train, val, text) = prepared("shards", 24);
+    let p = Prepared::new("shards", 24);
+    let root = &p.root;
     let mut cfg = config();
     cfg.model.dropout = 0.0;
     cfg.training.keyframe_loss = 1.0;
     cfg.training.smooth_loss = 1.0;
     cfg.keyframes.rate = 0.1;
-    let tr = Trainer {
-        cfg: &cfg,
-        ds: &ds,
-        train: &train,
-        val: Some(&val),
-        text: &text,
-        device: Device::flex(),
-        optimiser: StateLocation::Host,
-        run_dir: root.join("run"),
-        init: None,
-        parallel: None,
-    };
+    let tr = p.trainer(&cfg, "run");
     let device = Device::flex().autodiff();
     device.seed(5);
     let model = cfg.model.init(&device);
     let loader =
-        diffkfc_data::dataset::batch::Loader::new(&ds, &train, 12, 3, cfg.keyframes.clone());
+        diffkfc_data::dataset::batch::Loader::new(&p.ds, &p.train, 12, 3, cfg.keyframes.clone());
     let b = loader.batch(0, 0);
     let parts: Vec<Counts> = (0..3).map(|k| Counts::of(&b.shard(4 * k..4 * k + 4))).collect();
     assert!(parts.windows(2).any(|w| w[0] != w[1]), "shards should differ: {parts:?}");
@@ -372,20 +360,13 @@ fn shard_gradients_weighted_by_counts_equal_the_batch_gradient() {
 fn data_parallel_replicas_follow_the_one_device_run() {
     use diffkfc_model::training::data_parallel::DataParallel;
     let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let (root, ds, train, val, text) = prepared("data-parallel", 24);
+    let p = Prepared::new("data-parallel", 24);
+    let root = &p.root;
     let cfg = config();
     let mk = |dir: &str, replicas: usize| Trainer {
-        cfg: &cfg,
-        ds: &ds,
-        train: &train,
-        val: Some(&val),
-        text: &text,
-        device: Device::flex(),
-        optimiser: StateLocation::Host,
-        run_dir: root.join(dir),
-        init: None,
         parallel: (replicas > 1)
             .then(|| DataParallel::host_sum(vec![Device::flex(); replicas]).unwrap()),
+        ..p.trainer(&cfg, dir)
     };
     let never = || false;
     let mut norms = [Vec::new(), Vec::new()];
@@ -409,16 +390,7 @@ fn data_parallel_replicas_follow_the_one_device_run() {
     let last = |dir: &str| Checkpoint::latest(&root.join(dir)).unwrap().unwrap();
     let (c1, c2) = (last("one"), last("two"));
     assert_eq!((c2.step, c2.adam_step, &c2.names, &c2.shapes), (6, 6, &c1.names, &c1.shapes));
-    for (what, x, y) in [
-        ("weights", &c1.model, &c2.model),
-        ("ema", c1.ema.as_ref().unwrap(), c2.ema.as_ref().unwrap()),
-        ("adam m", &c1.adam_m, &c2.adam_m),
-        ("adam v", &c1.adam_v, &c2.adam_v),
-    ] {
-        let r = rel(x, y);
-        eprintln!("{what}: one device vs two replicas after 6 steps: relative L2 {r:e}");
-        assert!(r < 1e-4, "{what}: differ by {r:e} (relative L2)");
-    }
+    same_state(&c1, &c2, "one device vs two replicas after 6 steps", 1e-4);
     // Three steps on two replicas resumed on one device continue the same run.
     mk("split", 2).run(false, 3, &never, &mut |_| {}).unwrap();
     mk("split", 1).run(true, 6, &never, &mut |_| {}).unwrap();
@@ -436,5 +408,5 @@ fn data_parallel_replicas_follow_the_one_device_run() {
     .to_string();
     assert!(e.contains("batch_size 4 is smaller than the 5 devices"), "{e}");
     assert!(!root.join("five").exists());
-    let _ = std::fs::remove_dir_all(&root);
+    let _ = std::fs::remove_dir_all(root);
 }
