@@ -33,8 +33,7 @@ struct Layout {
 }
 
 impl Layout {
-    fn new(s: &AttnShape, n: usize) -> Layout {
-        let p = if s.dh() <= 16 { 16 } else { 32 };
+    fn new(s: &AttnShape, n: usize, p: usize) -> Layout {
         Layout { p, n, n16: n.div_ceil(W) * W, lq: s.lq.div_ceil(R) * R }
     }
 
@@ -70,8 +69,14 @@ impl Layout {
     }
 }
 
-/// A block's scores to probabilities in place: the forward's softmax (each row's log-sum-exp to
-/// `lse`), or the backward's exp(score - lse) from it; padding rows and columns become 0. (No
+/// The rows' log-sum-exp: written by the forward, read by the backward.
+enum Lse<'a> {
+    Write(&'a mut [f32]),
+    Read(&'a [f32]),
+}
+
+/// A block's scores to probabilities in place: the forward's softmax (each row's log-sum-exp
+/// written), or the backward's exp(score - lse) from it; padding rows and columns become 0. (No
 /// closure: a closure's body would be compiled without the caller's target features.)
 #[inline(always)]
 fn probabilities(
@@ -80,8 +85,7 @@ fn probabilities(
     keys: &HeadKeys,
     s: &AttnShape,
     i0: usize,
-    lse: &mut [f32],
-    forward: bool,
+    lse: &mut Lse,
 ) {
     let shape = AttnShape { lk: g.n, ..*s };
     for (r, row) in sc.chunks_mut(g.n16).enumerate() {
@@ -91,10 +95,9 @@ fn probabilities(
             continue;
         }
         let open = keys.open.row(&shape, keys.sample, i);
-        if forward {
-            lse[i] = softmax::row_softmax(&mut row[..g.n], open);
-        } else {
-            softmax::row_exp(&mut row[..g.n], open, lse[i]);
+        match lse {
+            Lse::Write(l) => l[i] = softmax::row_softmax(&mut row[..g.n], open),
+            Lse::Read(l) => softmax::row_exp(&mut row[..g.n], open, l[i]),
         }
         row[g.n..].fill(0.0);
     }
@@ -118,6 +121,16 @@ fn softmax_grad(p: &[f32], d: &mut [f32], n16: usize, scale: f32) {
     }
 }
 
+/// The first `rows` rows of a block's result `out` ([R, P]) to `dst` (row stride `stride`), dh
+/// channels each.
+#[inline(always)]
+fn write_rows(out: &[f32], p: usize, rows: usize, dh: usize, dst: *mut f32, stride: usize) {
+    for r in 0..rows {
+        // SAFETY: the caller's destination has `rows` rows of dh channels at `stride`.
+        unsafe { std::ptr::copy_nonoverlapping(out[r * p..].as_ptr(), dst.add(r * stride), dh) };
+    }
+}
+
 /// Scratch of one worker: the head's operands and one block's rows.
 #[derive(Default)]
 struct Scratch {
@@ -134,7 +147,6 @@ struct Scratch {
     dp: Vec<f32>,
     dk: Vec<f32>,
     dv: Vec<f32>,
-    lse: Vec<f32>,
 }
 
 /// What every head of one call shares: the inputs, the shape and the mask.
@@ -173,7 +185,7 @@ fn head_forward<const P: usize, L: Lanes>(
 ) {
     let (s, dh) = (c.s, c.s.dh());
     let keys = c.keys((b, h), &mut w.gather);
-    let g = Layout::new(s, keys.lk);
+    let g = Layout::new(s, keys.lk, P);
     g.rows(s.head(c.q, s.lq, b, h).ptr, s.d, s.lq, g.lq, dh, &mut w.q);
     g.columns(keys.k.ptr, keys.k.rs as usize, dh, &mut w.kt);
     g.rows(keys.v.ptr, keys.v.rs as usize, g.n, g.n, dh, &mut w.v);
@@ -181,14 +193,10 @@ fn head_forward<const P: usize, L: Lanes>(
     w.out.resize(R * P, 0.0);
     for i0 in (0..g.lq).step_by(R) {
         L::dots::<P>(&w.q[i0 * P..], &w.kt, g.n16, s.scale(), &mut w.sc);
-        probabilities(&mut w.sc, &g, &keys, s, i0, lse, true);
+        probabilities(&mut w.sc, &g, &keys, s, i0, &mut Lse::Write(lse));
         L::mix::<P>(&w.sc, g.n16, g.n, &w.v, &mut w.out);
-        for r in 0..R.min(s.lq - i0) {
-            // SAFETY: row i0 + r of the head's block, dh channels.
-            unsafe {
-                std::ptr::copy_nonoverlapping(w.out[r * P..].as_ptr(), dst.add((i0 + r) * s.d), dh)
-            };
-        }
+        // The head's block of rows i0.. (row stride d).
+        write_rows(&w.out, P, R.min(s.lq - i0), dh, dst.wrapping_add(i0 * s.d), s.d);
     }
 }
 
@@ -204,11 +212,8 @@ fn head_backward<const P: usize, L: Lanes>(
     w: &mut Scratch,
 ) {
     let (s, dh, scale) = (c.s, c.s.dh(), c.s.scale());
-    let mut lse_rows = std::mem::take(&mut w.lse);
-    lse_rows.clear();
-    lse_rows.extend_from_slice(lse);
     let keys = c.keys((b, h), &mut w.gather);
-    let g = Layout::new(s, keys.lk);
+    let g = Layout::new(s, keys.lk, P);
     let (n, n16) = (g.n, g.n16);
     g.rows(s.head(c.q, s.lq, b, h).ptr, s.d, s.lq, g.lq, dh, &mut w.q);
     g.rows(s.head(dout, s.lq, b, h).ptr, s.d, s.lq, g.lq, dh, &mut w.g);
@@ -226,26 +231,16 @@ fn head_backward<const P: usize, L: Lanes>(
     for i0 in (0..g.lq).step_by(R) {
         let (qb, gb) = (&w.q[i0 * P..(i0 + R) * P], &w.g[i0 * P..(i0 + R) * P]);
         L::dots::<P>(qb, &w.kt, n16, scale, &mut w.sc);
-        probabilities(&mut w.sc, &g, &keys, s, i0, &mut lse_rows, false);
+        probabilities(&mut w.sc, &g, &keys, s, i0, &mut Lse::Read(lse));
         // dV += P^T dO; dP = dO V^T; dS = P o (dP - rowsum(P o dP)) * scale.
         L::spread::<P>(&w.sc, n16, n, gb, &mut w.dv);
         L::dots::<P>(gb, &w.vt, n16, 1.0, &mut w.dp);
         softmax_grad(&w.sc, &mut w.dp, n16, scale);
         // dQ = dS K; dK += dS^T Q.
         L::mix::<P>(&w.dp, n16, n, &w.k, &mut w.out);
-        for r in 0..R.min(s.lq - i0) {
-            // SAFETY: row i0 + r of the head's dQ block, dh channels.
-            unsafe {
-                std::ptr::copy_nonoverlapping(
-                    w.out[r * P..].as_ptr(),
-                    dq_at.add((i0 + r) * s.d),
-                    dh,
-                )
-            };
-        }
+        write_rows(&w.out, P, R.min(s.lq - i0), dh, dq_at.wrapping_add(i0 * s.d), s.d);
         L::spread::<P>(&w.dp, n16, n, qb, &mut w.dk);
     }
-    w.lse = lse_rows;
     for j in 0..n {
         let row = c.comp[b].as_ref().map_or(j, |cp| cp.cols[j]);
         let at = (b * s.lk + row) * s.d + h * dh;

@@ -243,10 +243,15 @@ impl Shard {
     }
 }
 
-/// The `k` shards of a step's batch `b` with its timesteps `t` and noise ([B * N * D]).
-pub(crate) fn shards(b: &Batch, t: Vec<usize>, noise: Vec<f32>, k: usize) -> Vec<Shard> {
+/// The `k` shards of a step's batch `b` with its timesteps `t` and noise ([B * N * D]); one
+/// shard is the batch itself, not a copy.
+pub(crate) fn shards(b: Batch, t: Vec<usize>, noise: Vec<f32>, k: usize) -> Vec<Shard> {
     let ranges = shard_ranges(b.batch_size, k);
-    let parts: Vec<Batch> = ranges.iter().map(|r| b.shard(r.clone())).collect();
+    let parts: Vec<Batch> = if ranges.len() == 1 {
+        vec![b]
+    } else {
+        ranges.iter().map(|r| b.shard(r.clone())).collect()
+    };
     let counts: Vec<Counts> = parts.iter().map(Counts::of).collect();
     let all = Counts::sum(&counts);
     let (t, noise, shards) = (Arc::new(t), Arc::new(noise), ranges.len());

@@ -142,17 +142,33 @@ pub fn losses(
     Losses { simple, key, smooth, pos, vel, foot }
 }
 
+/// What a loss term is a mean over: the count a data-parallel shard takes its share of.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum Over {
+    /// Feature elements a keyframe observes.
+    Observed,
+    /// Real frames.
+    Frames,
+    /// Pairs of consecutive real frames.
+    Pairs,
+}
+
 impl Losses {
+    /// The terms beside L_simple, each with its weight and what it is a mean over.
+    pub(crate) fn terms(&self, k: &Kinematic) -> [(&Option<Tensor<1>>, f64, Over); 5] {
+        [
+            (&self.key, k.keyframe_loss, Over::Observed),
+            (&self.smooth, k.smooth_loss, Over::Pairs),
+            (&self.pos, k.lambda_pos, Over::Frames),
+            (&self.vel, k.lambda_vel, Over::Pairs),
+            (&self.foot, k.lambda_foot, Over::Pairs),
+        ]
+    }
+
     /// The weighted sum that is optimised.
     pub fn total(&self, k: &Kinematic) -> Tensor<1> {
         let mut t = self.simple.clone();
-        for (term, w) in [
-            (&self.key, k.keyframe_loss),
-            (&self.smooth, k.smooth_loss),
-            (&self.pos, k.lambda_pos),
-            (&self.vel, k.lambda_vel),
-            (&self.foot, k.lambda_foot),
-        ] {
+        for (term, w, _) in self.terms(k) {
             if let Some(x) = term {
                 t = t + x.clone() * w;
             }

@@ -11,7 +11,7 @@
 use burn::prelude::*;
 use diffkfc_data::dataset::batch::Batch;
 
-use crate::training::losses::{Kinematic, Losses};
+use crate::training::losses::{Kinematic, Losses, Over};
 
 /// The counts the loss terms divide by, over one batch or shard.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -94,27 +94,25 @@ impl Shares {
     }
 }
 
-/// One shard's objective: backward of it on every shard, gradients summed, gives the gradient
-/// of `Losses::total` over the whole batch (`Combine::ByCounts`).
-pub(crate) fn shard_objective(
-    l: &Losses,
-    k: &Kinematic,
-    mine: &Counts,
-    all: &Counts,
-    shards: usize,
-    combine: Combine,
-) -> Tensor<1> {
-    let s = Shares::of(mine, all, shards, combine);
-    let mut t = l.simple.clone() * s.free;
-    for (term, w, share) in [
-        (&l.key, k.keyframe_loss, s.observed),
-        (&l.smooth, k.smooth_loss, s.pairs),
-        (&l.pos, k.lambda_pos, s.frames),
-        (&l.vel, k.lambda_vel, s.pairs),
-        (&l.foot, k.lambda_foot, s.pairs),
-    ] {
+impl Shares {
+    /// The share of a term that is a mean over `over`.
+    pub(crate) fn of_term(&self, over: Over) -> f64 {
+        match over {
+            Over::Observed => self.observed,
+            Over::Frames => self.frames,
+            Over::Pairs => self.pairs,
+        }
+    }
+}
+
+/// One shard's objective, its terms weighted by its `shares`: backward of it on every shard,
+/// gradients summed, gives the gradient of `Losses::total` over the whole batch
+/// (`Combine::ByCounts` shares).
+pub(crate) fn shard_objective(l: &Losses, k: &Kinematic, shares: &Shares) -> Tensor<1> {
+    let mut t = l.simple.clone() * shares.free;
+    for (term, w, over) in l.terms(k) {
         if let Some(x) = term {
-            t = t + x.clone() * (w * share);
+            t = t + x.clone() * (w * shares.of_term(over));
         }
     }
     t

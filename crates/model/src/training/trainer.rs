@@ -6,6 +6,7 @@
 //! Every random draw is derived from (seed, step): the batch, the timesteps, the noise and the
 //! dropout masks. A run of 2N steps and a run of N steps resumed to 2N are the same run.
 
+use std::borrow::Cow;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -54,11 +55,14 @@ enum Learners<'s> {
 }
 
 impl Learners<'_> {
-    /// Replica 0's weights for validation (its EMA when there is one).
-    fn eval_weights(&mut self) -> Result<Vec<Vec<f32>>> {
+    /// Replica 0's weights for validation (its EMA when there is one); borrowed where they are
+    /// on this thread's host.
+    fn eval_weights(&mut self) -> Result<Cow<'_, [Vec<f32>]>> {
         match self {
-            Learners::One(r) => Ok(r.optim.eval_weights(r.model()).into_owned()),
-            Learners::Many(w) => w.first(|r| r.optim.eval_weights(r.model()).into_owned()),
+            Learners::One(r) => Ok(r.optim.eval_weights(r.model())),
+            Learners::Many(w) => {
+                w.first(|r| r.optim.eval_weights(r.model()).into_owned()).map(Cow::Owned)
+            }
         }
     }
 
@@ -246,9 +250,10 @@ impl Trainer<'_> {
         let schedule = self.cfg.diffusion.schedule().expect("a validated config");
         let device = model.devices().first().cloned().expect("a model device");
         let mut sum: Vec<Vec<f32>> = Vec::new();
-        for sh in data_parallel::shards(b, t.to_vec(), noise.to_vec(), shards) {
+        for sh in data_parallel::shards(b.clone(), t.to_vec(), noise.to_vec(), shards) {
             let l = self.batch_loss(model, &schedule, &sh.batch, sh.t(), sh.noise(), &device);
-            let obj = shard_objective(&l, &self.kinematic(), &sh.mine, &sh.all, sh.shards, combine);
+            let shares = Shares::of(&sh.mine, &sh.all, sh.shards, combine);
+            let obj = shard_objective(&l, &self.kinematic(), &shares);
             let grads = burn::optim::GradientsParams::from_grads(obj.backward(), model);
             let g = params::grads(model, &grads);
             if sum.is_empty() {
@@ -467,11 +472,11 @@ impl Trainer<'_> {
         let host_sum = self.parallel.as_ref().is_some_and(|dp| dp.sum() == GradSum::Host);
         let outs: Vec<Part<Terms>> = match learners {
             Learners::One(r) => {
-                let sh = data_parallel::shards(&b, t, noise, 1).remove(0);
+                let sh = data_parallel::shards(b, t, noise, 1).remove(0);
                 vec![self.replica_step(r, &sh, schedule, &StepSync::new(1, false), ctx)]
             }
             Learners::Many(w) => {
-                let shards = data_parallel::shards(&b, t, noise, w.len());
+                let shards = data_parallel::shards(b, t, noise, w.len());
                 let sync = Arc::new(StepSync::new(shards.len(), host_sum));
                 let (tr, schedule) = (self, schedule);
                 w.each(
@@ -540,18 +545,20 @@ impl Trainer<'_> {
         let (obj, shares) = if sh.shards == 1 {
             (l.total(&k), Shares::ONE)
         } else {
-            let obj = shard_objective(&l, &k, &sh.mine, &sh.all, sh.shards, Combine::ByCounts);
-            (obj, Shares::of(&sh.mine, &sh.all, sh.shards, Combine::ByCounts))
+            let shares = Shares::of(&sh.mine, &sh.all, sh.shards, Combine::ByCounts);
+            (shard_objective(&l, &k, &shares), shares)
         };
-        let read = |t: &Option<Tensor<1>>, w: f64| t.clone().map(|x| scalar(x) * w);
+        let [key, smooth, pos, vel, foot] = l
+            .terms(&k)
+            .map(|(t, _, over)| t.as_ref().map(|x| scalar(x.clone()) * shares.of_term(over)));
         let terms = Terms {
             total: scalar(obj.clone()),
             simple: scalar(l.simple.clone()) * shares.free,
-            key: read(&l.key, shares.observed),
-            smooth: read(&l.smooth, shares.pairs),
-            pos: read(&l.pos, shares.frames),
-            vel: read(&l.vel, shares.pairs),
-            foot: read(&l.foot, shares.pairs),
+            key,
+            smooth,
+            pos,
+            vel,
+            foot,
         };
         (obj, terms)
     }
