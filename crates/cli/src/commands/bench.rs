@@ -284,17 +284,22 @@ fn model_cases(
     let common =
         json!({"config": a.config, "frames": n, "device": a.device, "threads": rayon_threads()});
     let mut ours = BTreeMap::new();
+    // Each case's line, with the device's memory after it.
+    let out = |case: &str, t, gflop, mut extra: Value| {
+        extra["device_memory"] = memory(device);
+        emit(line(case, t, gflop, extra));
+    };
     if cases.contains(&"train") {
         let mut w = TrainStep::new(cfg, b, n, device);
         let t = time_ms(runs, || w.step());
         ours.insert("train_step", t.0);
         let [f, bw, up] = w.phases.map(|s| s * 1e3);
-        emit(line(
+        out(
             "train_step",
             t,
             w.flops(cfg) / 1e9,
-            json!({"batch": b, "last_step_phases_ms": {"forward": f, "backward": bw, "host_update": up}, "device_memory": memory(device), "common": common}),
-        ));
+            json!({"batch": b, "last_step_phases_ms": {"forward": f, "backward": bw, "host_update": up}, "common": common}),
+        );
     }
     let ddim = with_ddim && cases.contains(&"ddim");
     if !(cases.contains(&"call") || cases.contains(&"call-cached") || ddim) {
@@ -306,40 +311,40 @@ fn model_cases(
     if cases.contains(&"call") {
         let t = time_ms(runs * 3, || s.call(true));
         ours.insert("sampling_call", t.0);
-        emit(line(
+        out(
             "sampling_call",
             t,
             f.total() / 1e9,
-            json!({"batch": 2, "encoder": true, "device_memory": memory(device), "common": common}),
-        ));
+            json!({"batch": 2, "encoder": true, "common": common}),
+        );
     }
     if cases.contains(&"call-cached") {
         let t = time_ms(runs * 3, || s.call(false));
         ours.insert("sampling_call_cached", t.0);
-        emit(line(
+        out(
             "sampling_call_cached",
             t,
             f.decoder / 1e9,
-            json!({"batch": 2, "encoder": false, "device_memory": memory(device), "common": common}),
-        ));
+            json!({"batch": 2, "encoder": false, "common": common}),
+        );
     }
     if ddim {
         let steps = if a.quick { 2 } else { a.ddim_steps };
         let mut finite = true;
         let t = time_ms(runs.min(2), || finite &= s.sample(steps).iter().all(|v| v.is_finite()));
-        emit(line(
+        out(
             "ddim",
             t,
             (f.encoder + steps as f64 * f.decoder) / 1e9,
-            json!({"steps": steps, "kf_guidance": 2.5, "transition_guidance": 100.0, "finite": finite, "device_memory": memory(device), "common": common}),
-        ));
+            json!({"steps": steps, "kf_guidance": 2.5, "transition_guidance": 100.0, "finite": finite, "common": common}),
+        );
     }
     Ok(ours)
 }
 
-/// Training throughput with the loader, from the two measured cases (the trainer draws each
-/// batch on its own thread before the step, so their times add): motions per second and hours
-/// per 10 000 steps.
+/// Training throughput with the loader, from the two measured cases, their times added: motions
+/// per second and hours per 10 000 steps. (The trainer draws the next batch on another thread
+/// while a step runs, so on a machine with a core to spare this is a lower bound.)
 fn throughput_line(batch: usize, step_ms: f64, loader_items_per_s: f64) -> Value {
     let step_s = step_ms / 1e3 + batch as f64 / loader_items_per_s;
     json!({"case": "train_throughput", "impl": "diffkfc", "batch": batch,
