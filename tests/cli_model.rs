@@ -63,6 +63,8 @@ fn bench_suite_smoke() {
         let util = v["cpu_utilisation"].as_f64().unwrap();
         let threads = lines[0]["common"]["threads"].as_f64().unwrap_or(64.0);
         assert!(util > 0.02 && util <= threads + 0.5, "{v}");
+        // The device's memory is reported on GPUs only: null on flex, but always present.
+        assert!(v.get("device_memory").is_some_and(|m| m.is_null()), "{v}");
     }
     assert_eq!(lines[3]["finite"], true);
     // The cached call skips the encoder: fewer FLOPs than the full call.
