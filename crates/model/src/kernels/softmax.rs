@@ -1,47 +1,50 @@
-//! Masked row softmax for the attention kernel, written to vectorise: masks as 0/1 floats,
+//! Masked row softmax for the attention kernel, written to vectorise: masks as additive scores,
 //! reductions over 16 lanes, and a polynomial exp (relative error < 1e-7) in place of libm's
 //! scalar expf (together they were a sixth of the sampling call's kernel-thread time).
 //! Compiled twice, for the baseline target and for AVX2 + FMA, chosen at run time.
 
 use super::mha::{AttnShape, Mask};
 
-/// The mask as 0/1 floats (1 = the key may be seen), one row per query (Full) or per sample
-/// (Keys), or none.
+/// The mask as scores to add: 0 where the key may be seen, -inf where it may not, one row per
+/// query (Full) or per sample (Keys), or none. An addition vectorises into plain stores (a
+/// select that keeps the open scores compiles to masked stores, slow on AMD cores), and as
+/// `exp_neg` gives exactly 0 at -inf the blocked probabilities need no second pass.
 pub struct Open {
-    data: Vec<f32>,
+    bias: Vec<f32>,
     per_query: bool,
 }
 
 impl Open {
     pub fn new(mask: &Mask) -> Open {
-        let f = |m: &[bool]| m.iter().map(|&b| if b { 0.0 } else { 1.0 }).collect();
+        let f = |m: &[bool]| m.iter().map(|&b| if b { f32::NEG_INFINITY } else { 0.0 }).collect();
         match mask {
-            Mask::None => Open { data: Vec::new(), per_query: false },
-            Mask::Keys(m) => Open { data: f(m), per_query: false },
-            Mask::Full(m) => Open { data: f(m), per_query: true },
+            Mask::None => Open { bias: Vec::new(), per_query: false },
+            Mask::Keys(m) => Open { bias: f(m), per_query: false },
+            Mask::Full(m) => Open { bias: f(m), per_query: true },
         }
     }
 
-    /// The row of query i of sample b (empty: no mask).
+    /// The bias row of query i of sample b (empty: no mask).
     pub fn row(&self, s: &AttnShape, b: usize, i: usize) -> &[f32] {
-        if self.data.is_empty() {
+        if self.bias.is_empty() {
             return &[];
         }
         let r = if self.per_query { b * s.lq + i } else { b };
-        &self.data[r * s.lk..(r + 1) * s.lk]
+        &self.bias[r * s.lk..(r + 1) * s.lk]
     }
 }
 
-/// e^x for x <= 0 (larger x lose range; -inf and anything below -87 give ~1e-38).
+/// e^x for x <= 0; exactly 0 below -87 (where e^x leaves the normal floats), -inf included, so
+/// that blocked scores become probabilities of exactly 0 in the same pass.
 #[inline(always)]
 fn exp_neg(x: f32) -> f32 {
-    let x = if x < -87.0 { -87.0 } else { x };
-    // x = n ln2 + f, n rounded to nearest by adding 1.5 * 2^23, which also leaves n in the
+    let y = if x < -87.0 { -87.0 } else { x };
+    // y = n ln2 + f, n rounded to nearest by adding 1.5 * 2^23, which also leaves n in the
     // low bits of t (2^n is built from them without a float-to-int conversion, which would
     // not vectorise); ln2 in two parts (Cody & Waite) so that f keeps its precision.
-    let t = x * std::f32::consts::LOG2_E + 12_582_912.0;
+    let t = y * std::f32::consts::LOG2_E + 12_582_912.0;
     let n = t - 12_582_912.0;
-    let f = (x - n * 0.693_145_75) - n * 1.428_606_8e-6; // |f| <= ln2 / 2
+    let f = (y - n * 0.693_145_75) - n * 1.428_606_8e-6; // |f| <= ln2 / 2
                                                          // Taylor series of e^f to degree 7: truncation < 2e-9 on |f| <= 0.347.
     let p = 1.0
         + f * (1.0
@@ -50,21 +53,27 @@ fn exp_neg(x: f32) -> f32 {
                     + f * (1.0 / 24.0
                         + f * (1.0 / 120.0 + f * (1.0 / 720.0 + f * (1.0 / 5040.0)))))));
     // n in [-126, 0]: (bits of t + 127) << 23 keeps exactly the exponent field n + 127.
-    p * f32::from_bits(t.to_bits().wrapping_add(127) << 23)
+    let e = p * f32::from_bits(t.to_bits().wrapping_add(127) << 23);
+    if x < -87.0 {
+        0.0
+    } else {
+        e
+    }
 }
 
 const LANES: usize = 16;
 
-/// softmax over the open entries of `row` in place (blocked ones 0; all blocked: all 0);
-/// returns the row's log-sum-exp over its open entries (all blocked: -inf). Whole 16-wide
-/// chunks go lane by lane (the compiler keeps them in vector registers), the tail one by one.
+/// softmax over the open entries of `row` in place (blocked ones 0; all blocked: all 0) under
+/// the mask's `bias` row (empty: none); returns the row's log-sum-exp over its open entries (all
+/// blocked: -inf). Whole 16-wide chunks go lane by lane (the compiler keeps them in vector
+/// registers), the tail one by one.
 #[inline(always)]
-pub(super) fn row_softmax(row: &mut [f32], open: &[f32]) -> f32 {
+pub(super) fn row_softmax(row: &mut [f32], bias: &[f32]) -> f32 {
     let n = row.len();
     let whole = n / LANES * LANES;
-    if !open.is_empty() {
-        for (x, &o) in row.iter_mut().zip(&open[..n]) {
-            *x = if o == 0.0 { f32::NEG_INFINITY } else { *x };
+    if !bias.is_empty() {
+        for (x, &o) in row.iter_mut().zip(&bias[..n]) {
+            *x += o;
         }
     }
     let mut lanes = [f32::NEG_INFINITY; LANES];
@@ -93,21 +102,6 @@ pub(super) fn row_softmax(row: &mut [f32], open: &[f32]) -> f32 {
         *x = exp_neg(*x - max);
         sum += *x;
     }
-    if !open.is_empty() {
-        // exp_neg(-inf) is ~1e-38, not 0: blocked keys are zeroed exactly, and the sum redone.
-        sums = [0f32; LANES];
-        sum = 0.0;
-        for (c, o) in row[..whole].chunks_exact_mut(LANES).zip(open[..whole].chunks_exact(LANES)) {
-            for l in 0..LANES {
-                c[l] *= o[l];
-                sums[l] += c[l];
-            }
-        }
-        for (x, &o) in row[whole..].iter_mut().zip(&open[whole..n]) {
-            *x *= o;
-            sum += *x;
-        }
-    }
     let total = sums.iter().sum::<f32>() + sum;
     let inv = 1.0 / total;
     row.iter_mut().for_each(|x| *x *= inv);
@@ -115,17 +109,19 @@ pub(super) fn row_softmax(row: &mut [f32], open: &[f32]) -> f32 {
 }
 
 /// The softmax of `row` from its log-sum-exp `lse` (what `row_softmax` returned for these
-/// scores): exp(score - lse) on open entries, 0 on blocked ones and on fully blocked rows.
+/// scores and this `bias`): exp(score - lse) on open entries, 0 on blocked ones and on fully
+/// blocked rows.
 #[inline(always)]
-pub(super) fn row_exp(row: &mut [f32], open: &[f32], lse: f32) {
+pub(super) fn row_exp(row: &mut [f32], bias: &[f32], lse: f32) {
     if lse == f32::NEG_INFINITY {
         row.fill(0.0);
         return;
     }
     // Scores never exceed lse; the min keeps rounding from pushing an argument above 0.
-    row.iter_mut().for_each(|x| *x = exp_neg((*x - lse).min(0.0)));
-    if !open.is_empty() {
-        row.iter_mut().zip(open).for_each(|(x, &o)| *x *= o);
+    if bias.is_empty() {
+        row.iter_mut().for_each(|x| *x = exp_neg((*x - lse).min(0.0)));
+    } else {
+        row.iter_mut().zip(bias).for_each(|(x, &o)| *x = exp_neg((*x + o - lse).min(0.0)));
     }
 }
 
@@ -165,7 +161,8 @@ mod tests {
             worst = worst.max((got - want).abs() / want);
         }
         assert!(worst < 3e-7, "{worst}");
-        assert!(exp_neg(f32::NEG_INFINITY) < 1e-37);
+        assert_eq!(exp_neg(f32::NEG_INFINITY), 0.0);
+        assert_eq!(exp_neg(-87.5), 0.0);
     }
 
     #[test]
