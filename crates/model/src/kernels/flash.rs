@@ -12,6 +12,7 @@ use rayon::prelude::*;
 
 use super::host::Out;
 use super::mha::{compact, AttnShape, Compact, HeadKeys, Mask};
+use super::simd::avx2;
 use super::softmax::{self, Open};
 
 #[cfg(target_arch = "x86_64")]
@@ -276,17 +277,6 @@ macro_rules! dispatch {
             (_, true) => $generic::<32, Scalar>($($a),*),
         }
     };
-}
-
-/// Whether this CPU runs the AVX2 + FMA tiles.
-fn avx2() -> bool {
-    static AVX2: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *AVX2.get_or_init(|| {
-        #[cfg(target_arch = "x86_64")]
-        return std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma");
-        #[cfg(not(target_arch = "x86_64"))]
-        false
-    })
 }
 
 type Qkv<'a> = (&'a [f32], &'a [f32], &'a [f32]);

@@ -6,6 +6,8 @@
 
 use rayon::prelude::*;
 
+use super::simd::{self, erf, exp_neg};
+
 /// A strided read-only matrix: element (r, c) at `ptr + r * rs + c * cs`.
 #[derive(Clone, Copy)]
 pub(super) struct View {
@@ -165,41 +167,60 @@ pub fn linear_backward(
     (dx, dw, db)
 }
 
-/// erf(x) to 1.5e-7 (Abramowitz & Stegun 7.1.26), in place of libm's erff, which was a
-/// quarter of the sampling call's single-threaded time.
-#[allow(clippy::excessive_precision)] // the published constants, as printed
-fn erf(x: f32) -> f32 {
-    let (p, a1, a2, a3, a4, a5) = (
-        0.3275911f32,
-        0.254829592f32,
-        -0.284496736f32,
-        1.421413741f32,
-        -1.453152027f32,
-        1.061405429f32,
-    );
-    let z = x.abs();
-    let t = 1.0 / (1.0 + p * z);
-    let y = 1.0 - ((((a5 * t + a4) * t + a3) * t + a2) * t + a1) * t * (-z * z).exp();
-    y.copysign(x)
+/// gelu(x) = x Phi(x) (the exact form) of each element in place.
+#[inline(always)]
+fn gelu_rows(c: &mut [f32]) {
+    for x in c.iter_mut() {
+        *x = 0.5 * *x * (1.0 + erf(*x * std::f32::consts::FRAC_1_SQRT_2));
+    }
+}
+
+/// o = d gelu(x) / dx * g, element by element.
+#[inline(always)]
+fn gelu_grad_rows(o: &mut [f32], x: &[f32], g: &[f32]) {
+    let inv_sqrt_2pi = 0.5 * std::f32::consts::FRAC_2_SQRT_PI * std::f32::consts::FRAC_1_SQRT_2;
+    let (x, g) = (&x[..o.len()], &g[..o.len()]);
+    for i in 0..o.len() {
+        let cdf = 0.5 * (1.0 + erf(x[i] * std::f32::consts::FRAC_1_SQRT_2));
+        o[i] = g[i] * (cdf + x[i] * inv_sqrt_2pi * exp_neg(-0.5 * x[i] * x[i]));
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn gelu_rows_avx2(c: &mut [f32]) {
+    gelu_rows(c)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn gelu_grad_rows_avx2(o: &mut [f32], x: &[f32], g: &[f32]) {
+    gelu_grad_rows(o, x, g)
 }
 
 /// GELU (exact form, x Phi(x)) in place.
 pub fn gelu_inplace(h: &mut [f32]) {
     h.par_chunks_mut(1 << 14).for_each(|c| {
-        c.iter_mut().for_each(|x| *x = 0.5 * *x * (1.0 + erf(*x * std::f32::consts::FRAC_1_SQRT_2)))
+        #[cfg(target_arch = "x86_64")]
+        if simd::avx2() {
+            // SAFETY: the CPU has the features the function was compiled for.
+            return unsafe { gelu_rows_avx2(c) };
+        }
+        gelu_rows(c)
     });
 }
 
 /// d gelu(h) / dh * dy.
 pub fn gelu_backward(h: &[f32], dy: &[f32]) -> Vec<f32> {
     let mut dh = vec![0f32; h.len()];
-    let inv_sqrt_2pi = 0.5 * std::f32::consts::FRAC_2_SQRT_PI * std::f32::consts::FRAC_1_SQRT_2;
     dh.par_chunks_mut(1 << 14).zip(h.par_chunks(1 << 14).zip(dy.par_chunks(1 << 14))).for_each(
-        |(o, (h, g))| {
-            for ((o, &x), &g) in o.iter_mut().zip(h).zip(g) {
-                let cdf = 0.5 * (1.0 + erf(x * std::f32::consts::FRAC_1_SQRT_2));
-                *o = g * (cdf + x * inv_sqrt_2pi * (-0.5 * x * x).exp());
+        |(o, (x, g))| {
+            #[cfg(target_arch = "x86_64")]
+            if simd::avx2() {
+                // SAFETY: as in gelu_inplace.
+                return unsafe { gelu_grad_rows_avx2(o, x, g) };
             }
+            gelu_grad_rows(o, x, g)
         },
     );
     dh

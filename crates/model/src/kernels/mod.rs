@@ -10,6 +10,7 @@ mod flash;
 mod grad;
 pub mod host;
 mod mha;
+mod simd;
 mod softmax;
 mod tiles;
 

@@ -4,6 +4,7 @@
 //! Compiled twice, for the baseline target and for AVX2 + FMA, chosen at run time.
 
 use super::mha::{AttnShape, Mask};
+use super::simd::{self, exp_neg};
 
 /// The mask as scores to add: 0 where the key may be seen, -inf where it may not, one row per
 /// query (Full) or per sample (Keys), or none. An addition vectorises into plain stores (a
@@ -31,33 +32,6 @@ impl Open {
         }
         let r = if self.per_query { b * s.lq + i } else { b };
         &self.bias[r * s.lk..(r + 1) * s.lk]
-    }
-}
-
-/// e^x for x <= 0; exactly 0 below -87 (where e^x leaves the normal floats), -inf included, so
-/// that blocked scores become probabilities of exactly 0 in the same pass.
-#[inline(always)]
-fn exp_neg(x: f32) -> f32 {
-    let y = if x < -87.0 { -87.0 } else { x };
-    // y = n ln2 + f, n rounded to nearest by adding 1.5 * 2^23, which also leaves n in the
-    // low bits of t (2^n is built from them without a float-to-int conversion, which would
-    // not vectorise); ln2 in two parts (Cody & Waite) so that f keeps its precision.
-    let t = y * std::f32::consts::LOG2_E + 12_582_912.0;
-    let n = t - 12_582_912.0;
-    let f = (y - n * 0.693_145_75) - n * 1.428_606_8e-6; // |f| <= ln2 / 2
-                                                         // Taylor series of e^f to degree 7: truncation < 2e-9 on |f| <= 0.347.
-    let p = 1.0
-        + f * (1.0
-            + f * (0.5
-                + f * (1.0 / 6.0
-                    + f * (1.0 / 24.0
-                        + f * (1.0 / 120.0 + f * (1.0 / 720.0 + f * (1.0 / 5040.0)))))));
-    // n in [-126, 0]: (bits of t + 127) << 23 keeps exactly the exponent field n + 127.
-    let e = p * f32::from_bits(t.to_bits().wrapping_add(127) << 23);
-    if x < -87.0 {
-        0.0
-    } else {
-        e
     }
 }
 
@@ -141,7 +115,7 @@ fn rows_avx2(p: &mut [f32], s: &AttnShape, open: &Open, b: usize) {
 /// Softmax of every row of p [Lq, Lk] (sample b's scores of one head) under `open`.
 pub fn rows(p: &mut [f32], s: &AttnShape, open: &Open, b: usize) {
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
+    if simd::avx2() {
         // SAFETY: the CPU has the features the function was compiled for.
         return unsafe { rows_avx2(p, s, open, b) };
     }
@@ -151,19 +125,6 @@ pub fn rows(p: &mut [f32], s: &AttnShape, open: &Open, b: usize) {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn exp_matches_std_to_1e7_relative() {
-        let mut worst = 0f64;
-        for k in 0..200_000 {
-            let x = -87.0 * k as f32 / 200_000.0;
-            let (got, want) = (exp_neg(x) as f64, (x as f64).exp());
-            worst = worst.max((got - want).abs() / want);
-        }
-        assert!(worst < 3e-7, "{worst}");
-        assert_eq!(exp_neg(f32::NEG_INFINITY), 0.0);
-        assert_eq!(exp_neg(-87.5), 0.0);
-    }
 
     #[test]
     fn softmax_rows_match_the_definition() {
