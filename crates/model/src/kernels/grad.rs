@@ -13,7 +13,10 @@ use burn::tensor::Shape;
 use rayon::prelude::*;
 use std::sync::Arc;
 
-use super::{attn_shape, host, slice, tensor, AttnArgs, DropMask, FusedOps, LN_EPS};
+use super::{
+    attn_shape, conv, conv_shape, host, slice, tensor, AttnArgs, ConvArgs, DropMask, FusedOps,
+    LN_EPS,
+};
 
 /// Record an op of N inputs: `tracked` computes the output and the state its backward needs,
 /// `untracked` just the output (no input needs a gradient).
@@ -162,6 +165,22 @@ impl Backward<Flex, 3> for AttentionBackward {
     }
 }
 
+#[derive(Debug)]
+struct TemporalConvBackward;
+
+impl Backward<Flex, 2> for TemporalConvBackward {
+    /// (h, w, args)
+    type State = (FlexTensor, FlexTensor, ConvArgs);
+
+    fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let dy = grads.consume::<Flex>(&ops.node);
+        let (h, w, args) = ops.state;
+        let s = conv_shape(&h, &w, args.skip);
+        let (dh, dw) = conv::temporal_backward(&slice(&h), &slice(&w), &args.real, &slice(&dy), &s);
+        register(grads, ops.parents.map(|p| p.map(|n| n.id)), [(dh, shape(&h)), (dw, shape(&w))]);
+    }
+}
+
 impl<C: CheckpointStrategy> FusedOps for Autodiff<Flex, C> {
     fn fused_layer_norm(
         x: FloatTensor<Self>,
@@ -249,6 +268,20 @@ impl<C: CheckpointStrategy> FusedOps for Autodiff<Flex, C> {
                 (out, (q, k, v, args, lse))
             },
             |[q, k, v]| Flex::fused_attention(q, k, v, plain),
+        )
+    }
+
+    fn fused_temporal_conv(
+        h: FloatTensor<Self>,
+        w: FloatTensor<Self>,
+        args: ConvArgs,
+    ) -> FloatTensor<Self> {
+        let plain = args.clone(); // an Arc'd mask: cheap
+        record::<_, C, 2>(
+            TemporalConvBackward,
+            [h, w],
+            |[h, w]| (Flex::fused_temporal_conv(h.clone(), w.clone(), args.clone()), (h, w, args)),
+            |[h, w]| Flex::fused_temporal_conv(h, w, plain),
         )
     }
 }

@@ -1,11 +1,13 @@
-//! Fused CPU kernels for the two ops that dominate a step outside the matrix products:
-//! multi-head attention (scores, mask, softmax, weighted values) and LayerNorm.
+//! Fused CPU kernels for the ops that dominate a step outside the matrix products:
+//! multi-head attention (scores, mask, softmax, weighted values), LayerNorm, and the decoder's
+//! temporal convolution.
 //!
 //! On the flex backend (with or without autodiff) they run as one Burn backend extension op
 //! each, forward and hand-written backward (`grad.rs`) on host slices (`host.rs`); on any other
 //! backend, or with `DIFFKFC_KERNELS=burn`, the same math is composed from Burn tensor ops, which
 //! is also the reference the tests compare against.
 
+mod conv;
 mod flash;
 mod grad;
 pub mod host;
@@ -52,6 +54,14 @@ pub const LN_EPS: f32 = 1e-5;
 #[derive(Clone, Debug)]
 pub struct DropMask(pub Option<Arc<Vec<f32>>>);
 
+/// Arguments of a temporal convolution that are not tensors: the token rows before the frames,
+/// and which frames are real ([B, N]: 1 real, 0 padding).
+#[derive(Clone, Debug)]
+pub struct ConvArgs {
+    pub skip: usize,
+    pub real: Arc<Vec<f32>>,
+}
+
 /// Arguments of an attention call that are not tensors.
 #[derive(Clone, Debug)]
 pub struct AttnArgs {
@@ -94,6 +104,13 @@ pub trait FusedOps: Backend {
         v: FloatTensor<Self>,
         args: AttnArgs,
     ) -> FloatTensor<Self>;
+    /// Depthwise convolution over the frames of h `[B, M, d]` (its rows `args.skip`..) with
+    /// taps w `[K, d]`, padding frames read as 0 -> `[B, M, d]`, the first `skip` rows 0.
+    fn fused_temporal_conv(
+        h: FloatTensor<Self>,
+        w: FloatTensor<Self>,
+        args: ConvArgs,
+    ) -> FloatTensor<Self>;
 }
 
 /// Contiguous f32 data of a flex tensor (a copy only when it is a strided view).
@@ -112,6 +129,11 @@ fn slice(t: &FlexTensor) -> std::borrow::Cow<'_, [f32]> {
 
 fn tensor(v: Vec<f32>, shape: burn::tensor::Shape) -> FlexTensor {
     FlexTensor::from_data(TensorData::new(v, shape))
+}
+
+fn conv_shape(h: &FlexTensor, w: &FlexTensor, skip: usize) -> conv::ConvShape {
+    let hs = h.layout().shape();
+    conv::ConvShape { batch: hs[0], rows: hs[1], skip, d: hs[2], kernel: w.layout().shape()[0] }
 }
 
 fn attn_shape(q: &FlexTensor, k: &FlexTensor, heads: usize) -> AttnShape {
@@ -152,6 +174,12 @@ impl FusedOps for Flex {
 
     fn fused_attention(q: FlexTensor, k: FlexTensor, v: FlexTensor, args: AttnArgs) -> FlexTensor {
         attention_with_lse(&q, &k, &v, &args).0
+    }
+
+    fn fused_temporal_conv(h: FlexTensor, w: FlexTensor, args: ConvArgs) -> FlexTensor {
+        let s = conv_shape(&h, &w, args.skip);
+        let y = conv::temporal_forward(&slice(&h), &slice(&w), &args.real, &s);
+        tensor(y, h.layout().shape().clone())
     }
 }
 
@@ -254,6 +282,17 @@ fn linear_with<const D: usize>(lin: &Linear, x: Tensor<D>, gelu: bool) -> Tensor
     };
     shape[D - 1] = n_out;
     Tensor::<2>::from_dispatch(y).reshape(shape)
+}
+
+/// The depthwise convolution of h [B, M, d]'s frames (rows `args.skip`..) with taps w [K, d]
+/// (`FusedOps::fused_temporal_conv`), for the devices [`fused`] serves; `TemporalConv`
+/// composes the same from Burn ops elsewhere.
+pub fn temporal_conv(h: Tensor<3>, w: Tensor<2>, args: ConvArgs) -> Tensor<3> {
+    Tensor::from_dispatch(<Dispatch as FusedOps>::fused_temporal_conv(
+        h.into_dispatch(),
+        w.into_dispatch(),
+        args,
+    ))
 }
 
 /// Attention of q [B, Lq, d] to k, v [B, Lk, d] with `heads` heads -> [B, Lq, d].

@@ -9,7 +9,7 @@ use burn::prelude::*;
 use crate::kernels::{linear, linear_gelu, residual_layer_norm, Mask};
 use crate::network::attention::Attention;
 use crate::network::dropout::Dropout;
-use crate::network::temporal::TemporalConv;
+use crate::network::temporal::{RealFrames, TemporalConv};
 
 #[derive(Module, Debug)]
 pub struct DecoderLayer {
@@ -54,22 +54,19 @@ impl DecoderLayer {
     }
 
     /// `h` [B, 2+N, d] with `self_pad` (key padding of the decoder sequence); `enc_kv` from
-    /// [`cross_kv`] with `enc_pad` (encoder tokens that are not valid keys); `real` [B, N, 1]
-    /// 1 on real frames, 0 on padding -> [B, 2+N, d].
+    /// [`cross_kv`] with `enc_pad` (encoder tokens that are not valid keys); `real`: which
+    /// frames are real -> [B, 2+N, d].
     pub fn forward(
         &self,
         h: Tensor<3>,
         self_pad: Mask,
         enc_kv: &(Tensor<3>, Tensor<3>),
         enc_pad: Mask,
-        real: &Tensor<3>,
+        real: &RealFrames,
     ) -> Tensor<3> {
         let mut a = self.self_attn.forward(h.clone(), h.clone(), self_pad);
         if let Some(conv) = &self.temporal {
-            let [b, m, d] = h.dims();
-            let frames = h.clone().slice([0..b, 2..m, 0..d]) * real.clone();
-            let c = conv.forward(frames);
-            a = a + Tensor::cat(vec![Tensor::<3>::zeros([b, 2, d], &h.device()), c], 1);
+            a = a + conv.forward_tokens(h.clone(), real, 2);
         }
         let h = residual_layer_norm(&self.ln1, h, a, &self.drop);
         let c = self.cross_attn.forward_kv(h.clone(), enc_kv, enc_pad);

@@ -13,6 +13,7 @@ use crate::network::config::DiffKfcConfig;
 use crate::network::decoder::DecoderLayer;
 use crate::network::keyframe_encoder::{DmaPlan, KeyframeEncoder};
 use crate::network::sinusoidal::{positions, TimestepEmbed};
+use crate::network::temporal::RealFrames;
 
 /// The encoder's output for a condition, reused across denoising steps.
 #[derive(Clone, Debug)]
@@ -29,8 +30,8 @@ pub struct Encoded {
     pub self_pad: Mask,
     /// [1, N, d] frame position encodings (sin/cos of every frame: computed once, not per step).
     pub pos: Tensor<3>,
-    /// [B, N, 1] 1 on real frames, 0 on padding (what the temporal convolution may read).
-    pub real: Tensor<3>,
+    /// Which frames are real (what the temporal convolution may read).
+    pub real: RealFrames,
     /// [B, N, d] the root path hint's embedding, added to the decoder's frame tokens (models
     /// with path channels).
     pub path: Option<Tensor<3>>,
@@ -123,12 +124,11 @@ impl Denoiser {
             .map(|k| k % (n + 2) >= 2 && !c.real[k / (n + 2) * n + k % (n + 2) - 2])
             .collect();
         let cross_kv = self.layers.iter().map(|l| l.cross_kv(tokens.clone())).collect();
-        let real: Vec<f32> = c.real.iter().map(|&r| if r { 1.0 } else { 0.0 }).collect();
         let path = self.path_in.as_ref().map(|l| linear(l, c.path.clone()));
         Encoded {
             path,
             key,
-            real: Tensor::<1>::from_floats(real.as_slice(), &device).reshape([b, n, 1]),
+            real: RealFrames::new(&c.real, b, n, &device),
             cross_kv,
             tokens,
             key_pad: key_mask(key_pad),

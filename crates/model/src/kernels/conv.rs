@@ -1,0 +1,91 @@
+//! The decoder's depthwise temporal convolution (`network::temporal`) on host slices, forward
+//! and backward, parallel over samples: one pass over each sample's frames, where the composed
+//! Burn ops take a slice, a concatenation, a product and a sum of the whole sequence per tap
+//! (and their backward as many), every one of them on a single thread.
+
+use rayon::prelude::*;
+
+/// Shapes of one call: tokens [B, M, d] whose rows `skip`.. are the N = M - skip frames the
+/// convolution runs over; taps [K, d], K odd, tap k reading frame t + k - K/2.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ConvShape {
+    pub batch: usize,
+    pub rows: usize,
+    pub skip: usize,
+    pub d: usize,
+    pub kernel: usize,
+}
+
+impl ConvShape {
+    fn frames(&self) -> usize {
+        self.rows - self.skip
+    }
+
+    /// The frame tap k reads for output frame t, if it is inside the sequence and real.
+    fn source(&self, t: usize, k: usize, real: &[f32]) -> Option<usize> {
+        let src = (t + k).checked_sub(self.kernel / 2)?;
+        (src < self.frames() && real[src] != 0.0).then_some(src)
+    }
+}
+
+/// y[b, skip + t] = sum_k w[k] o h[b, skip + t + k - K/2] over the taps whose frame is inside
+/// the sequence and real (`real` [B, N]: 1 on real frames, 0 on padding, which reads as 0);
+/// the first `skip` rows of every sample are 0. h [B, M, d], w [K, d] -> [B, M, d].
+pub fn temporal_forward(h: &[f32], w: &[f32], real: &[f32], s: &ConvShape) -> Vec<f32> {
+    let (m, n, d) = (s.rows, s.frames(), s.d);
+    let mut y = vec![0f32; s.batch * m * d];
+    y.par_chunks_mut(m * d).enumerate().for_each(|(b, yb)| {
+        let (hb, rb) = (&h[b * m * d..(b + 1) * m * d], &real[b * n..(b + 1) * n]);
+        for t in 0..n {
+            let out = &mut yb[(s.skip + t) * d..(s.skip + t + 1) * d];
+            for k in 0..s.kernel {
+                let Some(src) = s.source(t, k, rb) else { continue };
+                let x = &hb[(s.skip + src) * d..(s.skip + src + 1) * d];
+                for ((o, &wv), &xv) in out.iter_mut().zip(&w[k * d..(k + 1) * d]).zip(x) {
+                    *o += xv * wv;
+                }
+            }
+        }
+    });
+    y
+}
+
+/// Gradients (dh, dw) of [`temporal_forward`] for `dy` [B, M, d]. The taps' gradient is summed
+/// per sample, then over the samples in order: the same for any thread count.
+pub fn temporal_backward(
+    h: &[f32],
+    w: &[f32],
+    real: &[f32],
+    dy: &[f32],
+    s: &ConvShape,
+) -> (Vec<f32>, Vec<f32>) {
+    let (m, n, d) = (s.rows, s.frames(), s.d);
+    let mut dh = vec![0f32; s.batch * m * d];
+    let parts: Vec<Vec<f32>> = dh
+        .par_chunks_mut(m * d)
+        .enumerate()
+        .map(|(b, dhb)| {
+            let (hb, rb) = (&h[b * m * d..(b + 1) * m * d], &real[b * n..(b + 1) * n]);
+            let mut dw = vec![0f32; s.kernel * d];
+            for t in 0..n {
+                let g = &dy[(b * m + s.skip + t) * d..(b * m + s.skip + t + 1) * d];
+                for k in 0..s.kernel {
+                    let Some(src) = s.source(t, k, rb) else { continue };
+                    let row = (s.skip + src) * d..(s.skip + src + 1) * d;
+                    let (x, dx) = (&hb[row.clone()], &mut dhb[row]);
+                    let (wk, dwk) = (&w[k * d..(k + 1) * d], &mut dw[k * d..(k + 1) * d]);
+                    for c in 0..d {
+                        dx[c] += g[c] * wk[c];
+                        dwk[c] += g[c] * x[c];
+                    }
+                }
+            }
+            dw
+        })
+        .collect();
+    let mut dw = vec![0f32; s.kernel * d];
+    for p in &parts {
+        dw.iter_mut().zip(p).for_each(|(a, b)| *a += b);
+    }
+    (dh, dw)
+}
