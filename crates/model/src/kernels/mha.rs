@@ -56,11 +56,12 @@ pub(super) struct Compact {
 }
 
 /// Per sample: its seen keys where gathering them is worth it (`worth_gathering`), else None
-/// (the kernel runs on every key).
+/// (the kernel runs on every key). Samples in parallel, each mask scanned row by row.
 pub(super) fn compact(mask: &Mask, s: &AttnShape) -> Vec<Option<Compact>> {
     let (lq, lk) = (s.lq, s.lk);
     let worth = |cols: &[usize]| super::worth_gathering(cols.len(), lk);
     (0..s.batch)
+        .into_par_iter()
         .map(|b| match mask {
             Mask::None => None,
             Mask::Keys(m) => {
@@ -69,10 +70,13 @@ pub(super) fn compact(mask: &Mask, s: &AttnShape) -> Vec<Option<Compact>> {
             }
             Mask::Full(m) => {
                 let m = &m[b * lq * lk..(b + 1) * lq * lk];
-                let cols: Vec<usize> =
-                    (0..lk).filter(|&j| (0..lq).any(|i| !m[i * lk + j])).collect();
+                let mut seen = vec![false; lk];
+                for row in m.chunks_exact(lk) {
+                    seen.iter_mut().zip(row).for_each(|(s, &blocked)| *s |= !blocked);
+                }
+                let cols: Vec<usize> = (0..lk).filter(|&j| seen[j]).collect();
                 worth(&cols).then(|| {
-                    let sub = (0..lq).flat_map(|i| cols.iter().map(move |&j| m[i * lk + j]));
+                    let sub = m.chunks_exact(lk).flat_map(|row| cols.iter().map(|&j| row[j]));
                     let open = Open::new(&Mask::Full(Arc::new(sub.collect())));
                     Compact { cols, open }
                 })

@@ -3,6 +3,8 @@
 //! scalar expf (together they were a sixth of the sampling call's kernel-thread time).
 //! Compiled twice, for the baseline target and for AVX2 + FMA, chosen at run time.
 
+use rayon::prelude::*;
+
 use super::mha::{AttnShape, Mask};
 use super::simd::{self, exp_neg};
 
@@ -17,7 +19,12 @@ pub struct Open {
 
 impl Open {
     pub fn new(mask: &Mask) -> Open {
-        let f = |m: &[bool]| m.iter().map(|&b| if b { f32::NEG_INFINITY } else { 0.0 }).collect();
+        let f = |m: &[bool]| {
+            m.par_iter()
+                .with_min_len(1 << 14)
+                .map(|&b| if b { f32::NEG_INFINITY } else { 0.0 })
+                .collect()
+        };
         match mask {
             Mask::None => Open { bias: Vec::new(), per_query: false },
             Mask::Keys(m) => Open { bias: f(m), per_query: false },
