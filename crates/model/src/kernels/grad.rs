@@ -14,8 +14,8 @@ use rayon::prelude::*;
 use std::sync::Arc;
 
 use super::{
-    attn_shape, conv, conv_shape, host, slice, tensor, AttnArgs, ConvArgs, DropMask, FusedOps,
-    LN_EPS,
+    attn_shape, conv, conv_shape, flex_masked_mse, host, mse, slice, tensor, AttnArgs, ConvArgs,
+    DropMask, FusedOps, LN_EPS,
 };
 
 /// Record an op of N inputs: `tracked` computes the output and the state its backward needs,
@@ -166,6 +166,26 @@ impl Backward<Flex, 3> for AttentionBackward {
 }
 
 #[derive(Debug)]
+struct MaskedMseBackward;
+
+impl Backward<Flex, 4> for MaskedMseBackward {
+    /// (pred, x0, kf_mask, valid, the two means' counts)
+    type State = (FlexTensor, FlexTensor, FlexTensor, FlexTensor, [f32; 2]);
+
+    fn backward(self, ops: Ops<Self::State, 4>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let g = slice(&grads.consume::<Flex>(&ops.node)).to_vec();
+        let (pred, x0, m, valid, counts) = ops.state;
+        let [p_id, x_id, m_id, v_id] = ops.parents.map(|p| p.map(|n| n.id));
+        assert!(m_id.is_none() && v_id.is_none(), "the loss masks are data, not parameters");
+        let d = pred.layout().shape()[2];
+        let (ps, xs, ms, vs) = (slice(&pred), slice(&x0), slice(&m), slice(&valid));
+        let dp = mse::masked_mse_backward(&ps, &xs, &ms, &vs, d, [g[0], g[1]], counts);
+        let dx = if x_id.is_some() { dp.par_iter().map(|v| -v).collect() } else { Vec::new() };
+        register(grads, [p_id, x_id], [(dp, shape(&pred)), (dx, shape(&x0))]);
+    }
+}
+
+#[derive(Debug)]
 struct TemporalConvBackward;
 
 impl Backward<Flex, 2> for TemporalConvBackward {
@@ -282,6 +302,23 @@ impl<C: CheckpointStrategy> FusedOps for Autodiff<Flex, C> {
             [h, w],
             |[h, w]| (Flex::fused_temporal_conv(h.clone(), w.clone(), args.clone()), (h, w, args)),
             |[h, w]| Flex::fused_temporal_conv(h, w, plain),
+        )
+    }
+
+    fn fused_masked_mse(
+        pred: FloatTensor<Self>,
+        x0: FloatTensor<Self>,
+        kf_mask: FloatTensor<Self>,
+        valid: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
+        record::<_, C, 4>(
+            MaskedMseBackward,
+            [pred, x0, kf_mask, valid],
+            |[p, x, m, v]| {
+                let (means, counts) = flex_masked_mse(&p, &x, &m, &v);
+                (tensor(means.to_vec(), [2].into()), (p, x, m, v, counts))
+            },
+            |[p, x, m, v]| Flex::fused_masked_mse(p, x, m, v),
         )
     }
 }

@@ -12,6 +12,7 @@ mod flash;
 mod grad;
 pub mod host;
 mod mha;
+mod mse;
 mod simd;
 mod softmax;
 mod tiles;
@@ -104,6 +105,15 @@ pub trait FusedOps: Backend {
         v: FloatTensor<Self>,
         args: AttnArgs,
     ) -> FloatTensor<Self>;
+    /// [L_simple, keyframe term] of pred against x0 `[B, N, D]`: the mean squared error over the
+    /// elements kf_mask `[B, N, D]` leaves unobserved, and over those it observes, on the frames
+    /// `valid` `[B, N]` marks real -> `[2]`. The masks are data: they take no gradient.
+    fn fused_masked_mse(
+        pred: FloatTensor<Self>,
+        x0: FloatTensor<Self>,
+        kf_mask: FloatTensor<Self>,
+        valid: FloatTensor<Self>,
+    ) -> FloatTensor<Self>;
     /// Depthwise convolution over the frames of h `[B, M, d]` (its rows `args.skip`..) with
     /// taps w `[K, d]`, padding frames read as 0 -> `[B, M, d]`, the first `skip` rows 0.
     fn fused_temporal_conv(
@@ -129,6 +139,17 @@ fn slice(t: &FlexTensor) -> std::borrow::Cow<'_, [f32]> {
 
 fn tensor(v: Vec<f32>, shape: burn::tensor::Shape) -> FlexTensor {
     FlexTensor::from_data(TensorData::new(v, shape))
+}
+
+/// [`FusedOps::fused_masked_mse`] on flex: the two means and their counts.
+fn flex_masked_mse(
+    pred: &FlexTensor,
+    x0: &FlexTensor,
+    kf_mask: &FlexTensor,
+    valid: &FlexTensor,
+) -> ([f32; 2], [f32; 2]) {
+    let d = pred.layout().shape()[2];
+    mse::masked_mse(&slice(pred), &slice(x0), &slice(kf_mask), &slice(valid), d)
 }
 
 fn conv_shape(h: &FlexTensor, w: &FlexTensor, skip: usize) -> conv::ConvShape {
@@ -174,6 +195,15 @@ impl FusedOps for Flex {
 
     fn fused_attention(q: FlexTensor, k: FlexTensor, v: FlexTensor, args: AttnArgs) -> FlexTensor {
         attention_with_lse(&q, &k, &v, &args).0
+    }
+
+    fn fused_masked_mse(
+        pred: FlexTensor,
+        x0: FlexTensor,
+        kf_mask: FlexTensor,
+        valid: FlexTensor,
+    ) -> FlexTensor {
+        tensor(flex_masked_mse(&pred, &x0, &kf_mask, &valid).0.to_vec(), [2].into())
     }
 
     fn fused_temporal_conv(h: FlexTensor, w: FlexTensor, args: ConvArgs) -> FlexTensor {
@@ -282,6 +312,22 @@ fn linear_with<const D: usize>(lin: &Linear, x: Tensor<D>, gelu: bool) -> Tensor
     };
     shape[D - 1] = n_out;
     Tensor::<2>::from_dispatch(y).reshape(shape)
+}
+
+/// [L_simple, keyframe term] of pred against x0 [B, N, D] under kf_mask [B, N, D] on the real
+/// frames `valid` [B, N] (`FusedOps::fused_masked_mse`), for the devices [`fused`] serves.
+pub fn masked_mse(
+    pred: Tensor<3>,
+    x0: Tensor<3>,
+    kf_mask: Tensor<3>,
+    valid: Tensor<2>,
+) -> Tensor<1> {
+    Tensor::from_dispatch(<Dispatch as FusedOps>::fused_masked_mse(
+        pred.into_dispatch(),
+        x0.into_dispatch(),
+        kf_mask.into_dispatch(),
+        valid.into_dispatch(),
+    ))
 }
 
 /// The depthwise convolution of h [B, M, d]'s frames (rows `args.skip`..) with taps w [K, d]

@@ -5,6 +5,7 @@ use burn::prelude::*;
 
 use diffkfc_data::motion::root_track::TRACK_DIMS;
 
+use crate::kernels;
 use crate::training::kinematics::recover_from_ric;
 
 /// Loss terms of one batch (scalars on the device).
@@ -91,9 +92,15 @@ pub fn losses(
     valid: Tensor<2>,
     k: &Kinematic,
 ) -> Losses {
-    let simple = l_simple(x0.clone(), pred.clone(), kf_mask.clone(), valid.clone());
-    let key = (k.keyframe_loss > 0.0)
-        .then(|| l_key(x0.clone(), pred.clone(), kf_mask.clone(), valid.clone()));
+    let (simple, key) = if kernels::fused(&x0.device()) {
+        let both = kernels::masked_mse(pred.clone(), x0.clone(), kf_mask.clone(), valid.clone());
+        (both.clone().slice([0..1]), (k.keyframe_loss > 0.0).then(|| both.slice([1..2])))
+    } else {
+        let simple = l_simple(x0.clone(), pred.clone(), kf_mask.clone(), valid.clone());
+        let key = (k.keyframe_loss > 0.0)
+            .then(|| l_key(x0.clone(), pred.clone(), kf_mask.clone(), valid.clone()));
+        (simple, key)
+    };
     let smooth = (k.smooth_loss > 0.0).then(|| l_smooth(x0.clone(), pred.clone(), valid.clone()));
     if !k.any() {
         return Losses { simple, key, smooth, pos: None, vel: None, foot: None };
@@ -281,5 +288,51 @@ mod tests {
         )
         .into_scalar();
         assert!((l - 1.0).abs() < 1e-5, "{l}");
+    }
+
+    /// The fused masked squared errors against `l_simple` and `l_key` composed from Burn ops: both
+    /// values and the prediction's gradient of a weighted sum, with padding frames and a random
+    /// keyframe mask (and a sample with no observed element).
+    #[test]
+    fn fused_masked_mse_matches_the_composed_losses_with_gradients() {
+        use burn::tensor::Distribution;
+        let random = |shape: [usize; 3], dev: &Device| -> Tensor<3> {
+            Tensor::random(shape, Distribution::Normal(0.0, 1.0), dev)
+        };
+        use crate::network::params::host;
+        let dev = Device::flex().autodiff();
+        let (b, n, d) = (3, 70, 9);
+        let x0 = random([b, n, d], &dev);
+        let pred0 = random([b, n, d], &dev);
+        let m: Vec<f32> = (0..b * n * d)
+            .map(|i| if i / (n * d) != 1 && (i * 7919) % 5 < 2 { 1.0 } else { 0.0 })
+            .collect();
+        let m = Tensor::<1>::from_floats(m.as_slice(), &dev).reshape([b, n, d]);
+        let v: Vec<f32> =
+            (0..b * n).map(|i| if i % n < n - 13 * (i / n) { 1.0 } else { 0.0 }).collect();
+        let valid = Tensor::<1>::from_floats(v.as_slice(), &dev).reshape([b, n]);
+        let run = |fused: bool| {
+            let pred = pred0.clone().detach().require_grad();
+            let (s, k) = if fused {
+                let both =
+                    crate::kernels::masked_mse(pred.clone(), x0.clone(), m.clone(), valid.clone());
+                (both.clone().slice([0..1]), both.slice([1..2]))
+            } else {
+                (
+                    l_simple(x0.clone(), pred.clone(), m.clone(), valid.clone()),
+                    l_key(x0.clone(), pred.clone(), m.clone(), valid.clone()),
+                )
+            };
+            let grads = (s.clone() * 0.7 + k.clone() * 1.3).backward();
+            let g = host(pred.grad(&grads).expect("the prediction's gradient"));
+            (host(s)[0], host(k)[0], g)
+        };
+        let (fused, composed) = (run(true), run(false));
+        assert!((fused.0 - composed.0).abs() < 1e-5 * composed.0, "simple {fused:?} {composed:?}");
+        assert!((fused.1 - composed.1).abs() < 1e-5 * composed.1, "key {} {}", fused.1, composed.1);
+        let scale = composed.2.iter().fold(0f32, |a, x| a.max(x.abs()));
+        let e = fused.2.iter().zip(&composed.2).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max)
+            / scale;
+        assert!(e < 1e-5, "gradient: max error {e}");
     }
 }
