@@ -94,7 +94,7 @@ pub fn losses(
 ) -> Losses {
     let (simple, key) = if kernels::fused(&x0.device()) {
         let both = kernels::masked_mse(pred.clone(), x0.clone(), kf_mask.clone(), valid.clone());
-        (both.clone().slice([0..1]), (k.keyframe_loss > 0.0).then(|| both.slice([1..2])))
+        (both.clone().narrow(0, 0, 1), (k.keyframe_loss > 0.0).then(|| both.narrow(0, 1, 1)))
     } else {
         let simple = l_simple(x0.clone(), pred.clone(), kf_mask.clone(), valid.clone());
         let key = (k.keyframe_loss > 0.0)
@@ -316,7 +316,7 @@ mod tests {
             let (s, k) = if fused {
                 let both =
                     crate::kernels::masked_mse(pred.clone(), x0.clone(), m.clone(), valid.clone());
-                (both.clone().slice([0..1]), both.slice([1..2]))
+                (both.clone().narrow(0, 0, 1), both.narrow(0, 1, 1))
             } else {
                 (
                     l_simple(x0.clone(), pred.clone(), m.clone(), valid.clone()),
