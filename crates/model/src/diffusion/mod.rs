@@ -69,6 +69,25 @@ impl Schedule {
         x0 * per_sample(&a, &noise.device()) + noise.clone() * per_sample(&s, &noise.device())
     }
 
+    /// [`Schedule::q_sample`] of host buffers x0 and noise ([B * N * D] each, `t` one timestep
+    /// per sample), samples in parallel: the same products and sums, so the same values.
+    pub fn q_sample_host(&self, x0: &[f32], t: &[usize], noise: &[f32]) -> Vec<f32> {
+        use rayon::prelude::*;
+        let per = x0.len() / t.len().max(1);
+        let mut x_t = vec![0f32; x0.len()];
+        x_t.par_chunks_mut(per.max(1)).zip(x0.par_chunks(per.max(1))).enumerate().for_each(
+            |(i, (out, x))| {
+                let a = self.alphas_cumprod[t[i]].sqrt() as f32;
+                let s = (1.0 - self.alphas_cumprod[t[i]]).sqrt() as f32;
+                let e = &noise[i * per..(i + 1) * per];
+                for ((o, &x), &e) in out.iter_mut().zip(x).zip(e) {
+                    *o = x * a + e * s;
+                }
+            },
+        );
+        x_t
+    }
+
     /// Posterior q(x_{t-1} | x_t, x0): (coefficient on x0, coefficient on x_t, variance).
     pub fn posterior(&self, t: usize) -> (f64, f64, f64) {
         let (ab, abp, beta) = (self.alphas_cumprod[t], self.alpha_bar_prev(t), self.betas[t]);
@@ -101,5 +120,20 @@ mod tests {
         // The posterior mean of x0 itself at t=0 is x0 (no noise left).
         let (c0, ct, var) = s.posterior(0);
         assert!((c0 - 1.0).abs() < 1e-9 && ct.abs() < 1e-9 && var.abs() < 1e-12);
+    }
+
+    /// The host noising gives the tensor one's values exactly.
+    #[test]
+    fn host_q_sample_matches_the_tensor_ops() {
+        let dev = Device::flex();
+        let s = Schedule::cosine(1000);
+        let (b, n, d) = (3, 5, 7);
+        let x0: Vec<f32> = (0..b * n * d).map(|i| ((i * 37) % 11) as f32 * 0.3 - 1.5).collect();
+        let noise: Vec<f32> = (0..b * n * d).map(|i| ((i * 53) % 13) as f32 * 0.2 - 1.2).collect();
+        let t = [0, 499, 999];
+        let tensor = |v: &[f32]| Tensor::<1>::from_floats(v, &dev).reshape([b, n, d]);
+        let want =
+            s.q_sample(tensor(&x0), &t, tensor(&noise)).into_data().try_to_vec::<f32>().unwrap();
+        assert_eq!(s.q_sample_host(&x0, &t, &noise), want);
     }
 }

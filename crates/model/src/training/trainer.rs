@@ -226,11 +226,9 @@ impl Trainer<'_> {
         device: &Device,
     ) -> Losses {
         let abs = self.cfg.model.absolute();
-        let tb = to_tensors(b, &self.text_of(b), self.text.dim, abs.as_ref(), device);
-        let noise =
-            Tensor::<1>::from_floats(noise, device).reshape([b.batch_size, b.frames, b.dim]);
-        let x_t = schedule.q_sample(tb.x0.clone(), t, noise);
-        let pred = model.forward(x_t, t, &tb.cond);
+        let noised = (schedule, t, noise);
+        let tb = to_tensors(b, &self.text_of(b), self.text.dim, abs.as_ref(), noised, device);
+        let pred = model.forward(tb.x_t, t, &tb.cond);
         losses(tb.x0, pred, tb.cond.kf_mask, tb.valid, &self.kinematic())
     }
 
