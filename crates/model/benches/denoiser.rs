@@ -1,6 +1,8 @@
-//! Criterion benches of the denoiser on the tiny config (the paper-size figures and the PyTorch
-//! comparison come from `diffkfc bench`, which runs the same workloads): a training step, a
-//! guided sampling call with and without the encoder, and a 5-step DDIM sample.
+//! Criterion benches of the denoiser on the quick start's tiny network (the tiny preset with
+//! the temporal convolution of `configs/tiny.json`, so that every fused kernel runs; the
+//! paper-size figures and the PyTorch comparison come from `diffkfc bench`, which runs the same
+//! workloads): a training step, a guided sampling call with and without the encoder, and a
+//! 5-step DDIM sample.
 //! Run: cargo bench -p diffkfc-model --bench denoiser   (CI: `-- --test`, each case once)
 
 use burn::prelude::*;
@@ -11,7 +13,7 @@ use diffkfc_model::DiffKfcConfig;
 const FRAMES: usize = 60;
 
 fn denoiser(c: &mut Criterion) {
-    let cfg = DiffKfcConfig::tiny();
+    let cfg = DiffKfcConfig::tiny().with_temporal_kernel(9);
     let device = Device::flex();
     let mut g = c.benchmark_group("tiny");
     g.sample_size(10);
