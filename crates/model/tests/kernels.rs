@@ -120,8 +120,10 @@ fn fused_layer_norm_matches_burn_with_gradients() {
 #[test]
 fn fused_linear_and_linear_gelu_match_burn_with_gradients() {
     let ad = Device::flex().autodiff();
-    // Large enough for the multi-threaded product path, plus a small one.
-    for (rows, n_in, n_out) in [(3 * 70, 48, 40), (400, 256, 200)] {
+    // Narrow layers (products split by row blocks of 512 here): one block, and three with a
+    // partial last one (the weight gradient summed over blocks); a wide layer (gemm's own split).
+    for (rows, n_in, n_out) in [(3 * 70, 48, 40), (1300, 64, 48), (400, 256, 200), (300, 320, 256)]
+    {
         let lin = burn::nn::LinearConfig::new(n_in, n_out).init(&ad);
         let x = Tensor::<3>::random([1, rows, n_in], Distribution::Normal(0.0, 1.0), &ad);
         let w = Tensor::<3>::random([1, rows, n_out], Distribution::Normal(0.0, 1.0), &ad);

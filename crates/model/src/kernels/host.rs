@@ -111,6 +111,117 @@ unsafe fn matmul_par(m: usize, n: usize, k: usize, dst: *mut f32, acc: bool, lhs
     );
 }
 
+/// Layers with at most this many weights are narrow: `gemm` splits a product over blocks of its
+/// output, and a narrow layer's products give it too few (its weight gradient [in, out] is a
+/// single block: one thread did all of it), so they are split by rows here instead.
+const NARROW: usize = 256 * 256;
+
+/// Rows per task of a narrow layer's products (fixed, so that the weight gradient's partial
+/// sums are added in the same order for any thread count).
+const ROW_BLOCK: usize = 512;
+
+/// As [`matmul_par`], for a narrow layer: blocks of `ROW_BLOCK` rows in parallel, each one
+/// single-threaded product.
+///
+/// # Safety
+/// As [`matmul`].
+unsafe fn matmul_rows(
+    m: usize,
+    n: usize,
+    k: usize,
+    dst: *mut f32,
+    acc: bool,
+    lhs: View,
+    rhs: View,
+) {
+    let out = Out(dst);
+    (0..m.div_ceil(ROW_BLOCK)).into_par_iter().for_each(|c| {
+        let (out, lhs, rhs) = (out, lhs, rhs);
+        let (r0, rows) = (c * ROW_BLOCK, ROW_BLOCK.min(m - c * ROW_BLOCK));
+        // SAFETY: block c reads lhs rows r0.. and writes only dst rows r0..r0 + rows.
+        let (d, l) = unsafe { (out.0.add(r0 * n), lhs.ptr.offset(r0 as isize * lhs.rs)) };
+        let (ln, lr) = (lhs.cs, lhs.rs);
+        let (rp, rc, rr) = (rhs.ptr, rhs.cs, rhs.rs);
+        unsafe {
+            gemm::gemm(
+                rows,
+                n,
+                k,
+                d,
+                1,
+                n as isize,
+                acc,
+                l,
+                ln,
+                lr,
+                rp,
+                rc,
+                rr,
+                1.0,
+                1.0,
+                false,
+                false,
+                false,
+                gemm::Parallelism::None,
+            )
+        };
+    });
+}
+
+/// A layer's row product on all threads: by row blocks for a narrow layer (`NARROW`
+/// weights), else as `gemm` splits it.
+///
+/// # Safety
+/// As [`matmul`].
+#[allow(clippy::too_many_arguments)]
+unsafe fn matmul_layer(
+    weights: usize,
+    m: usize,
+    n: usize,
+    k: usize,
+    dst: *mut f32,
+    acc: bool,
+    lhs: View,
+    rhs: View,
+) {
+    if weights <= NARROW {
+        matmul_rows(m, n, k, dst, acc, lhs, rhs)
+    } else {
+        matmul_par(m, n, k, dst, acc, lhs, rhs)
+    }
+}
+
+/// dw [in, out] = x^T dy for x [m, in] and dy [m, out]: for a narrow layer, partial products of
+/// `ROW_BLOCK` rows in parallel, added in order.
+fn weight_grad(x: &[f32], dy: &[f32], m: usize, n_in: usize, n_out: usize) -> Vec<f32> {
+    if n_in * n_out > NARROW {
+        // SAFETY: x is [m, n_in], dy [m, n_out]; every element of dw written.
+        return unsafe {
+            overwritten(n_in * n_out, |p| {
+                matmul_par(n_in, n_out, m, p, false, transposed(x, n_in), rows(dy, n_out))
+            })
+        };
+    }
+    let parts: Vec<Vec<f32>> = (0..m.div_ceil(ROW_BLOCK))
+        .into_par_iter()
+        .map(|c| {
+            let (r0, r) = (c * ROW_BLOCK, ROW_BLOCK.min(m - c * ROW_BLOCK));
+            let (xb, gb) = (&x[r0 * n_in..(r0 + r) * n_in], &dy[r0 * n_out..(r0 + r) * n_out]);
+            // SAFETY: xb is [r, n_in], gb [r, n_out]; every element of the part written.
+            unsafe {
+                overwritten(n_in * n_out, |p| {
+                    matmul(n_in, n_out, r, p, n_out, transposed(xb, n_in), rows(gb, n_out))
+                })
+            }
+        })
+        .collect();
+    let mut dw = vec![0f32; n_in * n_out];
+    for p in &parts {
+        dw.iter_mut().zip(p).for_each(|(a, b)| *a += b);
+    }
+    dw
+}
+
 fn rows(x: &[f32], cols: usize) -> View {
     View { ptr: x.as_ptr(), rs: cols as isize, cs: 1 }
 }
@@ -129,7 +240,9 @@ pub fn linear_forward(x: &[f32], w: &[f32], b: &[f32]) -> Vec<f32> {
         y.extend_from_slice(b);
     }
     // SAFETY: x is [m, n_in], w [n_in, n_out], y [m, n_out].
-    unsafe { matmul_par(m, n_out, n_in, y.as_mut_ptr(), true, rows(x, n_in), rows(w, n_out)) };
+    unsafe {
+        matmul_layer(w.len(), m, n_out, n_in, y.as_mut_ptr(), true, rows(x, n_in), rows(w, n_out))
+    };
     y
 }
 
@@ -142,17 +255,13 @@ pub fn linear_backward(
 ) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     let n_in = w.len() / n_out;
     let m = x.len() / n_in;
-    // SAFETY: shapes as in linear_forward; dx = dy w^T, dw = x^T dy, every element written.
+    // SAFETY: shapes as in linear_forward; dx = dy w^T, every element written.
     let dx = unsafe {
         overwritten(m * n_in, |p| {
-            matmul_par(m, n_in, n_out, p, false, rows(dy, n_out), transposed(w, n_out))
+            matmul_layer(w.len(), m, n_in, n_out, p, false, rows(dy, n_out), transposed(w, n_out))
         })
     };
-    let dw = unsafe {
-        overwritten(n_in * n_out, |p| {
-            matmul_par(n_in, n_out, m, p, false, transposed(x, n_in), rows(dy, n_out))
-        })
-    };
+    let dw = weight_grad(x, dy, m, n_in, n_out);
     // Column sums over fixed row blocks, added in order: the same for any thread count.
     let parts: Vec<Vec<f32>> = dy
         .par_chunks(n_out * 64)
