@@ -95,7 +95,28 @@ unsafe fn overwritten(n: usize, fill: impl FnOnce(*mut f32)) -> Vec<f32> {
 /// Products of at least this many multiply-adds run on all threads (as burn-flex decides).
 const PARALLEL_WORK: usize = 192 * 192 * 192;
 
-/// dst[m, n] = lhs[m, k] . rhs[k, n] (+ dst when `acc`), contiguous `dst`, on all threads when big.
+/// dst[m, n] = lhs[m, k] . rhs[k, n] (+ dst when `acc`), contiguous `dst`, with `par`.
+///
+/// # Safety
+/// As [`matmul`].
+#[allow(clippy::too_many_arguments)]
+unsafe fn gemm_to(
+    m: usize,
+    n: usize,
+    k: usize,
+    dst: *mut f32,
+    acc: bool,
+    lhs: View,
+    rhs: View,
+    par: gemm::Parallelism,
+) {
+    gemm::gemm(
+        m, n, k, dst, 1, n as isize, acc, lhs.ptr, lhs.cs, lhs.rs, rhs.ptr, rhs.cs, rhs.rs, 1.0,
+        1.0, false, false, false, par,
+    );
+}
+
+/// As [`gemm_to`], on all threads when big.
 ///
 /// # Safety
 /// As [`matmul`].
@@ -105,10 +126,7 @@ unsafe fn matmul_par(m: usize, n: usize, k: usize, dst: *mut f32, acc: bool, lhs
     } else {
         gemm::Parallelism::None
     };
-    gemm::gemm(
-        m, n, k, dst, 1, n as isize, acc, lhs.ptr, lhs.cs, lhs.rs, rhs.ptr, rhs.cs, rhs.rs, 1.0,
-        1.0, false, false, false, par,
-    );
+    gemm_to(m, n, k, dst, acc, lhs, rhs, par)
 }
 
 /// Layers with at most this many weights are narrow: `gemm` splits a product over blocks of its
@@ -139,32 +157,10 @@ unsafe fn matmul_rows(
         let (out, lhs, rhs) = (out, lhs, rhs);
         let (r0, rows) = (c * ROW_BLOCK, ROW_BLOCK.min(m - c * ROW_BLOCK));
         // SAFETY: block c reads lhs rows r0.. and writes only dst rows r0..r0 + rows.
-        let (d, l) = unsafe { (out.0.add(r0 * n), lhs.ptr.offset(r0 as isize * lhs.rs)) };
-        let (ln, lr) = (lhs.cs, lhs.rs);
-        let (rp, rc, rr) = (rhs.ptr, rhs.cs, rhs.rs);
         unsafe {
-            gemm::gemm(
-                rows,
-                n,
-                k,
-                d,
-                1,
-                n as isize,
-                acc,
-                l,
-                ln,
-                lr,
-                rp,
-                rc,
-                rr,
-                1.0,
-                1.0,
-                false,
-                false,
-                false,
-                gemm::Parallelism::None,
-            )
-        };
+            let lhs = View { ptr: lhs.ptr.offset(r0 as isize * lhs.rs), ..lhs };
+            gemm_to(rows, n, k, out.0.add(r0 * n), acc, lhs, rhs, gemm::Parallelism::None)
+        }
     });
 }
 
