@@ -62,10 +62,15 @@ impl Schedule {
         }
     }
 
+    /// (sqrt(abar_t), sqrt(1 - abar_t)): the weights of x0 and of the noise in x_t.
+    fn q_weights(&self, t: usize) -> (f32, f32) {
+        let ab = self.alphas_cumprod[t];
+        (ab.sqrt() as f32, (1.0 - ab).sqrt() as f32)
+    }
+
     /// x_t = sqrt(abar_t) x0 + sqrt(1 - abar_t) noise, per sample.
     pub fn q_sample(&self, x0: Tensor<3>, t: &[usize], noise: Tensor<3>) -> Tensor<3> {
-        let a: Vec<f32> = t.iter().map(|&t| self.alphas_cumprod[t].sqrt() as f32).collect();
-        let s: Vec<f32> = t.iter().map(|&t| (1.0 - self.alphas_cumprod[t]).sqrt() as f32).collect();
+        let (a, s): (Vec<f32>, Vec<f32>) = t.iter().map(|&t| self.q_weights(t)).unzip();
         x0 * per_sample(&a, &noise.device()) + noise.clone() * per_sample(&s, &noise.device())
     }
 
@@ -73,18 +78,15 @@ impl Schedule {
     /// per sample), samples in parallel: the same products and sums, so the same values.
     pub fn q_sample_host(&self, x0: &[f32], t: &[usize], noise: &[f32]) -> Vec<f32> {
         use rayon::prelude::*;
-        let per = x0.len() / t.len().max(1);
+        let per = (x0.len() / t.len().max(1)).max(1);
         let mut x_t = vec![0f32; x0.len()];
-        x_t.par_chunks_mut(per.max(1)).zip(x0.par_chunks(per.max(1))).enumerate().for_each(
-            |(i, (out, x))| {
-                let a = self.alphas_cumprod[t[i]].sqrt() as f32;
-                let s = (1.0 - self.alphas_cumprod[t[i]]).sqrt() as f32;
-                let e = &noise[i * per..(i + 1) * per];
-                for ((o, &x), &e) in out.iter_mut().zip(x).zip(e) {
-                    *o = x * a + e * s;
-                }
-            },
-        );
+        x_t.par_chunks_mut(per).zip(x0.par_chunks(per)).enumerate().for_each(|(i, (out, x))| {
+            let (a, s) = self.q_weights(t[i]);
+            let e = &noise[i * per..(i + 1) * per];
+            for ((o, &x), &e) in out.iter_mut().zip(x).zip(e) {
+                *o = x * a + e * s;
+            }
+        });
         x_t
     }
 

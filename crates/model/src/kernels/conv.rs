@@ -5,6 +5,8 @@
 
 use rayon::prelude::*;
 
+use super::host::sum_in_order;
+
 /// Shapes of one call: tokens [B, M, d] whose rows `skip`.. are the N = M - skip frames the
 /// convolution runs over; taps [K, d], K odd, tap k reading frame t + k - K/2.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -83,9 +85,5 @@ pub fn temporal_backward(
             dw
         })
         .collect();
-    let mut dw = vec![0f32; s.kernel * d];
-    for p in &parts {
-        dw.iter_mut().zip(p).for_each(|(a, b)| *a += b);
-    }
-    (dh, dw)
+    (dh, sum_in_order(parts.iter().map(Vec::as_slice), s.kernel * d))
 }

@@ -187,6 +187,16 @@ unsafe fn matmul_layer(
     }
 }
 
+/// The element-wise sum of `n`-long partial results, added in their order (the parallel
+/// kernels' fixed blocks: the same sums for any thread count).
+pub(super) fn sum_in_order<'a>(parts: impl IntoIterator<Item = &'a [f32]>, n: usize) -> Vec<f32> {
+    let mut sum = vec![0f32; n];
+    for p in parts {
+        sum.iter_mut().zip(p).for_each(|(a, b)| *a += b);
+    }
+    sum
+}
+
 /// dw [in, out] = x^T dy for x [m, in] and dy [m, out]: for a narrow layer, partial products of
 /// `ROW_BLOCK` rows in parallel, added in order.
 fn weight_grad(x: &[f32], dy: &[f32], m: usize, n_in: usize, n_out: usize) -> Vec<f32> {
@@ -211,11 +221,7 @@ fn weight_grad(x: &[f32], dy: &[f32], m: usize, n_in: usize, n_out: usize) -> Ve
             }
         })
         .collect();
-    let mut dw = vec![0f32; n_in * n_out];
-    for p in &parts {
-        dw.iter_mut().zip(p).for_each(|(a, b)| *a += b);
-    }
-    dw
+    sum_in_order(parts.iter().map(Vec::as_slice), n_in * n_out)
 }
 
 fn rows(x: &[f32], cols: usize) -> View {
@@ -267,8 +273,7 @@ pub fn linear_backward(
             s
         })
         .collect();
-    let mut db = vec![0f32; n_out];
-    parts.iter().for_each(|p| db.iter_mut().zip(p).for_each(|(a, b)| *a += b));
+    let db = sum_in_order(parts.iter().map(Vec::as_slice), n_out);
     (dx, dw, db)
 }
 
@@ -410,10 +415,7 @@ pub fn layer_norm_backward(
             (dg, db)
         })
         .collect();
-    let (mut dgamma, mut dbeta) = (vec![0f32; d], vec![0f32; d]);
-    for (dg, db) in &partial {
-        dgamma.iter_mut().zip(dg).for_each(|(a, b)| *a += b);
-        dbeta.iter_mut().zip(db).for_each(|(a, b)| *a += b);
-    }
+    let dgamma = sum_in_order(partial.iter().map(|(g, _)| g.as_slice()), d);
+    let dbeta = sum_in_order(partial.iter().map(|(_, b)| b.as_slice()), d);
     (dx, dgamma, dbeta)
 }
