@@ -9,6 +9,7 @@
 
 pub mod error;
 pub mod evaluator;
+pub mod gait;
 pub mod keyframe_metrics;
 pub(crate) mod linalg;
 pub mod protocol;

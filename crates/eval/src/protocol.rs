@@ -10,6 +10,8 @@ use diffkfc_data::dataset::cache::PackedSplit;
 use diffkfc_data::dataset::Dataset;
 use diffkfc_data::keyframes::{self, Strategy};
 use diffkfc_data::motion::plausibility::foot_skating_ratio;
+
+use crate::gait;
 use diffkfc_data::motion::representation::{recover_from_ric, Joints};
 use diffkfc_data::motion::root_key::{self, RootKey};
 use diffkfc_data::rng::Rng;
@@ -446,10 +448,18 @@ impl Protocol<'_> {
         let mut shared = Values::new();
         self.text_motion(reference, texts, &real_m, rep_seed, &mut shared);
         let skel = self.ds.skeleton;
-        if let Some(x) =
-            mean(&items.iter().map(|it| foot_skating_ratio(skel, &it.joints)).collect::<Vec<_>>())
-        {
-            shared.insert("foot_skate", vec![x]);
+        let per_item = |f: &dyn Fn(&Joints) -> f64| {
+            mean(&items.iter().map(|it| f(&it.joints)).collect::<Vec<_>>())
+        };
+        let real_measures: [(&'static str, &dyn Fn(&Joints) -> f64); 3] = [
+            ("foot_skate", &|j| foot_skating_ratio(skel, j)),
+            ("planted", &|j| gait::planted_share(skel, j)),
+            ("stride", &|j| gait::stride_amplitude(skel, j)),
+        ];
+        for (name, f) in real_measures {
+            if let Some(x) = per_item(f) {
+                shared.insert(name, vec![x]);
+            }
         }
         for row in real.iter_mut() {
             for (k, x) in &shared {
@@ -577,6 +587,8 @@ impl Protocol<'_> {
                 ("k_trans", avg(&|j| k_trans(&joints[j], key, K_TRANS_WINDOW))),
                 ("k_trans_real", k_trans(&it.joints, key, K_TRANS_WINDOW)),
                 ("foot_skate", avg(&|j| Some(foot_skating_ratio(skel, &joints[j])))),
+                ("planted", avg(&|j| Some(gait::planted_share(skel, &joints[j])))),
+                ("stride", avg(&|j| Some(gait::stride_amplitude(skel, &joints[j])))),
             ];
             for (name, x) in entries {
                 if let Some(x) = x {

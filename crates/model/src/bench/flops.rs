@@ -49,7 +49,10 @@ pub fn forward_planned(
     work: &[BlockWork],
 ) -> Flops {
     let (b, n, d, f) = (batch, frames, c.d_model, c.ffn);
-    let (le, ld) = (n + 1, n + 2);
+    // The decoder runs on tokens of `p` frames (`patch_frames`), the encoder per frame.
+    let p = c.patch_frames.max(1);
+    let nd = n.div_ceil(p);
+    let (le, ld) = (n + 1, nd + 2);
     let block = |w: &BlockWork| {
         let (q, k) = (w.queries, w.keys);
         linear(q, d, d)
@@ -73,15 +76,15 @@ pub fn forward_planned(
         + linear(b * ld, d, f)
         + linear(b * ld, f, d);
     // The extensions' per-frame projections added to the decoder's frame tokens.
-    let path_in = if c.root_path { linear(b * n, PATH_CHANNELS, d) } else { 0.0 };
+    let path_in = if c.root_path { linear(b * nd, p * PATH_CHANNELS, d) } else { 0.0 };
     let key_in =
-        if c.key_input { linear(b * n, 2 * (c.feat_dim + c.root_channels), d) } else { 0.0 };
-    let decoder = linear(b * n, c.feat_dim, d)
+        if c.key_input { linear(b * nd, p * 2 * (c.feat_dim + c.root_channels), d) } else { 0.0 };
+    let decoder = linear(b * nd, p * c.feat_dim, d)
         + path_in
         + key_in
         + 2.0 * linear(b, d, d)
         + c.dec_layers as f64 * layer
-        + linear(b * n, d, c.feat_dim);
+        + linear(b * nd, d, p * c.feat_dim);
     Flops { encoder, decoder }
 }
 

@@ -79,6 +79,13 @@ pub struct TrainingConfig {
     pub keyframe_loss: f64,
     /// Weight of the error of frame-to-frame feature changes (`losses::l_smooth`; 0 = the paper).
     pub smooth_loss: f64,
+    /// Weight of the 4 root channels in the reconstruction terms (`training::weighting`; 1 = the paper).
+    pub root_loss_weight: f64,
+    /// Weight of the 4 foot-contact channels in the reconstruction terms (1 = the paper).
+    pub contact_loss_weight: f64,
+    /// Min-SNR weighting of the reconstruction terms: min(SNR(t), gamma) / gamma per sample
+    /// (`training::weighting`; 0 = off, the paper).
+    pub min_snr_gamma: f64,
 }
 
 impl TrainingConfig {
@@ -116,6 +123,9 @@ impl Default for TrainingConfig {
             lambda_foot: 0.0,
             keyframe_loss: 0.0,
             smooth_loss: 0.0,
+            root_loss_weight: 1.0,
+            contact_loss_weight: 1.0,
+            min_snr_gamma: 0.0,
         }
     }
 }
@@ -259,6 +269,9 @@ impl RunConfig {
                 &format!("must be 0 or {}", diffkfc_data::motion::root_key::ROOT_CHANNELS),
             );
         }
+        if !(1..=8).contains(&m.patch_frames) {
+            return bad("model.patch_frames", &m.patch_frames, "must be 1 to 8");
+        }
         if (m.temporal_kernel.is_multiple_of(2) && m.temporal_kernel != 0) || m.temporal_kernel > 31
         {
             return bad(
@@ -295,6 +308,9 @@ impl RunConfig {
             ("training.lambda_foot", t.lambda_foot),
             ("training.keyframe_loss", t.keyframe_loss),
             ("training.smooth_loss", t.smooth_loss),
+            ("training.root_loss_weight", t.root_loss_weight),
+            ("training.contact_loss_weight", t.contact_loss_weight),
+            ("training.min_snr_gamma", t.min_snr_gamma),
         ];
         for (key, v) in non_negative {
             if !(v.is_finite() && v >= 0.0) {
@@ -362,6 +378,8 @@ mod tests {
             (r#""training": {"lr": -1}"#, "training.lr: -1"),
             (r#""training": {"ema_decay": 1.5}"#, "training.ema_decay: 1.5"),
             (r#""training": {"grad_clip": -1}"#, "training.grad_clip: -1"),
+            (r#""training": {"root_loss_weight": -2}"#, "training.root_loss_weight: -2"),
+            (r#""training": {"min_snr_gamma": -1}"#, "training.min_snr_gamma: -1"),
             (r#""keyframes": {"rate": 2}"#, "keyframes.rate: 2"),
             (r#""diffusion": {"schedule": "foo"}"#, "diffusion.schedule: unknown 'foo'"),
         ] {
@@ -375,6 +393,8 @@ mod tests {
             (r#"{"preset": "tiny", "d_model": 0}"#, "model.d_model: 0"),
             (r#"{"preset": "tiny", "dropout": 1.5}"#, "model.dropout: 1.5"),
             (r#"{"preset": "tiny", "temporal_kernel": 4}"#, "model.temporal_kernel: 4"),
+            (r#"{"preset": "tiny", "patch_frames": 0}"#, "model.patch_frames: 0"),
+            (r#"{"preset": "tiny", "patch_frames": 9}"#, "model.patch_frames: 9"),
         ] {
             let e = RunConfig::parse(&format!(r#"{{"model": {model}}}"#)).unwrap_err().to_string();
             assert!(e.contains(needle), "{model}: {e}");
@@ -396,10 +416,34 @@ mod tests {
     #[test]
     fn shipped_configs_parse() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
-        for name in ["tiny", "small", "paper-humanml3d", "paper-kit"] {
+        let study = std::fs::read_dir(dir.join("study")).unwrap().map(|e| {
+            let p = e.unwrap().path();
+            format!("study/{}", p.file_stem().unwrap().to_string_lossy())
+        });
+        let names =
+            ["tiny", "small", "mid", "paper-humanml3d", "paper-kit", "reference", "reference-feet"];
+        for name in names.iter().map(|s| s.to_string()).chain(study) {
             let c = RunConfig::load(&dir.join(format!("{name}.json"))).unwrap();
             let again = RunConfig::parse(&c.to_json()).unwrap();
             assert_eq!(c, again, "{name} does not round-trip");
         }
+    }
+
+    /// The study's options round-trip, and a config written before they existed (no such keys)
+    /// reads as the paper's behaviour: one frame per token, uniform loss weights.
+    #[test]
+    fn new_options_default_to_the_old_behaviour() {
+        let old = RunConfig::parse(r#"{"model": "tiny", "training": {"lr": 0.001}}"#).unwrap();
+        assert_eq!(old.model.patch_frames, 1);
+        let t = &old.training;
+        assert_eq!((t.root_loss_weight, t.contact_loss_weight, t.min_snr_gamma), (1.0, 1.0, 0.0));
+        let c = RunConfig::parse(
+            r#"{"model": {"preset": "tiny", "patch_frames": 4},
+                "training": {"root_loss_weight": 8, "contact_loss_weight": 4, "min_snr_gamma": 5}}"#,
+        )
+        .unwrap();
+        let again = RunConfig::parse(&c.to_json()).unwrap();
+        assert_eq!(c, again);
+        assert_eq!((again.model.patch_frames, again.training.root_loss_weight), (4, 8.0));
     }
 }

@@ -199,10 +199,8 @@ pub fn sample(
     // The encoder runs once; both guidance branches share each decoder call. Its output is
     // detached so per-step backward passes (exact mode) never reach into it.
     let cond = if opts.inpaint { cond.without_keyframes() } else { cond };
-    let mut enc = if guided { model.encode(&guidance::pair(&cond)) } else { model.encode(&cond) };
-    enc.tokens = enc.tokens.detach();
-    enc.text_tok = enc.text_tok.detach();
-    enc.cross_kv = enc.cross_kv.into_iter().map(|(k, v)| (k.detach(), v.detach())).collect();
+    let enc = if guided { model.encode(&guidance::pair(&cond)) } else { model.encode(&cond) };
+    let enc = enc.detach();
     let kf_t = Tensor::<1>::from_floats(req.kf.as_slice(), &device).reshape([b, n, d]);
     let mask_t = Tensor::<1>::from_floats(req.mask.as_slice(), &device).reshape([b, n, d]);
     let track_mask = opts.impose_track.then(|| {

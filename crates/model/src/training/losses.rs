@@ -84,21 +84,28 @@ fn with_observed_root(pred: Tensor<3>, x0: Tensor<3>, kf_mask: Tensor<3>) -> Ten
     pred * (m.ones_like() - m.clone()) + x0 * m
 }
 
-/// All loss terms; the kinematic ones only when their weight is positive.
+/// All loss terms; the kinematic ones only when their weight is positive. `sqrt_w` [B, 1, D]
+/// (`training::weighting::sqrt_weights`) scales target and prediction of the reconstruction
+/// terms (L_simple and the keyframe term), so they become weighted means.
 pub fn losses(
     x0: Tensor<3>,
     pred: Tensor<3>,
     kf_mask: Tensor<3>,
     valid: Tensor<2>,
+    sqrt_w: Option<Tensor<3>>,
     k: &Kinematic,
 ) -> Losses {
+    let (rx0, rpred) = match sqrt_w {
+        Some(w) => (x0.clone() * w.clone(), pred.clone() * w),
+        None => (x0.clone(), pred.clone()),
+    };
     let (simple, key) = if kernels::fused(&x0.device()) {
-        let both = kernels::masked_mse(pred.clone(), x0.clone(), kf_mask.clone(), valid.clone());
+        let both = kernels::masked_mse(rpred, rx0, kf_mask.clone(), valid.clone());
         (both.clone().narrow(0, 0, 1), (k.keyframe_loss > 0.0).then(|| both.narrow(0, 1, 1)))
     } else {
-        let simple = l_simple(x0.clone(), pred.clone(), kf_mask.clone(), valid.clone());
+        let simple = l_simple(rx0.clone(), rpred.clone(), kf_mask.clone(), valid.clone());
         let key = (k.keyframe_loss > 0.0)
-            .then(|| l_key(x0.clone(), pred.clone(), kf_mask.clone(), valid.clone()));
+            .then(|| l_key(rx0.clone(), rpred.clone(), kf_mask.clone(), valid.clone()));
         (simple, key)
     };
     let smooth = (k.smooth_loss > 0.0).then(|| l_smooth(x0.clone(), pred.clone(), valid.clone()));
@@ -211,12 +218,12 @@ mod tests {
         let (mean, std) = (vec![0.0f32; d], vec![0.1f32; d]);
         let k = kinematic(&mean, &std, 1.0);
         let valid = Tensor::<2>::ones([b, n], &dev);
-        let l = losses(x.clone(), x.clone(), x.zeros_like(), valid.clone(), &k);
+        let l = losses(x.clone(), x.clone(), x.zeros_like(), valid.clone(), None, &k);
         let pos: f32 = l.pos.unwrap().into_scalar();
         let vel: f32 = l.vel.unwrap().into_scalar();
         assert!(pos.abs() < 1e-10 && vel.abs() < 1e-10, "{pos} {vel}");
         // A different prediction is penalised.
-        let l = losses(x.clone(), x.clone() + 0.5, x.zeros_like(), valid, &k);
+        let l = losses(x.clone(), x.clone() + 0.5, x.zeros_like(), valid, None, &k);
         let pos: f32 = l.pos.unwrap().into_scalar();
         assert!(pos > 1e-4);
     }
@@ -239,13 +246,44 @@ mod tests {
         let track = Tensor::<1>::from_floats(track.as_slice(), &dev).reshape([b, n, d]);
         let valid = Tensor::<2>::ones([b, n], &dev);
         let pos = |m: Tensor<3>| -> f32 {
-            losses(x.clone(), x.clone() + wrong.clone(), m, valid.clone(), &k)
+            losses(x.clone(), x.clone() + wrong.clone(), m, valid.clone(), None, &k)
                 .pos
                 .unwrap()
                 .into_scalar()
         };
         assert!(pos(track.clone()) < 1e-10, "{}", pos(track));
         assert!(pos(x.zeros_like()) > 1e-3);
+    }
+
+    /// Weights (as square roots) make L_simple the weighted mean of the squared errors: an
+    /// error of 1 on a root channel of weight 4 and on an ordinary channel of weight 1, the
+    /// first sample weighing 0.25 in all.
+    #[test]
+    fn weights_make_l_simple_a_weighted_mean() {
+        let dev = Device::flex();
+        let (b, n, d) = (2, 3, 8);
+        let x = Tensor::<3>::zeros([b, n, d], &dev);
+        let mut e = vec![0f32; b * n * d];
+        for s in 0..b {
+            for f in 0..n {
+                e[(s * n + f) * d] = 1.0; // root channel 0
+                e[(s * n + f) * d + 5] = 1.0; // an ordinary channel
+            }
+        }
+        let pred = Tensor::<1>::from_floats(e.as_slice(), &dev).reshape([b, n, d]);
+        let mut w = vec![1f32; b * d];
+        w[0] = 4.0;
+        w[d] = 4.0;
+        (0..d).for_each(|c| w[c] *= 0.25);
+        let sqrt_w: Vec<f32> = w.iter().map(|v| v.sqrt()).collect();
+        let sqrt_w = Tensor::<1>::from_floats(sqrt_w.as_slice(), &dev).reshape([b, 1, d]);
+        let k = Kinematic { keyframe_loss: 1.0, ..kinematic(&[], &[], 0.0) };
+        let valid = Tensor::<2>::ones([b, n], &dev);
+        let l = losses(x.clone(), pred, x.zeros_like(), valid, Some(sqrt_w), &k);
+        let got: f32 = l.simple.into_scalar();
+        // Per frame: sample 0 (4 + 1) * 0.25, sample 1 (4 + 1); over n * d elements each.
+        let want = ((4.0 + 1.0) * 0.25 + (4.0 + 1.0)) * n as f32 / (b * n * d) as f32;
+        assert!((got - want).abs() < 1e-6, "{got} vs {want}");
     }
 
     #[test]

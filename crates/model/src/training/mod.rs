@@ -1,6 +1,6 @@
 //! Training: the loop (`trainer`), batches as tensors, the losses and the differentiable
 //! kinematics they read, the optimiser and EMA, data-parallel training (replicas, the shard loss
-//! weighting), memory estimates and device memory, and warm starts from another run's weights.
+//! weighting), memory estimates and device memory, the reconstruction terms' weights, and warm starts from another run's weights.
 
 pub(crate) mod batch;
 pub mod data_parallel;
@@ -12,3 +12,4 @@ pub mod parallel;
 pub(crate) mod run_files;
 pub mod trainer;
 pub(crate) mod warm_start;
+pub mod weighting;

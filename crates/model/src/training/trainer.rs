@@ -34,6 +34,7 @@ use crate::training::memory::{device_memory, DeviceMemory};
 use crate::training::optim::{learning_rate, Optimiser, Snapshot, StateLocation};
 use crate::training::parallel::{shard_objective, Combine, Shares};
 use crate::training::run_files::{non_finite, RunFiles};
+use crate::training::weighting;
 use crate::Denoiser;
 
 /// A training step's batch, timesteps ([B]) and noise ([B * N * D]).
@@ -229,7 +230,8 @@ impl Trainer<'_> {
         let noised = (schedule, t, noise);
         let tb = to_tensors(b, &self.text_of(b), self.text.dim, abs.as_ref(), noised, device);
         let pred = model.forward(tb.x_t, t, &tb.cond);
-        losses(tb.x0, pred, tb.cond.kf_mask, tb.valid, &self.kinematic())
+        let w = weighting::sqrt_weights(&self.cfg.training, schedule, t, b.dim, device);
+        losses(tb.x0, pred, tb.cond.kf_mask, tb.valid, w, &self.kinematic())
     }
 
     /// Gradients (on the host, one vector per parameter) of `model` (on an autodiff device) on
