@@ -152,6 +152,32 @@ pub(crate) enum KeyframeMode {
     Inpaint,
 }
 
+/// How the transition-guidance gradient is taken (`sample` and `eval`).
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub(crate) enum TgModeArg {
+    /// Gradient with respect to the predicted x0 (no backward pass).
+    X0,
+    /// Gradient through the denoiser with respect to x_t (paper Eq. 5).
+    Exact,
+}
+
+impl TgModeArg {
+    pub(crate) fn mode(self) -> diffkfc_model::sampling::sampler::TgMode {
+        match self {
+            TgModeArg::X0 => diffkfc_model::sampling::sampler::TgMode::X0,
+            TgModeArg::Exact => diffkfc_model::sampling::sampler::TgMode::Exact,
+        }
+    }
+
+    /// The device a model needs for this mode: exact guidance differentiates through it.
+    pub(crate) fn device(self, device: burn::prelude::Device) -> burn::prelude::Device {
+        match self {
+            TgModeArg::X0 => device,
+            TgModeArg::Exact => device.autodiff(),
+        }
+    }
+}
+
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub(crate) enum SamplerArg {
     /// Ancestral DDPM over every step of the schedule (the paper's 1000).

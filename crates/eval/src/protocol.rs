@@ -120,6 +120,9 @@ pub struct Options {
     pub multimodality: usize,
     pub sampler: Sampler,
     pub kf_guidance: f64,
+    /// How transition guidance takes its gradient (exact: through the denoiser, which must be
+    /// on an autodiff device).
+    pub tg_mode: TgMode,
     /// How generated motions are made to meet their keyframes after the last step, and whether
     /// their planted feet are locked.
     pub fit: Fit,
@@ -359,7 +362,7 @@ impl Protocol<'_> {
                 kf_guidance: self.opts.kf_guidance,
                 transition: s.transition,
                 seed: Rng::derive(seed, 7, c as u64).next_u64(),
-                tg_mode: TgMode::X0,
+                tg_mode: self.opts.tg_mode,
                 inpaint: s.inpaint,
                 place: (self.opts.place_guidance > 0.0).then(|| {
                     PlaceGuidance::new(self.opts.place_guidance, self.gen.mean, self.gen.std)

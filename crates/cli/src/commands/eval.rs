@@ -7,6 +7,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
 use diffkfc_data::dataset::cache::{default_cache_dir, PackedSplit};
 use diffkfc_data::dataset::Dataset;
+use diffkfc_data::io::ownership::{self, Output};
 use diffkfc_data::keyframes::Strategy;
 use diffkfc_eval::evaluator::{
     eval_length, ContrastiveEvaluator, EvaluatorConfig, TextMotionEvaluator,
@@ -22,7 +23,7 @@ use diffkfc_model::sampling::sampler;
 use diffkfc_model::text::cache::embed_captions;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::args::{FitArgs, KeyframeMode, SamplerArg};
+use crate::args::{FitArgs, KeyframeMode, SamplerArg, TgModeArg};
 
 pub const AFTER_HELP: &str = "\
 Examples:
@@ -88,6 +89,10 @@ struct RunArgs {
     /// Keyframe guidance scale s (1 = the keyframe branch alone; the paper: 2.5).
     #[arg(long, default_value_t = 1.0)]
     kf_guidance: f64,
+    /// How the transition-guidance gradient is taken: x0 (on the predicted x0) or exact (through
+    /// the denoiser, paper Eq. 5: a backward pass per step).
+    #[arg(long, value_enum, default_value = "x0")]
+    tg_mode: TgModeArg,
     /// ddim or dpm (DPM-Solver++(2M)) over --steps evenly spaced steps, or ddpm (every step of
     /// the schedule).
     #[arg(long, value_enum, default_value = "dpm")]
@@ -126,9 +131,13 @@ struct RunArgs {
     /// Random seed of the first replication (replication i uses seed + i).
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Output folder: report.json, report.md (the tables) and a sheet of generated motions.
+    /// Output folder: report.json, report.md (the tables) and a sheet of generated motions. A
+    /// folder holding other files (or another kind of diffkfc output) is refused unless --force.
     #[arg(long, default_value = "out/eval")]
     out: PathBuf,
+    /// Write the report into a --out folder that holds other files.
+    #[arg(long)]
+    force: bool,
     /// Compute device: flex (the CPU default), or ndarray, wgpu, cuda in builds with that
     /// cargo feature.
     #[arg(long, default_value = "flex", value_name = "flex|ndarray|wgpu|cuda")]
@@ -146,9 +155,14 @@ enum EvalCommand {
         /// Dataset root (HumanML3D layout); trains on its train split.
         #[arg(long)]
         data: PathBuf,
-        /// Output folder: the evaluator's weights, config and report.json.
+        /// Output folder: the evaluator's weights, config and report.json. A folder holding other
+        /// files (or another kind of diffkfc output, such as a model) is refused unless --force.
         #[arg(long)]
         out: PathBuf,
+        /// Write the evaluator into a --out folder that holds other files (never an exported
+        /// model's).
+        #[arg(long)]
+        force: bool,
         /// Training steps.
         #[arg(long, default_value_t = 2000)]
         max_steps: usize,
@@ -183,8 +197,10 @@ pub fn run(a: EvalArgs) -> Result<()> {
             seed,
             split,
             device,
+            force,
         }) => {
             check_evaluator_flags(max_steps, batch_size, lr)?;
+            let owned = ownership::check(&out, Output::Evaluator, force, "--out")?;
             let device = crate::device::parse(&device)?;
             let ds = Dataset::open(&data)?;
             let cache = default_cache_dir(&ds);
@@ -199,6 +215,11 @@ pub fn run(a: EvalArgs) -> Result<()> {
                 );
             }
             let text = embed_captions(&ds, &[&train, &test], crate::progress::bar("embedding"))?;
+            if owned {
+                std::fs::create_dir_all(&out)
+                    .with_context(|| format!("--out: creating {}", out.display()))?;
+                Output::Evaluator.mark(&out)?;
+            }
             let cfg = EvaluatorConfig::new().with_motion_dim(ds.dim() - 4).with_text_dim(text.dim);
             let pb = ProgressBar::new(max_steps as u64);
             pb.set_style(
@@ -356,7 +377,8 @@ fn evaluate(a: RunArgs) -> Result<()> {
     };
     let settings = settings(&a)?;
     let strategy = check_counts(&a)?;
-    let device = crate::device::parse(&a.device)?;
+    ownership::check(&a.out, Output::Report, a.force, "--out")?;
+    let device = a.tg_mode.device(crate::device::parse(&a.device)?);
     let loaded = InferenceModel::load(&run_dir, &device)?;
     let (cfg, step) = (&loaded.cfg, loaded.step);
     PlaceGuidance::for_model(a.place_guidance, &loaded.model, &loaded.mean, &loaded.std)?;
@@ -394,6 +416,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
         multimodality: if a.multimodality { a.mm_texts } else { 0 },
         sampler,
         kf_guidance: a.kf_guidance,
+        tg_mode: a.tg_mode.mode(),
         fit,
         place_guidance: a.place_guidance,
         root_keys: !a.no_root_keys,
@@ -478,8 +501,12 @@ fn write_report(
         secs
     );
     let md = report::to_markdown(rows, &header, settings[0].rate, &settings[0].name);
+    let owned = ownership::check(&a.out, Output::Report, a.force, "--out")?;
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("--out: creating {}", a.out.display()))?;
+    if owned {
+        Output::Report.mark(&a.out)?;
+    }
     diffkfc_data::write_atomic(
         &a.out.join("report.json"),
         serde_json::to_string_pretty(&report::to_json(rows, meta))?.as_bytes(),

@@ -35,9 +35,13 @@ enum ModelCommand {
         /// Run directory (its newest checkpoint) or one ckpt-*.safetensors file.
         #[arg(long)]
         checkpoint: PathBuf,
-        /// Model directory to write (created; its files are replaced).
+        /// Model directory to write (created; an exported model's files are replaced). A folder
+        /// holding other files or another kind of diffkfc output is refused unless --force.
         #[arg(long)]
         out: PathBuf,
+        /// Write the model into a --out folder that holds other files.
+        #[arg(long)]
+        force: bool,
         /// Weight precision: f16 (half the size) or f32.
         #[arg(long, default_value = "f16", value_parser = ["f16", "f32"])]
         dtype: String,
@@ -77,8 +81,9 @@ pub fn run(a: ModelArgs) -> Result<()> {
             );
             Ok(())
         }
-        ModelCommand::Export { checkpoint, out, dtype } => {
-            let e = diffkfc_model::run::checkpoint::export(&checkpoint, &out, dtype == "f16")?;
+        ModelCommand::Export { checkpoint, out, dtype, force } => {
+            let e =
+                diffkfc_model::run::checkpoint::export(&checkpoint, &out, dtype == "f16", force)?;
             println!(
                 "{}: step {} as {dtype}, {:.2} MB; wrote {}",
                 out.display(),

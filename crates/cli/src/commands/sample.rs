@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use burn::prelude::*;
-use clap::{Args, ValueEnum};
+use clap::Args;
 use diffkfc_data::keyframes::{self, Strategy};
 use diffkfc_data::motion::root_key::{self, RootKey};
 use diffkfc_data::render::viewer::{self, escape, ViewMotion};
@@ -19,15 +19,7 @@ use diffkfc_model::sampling::sampler::{self, Options, Request};
 use diffkfc_model::text::{self, minilm::MiniLm, TextEncoder};
 use serde_json::json;
 
-use crate::args::{BvhInputArgs, FitArgs, KeyframeMode, SamplerArg};
-
-#[derive(Clone, Copy, Debug, ValueEnum)]
-enum TgModeArg {
-    /// Gradient with respect to the predicted x0 (no backward pass).
-    X0,
-    /// Gradient through the denoiser with respect to x_t (paper Eq. 5).
-    Exact,
-}
+use crate::args::{BvhInputArgs, FitArgs, KeyframeMode, SamplerArg, TgModeArg};
 
 #[derive(Args, Clone, Debug)]
 pub struct SampleArgs {
@@ -312,7 +304,7 @@ impl Generator {
     fn load(a: &SampleArgs) -> Result<Generator> {
         let device = crate::device::parse(&a.device)?;
         // Exact transition guidance differentiates through the denoiser.
-        let device = if matches!(a.tg_mode, TgModeArg::Exact) { device.autodiff() } else { device };
+        let device = a.tg_mode.device(device);
         let loaded = InferenceModel::load(&a.checkpoint, &device)?;
         if a.steps > loaded.schedule.steps {
             bail!(
@@ -330,10 +322,7 @@ impl Generator {
             seed: a.seed,
             window: a.tg_window,
             dct_bases: a.tg_bases,
-            tg_mode: match a.tg_mode {
-                TgModeArg::X0 => sampler::TgMode::X0,
-                TgModeArg::Exact => sampler::TgMode::Exact,
-            },
+            tg_mode: a.tg_mode.mode(),
             inpaint: matches!(a.keyframe_mode, KeyframeMode::Inpaint),
             place,
             impose_track: false,

@@ -82,12 +82,8 @@ impl OutputSet {
         force: bool,
         flag: &str,
     ) -> Result<bool, DataError> {
-        if dir.exists() && !dir.is_dir() {
-            return Err(DataError::Invalid(format!(
-                "{flag}: {} is a file, not a folder",
-                dir.display()
-            )));
-        }
+        // Another kind of diffkfc output (a run, a model, ...) is not this set's to replace.
+        crate::io::ownership::refuse_other_kind(dir, marker, force, flag)?;
         let present = entries(dir);
         // Folders written before the marker existed hold only our names, results.json among them.
         let legacy = present.iter().any(|n| n == "results.json") && present.iter().all(|n| ours(n));

@@ -7,6 +7,7 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
+use diffkfc_data::io::ownership::{self, Output};
 use safetensors::tensor::{Dtype, TensorView};
 
 use crate::error::{ModelError, Result};
@@ -372,7 +373,7 @@ pub struct Exported {
 /// Turn a run directory (or one checkpoint file in it) into a model directory `out` that
 /// `--checkpoint` loads: `model.safetensors` (inference weights), `config.json` (the stored
 /// config) and the run's `Mean.npy`, `Std.npy`, `metrics.jsonl`, `loss.svg` where present.
-pub fn export(run: &Path, out: &Path, half: bool) -> Result<Exported> {
+pub fn export(run: &Path, out: &Path, half: bool, force: bool) -> Result<Exported> {
     let (ck, dir) = if run.is_file() {
         (Checkpoint::load(run)?, run.parent().unwrap_or(Path::new(".")).to_path_buf())
     } else {
@@ -393,7 +394,11 @@ pub fn export(run: &Path, out: &Path, half: bool) -> Result<Exported> {
     let cfg = crate::run::config::RunConfig::parse(&ck.config)
         .map_err(|e| ModelError::file(run, format!("stored config: {e}")))?;
     diffkfc_data::dataset::read_normalisation(&dir, Some(cfg.model.feat_dim))?;
+    let owned = ownership::check(out, Output::Model, force, "--out")?;
     std::fs::create_dir_all(out).map_err(ModelError::io(out))?;
+    if owned {
+        Output::Model.mark(out)?;
+    }
     let weights = ck.save_weights(out, half)?;
     let mut files = vec![weights.clone()];
     let config: serde_json::Value = serde_json::from_str(&ck.config)

@@ -11,7 +11,7 @@ use crate::error::{ModelError, Result};
 use crate::run::checkpoint::Checkpoint;
 
 /// The file that marks a directory as a diffkfc run.
-pub const MARKER: &str = ".diffkfc-run";
+pub const MARKER: &str = diffkfc_data::io::ownership::Output::Run.marker();
 /// The file a training holds locked while it writes the run.
 pub const LOCK: &str = ".diffkfc-run.lock";
 /// The weights file of an exported model directory (`diffkfc model export`).
@@ -87,6 +87,9 @@ fn check_claim(dir: &Path, claim: Claim) -> Result<()> {
     if dir.join(MODEL_WEIGHTS).exists() && Checkpoint::list(dir).is_empty() {
         return refuse(format!("--out: {} is an exported model ({MODEL_WEIGHTS}); training writes run directories: choose another --out (start from the model with --init {})", dir.display(), dir.display()));
     }
+    // Another kind of diffkfc output (an evaluator, samples, a report, a dataset).
+    let force = matches!(claim, Claim::New { force: true });
+    diffkfc_data::io::ownership::refuse_other_kind(dir, MARKER, force, "--out")?;
     let has_checkpoints = !Checkpoint::list(dir).is_empty();
     match claim {
         Claim::Resume if !has_checkpoints => refuse(format!(

@@ -296,7 +296,7 @@ fn fmt(v: &serde_json::Value) -> String {
 }
 
 /// The file that marks a folder as `sample`'s.
-const MARKER: &str = ".diffkfc-sample";
+const MARKER: &str = diffkfc_data::io::ownership::Output::Samples.marker();
 
 /// The names a `sample` folder's files have.
 fn is_output(name: &str) -> bool {

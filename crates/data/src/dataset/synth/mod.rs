@@ -448,6 +448,7 @@ pub fn write_dataset(
         &tmp.join("manifest.json"),
         &serde_json::to_vec_pretty(&manifest).expect("json"),
     )?;
+    crate::io::ownership::Output::Dataset.mark(&tmp)?;
     if out.exists() {
         std::fs::remove_dir(out).map_err(io_at(out))?;
     }
@@ -463,8 +464,10 @@ fn io_at(p: &Path) -> impl Fn(std::io::Error) -> DataError + '_ {
 /// what dead runs left beside it is removed first (up to hundreds of MB each).
 fn staging_dir(out: &Path) -> Result<PathBuf, DataError> {
     if out.exists() && std::fs::read_dir(out).map(|mut d| d.next().is_some()).unwrap_or(true) {
+        let holds = crate::io::ownership::found(out)
+            .map_or(String::new(), |k| format!(" (it holds {})", k.noun()));
         return Err(DataError::Invalid(format!(
-            "{}: already exists and is not empty",
+            "{}: already exists and is not empty{holds}; data synth writes a new dataset into a new or empty folder",
             out.display()
         )));
     }
