@@ -137,7 +137,7 @@ pub(crate) fn check_guidance(
         .and_then(|_| {
             check_range("--transition-guidance", transition, MAX_STRENGTH, " (100 = the paper)")
         })
-        .map_err(anyhow::Error::msg)?;
+        .map_err(anyhow::Error::new)?;
     if steps == 0 || steps > 1000 {
         anyhow::bail!("--steps: {steps} must be 1 to 1000 (the schedule's length)");
     }

@@ -112,10 +112,11 @@ impl SampleRequest {
         use diffkfc_model::sampling::guidance::{check_range, MAX_GUIDANCE, MAX_STRENGTH};
         if let Some(s) = self.kf_guidance {
             check_range("kf_guidance", s, MAX_GUIDANCE, " (1 = no guidance)")
-                .map_err(ApiError::invalid)?;
+                .map_err(|e| ApiError::invalid(e.to_string()))?;
         }
         if let Some(r) = self.transition_guidance {
-            check_range("transition_guidance", r, MAX_STRENGTH, "").map_err(ApiError::invalid)?;
+            check_range("transition_guidance", r, MAX_STRENGTH, "")
+                .map_err(|e| ApiError::invalid(e.to_string()))?;
         }
         Ok(())
     }

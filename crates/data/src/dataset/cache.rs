@@ -225,7 +225,7 @@ fn build(
                 });
             }
             crate::motion::magnitude::check_features(ds.skeleton, &a.data)
-                .map_err(|msg| DataError::Npy { path: mp.clone(), msg })?;
+                .map_err(|e| DataError::Npy { path: mp.clone(), msg: e.to_string() })?;
             Ok((caps, a))
         })();
         let (caps, a) = match loaded {

@@ -211,7 +211,7 @@ fn check_motion(
         ok = false;
     } else if let Err(m) = crate::motion::magnitude::check_features(ds.skeleton, &a.data) {
         // The loader skips such a clip; training on it would go NaN.
-        report(path, m);
+        report(path, m.to_string());
         ok = false;
     }
     ok.then_some(a.shape[0])

@@ -176,7 +176,8 @@ impl KeyframeSpec {
             }
             let (vals, obs): (Vec<f32>, Vec<bool>) = match (&k.joints, &k.features) {
                 (Some(pose), _) => {
-                    crate::motion::magnitude::check_joints(skel, &vec![pose.clone()]).map_err(at)?;
+                    crate::motion::magnitude::check_joints(skel, &vec![pose.clone()])
+                        .map_err(|e| at(e.to_string()))?;
                     let (vals, obs) = pose::pose_features(skel, pose).map_err(|e| at(e.to_string()))?;
                     if vals.iter().zip(&obs).any(|(v, &o)| o && !v.is_finite()) {
                         return Err(at("the pose gives non-finite features (joints too far apart or coinciding)".into()));

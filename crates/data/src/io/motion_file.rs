@@ -53,7 +53,7 @@ fn check_features(
     if let Some((r, c)) = first_non_finite(&arr.data, dim) {
         return Err(invalid(path, format!("NaN or infinite value at frame {r}, feature {c}")));
     }
-    magnitude::check_features(skel, &arr.data).map_err(|m| invalid(path, m))?;
+    magnitude::check_features(skel, &arr.data).map_err(|m| invalid(path, m.to_string()))?;
     Ok(arr)
 }
 
@@ -98,7 +98,7 @@ fn check_joints(
         }
     }
     let j = rep::joints_from_array(&arr.data, arr.shape[0], arr.shape[1], jn);
-    magnitude::check_joints(skel, &j).map_err(|m| invalid(path, m))?;
+    magnitude::check_joints(skel, &j).map_err(|m| invalid(path, m.to_string()))?;
     Ok(j)
 }
 
@@ -124,7 +124,7 @@ fn bvh_joints(
     opts: &ImportOptions,
 ) -> Result<Joints, DataError> {
     let j = rig::read(skel, text, opts).map_err(|e| e.in_file(path))?;
-    magnitude::check_joints(skel, &j).map_err(|m| invalid(path, m))?;
+    magnitude::check_joints(skel, &j).map_err(|m| invalid(path, m.to_string()))?;
     if j.len() < MIN_MOTION_FRAMES {
         return Err(invalid(
             path,
@@ -152,7 +152,7 @@ pub fn load_feature_joints(path: &Path, skel: &Skeleton) -> Result<Joints, DataE
     let f = load_features(path, skel, MIN_MOTION_FRAMES)?;
     let j = rep::recover_from_ric(skel, &f.data.iter().map(|&v| v as f64).collect::<Vec<_>>());
     // Small steps add up: a path past 1 km is refused here rather than drawn.
-    magnitude::check_positions(skel, &j).map_err(|m| invalid(path, m))?;
+    magnitude::check_positions(skel, &j).map_err(|m| invalid(path, m.to_string()))?;
     Ok(j)
 }
 

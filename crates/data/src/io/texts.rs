@@ -24,32 +24,45 @@ impl Caption {
     }
 }
 
+/// What is wrong with a caption line (the caller adds file and line).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CaptionError {
+    #[error("expected 4 '#'-separated fields (caption#tokens#start#end), found {0}")]
+    Fields(usize),
+    #[error("empty caption")]
+    Empty,
+    #[error("token '{0}' is not word/POS")]
+    Token(String),
+    #[error("{what} tag '{tag}' is not a number")]
+    Tag { what: &'static str, tag: String },
+    #[error("bad time span {start}..{end}")]
+    Span { start: f64, end: f64 },
+}
+
 /// Parse one caption line; the error says what is wrong (the caller adds file and line).
-pub fn parse_line(line: &str) -> Result<Caption, String> {
+pub fn parse_line(line: &str) -> Result<Caption, CaptionError> {
     let parts: Vec<&str> = line.split('#').collect();
     if parts.len() != 4 {
-        return Err(format!(
-            "expected 4 '#'-separated fields (caption#tokens#start#end), found {}",
-            parts.len()
-        ));
+        return Err(CaptionError::Fields(parts.len()));
     }
     let text = parts[0].trim();
     if text.is_empty() {
-        return Err("empty caption".into());
+        return Err(CaptionError::Empty);
     }
     let mut tokens = Vec::new();
     for t in parts[1].split_whitespace() {
-        let (w, p) = t.rsplit_once('/').ok_or_else(|| format!("token '{t}' is not word/POS"))?;
+        let (w, p) = t.rsplit_once('/').ok_or_else(|| CaptionError::Token(t.to_string()))?;
         tokens.push((w.to_string(), p.to_string()));
     }
-    let tag = |s: &str, what: &str| -> Result<f64, String> {
-        let v: f64 = s.trim().parse().map_err(|_| format!("{what} tag '{s}' is not a number"))?;
+    let tag = |s: &str, what: &'static str| -> Result<f64, CaptionError> {
+        let v: f64 =
+            s.trim().parse().map_err(|_| CaptionError::Tag { what, tag: s.to_string() })?;
         Ok(if v.is_nan() { 0.0 } else { v })
     };
     let start = tag(parts[2], "start")?;
     let end = tag(parts[3], "end")?;
     if start < 0.0 || end < 0.0 || (end < start && end != 0.0) {
-        return Err(format!("bad time span {start}..{end}"));
+        return Err(CaptionError::Span { start, end });
     }
     Ok(Caption { text: text.to_string(), tokens, start, end })
 }
@@ -86,9 +99,9 @@ mod tests {
         assert_eq!((c.start, c.end), (1.5, 4.0));
         let c = parse_line("x#x/NOUN#nan#nan").unwrap();
         assert!(c.whole_clip());
-        assert!(parse_line("no tags here").unwrap_err().contains("4 '#'-separated"));
-        assert!(parse_line("#a/DET#0.0#0.0").unwrap_err().contains("empty"));
-        assert!(parse_line("a#a/DET#zero#0.0").unwrap_err().contains("start tag"));
+        assert!(parse_line("no tags here").unwrap_err().to_string().contains("4 '#'-separated"));
+        assert!(parse_line("#a/DET#0.0#0.0").unwrap_err().to_string().contains("empty"));
+        assert!(parse_line("a#a/DET#zero#0.0").unwrap_err().to_string().contains("start tag"));
         let c = parse_line("walks.#walk/VERB#0.0#0.0").unwrap();
         assert_eq!(parse_line(&c.to_line()).unwrap(), c);
     }

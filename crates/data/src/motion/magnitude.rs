@@ -18,6 +18,23 @@ const MAX_ROOT_STEP_M: f64 = 2.0;
 const MAX_HEIGHT_M: f64 = 10.0;
 const MAX_OTHER: f64 = 100.0;
 
+/// Why a motion's values are out of a human's range (the messages users see).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MagnitudeError {
+    #[error("frame {frame}, joint {joint} is {metres:.3e} m from the origin; positions must be finite and within {MAX_POSITION_M} m")]
+    Position { frame: usize, joint: usize, metres: f64 },
+    #[error("a pose needs {want} joints, got {got} (frame {frame})")]
+    JointCount { want: usize, got: usize, frame: usize },
+    #[error("the leg (ankle to root) is {metres:.3} m long; a human's is {lo} to {hi} m, in metres{unit}", lo = LEG_RANGE_M.0, hi = LEG_RANGE_M.1)]
+    Leg {
+        metres: f64,
+        /// "; the positions look like millimetres (divide by 1000)" or empty.
+        unit: String,
+    },
+    #[error("frame {frame}, feature {feature} ({what}) is {value}; it must be finite and at most {max} in size")]
+    Feature { frame: usize, feature: usize, what: &'static str, value: f32, max: f64 },
+}
+
 /// Whether `x` is finite and at most `max` in size.
 pub fn within(x: f64, max: f64) -> bool {
     x.is_finite() && x.abs() <= max
@@ -35,11 +52,12 @@ fn leg_bones(skel: &Skeleton) -> Vec<(usize, usize)> {
 }
 
 /// Joint positions within [`MAX_POSITION_M`] of the origin; the error names the frame and joint.
-pub fn check_positions(skel: &Skeleton, j: &Joints) -> Result<(), String> {
+pub fn check_positions(skel: &Skeleton, j: &Joints) -> Result<(), MagnitudeError> {
     let mpu = skel.metres_per_unit;
     for (f, frame) in j.iter().enumerate() {
         if let Some(k) = frame.iter().position(|p| !within(quat::norm(*p) * mpu, MAX_POSITION_M)) {
-            return Err(format!("frame {f}, joint {k} is {:.3e} m from the origin; positions must be finite and within {MAX_POSITION_M} m", quat::norm(frame[k]) * mpu));
+            let metres = quat::norm(frame[k]) * mpu;
+            return Err(MagnitudeError::Position { frame: f, joint: k, metres });
         }
     }
     Ok(())
@@ -47,17 +65,17 @@ pub fn check_positions(skel: &Skeleton, j: &Joints) -> Result<(), String> {
 
 /// Joint positions a user gives: within [`MAX_POSITION_M`] of the origin and with a human's leg
 /// length; the error says which frame and joint, or which unit the positions look like.
-pub fn check_joints(skel: &Skeleton, j: &Joints) -> Result<(), String> {
+pub fn check_joints(skel: &Skeleton, j: &Joints) -> Result<(), MagnitudeError> {
     let jn = skel.num_joints();
     if let Some((f, fr)) = j.iter().enumerate().find(|(_, fr)| fr.len() != jn) {
-        return Err(format!("a pose needs {jn} joints, got {} (frame {f})", fr.len()));
+        return Err(MagnitudeError::JointCount { want: jn, got: fr.len(), frame: f });
     }
     check_leg(skel, j)?;
     check_positions(skel, j)
 }
 
 /// A human's leg length (a wrong unit is the likely cause of any other).
-fn check_leg(skel: &Skeleton, j: &Joints) -> Result<(), String> {
+fn check_leg(skel: &Skeleton, j: &Joints) -> Result<(), MagnitudeError> {
     let mpu = skel.metres_per_unit;
     let bones = leg_bones(skel);
     let leg = |fr: &[[f64; 3]]| -> f64 {
@@ -76,14 +94,12 @@ fn check_leg(skel: &Skeleton, j: &Joints) -> Result<(), String> {
         .into_iter()
         .find(|(k, _)| (lo..=hi).contains(&(leg / k)))
         .map_or(String::new(), |(_, u)| format!("; the positions look like {u}"));
-    Err(format!(
-        "the leg (ankle to root) is {leg:.3} m long; a human's is {lo} to {hi} m, in metres{unit}"
-    ))
+    Err(MagnitudeError::Leg { metres: leg, unit })
 }
 
 /// Feature rows (T, D) within the physical limits above; the error names the frame, the
 /// feature and its group.
-pub fn check_features(skel: &Skeleton, data: &[f32]) -> Result<(), String> {
+pub fn check_features(skel: &Skeleton, data: &[f32]) -> Result<(), MagnitudeError> {
     let layout = Layout::of(skel);
     let d = layout.dim();
     let mpu = skel.metres_per_unit;
@@ -100,11 +116,13 @@ pub fn check_features(skel: &Skeleton, data: &[f32]) -> Result<(), String> {
     for (i, &v) in data.iter().enumerate() {
         let (max, what) = limit(i % d);
         if !within(v as f64, max) {
-            return Err(format!(
-                "frame {}, feature {} ({what}) is {v}; it must be finite and at most {max} in size",
-                i / d,
-                i % d
-            ));
+            return Err(MagnitudeError::Feature {
+                frame: i / d,
+                feature: i % d,
+                what,
+                value: v,
+                max,
+            });
         }
     }
     Ok(())
@@ -126,20 +144,20 @@ mod tests {
         let scaled = |k: f64| -> Joints {
             j.iter().map(|f| f.iter().map(|p| quat::scale(*p, k)).collect()).collect()
         };
-        let e = check_joints(&T2M, &scaled(1000.0)).unwrap_err();
+        let e = check_joints(&T2M, &scaled(1000.0)).unwrap_err().to_string();
         assert!(e.contains("millimetres"), "{e}");
-        let e = check_joints(&T2M, &scaled(100.0)).unwrap_err();
+        let e = check_joints(&T2M, &scaled(100.0)).unwrap_err().to_string();
         assert!(e.contains("centimetres"), "{e}");
-        let e = check_joints(&T2M, &scaled(0.0)).unwrap_err();
+        let e = check_joints(&T2M, &scaled(0.0)).unwrap_err().to_string();
         assert!(e.contains("0.000 m long"), "{e}");
         let mut far = j.clone();
         far[3][5][0] = 1e20;
-        let e = check_joints(&T2M, &far).unwrap_err();
+        let e = check_joints(&T2M, &far).unwrap_err().to_string();
         assert!(e.contains("frame 3, joint 5"), "{e}");
         // A frame with too few joints is named, not indexed past its end.
         let mut short = j.clone();
         short[2].truncate(1);
-        let e = check_joints(&T2M, &short).unwrap_err();
+        let e = check_joints(&T2M, &short).unwrap_err().to_string();
         assert!(e.contains("needs 22 joints, got 1 (frame 2)"), "{e}");
     }
 
@@ -153,7 +171,7 @@ mod tests {
         {
             let mut bad = f.clone();
             bad[2 * d + c] = v;
-            let e = check_features(&T2M, &bad).unwrap_err();
+            let e = check_features(&T2M, &bad).unwrap_err().to_string();
             assert!(e.contains(&format!("frame 2, feature {c}")) && e.contains(what), "{e}");
         }
     }

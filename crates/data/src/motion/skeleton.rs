@@ -11,6 +11,15 @@ pub struct BodyPart {
     pub joints: &'static [usize],
 }
 
+/// A joint or body-part name the skeleton does not have, with the names it has.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("unknown joint or body part '{item}' (body parts: {parts}; joints: {joints})")]
+pub struct UnknownJoint {
+    pub item: String,
+    pub parts: String,
+    pub joints: String,
+}
+
 #[derive(Clone, Debug)]
 pub struct Skeleton {
     pub name: &'static str,
@@ -65,7 +74,7 @@ impl Skeleton {
 
     /// Resolve a comma-separated list of body-part names and joint names to sorted joint
     /// indices; the error names the first unknown entry.
-    pub fn resolve_joints(&self, spec: &str) -> Result<Vec<usize>, String> {
+    pub fn resolve_joints(&self, spec: &str) -> Result<Vec<usize>, UnknownJoint> {
         let mut out = Vec::new();
         for item in spec.split(',').map(str::trim).filter(|s| !s.is_empty()) {
             if let Some(p) = self.part(item) {
@@ -74,11 +83,11 @@ impl Skeleton {
                 out.push(j);
             } else {
                 let parts: Vec<_> = self.parts.iter().map(|p| p.name).collect();
-                return Err(format!(
-                    "unknown joint or body part '{item}' (body parts: {}; joints: {})",
-                    parts.join(", "),
-                    self.joint_names.join(", ")
-                ));
+                return Err(UnknownJoint {
+                    item: item.to_string(),
+                    parts: parts.join(", "),
+                    joints: self.joint_names.join(", "),
+                });
             }
         }
         out.sort_unstable();
@@ -322,7 +331,7 @@ mod tests {
     #[test]
     fn resolve_names_and_groups() {
         assert_eq!(T2M.resolve_joints("left_arm, head").unwrap(), vec![13, 15, 16, 18, 20]);
-        let e = T2M.resolve_joints("lower_body,tail").unwrap_err();
+        let e = T2M.resolve_joints("lower_body,tail").unwrap_err().to_string();
         assert!(e.contains("'tail'"), "{e}");
     }
 }

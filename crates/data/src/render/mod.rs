@@ -260,15 +260,15 @@ pub fn check_drawable(j: &Joints) -> Result<(), DataError> {
 
 /// The joints of generated features `[T, D]`, or why they cannot be a motion (a diverged
 /// sampler): a non-finite feature, or joints that cannot be drawn.
-pub fn drawable_joints(skel: &Skeleton, features: &[f32]) -> Result<Joints, String> {
+pub fn drawable_joints(skel: &Skeleton, features: &[f32]) -> Result<Joints, DataError> {
     if !features.iter().all(|v| v.is_finite()) {
-        return Err("features not finite".into());
+        return Err(DataError::Invalid("features not finite".into()));
     }
     let j = crate::motion::representation::recover_from_ric(
         skel,
         &features.iter().map(|&v| v as f64).collect::<Vec<_>>(),
     );
-    check_drawable(&j).map_err(|e| e.to_string())?;
+    check_drawable(&j)?;
     Ok(j)
 }
 

@@ -1,4 +1,5 @@
-//! Test support shared by the crates' tests: the real-data fixtures and a bounded fuzzer.
+//! Test support shared by the crates' tests: the real-data fixtures, a bounded fuzzer and all-pairs covers for combination tests.
 
 pub mod fixtures;
 pub mod fuzz;
+pub mod pairwise;

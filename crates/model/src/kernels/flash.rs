@@ -10,8 +10,9 @@
 
 use rayon::prelude::*;
 
+use super::attention_call::{AttnShape, Mask};
 use super::host::Out;
-use super::mha::{compact, AttnShape, Compact, HeadKeys, Mask};
+use super::mha::{compact, Compact, HeadKeys};
 use super::simd::avx2;
 use super::softmax::{self, Open};
 

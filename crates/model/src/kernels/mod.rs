@@ -7,6 +7,7 @@
 //! backend, or with `DIFFKFC_KERNELS=burn`, the same math is composed from Burn tensor ops, which
 //! is also the reference the tests compare against.
 
+mod attention_call;
 mod conv;
 mod flash;
 mod grad;
@@ -29,7 +30,7 @@ use burn::tensor::TensorData;
 
 use crate::network::dropout::Dropout;
 
-pub use mha::{AttnShape, Mask};
+pub use attention_call::{AttnShape, Mask};
 
 /// Whether running on `count` of `total` rows (or keys) through a gather is worth it: above ~3/4
 /// the saved products no longer pay for the gather and scatter. One rule for the DMA blocks' row

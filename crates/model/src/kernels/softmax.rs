@@ -5,7 +5,7 @@
 
 use rayon::prelude::*;
 
-use super::mha::{AttnShape, Mask};
+use super::attention_call::{AttnShape, Mask};
 use super::simd::{self, exp_neg};
 
 /// The mask as scores to add: 0 where the key may be seen, -inf where it may not, one row per

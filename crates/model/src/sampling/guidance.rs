@@ -11,13 +11,24 @@ pub const MAX_GUIDANCE: f64 = 100.0;
 /// Largest transition or place guidance strength accepted.
 pub const MAX_STRENGTH: f64 = 1e5;
 
+/// A guidance value outside its range, named as the user gave it (a flag or a request field).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{name}: {value} must be a number from 0 to {max}{hint}")]
+pub struct OutOfRange {
+    pub name: String,
+    pub value: f64,
+    pub max: f64,
+    /// What values mean, appended to the message.
+    pub hint: String,
+}
+
 /// A guidance scale or strength `v` named `name` (a flag or a request field) in 0..=`max`;
 /// `hint` ends the message (what values mean).
-pub fn check_range(name: &str, v: f64, max: f64, hint: &str) -> Result<(), String> {
+pub fn check_range(name: &str, v: f64, max: f64, hint: &str) -> Result<(), OutOfRange> {
     if v.is_finite() && (0.0..=max).contains(&v) {
         Ok(())
     } else {
-        Err(format!("{name}: {v} must be a number from 0 to {max}{hint}"))
+        Err(OutOfRange { name: name.into(), value: v, max, hint: hint.into() })
     }
 }
 

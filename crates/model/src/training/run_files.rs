@@ -8,9 +8,36 @@ use std::time::Instant;
 use crate::error::{ModelError, Result};
 use crate::network::params;
 use crate::run::checkpoint::Checkpoint;
+use crate::run::config::RunConfig;
+use crate::training::memory::DeviceMemory;
 use crate::training::optim::Snapshot;
-use crate::training::trainer::{StepRecord, Trainer};
 use crate::Denoiser;
+
+/// One optimisation step's record (a line of metrics.jsonl).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct StepRecord {
+    pub step: usize,
+    pub loss: f64,
+    pub l_simple: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub l_key: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub l_smooth: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub l_pos: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub l_vel: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub l_foot: Option<f64>,
+    pub lr: f64,
+    pub grad_norm: f64,
+    pub wall_s: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub val_loss: Option<f64>,
+    /// A GPU device's memory after the step (None on the CPU backends).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub device_memory: Option<DeviceMemory>,
+}
 
 /// What a run writes while it trains: metrics.jsonl lines and checkpoints (with the tensor
 /// names and shapes, config and seed they carry).
@@ -28,8 +55,13 @@ pub(crate) struct RunFiles {
 
 impl RunFiles {
     /// The run's files from step `start` on (a resumed run drops the metrics lines after it).
-    pub(crate) fn open(t: &Trainer, model: &Denoiser, start: usize) -> Result<RunFiles> {
-        let run = crate::run::dir::RunDir::new(&t.run_dir);
+    pub(crate) fn open(
+        run_dir: &Path,
+        cfg: &RunConfig,
+        model: &Denoiser,
+        start: usize,
+    ) -> Result<RunFiles> {
+        let run = crate::run::dir::RunDir::new(run_dir);
         let metrics_path = run.metrics_path();
         run.truncate_metrics(start)?;
         let metrics = std::fs::OpenOptions::new()
@@ -38,15 +70,15 @@ impl RunFiles {
             .open(&metrics_path)
             .map_err(ModelError::io(&metrics_path))?;
         Ok(RunFiles {
-            run_dir: t.run_dir.clone(),
+            run_dir: run_dir.to_path_buf(),
             metrics,
             metrics_path,
             started: Instant::now(),
             shapes: params::shapes(model),
             names: params::names(model),
-            config: t.cfg.to_json(),
-            seed: t.cfg.training.seed,
-            keep: t.cfg.training.keep_checkpoints,
+            config: cfg.to_json(),
+            seed: cfg.training.seed,
+            keep: cfg.training.keep_checkpoints,
         })
     }
 

@@ -30,9 +30,10 @@ use crate::training::data_parallel::{
 };
 use crate::training::losses::Losses;
 use crate::training::losses::{losses, Kinematic};
-use crate::training::memory::{device_memory, DeviceMemory};
+use crate::training::memory::device_memory;
 use crate::training::optim::{learning_rate, Optimiser, Snapshot, StateLocation};
 use crate::training::parallel::{shard_objective, Combine, Shares};
+pub use crate::training::run_files::StepRecord;
 use crate::training::run_files::{non_finite, RunFiles};
 use crate::training::weighting;
 use crate::Denoiser;
@@ -102,32 +103,6 @@ impl Terms {
             foot: plus(self.foot, o.foot),
         }
     }
-}
-
-/// One optimisation step's record (a line of metrics.jsonl).
-#[derive(Clone, Debug, serde::Serialize)]
-pub struct StepRecord {
-    pub step: usize,
-    pub loss: f64,
-    pub l_simple: f64,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub l_key: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub l_smooth: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub l_pos: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub l_vel: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub l_foot: Option<f64>,
-    pub lr: f64,
-    pub grad_norm: f64,
-    pub wall_s: f64,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub val_loss: Option<f64>,
-    /// A GPU device's memory after the step (None on the CPU backends).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub device_memory: Option<DeviceMemory>,
 }
 
 pub enum Event<'a> {
@@ -313,7 +288,7 @@ impl Trainer<'_> {
         let device = self.device.clone().autodiff();
         device.seed(tc.seed);
         let (model, optim, start) = self.starting_point(resume, &device, on_event)?;
-        let mut files = RunFiles::open(self, &model, start)?;
+        let mut files = RunFiles::open(&self.run_dir, self.cfg, &model, start)?;
         let steps = start..max_steps;
         match &self.parallel {
             None => {
