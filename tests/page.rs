@@ -129,3 +129,74 @@ fn page_draws_and_the_slider_moves_the_figures() {
     assert!(blue(a) > 300 && blue(b) > 300, "figures not drawn");
     assert!(changed > 500, "the slider did not move the figures ({changed} px changed)");
 }
+
+/// The comparison page of `render --page`: every image and link it names exists beside it,
+/// Chromium loads it without console messages, its 3D view draws every folder's figure, and
+/// the terminal gets the same numbers as a table.
+#[test]
+fn comparison_page_links_resolve_and_its_view_draws() {
+    let Some(chromium) = chromium() else {
+        return;
+    };
+    let Some(src) = fixtures::require("humanml3d/new_joint_vecs/012314.npy") else {
+        return;
+    };
+    if !have_text_encoder() {
+        return;
+    }
+    let d = scratch("compare");
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/tiny-synth");
+    for (name, frames) in [("walk", "0,40,80"), ("still", "0")] {
+        let o = diffkfc(&[
+            "sample",
+            "--checkpoint",
+            s(&model),
+            "--text",
+            "a person walks forward.",
+            "--from",
+            s(&src),
+            "--frames",
+            frames,
+            "--length",
+            "100",
+            "--steps",
+            "4",
+            "--out",
+            s(&d.join(name)),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let page = d.join("page/index.html");
+    let o = diffkfc(&["render", "--page", s(&d.join("walk")), s(&d.join("still")), "-o", s(&page)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let table = stdout(&o);
+    assert!(table.lines().next().unwrap().contains("foot skating (source)"), "{table}");
+    assert!(table.contains("walk ") && table.contains("0, 40, 80"), "{table}");
+    let html = std::fs::read_to_string(&page).unwrap();
+    let dir = page.parent().unwrap();
+    let mut targets = 0;
+    for attr in ["src='", "href='"] {
+        for t in html.split(attr).skip(1).filter_map(|r| r.split('\'').next()) {
+            assert!(dir.join(t).exists(), "{t} does not resolve from {}", page.display());
+            targets += 1;
+        }
+    }
+    // GIFs and folder pages of both folders, the view (twice), the sheet.
+    assert!(targets >= 7, "{targets} links");
+    let dom = headless(&chromium, &["--dump-dom"], &format!("file://{}", page.display()));
+    let console: Vec<String> =
+        stderr(&dom).lines().filter(|l| l.contains(":CONSOLE")).map(String::from).collect();
+    assert!(dom.status.success() && console.is_empty(), "{console:?}");
+    let view = headless(
+        &chromium,
+        &["--dump-dom"],
+        &format!("file://{}#frame=40", dir.join("view.html").display()),
+    );
+    let html = stdout(&view);
+    let status =
+        html.split("<output id=\"status\">").nth(1).and_then(|s| s.split('<').next()).unwrap_or("");
+    assert!(status.starts_with("frame 40;"), "{status}");
+    for label in ["walk", "still"] {
+        assert!(html.contains(label), "{label} missing from the view");
+    }
+}

@@ -21,6 +21,15 @@ pub use motion::skeleton::{Skeleton, KIT, T2M};
 
 use std::path::PathBuf;
 
+/// A name that is none of the choices a setting has (`FromStr` of the settings' enums).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("unknown {what} '{given}' ({choices})")]
+pub struct UnknownChoice {
+    pub what: &'static str,
+    pub given: String,
+    pub choices: &'static str,
+}
+
 /// Errors of the data layer; each names the file or value at fault.
 #[derive(Debug, thiserror::Error)]
 pub enum DataError {

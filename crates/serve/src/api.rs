@@ -161,12 +161,9 @@ pub struct SuggestRequest {
 impl SuggestRequest {
     /// The strategy and key count, checked against the motion's `length`.
     pub fn choice(&self, length: usize) -> Result<(Strategy, usize), ApiError> {
-        let strategy: Strategy = self
-            .strategy
-            .as_deref()
-            .unwrap_or("mdo")
-            .parse()
-            .map_err(|e: String| ApiError::invalid(format!("strategy: {e}")))?;
+        let strategy: Strategy = self.strategy.as_deref().unwrap_or("mdo").parse().map_err(
+            |e: diffkfc_data::UnknownChoice| ApiError::invalid(format!("strategy: {e}")),
+        )?;
         let count = self.count.unwrap_or(5);
         if count == 0 || count > length {
             return Err(ApiError::invalid(format!(

@@ -56,6 +56,39 @@ enum DataCommand {
         after_help = "Examples:\n  diffkfc data bvh new_joints/012314.npy -o 012314.bvh\n  diffkfc data bvh mixamo_walk.bvh -o walk.bvh"
     )]
     Bvh(BvhArgs),
+    /// Ids of a synthetic set's clips (its manifest.json) by split, actions, pattern and
+    /// length, one per line in the manifest's order; exits non-zero when none matches.
+    #[command(
+        after_help = "Examples:\n  diffkfc data clips work/synth --split test --action walk_forward --action wave --count 1\n  diffkfc data clips work/synth --split test --action walk_forward --min-frames 120 --count 6"
+    )]
+    Clips(ClipsArgs),
+}
+
+#[derive(Args)]
+struct ClipsArgs {
+    /// Dataset written by `diffkfc data synth` (its manifest.json).
+    dir: PathBuf,
+    /// Only clips of this split (train, val, test).
+    #[arg(long)]
+    split: Option<String>,
+    /// Clips that contain this action (walk_forward, wave, jump, ...); repeat for several.
+    #[arg(long = "action")]
+    actions: Vec<String>,
+    /// Clips with no action besides the --action ones.
+    #[arg(long)]
+    only: bool,
+    /// Clips of this pattern (single, sequence, simultaneous, ...).
+    #[arg(long)]
+    pattern: Option<String>,
+    /// Clips of at least this many frames.
+    #[arg(long, default_value_t = 0)]
+    min_frames: usize,
+    /// Leave out this clip id; repeat for several.
+    #[arg(long)]
+    exclude: Vec<String>,
+    /// Print at most this many ids.
+    #[arg(long)]
+    count: Option<usize>,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -185,7 +218,27 @@ pub fn run(args: DataArgs) -> Result<()> {
         DataCommand::Check(a) => check(a),
         DataCommand::Synth(a) => synth(a),
         DataCommand::BenchLoader(a) => bench_loader(a),
+        DataCommand::Clips(a) => clips(a),
     }
+}
+
+fn clips(a: ClipsArgs) -> Result<()> {
+    use diffkfc_data::dataset::synth::manifest::{find_clips, ClipQuery};
+    let q = ClipQuery {
+        split: a.split,
+        actions: a.actions,
+        only: a.only,
+        pattern: a.pattern,
+        min_frames: a.min_frames,
+        exclude: a.exclude,
+    };
+    let mut ids = find_clips(&a.dir, &q)?;
+    ids.truncate(a.count.unwrap_or(usize::MAX));
+    if ids.is_empty() {
+        bail!("{}: no clip matches {q:?}", a.dir.join("manifest.json").display());
+    }
+    println!("{}", ids.join("\n"));
+    Ok(())
 }
 
 fn bench_loader(a: BenchLoaderArgs) -> Result<()> {

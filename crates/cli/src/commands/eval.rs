@@ -1,7 +1,7 @@
 //! `diffkfc eval`: evaluate a checkpoint (Tables 2 and 4); `eval train-evaluator`: the
 //! text-motion evaluator it needs.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
@@ -9,14 +9,12 @@ use diffkfc_data::dataset::cache::{default_cache_dir, PackedSplit};
 use diffkfc_data::dataset::Dataset;
 use diffkfc_data::io::ownership::{self, Output};
 use diffkfc_data::keyframes::Strategy;
-use diffkfc_eval::evaluator::{
-    eval_length, ContrastiveEvaluator, EvaluatorConfig, TextMotionEvaluator,
-};
+use diffkfc_eval::evaluator::{eval_length, ContrastiveEvaluator, TextMotionEvaluator};
 use diffkfc_eval::protocol::{self, Protocol, Setting};
 use diffkfc_eval::report;
 use diffkfc_eval::t2m::{split_captions, T2mEvaluator};
 use diffkfc_eval::text_motion::Gaussian;
-use diffkfc_eval::train_evaluator::{embed_split, EvaluatorTraining};
+use diffkfc_eval::train_evaluator::embed_split;
 use diffkfc_model::run::load::InferenceModel;
 use diffkfc_model::sampling::place::PlaceGuidance;
 use diffkfc_model::sampling::sampler;
@@ -151,146 +149,22 @@ enum EvalCommand {
     #[command(
         after_help = "Example:\n  diffkfc eval train-evaluator --data work/synth --out work/evaluator --max-steps 2000"
     )]
-    TrainEvaluator {
-        /// Dataset root (HumanML3D layout); trains on its train split.
-        #[arg(long)]
-        data: PathBuf,
-        /// Output folder: the evaluator's weights, config and report.json. A folder holding other
-        /// files (or another kind of diffkfc output, such as a model) is refused unless --force.
-        #[arg(long)]
-        out: PathBuf,
-        /// Write the evaluator into a --out folder that holds other files (never an exported
-        /// model's).
-        #[arg(long)]
-        force: bool,
-        /// Training steps.
-        #[arg(long, default_value_t = 2000)]
-        max_steps: usize,
-        /// Text-motion pairs per step (each batch's other pairs are its negatives).
-        #[arg(long, default_value_t = 32)]
-        batch_size: usize,
-        /// Adam learning rate.
-        #[arg(long, default_value_t = 3e-4)]
-        lr: f64,
-        /// Random seed (initialisation and batches).
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
-        /// Split whose real motions the report's R-precision is measured on.
-        #[arg(long, default_value = "test")]
-        split: String,
-        /// Compute device: flex (the CPU default), or ndarray, wgpu, cuda in builds with that
-        /// cargo feature.
-        #[arg(long, default_value = "flex", value_name = "flex|ndarray|wgpu|cuda")]
-        device: String,
-    },
+    TrainEvaluator(crate::commands::train_evaluator::TrainEvaluatorArgs),
 }
 
 pub fn run(a: EvalArgs) -> Result<()> {
     match a.command {
         None => evaluate(a.run),
-        Some(EvalCommand::TrainEvaluator {
-            data,
-            out,
-            max_steps,
-            batch_size,
-            lr,
-            seed,
-            split,
-            device,
-            force,
-        }) => {
-            check_evaluator_flags(max_steps, batch_size, lr)?;
-            let owned = ownership::check(&out, Output::Evaluator, force, "--out")?;
-            let device = crate::device::parse(&device)?;
-            let ds = Dataset::open(&data)?;
-            let cache = default_cache_dir(&ds);
-            let train =
-                PackedSplit::open(&ds, "train", &cache, crate::progress::bar("caching train"))?;
-            let test = PackedSplit::open(&ds, &split, &cache, crate::progress::bar("caching"))?;
-            if train.items.is_empty() || test.items.len() < 32 {
-                anyhow::bail!(
-                    "{}: needs training items and at least 32 items in split '{split}' (has {})",
-                    data.display(),
-                    test.items.len()
-                );
-            }
-            let text = embed_captions(&ds, &[&train, &test], crate::progress::bar("embedding"))?;
-            if owned {
-                std::fs::create_dir_all(&out)
-                    .with_context(|| format!("--out: creating {}", out.display()))?;
-                Output::Evaluator.mark(&out)?;
-            }
-            let cfg = EvaluatorConfig::new().with_motion_dim(ds.dim() - 4).with_text_dim(text.dim);
-            let pb = ProgressBar::new(max_steps as u64);
-            pb.set_style(
-                ProgressStyle::with_template(
-                    "{msg} [{bar:30}] step {pos}/{len} {per_sec} ETA {eta}",
-                )
-                .expect("template")
-                .progress_chars("=> "),
-            );
-            let t0 = std::time::Instant::now();
-            let job = EvaluatorTraining {
-                cfg,
-                ds: &ds,
-                train: &train,
-                test: &test,
-                text: &text,
-                device,
-                out: out.clone(),
-                batch_size,
-                steps: max_steps,
-                lr,
-                seed,
-            };
-            let r = job.run(|s, l| {
-                pb.set_position(s as u64);
-                pb.set_message(format!("InfoNCE {l:.3}"));
-            })?;
-            pb.finish_and_clear();
-            let report = serde_json::json!({"steps": r.steps, "seconds": t0.elapsed().as_secs_f64(), "first_loss": r.first_loss, "last_loss": r.last_loss,
-                "split": split, "items": r.items, "r_precision_top1": r.r_precision[0], "r_precision_top2": r.r_precision[1], "r_precision_top3": r.r_precision[2],
-                "mm_dist": r.mm_dist, "chance": [1.0 / 32.0, 2.0 / 32.0, 3.0 / 32.0]});
-            diffkfc_data::write_atomic(
-                &out.join("report.json"),
-                serde_json::to_string_pretty(&report)?.as_bytes(),
-            )?;
-            println!(
-                "{}: {} steps in {:.1} s, InfoNCE {:.3} -> {:.3}",
-                out.display(),
-                r.steps,
-                t0.elapsed().as_secs_f64(),
-                r.first_loss,
-                r.last_loss
-            );
-            println!(
-                "  R-precision on {} real '{split}' motions: top-1 {:.3}, top-2 {:.3}, top-3 {:.3} (chance 0.031, 0.062, 0.094); MM-dist {:.3}",
-                r.items, r.r_precision[0], r.r_precision[1], r.r_precision[2], r.mm_dist
-            );
-            Ok(())
-        }
+        Some(EvalCommand::TrainEvaluator(t)) => crate::commands::train_evaluator::run(t),
     }
 }
 
 /// Bounds of eval's counts: a mistyped count refuses at once rather than running for days or
 /// failing to allocate.
 const MAX_REPLICATIONS: usize = 100;
-const MAX_GENERATION_BATCH: usize = 1024;
+pub(crate) const MAX_GENERATION_BATCH: usize = 1024;
 
 /// Bounds of `train-evaluator`'s flags, checked before any work.
-fn check_evaluator_flags(max_steps: usize, batch_size: usize, lr: f64) -> Result<()> {
-    if max_steps == 0 || max_steps > 10_000_000 {
-        bail!("--max-steps: {max_steps} must be 1 to 10000000");
-    }
-    if !(2..=MAX_GENERATION_BATCH).contains(&batch_size) {
-        bail!("--batch-size: {batch_size} must be 2 to {MAX_GENERATION_BATCH} (a batch's other pairs are each pair's negatives)");
-    }
-    if !(lr.is_finite() && lr > 0.0 && lr <= 1.0) {
-        bail!("--lr: {lr} must be a learning rate above 0 and at most 1 (the default: 3e-4)");
-    }
-    Ok(())
-}
-
 fn parse_rate(v: f64, flag: &str) -> Result<f64> {
     if !(0.0..=1.0).contains(&v) {
         bail!("{flag}: {v} is not a keyframe rate in [0, 1]");
@@ -337,7 +211,9 @@ fn check_counts(a: &RunArgs) -> Result<Strategy> {
             bail!("{flag}: {v} must be 1 to {max} ({why})");
         }
     }
-    a.keyframe_strategy.parse().map_err(|e: String| anyhow::anyhow!("--keyframe-strategy: {e}"))
+    a.keyframe_strategy
+        .parse()
+        .map_err(|e: diffkfc_data::UnknownChoice| anyhow::anyhow!("--keyframe-strategy: {e}"))
 }
 
 /// `--evaluator`: a directory of `eval train-evaluator`, or `t2m:DIR` (the official one).
@@ -369,6 +245,44 @@ fn load_evaluator<'a>(
     Ok(ev)
 }
 
+/// The protocol's options from the flags.
+fn options(a: &RunArgs, num_items: usize, strategy: Strategy) -> protocol::Options {
+    protocol::Options {
+        replications: a.replications,
+        num_items,
+        samples_for_ade: a.samples_for_ade,
+        multimodality: if a.multimodality { a.mm_texts } else { 0 },
+        sampler: a.sampler.sampler(a.steps),
+        kf_guidance: a.kf_guidance,
+        tg_mode: a.tg_mode.mode(),
+        fit: a.fit.fit(),
+        place_guidance: a.place_guidance,
+        root_keys: !a.no_root_keys,
+        strategy,
+        batch: a.batch_size,
+        seed: a.seed,
+    }
+}
+
+/// The items evaluated (at most --num-items, at least one R-precision batch), all of lengths the
+/// model was built for.
+fn check_split(a: &RunArgs, split: &PackedSplit, max_frames: usize) -> Result<usize> {
+    let (data, run_dir) = (
+        a.data.as_deref().unwrap_or(Path::new("")),
+        a.checkpoint.as_deref().unwrap_or(Path::new("")),
+    );
+    let num_items = a.num_items.min(split.items.len());
+    if num_items < protocol::R_BATCH {
+        bail!("--num-items: {num_items} items (split '{}' of {} has {}); R-precision needs at least {}", a.split, data.display(), split.items.len(), protocol::R_BATCH);
+    }
+    // Items are generated at their ground-truth lengths: the model must be built for them.
+    let longest = split.items.iter().map(|it| eval_length(it.len)).max().unwrap_or(0);
+    if longest > max_frames {
+        bail!("--checkpoint: {} was built for motions of at most {max_frames} frames (model.max_frames), but split '{}' of {} has items of {longest}", run_dir.display(), a.split, data.display());
+    }
+    Ok(num_items)
+}
+
 fn evaluate(a: RunArgs) -> Result<()> {
     let (Some(run_dir), Some(eval_dir), Some(data)) =
         (a.checkpoint.clone(), a.evaluator.clone(), a.data.clone())
@@ -394,36 +308,13 @@ fn evaluate(a: RunArgs) -> Result<()> {
     }
     let split =
         PackedSplit::open(&ds, &a.split, &default_cache_dir(&ds), crate::progress::bar("caching"))?;
-    let num_items = a.num_items.min(split.items.len());
-    if num_items < protocol::R_BATCH {
-        bail!("--num-items: {num_items} items (split '{}' of {} has {}); R-precision needs at least {}", a.split, data.display(), split.items.len(), protocol::R_BATCH);
-    }
-    // Items are generated at their ground-truth lengths: the model must be built for them.
-    let longest = split.items.iter().map(|it| eval_length(it.len)).max().unwrap_or(0);
-    if longest > cfg.model.max_frames {
-        bail!("--checkpoint: {} was built for motions of at most {} frames (model.max_frames), but split '{}' of {} has items of {longest}", run_dir.display(), cfg.model.max_frames, a.split, data.display());
-    }
+    let num_items = check_split(&a, &split, cfg.model.max_frames)?;
     let text = embed_captions(&ds, &[&split], crate::progress::bar("embedding"))?;
     let ev = load_evaluator(&eval_dir, &ds, &a.split, &text, &device)?;
     let (_, real) = embed_split(ev.as_ref(), &ds, &split)?;
     let reference = Gaussian::fit(&real);
     let sampler = a.sampler.sampler(a.steps);
-    let fit = a.fit.fit();
-    let opts = protocol::Options {
-        replications: a.replications,
-        num_items,
-        samples_for_ade: a.samples_for_ade,
-        multimodality: if a.multimodality { a.mm_texts } else { 0 },
-        sampler,
-        kf_guidance: a.kf_guidance,
-        tg_mode: a.tg_mode.mode(),
-        fit,
-        place_guidance: a.place_guidance,
-        root_keys: !a.no_root_keys,
-        strategy,
-        batch: a.batch_size,
-        seed: a.seed,
-    };
+    let opts = options(&a, num_items, strategy);
     let p = Protocol {
         gen: loaded.generator(ds.skeleton),
         ds: &ds,
@@ -442,8 +333,7 @@ fn evaluate(a: RunArgs) -> Result<()> {
         a.batch_size,
         estimate / 60.0
     );
-    let pb = ProgressBar::new(total as u64);
-    pb.set_style(
+    let pb = ProgressBar::new(total as u64).with_style(
         ProgressStyle::with_template("generating [{bar:30}] {pos}/{len} steps {elapsed} ETA {eta}")
             .expect("template")
             .progress_chars("=> "),

@@ -1,4 +1,5 @@
-//! `diffkfc render`: GIF of a motion, a contact sheet of several, or a 3D page of several.
+//! `diffkfc render`: GIF of a motion, a contact sheet of several, a 3D page of several, or a
+//! page comparing sample folders (`--page`).
 
 use std::path::PathBuf;
 
@@ -12,10 +13,23 @@ use diffkfc_data::io::motion_file::load_motion;
 use crate::args::BvhInputArgs;
 
 #[derive(Args)]
+#[command(
+    after_help = "Examples:\n  diffkfc render out/walk/sample_00_joints.npy -o walk.gif\n  diffkfc render out/a/sample_00.npy out/b/sample_00.npy --sheet -o sheet.png\n  diffkfc render --page out/walk out/jump --run runs/tiny -o out/index.html"
+)]
 pub struct RenderArgs {
-    /// Motion files: features (T,263) or joint positions (T,22,3) .npy, or BVH files.
+    /// Motion files: features (T,263) or joint positions (T,22,3) .npy, or BVH files; with
+    /// --page, sample folders (`diffkfc sample --out`).
     #[arg(required = true)]
     inputs: Vec<PathBuf>,
+    /// A page comparing sample folders: each folder's GIF, prompt, keyframes and numbers beside
+    /// its source's (grouped by model, linked to the folder's own page), the 3D view of all of
+    /// them (view.html) and a contact sheet (sheet.png) written beside -o; the numbers are also
+    /// printed as a table.
+    #[arg(long)]
+    page: bool,
+    /// With --page: a training run whose loss plot (loss.svg) the page shows.
+    #[arg(long, requires = "page", value_name = "RUN")]
+    run: Option<PathBuf>,
     /// Output .gif (one input), .png (with --sheet), or .html: an interactive 3D page of all
     /// inputs side by side (orbit, play/pause, frame slider, keyframes on a timeline).
     #[arg(short, long)]
@@ -29,8 +43,9 @@ pub struct RenderArgs {
     /// Cells per row of the contact sheet.
     #[arg(long, default_value_t = 4)]
     columns: usize,
-    /// Labels of the inputs, one --label per input in order (default: the file names): shown on
-    /// the 3D page; a sheet numbers its cells and lists each cell's label on stdout.
+    /// Labels of the inputs, one --label per input in order (default: the file names, or the
+    /// folder names where file names repeat): shown on the 3D page; a sheet numbers its cells
+    /// and lists each cell's label on stdout.
     #[arg(long = "label")]
     labels: Vec<String>,
     /// Title of the .html page.
@@ -44,6 +59,12 @@ pub struct RenderArgs {
 /// name that says otherwise.
 fn check_output(a: &RenderArgs) -> Result<()> {
     let ext = a.output.extension().map(|e| e.to_string_lossy().to_ascii_lowercase());
+    if a.page {
+        if ext.as_deref() != Some("html") || a.sheet {
+            bail!("-o: {} must end in .html with --page (and --sheet does not apply: the page has its sheet)", a.output.display());
+        }
+        return Ok(());
+    }
     let want = if a.sheet { ["png", "html"] } else { ["gif", "html"] };
     if !ext.as_deref().is_some_and(|e| want.contains(&e)) {
         bail!(
@@ -67,6 +88,15 @@ fn check_output(a: &RenderArgs) -> Result<()> {
 
 pub fn run(a: RenderArgs) -> Result<()> {
     check_output(&a)?;
+    if a.page {
+        return crate::commands::page::run(
+            &a.inputs,
+            &a.labels,
+            a.run.as_deref(),
+            &a.title,
+            &a.output,
+        );
+    }
     let bvh = a.bvh.options()?;
     let motions =
         a.inputs.iter().map(|p| load_motion(p, &T2M, &bvh)).collect::<Result<Vec<_>, _>>()?;
@@ -77,11 +107,8 @@ pub fn run(a: RenderArgs) -> Result<()> {
             a.inputs.len()
         );
     }
-    let label = |i: usize| {
-        a.labels.get(i).cloned().unwrap_or_else(|| {
-            a.inputs[i].file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
-        })
-    };
+    let names = default_labels(&a.inputs);
+    let label = |i: usize| a.labels.get(i).cloned().unwrap_or_else(|| names[i].clone());
     for (i, j) in motions.iter().enumerate() {
         if let Some(k) = a.keyframes.iter().find(|&&k| k >= j.len()) {
             bail!(
@@ -132,4 +159,20 @@ pub fn run(a: RenderArgs) -> Result<()> {
         println!("{}: {} frames at 20 fps", a.output.display(), j.len());
     }
     Ok(())
+}
+
+/// Each input's name where no --label is given: its file name without the extension, or, where
+/// two inputs share one (sample_00_joints of several sample folders), its folder's name.
+pub(crate) fn default_labels(inputs: &[PathBuf]) -> Vec<String> {
+    let name = |p: &std::path::Path| p.file_stem().map(|s| s.to_string_lossy().into_owned());
+    let stems: Vec<String> = inputs.iter().map(|p| name(p).unwrap_or_default()).collect();
+    let shared = |s: &String| stems.iter().filter(|t| *t == s).count() > 1;
+    inputs
+        .iter()
+        .zip(&stems)
+        .map(|(p, s)| match p.parent().and_then(name) {
+            Some(dir) if shared(s) && !dir.is_empty() => dir,
+            _ => s.clone(),
+        })
+        .collect()
 }

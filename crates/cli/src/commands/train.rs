@@ -127,12 +127,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let started = Instant::now();
     let budget = a.time_budget;
     let stop = || signal.requested() || budget.is_some_and(|b| started.elapsed() >= b);
-    let pb = ProgressBar::new(max_steps as u64);
-    pb.set_style(
-        ProgressStyle::with_template("{msg} [{bar:30}] step {pos}/{len} {per_sec} ETA {eta}")
-            .expect("template")
-            .progress_chars("=> "),
-    );
+    let pb = progress_bar(max_steps);
     let trainer = Trainer {
         cfg: &cfg,
         ds: &d.ds,
@@ -146,27 +141,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
         parallel,
     };
     let mut first: Option<(usize, f64)> = None;
-    let outcome = trainer.run(a.resume, max_steps, &stop, &mut |e| match e {
-        Event::Step(r) => {
-            first.get_or_insert((r.step, r.loss));
-            pb.set_position(r.step as u64);
-            let mem = r.device_memory.map_or(String::new(), |m| {
-                format!(
-                    ", device memory {:.0} MB in use, {:.0} MB reserved",
-                    m.in_use as f64 / 1e6,
-                    m.reserved as f64 / 1e6
-                )
-            });
-            pb.set_message(format!("loss {:.4}{mem}", r.loss));
-        }
-        Event::Checkpoint(_, _) => {}
-        Event::WarmStart(fresh) => pb.suspend(|| {
-            eprintln!(
-                "started from {}; initialised: {}",
-                a.init.as_ref().map_or(String::new(), |p| p.display().to_string()),
-                if fresh.is_empty() { "none".to_string() } else { fresh.join(", ") }
-            )
-        }),
+    let outcome = trainer.run(a.resume, max_steps, &stop, &mut |e| {
+        show_event(&pb, e, &mut first, a.init.as_deref())
     })?;
     pb.finish_and_clear();
     run.write_loss_plot()?;
@@ -188,6 +164,48 @@ pub fn run(a: TrainArgs) -> Result<()> {
         std::process::exit(code);
     }
     Ok(())
+}
+
+fn progress_bar(max_steps: usize) -> ProgressBar {
+    let pb = ProgressBar::new(max_steps as u64);
+    pb.set_style(
+        ProgressStyle::with_template("{msg} [{bar:30}] step {pos}/{len} {per_sec} ETA {eta}")
+            .expect("template")
+            .progress_chars("=> "),
+    );
+    pb
+}
+
+/// A training event on the progress bar: the step's loss (and device memory), or the warm
+/// start's fresh parameters.
+fn show_event(
+    pb: &ProgressBar,
+    e: Event,
+    first: &mut Option<(usize, f64)>,
+    init: Option<&std::path::Path>,
+) {
+    match e {
+        Event::Step(r) => {
+            first.get_or_insert((r.step, r.loss));
+            pb.set_position(r.step as u64);
+            let mem = r.device_memory.map_or(String::new(), |m| {
+                format!(
+                    ", device memory {:.0} MB in use, {:.0} MB reserved",
+                    m.in_use as f64 / 1e6,
+                    m.reserved as f64 / 1e6
+                )
+            });
+            pb.set_message(format!("loss {:.4}{mem}", r.loss));
+        }
+        Event::Checkpoint(_, _) => {}
+        Event::WarmStart(fresh) => pb.suspend(|| {
+            eprintln!(
+                "started from {}; initialised: {}",
+                init.map_or(String::new(), |p| p.display().to_string()),
+                if fresh.is_empty() { "none".to_string() } else { fresh.join(", ") }
+            )
+        }),
+    }
 }
 
 /// The config with the flags applied, the dataset it trains on and the step it stops at.

@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 use crate::dataset::{read_captions, Dataset, ItemSpec};
 use crate::io::motion_file::first_non_finite;
 use crate::io::npy;
+use crate::io::texts::Caption;
 use crate::DataError;
 
 const FORMAT: u32 = 2;
@@ -185,6 +186,45 @@ fn data_ok(path: &Path, ix: &Index) -> bool {
     std::fs::metadata(path).map(|m| m.len() == want).unwrap_or(want == 0)
 }
 
+/// A clip's captions and features, checked: its shape, finite and physical values.
+fn load_clip(ds: &Dataset, id: &str) -> Result<(Vec<Caption>, npy::Array<f32>), DataError> {
+    let caps = read_captions(&ds.text_path(id))?;
+    let mp = ds.motion_path(id);
+    let a = npy::read_f32(&mp)?;
+    if a.ndim() != 2 || a.shape[1] != ds.dim() {
+        return Err(DataError::Npy {
+            path: mp,
+            msg: format!("expected shape (T, {}), got {:?}", ds.dim(), a.shape),
+        });
+    }
+    if let Some((r, c)) = first_non_finite(&a.data, ds.dim()) {
+        return Err(DataError::Npy {
+            path: mp,
+            msg: format!("NaN or infinite value at frame {r}, feature {c}"),
+        });
+    }
+    crate::motion::magnitude::check_features(ds.skeleton, &a.data)
+        .map_err(|e| DataError::Npy { path: mp.clone(), msg: e.to_string() })?;
+    Ok((caps, a))
+}
+
+/// Why a readable clip gives no training item: its length, or its captions' spans.
+fn no_item_reason(ds: &Dataset, frames: usize, caps: &[Caption]) -> String {
+    let (min, fps) = (ds.min_frames(), ds.skeleton.fps);
+    let spans = caps.iter().filter(|c| !c.whole_clip()).count();
+    let why = if caps.iter().any(|c| c.whole_clip()) {
+        format!("its {frames} frames are outside [{min}, 200)")
+    } else {
+        format!("it has no whole-clip caption ({frames} frames)")
+    };
+    let also = if spans > 0 {
+        format!("; its {spans} sub-clip caption span(s) run past its end or are not {min} to 199 frames long at {fps} fps")
+    } else {
+        String::new()
+    };
+    format!("no item: {why}{also}")
+}
+
 fn build(
     ds: &Dataset,
     ids: &[String],
@@ -208,27 +248,7 @@ fn build(
     let mut offset = 0usize;
     for (k, id) in ids.iter().enumerate() {
         progress(k, ids.len());
-        let loaded = (|| {
-            let caps = read_captions(&ds.text_path(id))?;
-            let mp = ds.motion_path(id);
-            let a = npy::read_f32(&mp)?;
-            if a.ndim() != 2 || a.shape[1] != ds.dim() {
-                return Err(DataError::Npy {
-                    path: mp,
-                    msg: format!("expected shape (T, {}), got {:?}", ds.dim(), a.shape),
-                });
-            }
-            if let Some((r, c)) = first_non_finite(&a.data, ds.dim()) {
-                return Err(DataError::Npy {
-                    path: mp,
-                    msg: format!("NaN or infinite value at frame {r}, feature {c}"),
-                });
-            }
-            crate::motion::magnitude::check_features(ds.skeleton, &a.data)
-                .map_err(|e| DataError::Npy { path: mp.clone(), msg: e.to_string() })?;
-            Ok((caps, a))
-        })();
-        let (caps, a) = match loaded {
+        let (caps, a) = match load_clip(ds, id) {
             Ok(x) => x,
             Err(e) => {
                 skipped.push((id.clone(), e.to_string()));
@@ -238,19 +258,7 @@ fn build(
         let frames = a.shape[0];
         let its = ds.items_of_clip(id, frames, &caps);
         if its.is_empty() {
-            let (min, fps) = (ds.min_frames(), ds.skeleton.fps);
-            let spans = caps.iter().filter(|c| !c.whole_clip()).count();
-            let why = if caps.iter().any(|c| c.whole_clip()) {
-                format!("its {frames} frames are outside [{min}, 200)")
-            } else {
-                format!("it has no whole-clip caption ({frames} frames)")
-            };
-            let also = if spans > 0 {
-                format!("; its {spans} sub-clip caption span(s) run past its end or are not {min} to 199 frames long at {fps} fps")
-            } else {
-                String::new()
-            };
-            skipped.push((id.clone(), format!("no item: {why}{also}")));
+            skipped.push((id.clone(), no_item_reason(ds, frames, &caps)));
             continue;
         }
         for v in &a.data {

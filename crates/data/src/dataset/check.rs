@@ -8,6 +8,7 @@ use serde::Serialize;
 
 use crate::dataset::Dataset;
 use crate::io::motion_file::first_non_finite;
+use crate::DataError;
 use crate::{io::npy, io::texts};
 
 pub const SPLITS: [&str; 3] = ["train", "val", "test"];
@@ -85,6 +86,24 @@ impl CheckReport {
 }
 
 /// Check a dataset directory.
+/// The report of a root that is not a dataset at all.
+fn unreadable(root: &Path, e: DataError) -> CheckReport {
+    CheckReport {
+        root: root.display().to_string(),
+        skeleton: "unknown".into(),
+        dim: 0,
+        problems: vec![Problem { file: root.display().to_string(), problem: e.to_string() }],
+        splits: vec![],
+        distinct_words: 0,
+        length_histogram: vec![],
+    }
+}
+
+/// A caption's words, lower-cased.
+fn words_of(text: &str) -> impl Iterator<Item = String> + '_ {
+    text.split(|ch: char| !ch.is_alphanumeric()).filter(|w| !w.is_empty()).map(str::to_lowercase)
+}
+
 pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport {
     let mut problems = Vec::new();
     let mut report = |file: &Path, problem: String| {
@@ -92,18 +111,7 @@ pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport
     };
     let ds = match Dataset::open(root) {
         Ok(ds) => ds,
-        Err(e) => {
-            problems.push(Problem { file: root.display().to_string(), problem: e.to_string() });
-            return CheckReport {
-                root: root.display().to_string(),
-                skeleton: "unknown".into(),
-                dim: 0,
-                problems,
-                splits: vec![],
-                distinct_words: 0,
-                length_histogram: vec![],
-            };
-        }
+        Err(e) => return unreadable(root, e),
     };
     let dim = ds.dim();
     let splits: Vec<(String, Vec<String>)> = SPLITS
@@ -142,14 +150,7 @@ pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport
             let Some((frames, caps)) = entry else {
                 continue;
             };
-            for c in caps.iter() {
-                words.extend(
-                    c.text
-                        .split(|ch: char| !ch.is_alphanumeric())
-                        .filter(|w| !w.is_empty())
-                        .map(str::to_lowercase),
-                );
-            }
+            words.extend(caps.iter().flat_map(|c| words_of(&c.text)));
             st.clips += 1;
             st.frames += *frames;
             st.captions += caps.len();

@@ -57,6 +57,28 @@ pub struct KeySpec {
 }
 
 impl KeySpec {
+    /// The pose's feature values and which of them it observes (a place-only key observes
+    /// none); the error says what is wrong with the key's pose.
+    fn observed(&self, skel: &Skeleton) -> Result<(Vec<f32>, Vec<bool>), DataError> {
+        let d = skel.feature_dim();
+        let bad = |m: String| DataError::Invalid(m);
+        Ok(match (&self.joints, &self.features) {
+            (Some(pose), _) => {
+                crate::motion::magnitude::check_joints(skel, &vec![pose.clone()])
+                    .map_err(|e| bad(e.to_string()))?;
+                let (vals, obs) = pose::pose_features(skel, pose).map_err(|e| bad(e.to_string()))?;
+                if vals.iter().zip(&obs).any(|(v, &o)| o && !v.is_finite()) {
+                    return Err(bad("the pose gives non-finite features (joints too far apart or coinciding)".into()));
+                }
+                (vals, obs)
+            }
+            (None, Some(fe)) if fe.len() != d => return Err(bad(format!("{} features, expected {d}", fe.len()))),
+            (None, Some(fe)) => (fe.iter().map(|&x| x as f32).collect(), vec![true; d]),
+            (None, None) if self.root.is_some() || self.heading.is_some() => (vec![0.0; d], vec![false; d]),
+            (None, None) => return Err(bad(format!("needs \"joints\" ({} x [x,y,z]), \"features\" ({d} numbers), \"root\" or \"heading\"", skel.num_joints()))),
+        })
+    }
+
     /// Keys at `frames` of a motion: its pose (joints, metres), the pelvis place and height and
     /// its heading (degrees) from `traj`, rounded to 0.1 mm and 0.0001 degree.
     pub fn from_motion(joints: &[Vec<Vec3>], traj: &[RootKey], frames: &[usize]) -> Vec<KeySpec> {
@@ -174,21 +196,7 @@ impl KeyframeSpec {
             if let Some(j) = frames.iter().position(|&g| g == f) {
                 return Err(at(format!("frame {f} is keyed twice (also keyframes[{j}]); put its pose, root and heading in one keyframe")));
             }
-            let (vals, obs): (Vec<f32>, Vec<bool>) = match (&k.joints, &k.features) {
-                (Some(pose), _) => {
-                    crate::motion::magnitude::check_joints(skel, &vec![pose.clone()])
-                        .map_err(|e| at(e.to_string()))?;
-                    let (vals, obs) = pose::pose_features(skel, pose).map_err(|e| at(e.to_string()))?;
-                    if vals.iter().zip(&obs).any(|(v, &o)| o && !v.is_finite()) {
-                        return Err(at("the pose gives non-finite features (joints too far apart or coinciding)".into()));
-                    }
-                    (vals, obs)
-                }
-                (None, Some(fe)) if fe.len() != d => return Err(at(format!("{} features, expected {d}", fe.len()))),
-                (None, Some(fe)) => (fe.iter().map(|&x| x as f32).collect(), vec![true; d]),
-                (None, None) if k.root.is_some() || k.heading.is_some() => (vec![0.0; d], vec![false; d]),
-                (None, None) => return Err(at(format!("needs \"joints\" ({} x [x,y,z]), \"features\" ({d} numbers), \"root\" or \"heading\"", skel.num_joints()))),
-            };
+            let (vals, obs) = k.observed(skel).map_err(|e| at(e.to_string()))?;
             for c in 0..d {
                 if obs[c] && dims[c] {
                     values[f * d + c] = vals[c];

@@ -22,13 +22,17 @@ pub enum Strategy {
 }
 
 impl std::str::FromStr for Strategy {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = crate::UnknownChoice;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
         match s {
             "random" => Ok(Strategy::Random),
             "uniform" => Ok(Strategy::Uniform),
             "mdo" => Ok(Strategy::Mdo),
-            _ => Err(format!("unknown keyframe strategy '{s}' (random, uniform, mdo)")),
+            _ => Err(crate::UnknownChoice {
+                what: "keyframe strategy",
+                given: s.into(),
+                choices: "random, uniform, mdo",
+            }),
         }
     }
 }

@@ -313,25 +313,9 @@ pub fn features_from_joints_to(
     lengths: Option<&[f64]>,
 ) -> Result<Vec<f32>, DataError> {
     validate_joints(skel, joints)?;
-    let mut pos = uniform_skeleton_to(skel, joints, lengths)?;
-    let t = pos.len();
+    let global = canonical(skel, uniform_skeleton_to(skel, joints, lengths)?);
+    let t = global.len();
     let jn = skel.num_joints();
-
-    // Floor at y = 0, first-frame root at the xz origin.
-    let floor = pos.iter().flatten().map(|p| p[1]).fold(f64::INFINITY, f64::min);
-    let init_root = pos[0][0];
-    for p in pos.iter_mut().flatten() {
-        p[1] -= floor;
-        p[0] -= init_root[0];
-        p[2] -= init_root[2];
-    }
-    // Turn the whole motion so that frame 0 faces +Z.
-    let fwd0 = facing(skel, &pos[..1].to_vec(), Facing::Consistent)[0];
-    let q_init = quat::qbetween(fwd0, [0.0, 0.0, 1.0]);
-    for p in pos.iter_mut().flatten() {
-        *p = quat::qrot(q_init, *p);
-    }
-    let global = pos;
 
     // Foot contacts: squared displacement per frame below the threshold.
     let contact = |f: usize, j: usize| -> f64 {
@@ -363,13 +347,11 @@ pub fn features_from_joints_to(
             let p = global[f][j];
             let local =
                 quat::qrot(r_rot[f], [p[0] - global[f][0][0], p[1], p[2] - global[f][0][2]]);
-            for k in 0..3 {
-                row[layout.ric().start + (j - 1) * 3 + k] = local[k] as f32;
-            }
+            let ric = layout.ric().start + (j - 1) * 3;
+            row[ric..ric + 3].iter_mut().zip(local).for_each(|(r, v)| *r = v as f32);
+            let rot = layout.rot().start + (j - 1) * 6;
             let c6 = quat::to_cont6d(rotations[f][j]);
-            for k in 0..6 {
-                row[layout.rot().start + (j - 1) * 6 + k] = c6[k] as f32;
-            }
+            row[rot..rot + 6].iter_mut().zip(c6).for_each(|(r, v)| *r = v as f32);
         }
         for j in 0..jn {
             let v = quat::qrot(r_rot[f], quat::sub(global[f + 1][j], global[f][j]));
@@ -378,10 +360,10 @@ pub fn features_from_joints_to(
             }
         }
         let c = layout.contacts().start;
-        row[c] = contact(f, skel.feet_left[0]) as f32;
-        row[c + 1] = contact(f, skel.feet_left[1]) as f32;
-        row[c + 2] = contact(f, skel.feet_right[0]) as f32;
-        row[c + 3] = contact(f, skel.feet_right[1]) as f32;
+        let feet = [skel.feet_left[0], skel.feet_left[1], skel.feet_right[0], skel.feet_right[1]];
+        for (k, &j) in feet.iter().enumerate() {
+            row[c + k] = contact(f, j) as f32;
+        }
     }
     if let Some(k) = out.iter().position(|v| !v.is_finite()) {
         return Err(DataError::Invalid(format!(
@@ -391,6 +373,24 @@ pub fn features_from_joints_to(
         )));
     }
     Ok(out)
+}
+
+/// Joint positions put as HumanML3D puts them: the floor at y = 0, the first frame's root at the
+/// xz origin, the whole motion turned so that frame 0 faces +Z.
+fn canonical(skel: &Skeleton, mut pos: Joints) -> Joints {
+    let floor = pos.iter().flatten().map(|p| p[1]).fold(f64::INFINITY, f64::min);
+    let init_root = pos[0][0];
+    for p in pos.iter_mut().flatten() {
+        p[1] -= floor;
+        p[0] -= init_root[0];
+        p[2] -= init_root[2];
+    }
+    let fwd0 = facing(skel, &pos[..1].to_vec(), Facing::Consistent)[0];
+    let q_init = quat::qbetween(fwd0, [0.0, 0.0, 1.0]);
+    for p in pos.iter_mut().flatten() {
+        *p = quat::qrot(q_init, *p);
+    }
+    pos
 }
 
 /// Reject sequences `features_from_joints` cannot process, with a reason.

@@ -2,6 +2,7 @@
 //! frame counter, keyframes highlighted) and a PNG contact sheet of several clips, each drawn
 //! as a strobe of poses. Pure Rust, a fixed 16-colour palette.
 
+pub mod compare;
 pub mod viewer;
 
 use std::path::Path;

@@ -33,14 +33,18 @@ pub enum KeyframeFit {
 }
 
 impl std::str::FromStr for KeyframeFit {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = diffkfc_data::UnknownChoice;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
         match s {
             "track" => Ok(KeyframeFit::Track),
             "warp" => Ok(KeyframeFit::Warp),
             "paste" => Ok(KeyframeFit::Paste),
             "none" => Ok(KeyframeFit::None),
-            _ => Err(format!("unknown keyframe fit '{s}' (track, warp, paste, none)")),
+            _ => Err(diffkfc_data::UnknownChoice {
+                what: "keyframe fit",
+                given: s.into(),
+                choices: "track, warp, paste, none",
+            }),
         }
     }
 }

@@ -4,7 +4,7 @@
 //! afterwards is `fit`'s job.
 
 use burn::prelude::*;
-use diffkfc_data::motion::absolute_root;
+use diffkfc_data::motion::absolute_root::{self, VelocityStats};
 use diffkfc_data::motion::root_key::ROOT_CHANNELS;
 use diffkfc_data::motion::root_track;
 use diffkfc_data::rng::Rng;
@@ -217,7 +217,7 @@ pub fn sample(
         if exact {
             xt = xt.require_grad();
         }
-        let mut x0_t = if guided {
+        let x0_t = if guided {
             guidance::combine(
                 model.decode(Tensor::cat(vec![xt.clone(), xt.clone()], 0), &vec![t; 2 * b], &enc),
                 opts.kf_guidance,
@@ -225,12 +225,8 @@ pub fn sample(
         } else {
             model.decode(xt.clone(), &vec![t; b], &enc)
         };
-        if opts.inpaint {
-            // MDM-inp: the observed features replace the prediction at every step.
-            x0_t = x0_t * (mask_t.ones_like() - mask_t.clone()) + kf_t.clone() * mask_t.clone();
-        } else if let Some(tm) = &track_mask {
-            x0_t = x0_t * (tm.ones_like() - tm.clone()) + kf_t.clone() * tm.clone();
-        }
+        let x0_t =
+            impose(x0_t, &kf_t, if opts.inpaint { Some(&mask_t) } else { track_mask.as_ref() });
         let x0 = host(x0_t.clone().detach());
         match ts.get(k + 1).copied() {
             None => x = x0,
@@ -245,8 +241,16 @@ pub fn sample(
         }
         progress(k + 1, ts.len());
     }
-    for i in 0..b {
-        if let Some(stats) = &absolute {
+    finish(&mut x, req, absolute.as_ref());
+    x
+}
+
+/// The sampler's result as HumanML3D features: an absolute-root model's root given back as
+/// velocities, frames past each length zeroed.
+fn finish(x: &mut [f32], req: &Request, absolute: Option<&VelocityStats>) {
+    let (n, d) = (req.frames, req.dim);
+    for i in 0..req.batch {
+        if let Some(stats) = absolute {
             absolute_root::to_relative(
                 &mut x[i * n * d..(i + 1) * n * d],
                 req.lengths[i],
@@ -258,7 +262,15 @@ pub fn sample(
             x[(i * n + f) * d..(i * n + f + 1) * d].iter_mut().for_each(|v| *v = 0.0);
         }
     }
-    x
+}
+
+/// The prediction's observed features put back where the request imposes them: MDM-inp pastes
+/// every observed feature at every step, an imposed track its root velocities.
+fn impose(x0_t: Tensor<3>, kf: &Tensor<3>, mask: Option<&Tensor<3>>) -> Tensor<3> {
+    match mask {
+        Some(m) => x0_t * (m.ones_like() - m.clone()) + kf.clone() * m.clone(),
+        None => x0_t,
+    }
 }
 
 /// One step's prediction, for the guidance terms.

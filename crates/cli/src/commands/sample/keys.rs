@@ -65,10 +65,10 @@ pub(super) fn keys_from_motion(
         if !(0.0..=1.0).contains(&rate) {
             bail!("--keyframe-rate: {rate} is not in [0, 1]");
         }
-        let strategy: Strategy = a
-            .keyframe_strategy
-            .parse()
-            .map_err(|e: String| anyhow::anyhow!("--keyframe-strategy: {e}"))?;
+        let strategy: Strategy =
+            a.keyframe_strategy.parse().map_err(|e: diffkfc_data::UnknownChoice| {
+                anyhow::anyhow!("--keyframe-strategy: {e}")
+            })?;
         keyframes::select(strategy, length, rate, &feats, d, &mut Rng::new(a.seed))
     } else {
         parse_frames(

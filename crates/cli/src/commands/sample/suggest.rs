@@ -69,8 +69,10 @@ pub fn run(a: KeyframesArgs) -> Result<()> {
 }
 
 fn suggest(a: SuggestArgs) -> Result<()> {
-    let strategy: Strategy =
-        a.strategy.parse().map_err(|e: String| anyhow::anyhow!("--strategy: {e}"))?;
+    let strategy: Strategy = a
+        .strategy
+        .parse()
+        .map_err(|e: diffkfc_data::UnknownChoice| anyhow::anyhow!("--strategy: {e}"))?;
     let d = T2M.feature_dim();
     let (feats, source) = match (&a.from, &a.checkpoint, &a.text) {
         (Some(p), _, _) => {

@@ -10,6 +10,7 @@ pub mod actions;
 pub mod body;
 pub mod captions;
 pub mod gait;
+pub mod manifest;
 
 use std::path::{Path, PathBuf};
 

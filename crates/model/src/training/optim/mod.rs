@@ -43,12 +43,16 @@ impl StateLocation {
 }
 
 impl std::str::FromStr for StateLocation {
-    type Err = String;
-    fn from_str(s: &str) -> Result<StateLocation, String> {
+    type Err = diffkfc_data::UnknownChoice;
+    fn from_str(s: &str) -> Result<StateLocation, Self::Err> {
         match s {
             "host" => Ok(StateLocation::Host),
             "device" => Ok(StateLocation::Device),
-            _ => Err(format!("'{s}' is not host or device")),
+            _ => Err(diffkfc_data::UnknownChoice {
+                what: "optimiser state location",
+                given: s.into(),
+                choices: "host, device",
+            }),
         }
     }
 }

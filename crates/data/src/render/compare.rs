@@ -1,0 +1,305 @@
+//! A page comparing sample folders (`diffkfc sample --out`), as `diffkfc render --page` writes
+//! it: per folder its GIF, prompt, keyframes and numbers beside its source's, grouped by the
+//! model that made them, a link to the folder's own page, the 3D view of all of them side by
+//! side (`view.html`), a contact sheet and a training run's loss plot; and the same numbers as
+//! a plain-text table for the terminal.
+
+use std::path::{Component, Path, PathBuf};
+
+use serde_json::Value;
+
+use crate::render::viewer::escape;
+use crate::DataError;
+
+/// One sample folder: where it is, what it is called on the page, and its results.json.
+#[derive(Clone, Debug)]
+pub struct Folder {
+    pub dir: PathBuf,
+    pub label: String,
+    pub results: Value,
+}
+
+impl Folder {
+    /// Read `dir/results.json`.
+    pub fn read(dir: &Path, label: String) -> Result<Folder, DataError> {
+        let path = dir.join("results.json");
+        let text = std::fs::read_to_string(&path)
+            .map_err(|err| DataError::Io { path: path.clone(), err })?;
+        let results: Value = serde_json::from_str(&text).map_err(|e| DataError::Npy {
+            path: path.clone(),
+            msg: format!("not a sample folder's results.json: {e}"),
+        })?;
+        if !results["samples"].as_array().is_some_and(|s| !s.is_empty()) {
+            return Err(DataError::Npy { path, msg: "no samples listed".into() });
+        }
+        Ok(Folder { dir: dir.to_path_buf(), label, results })
+    }
+
+    fn sample(&self) -> &Value {
+        &self.results["samples"][0]
+    }
+
+    /// The first sample's joint positions file.
+    pub fn joints_path(&self) -> PathBuf {
+        self.dir.join(self.sample()["joints"].as_str().unwrap_or("sample_00_joints.npy"))
+    }
+
+    /// The keyed frames, or a word for keys on every frame.
+    pub fn keyframes(&self) -> String {
+        let keys = self.results["keyframes"].as_array().cloned().unwrap_or_default();
+        let length = self.results["length"].as_u64().unwrap_or(0) as usize;
+        if keys.is_empty() {
+            "none".into()
+        } else if keys.len() == length {
+            match self.results["keyframe_joints"].as_array() {
+                Some(j) if j.len() < 22 => "all frames, some joints".into(),
+                _ => "all frames".into(),
+            }
+        } else {
+            keys.iter().map(|k| k.to_string()).collect::<Vec<_>>().join(", ")
+        }
+    }
+
+    /// The numbers of the first sample and of its source: (column, sample, source).
+    pub fn numbers(&self) -> Vec<(&'static str, Option<f64>, Option<f64>)> {
+        let (s, r) = (self.sample(), &self.results);
+        let place = s["corrections"].as_array().map(|c| {
+            c.iter().filter_map(|c| c["place_m"].as_f64()).fold(0.0, |m, v| v.abs().max(m))
+        });
+        vec![
+            ("K-Err (m)", s["k_err_m"].as_f64(), None),
+            ("K-Err root-rel. (m)", s["k_err_root_relative_m"].as_f64(), None),
+            ("K-TranS", s["k_trans"].as_f64(), r["real_k_trans"].as_f64()),
+            ("foot skating", s["foot_skating"].as_f64(), r["real_foot_skating"].as_f64()),
+            (
+                "planted share",
+                s["gait"]["planted_share"].as_f64(),
+                r["real_gait"]["planted_share"].as_f64(),
+            ),
+            (
+                "stride (m)",
+                s["gait"]["stride_amplitude_m"].as_f64(),
+                r["real_gait"]["stride_amplitude_m"].as_f64(),
+            ),
+            (
+                "root speed (m/s)",
+                s["gait"]["root_speed_mps"].as_f64(),
+                r["real_gait"]["root_speed_mps"].as_f64(),
+            ),
+            ("largest place correction (m)", place, None),
+        ]
+    }
+
+    /// The model that made the folder, and the checkpoint's step.
+    pub fn model(&self) -> String {
+        let r = &self.results;
+        let step = r["checkpoint_step"].as_u64().map_or(String::new(), |s| format!(", step {s}"));
+        format!("{}{step}", r["checkpoint"].as_str().unwrap_or("?"))
+    }
+}
+
+fn num(v: Option<f64>) -> String {
+    v.map_or("-".into(), |v| format!("{v:.3}"))
+}
+
+/// "sample (source)" of a number that has a source value.
+fn pair(s: Option<f64>, r: Option<f64>, has_source: bool) -> String {
+    if has_source {
+        format!("{} ({})", num(s), num(r))
+    } else {
+        num(s)
+    }
+}
+
+/// The numbers of every folder as a plain-text table (aligned columns; a source's value in
+/// brackets after the sample's).
+pub fn text_table(folders: &[Folder]) -> String {
+    let Some(first) = folders.first() else { return String::new() };
+    let mut head = vec!["folder".to_string(), "prompt".into(), "keyframes".into()];
+    head.extend(first.numbers().iter().map(|(c, _, r)| {
+        if r.is_some()
+            || folders.iter().any(|f| f.numbers().iter().any(|n| n.0 == *c && n.2.is_some()))
+        {
+            format!("{c} (source)")
+        } else {
+            c.to_string()
+        }
+    }));
+    let has_source: Vec<bool> = head[3..].iter().map(|h| h.ends_with("(source)")).collect();
+    let mut rows = vec![head];
+    for f in folders {
+        let mut row = vec![
+            f.label.clone(),
+            f.results["text"].as_str().unwrap_or("").to_string(),
+            f.keyframes(),
+        ];
+        row.extend(f.numbers().iter().zip(&has_source).map(|((_, s, r), &h)| pair(*s, *r, h)));
+        rows.push(row);
+    }
+    let widths: Vec<usize> = (0..rows[0].len())
+        .map(|c| rows.iter().map(|r| r[c].chars().count()).max().unwrap_or(0))
+        .collect();
+    rows.iter()
+        .map(|r| {
+            r.iter()
+                .zip(&widths)
+                .map(|(v, w)| format!("{v:<w$}"))
+                .collect::<Vec<_>>()
+                .join(" | ")
+                .trim_end()
+                .to_string()
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// `to` as a path relative to the folder `from` (both made absolute first), with `/` separators.
+pub fn relative(from: &Path, to: &Path) -> String {
+    let abs = |p: &Path| {
+        let p = if p.is_absolute() {
+            p.to_path_buf()
+        } else {
+            std::env::current_dir().unwrap_or_default().join(p)
+        };
+        p.components().fold(PathBuf::new(), |mut acc, c| {
+            match c {
+                Component::ParentDir => {
+                    acc.pop();
+                }
+                Component::CurDir => {}
+                c => acc.push(c),
+            }
+            acc
+        })
+    };
+    let (from, to) = (abs(from), abs(to));
+    let (f, t): (Vec<_>, Vec<_>) = (from.components().collect(), to.components().collect());
+    let common = f.iter().zip(&t).take_while(|(a, b)| a == b).count();
+    let mut parts: Vec<String> = vec!["..".into(); f.len() - common];
+    parts.extend(t[common..].iter().map(|c| c.as_os_str().to_string_lossy().into_owned()));
+    if parts.is_empty() {
+        ".".into()
+    } else {
+        parts.join("/")
+    }
+}
+
+/// What the page shows beside the folders: its title, and the files written next to it
+/// (relative links), each optional.
+pub struct PageParts<'a> {
+    pub title: &'a str,
+    pub view: Option<&'a str>,
+    pub sheet: Option<&'a str>,
+    /// (loss plot, the run it belongs to).
+    pub loss: Option<(&'a str, &'a str)>,
+}
+
+/// The page, in folder `at` (links are relative to it): sections by model, a figure and a
+/// table row per folder.
+pub fn page(at: &Path, folders: &[Folder], parts: &PageParts) -> String {
+    let mut models: Vec<String> = Vec::new();
+    for f in folders {
+        if !models.contains(&f.model()) {
+            models.push(f.model());
+        }
+    }
+    let mut body = String::new();
+    if let Some(v) = parts.view {
+        body += &format!("<p><iframe src='{v}' style='width:100%;height:900px;border:0' title='3D view'></iframe><br><a href='{v}'>the 3D view on its own page</a>; each folder's page has its own view with the source motion and the keyframes.</p>");
+    }
+    for m in &models {
+        let group: Vec<&Folder> = folders.iter().filter(|f| &f.model() == m).collect();
+        body += &format!("<h2>Model {}</h2>", escape(m));
+        body += &section(at, &group);
+    }
+    if let Some((loss, run)) = parts.loss {
+        body += &format!("<h2>Training run {}</h2><p><a href='{loss}'>Training and validation loss</a><br><img src='{loss}' width=480 alt='loss plot'></p>", escape(run));
+    }
+    if let Some(s) = parts.sheet {
+        let cells: Vec<String> = folders
+            .iter()
+            .enumerate()
+            .map(|(i, f)| format!("{i} = {}", escape(&f.label)))
+            .collect();
+        body += &format!("<p><img src='{s}' width=720 alt='contact sheet'><br>Contact sheet (cell numbers in the corners): {}; six poses spread over each motion, light to dark, keyframes in orange.</p>", cells.join(", "));
+    }
+    format!(
+        "<!doctype html><meta charset=utf-8><title>{t}</title><style>body{{font-family:sans-serif;max-width:1240px}}figure{{display:inline-block;margin:8px;width:320px}}td,th{{padding:4px 8px;border-bottom:1px solid #ddd}}</style><h1>{t}</h1>{body}<p>Keyframe poses are orange in the animations; each folder's index.html shows all its samples beside the source, and its results.json has the numbers (a source's value in brackets).</p>\n",
+        t = escape(parts.title)
+    )
+}
+
+/// The figures and the table of one model's folders.
+fn section(at: &Path, group: &[&Folder]) -> String {
+    let mut figs = String::new();
+    let mut rows = String::new();
+    for f in group {
+        let rel = relative(at, &f.dir);
+        let text = escape(f.results["text"].as_str().unwrap_or(""));
+        let gif = f.sample()["gif"].as_str().unwrap_or("sample_00.gif");
+        figs += &format!("<figure><img src='{rel}/{gif}' width=320 alt='{text}'><figcaption>{} — {text}</figcaption></figure>", escape(&f.label));
+        let cells: String = f
+            .numbers()
+            .iter()
+            .map(|(_, s, r)| format!("<td>{}</td>", pair(*s, *r, r.is_some())))
+            .collect();
+        rows += &format!(
+            "<tr><td><a href='{rel}/index.html'>{}</a></td><td>{text}</td><td>{}</td>{cells}</tr>",
+            escape(&f.label),
+            escape(&f.keyframes())
+        );
+    }
+    let head: String = group[0].numbers().iter().map(|(c, _, _)| format!("<th>{c}</th>")).collect();
+    format!("{figs}<table><tr><th>folder (its page)</th><th>prompt</th><th>keyframes</th>{head}</tr>{rows}</table>")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn relative_paths() {
+        assert_eq!(relative(Path::new("/a/out"), Path::new("/a/out/1-keys")), "1-keys");
+        assert_eq!(relative(Path::new("/a/out"), Path::new("/a/other/x")), "../other/x");
+        assert_eq!(relative(Path::new("/a/out/"), Path::new("/a/./out")), ".");
+    }
+
+    fn folder(label: &str, checkpoint: &str) -> Folder {
+        let results = serde_json::json!({
+            "text": "a person <walks>.", "checkpoint": checkpoint, "checkpoint_step": 7, "length": 40,
+            "keyframes": [0, 20], "real_k_trans": 0.011, "real_foot_skating": 0.04,
+            "real_gait": {"planted_share": 0.6, "stride_amplitude_m": 0.17, "root_speed_mps": 0.8},
+            "samples": [{"gif": "sample_00.gif", "joints": "sample_00_joints.npy", "k_err_m": 0.0, "k_trans": 0.009,
+                         "foot_skating": 0.2, "gait": {"planted_share": 0.3, "stride_amplitude_m": 0.1, "root_speed_mps": 0.5},
+                         "corrections": [{"place_m": -0.25}, {"place_m": 0.1}]}],
+        });
+        Folder { dir: PathBuf::from(format!("/w/out/{label}")), label: label.into(), results }
+    }
+
+    #[test]
+    fn table_and_page_show_every_folder_with_its_source() {
+        let fs = [folder("1-keys", "models/a"), folder("2-demo", "runs/b")];
+        let t = text_table(&fs);
+        assert_eq!(t.lines().count(), 3, "{t}");
+        assert!(t.contains("foot skating (source)") && t.contains("0.200 (0.040)"), "{t}");
+        assert!(t.contains("0, 20") && t.contains("0.250"), "{t}");
+        assert!(!t.contains('<') || t.contains("<walks>"), "plain text, no HTML: {t}");
+        let parts = PageParts {
+            title: "T",
+            view: Some("view.html"),
+            sheet: Some("sheet.png"),
+            loss: Some(("loss.svg", "runs/b")),
+        };
+        let html = page(Path::new("/w/out"), &fs, &parts);
+        assert!(
+            html.contains("<h2>Model models/a, step 7</h2>")
+                && html.contains("<h2>Model runs/b, step 7</h2>")
+        );
+        assert!(
+            html.contains("src='1-keys/sample_00.gif'")
+                && html.contains("href='2-demo/index.html'")
+        );
+        assert!(html.contains("a person &lt;walks&gt;.") && !html.contains("<walks>"));
+        assert!(html.contains("0 = 1-keys, 1 = 2-demo") && html.contains("src='loss.svg'"));
+    }
+}
