@@ -5,7 +5,7 @@
 //! (the pose keyframes) unchanged.
 
 use crate::motion::quat::{self, Quat, Vec3};
-use crate::motion::representation::{recover_from_ric, recover_root_rot_pos, Layout};
+use crate::motion::representation::{recover_from_ric, recover_root_rot_pos, Joints, Layout};
 use crate::motion::skeleton::Skeleton;
 
 /// A toe contact channel above this marks its foot planted.
@@ -199,6 +199,24 @@ fn read6(row: &[f64], at: usize) -> Quat {
     ]))
 }
 
+/// New knee, ankle and toe positions (as deltas [knee, ankle, toe] per frame, zero elsewhere)
+/// where the ankle moves by `o[f]` (two-bone IK from the hip), and which frames moved; held
+/// frames never move.
+fn leg_deltas(joints: &Joints, leg: Leg, o: &[Vec3], hold: &[bool]) -> (Vec<[Vec3; 3]>, Vec<bool>) {
+    let t = joints.len();
+    let mut delta = vec![[[0.0; 3]; 3]; t];
+    let mut moved = vec![false; t];
+    for f in (0..t).filter(|&f| quat::norm(o[f]) != 0.0 && !hold[f]) {
+        let j = &joints[f];
+        let (k, a) = two_bone(j[leg.hip], j[leg.knee], j[leg.ankle], quat::add(j[leg.ankle], o[f]));
+        let toe_new = quat::add(a, quat::sub(j[leg.toe], j[leg.ankle]));
+        delta[f] =
+            [quat::sub(k, j[leg.knee]), quat::sub(a, j[leg.ankle]), quat::sub(toe_new, j[leg.toe])];
+        moved[f] = true;
+    }
+    (delta, moved)
+}
+
 /// Lock the planted feet of de-normalised features `feats` [T, D] in place. `hold[f]` marks
 /// frames that must not change (pose keyframes). Positions, local velocities and the leg's
 /// rotations are updated together; the root and the contact labels are not touched.
@@ -237,27 +255,10 @@ pub fn lock_feet(
         let (o, spans) = offsets(&toe, &planted, hold, blend, max_shift_m / unit, reachable);
         report.dragged += spans.iter().filter(|s| s.2 == Outcome::Dragged).count();
         report.out_of_reach += spans.iter().filter(|s| s.2 == Outcome::OutOfReach).count();
-        // New knee, ankle and toe positions where the foot moves (deltas, zero elsewhere).
-        let mut delta = vec![[[0.0; 3]; 3]; t];
-        let mut moved = vec![false; t];
-        for f in 0..t {
-            let shift = quat::norm(o[f]);
-            if shift == 0.0 || hold[f] {
-                continue;
-            }
-            let j = &joints[f];
-            let (k, a) =
-                two_bone(j[leg.hip], j[leg.knee], j[leg.ankle], quat::add(j[leg.ankle], o[f]));
-            let toe_new = quat::add(a, quat::sub(j[leg.toe], j[leg.ankle]));
-            delta[f] = [
-                quat::sub(k, j[leg.knee]),
-                quat::sub(a, j[leg.ankle]),
-                quat::sub(toe_new, j[leg.toe]),
-            ];
-            moved[f] = true;
-            report.frames += 1;
-            report.max_shift_m = report.max_shift_m.max(quat::norm(delta[f][1]) * unit);
-        }
+        let (delta, moved) = leg_deltas(&joints, leg, &o, hold);
+        report.frames += moved.iter().filter(|&&m| m).count();
+        let most = delta.iter().map(|d| quat::norm(d[1]) * unit).fold(0.0, f64::max);
+        report.max_shift_m = report.max_shift_m.max(most);
         let foot = if leg.contact == 1 { "left" } else { "right" };
         report.spans.extend(spans.iter().map(|&(start, end, outcome)| PlantSpan {
             foot,

@@ -132,6 +132,36 @@ pub fn attention_forward(q: &[f32], k: &[f32], v: &[f32], s: &AttnShape, mask: &
     out
 }
 
+/// dS = P o (dP - rowsum(P o dP)) times the score scale, in place of dP (rows of `n` keys).
+fn softmax_backward(p: &[f32], dp: &mut [f32], n: usize, scale: f32) {
+    for (pr, gr) in p.chunks(n).zip(dp.chunks_mut(n)) {
+        let dot: f32 = pr.iter().zip(gr.iter()).map(|(a, b)| a * b).sum();
+        gr.iter_mut().zip(pr).for_each(|(g, &pv)| *g = pv * (*g - dot) * scale);
+    }
+}
+
+/// A compacted head's dK and dV (`grads`: [2, n, dh]) written to the rows of its keys `cols`
+/// in [B, Lk, d] buffers, from element `base` (sample b's first row, head h's first column).
+///
+/// # Safety
+/// `base + cols[r] * d + dh` must lie inside both buffers, and no other thread may write those
+/// elements meanwhile.
+unsafe fn scatter_keys(
+    grads: &[f32],
+    cols: &[usize],
+    (dk, dv): (Out, Out),
+    base: usize,
+    d: usize,
+    dh: usize,
+) {
+    let n = cols.len();
+    for (r, &j) in cols.iter().enumerate() {
+        let at = base + j * d;
+        std::ptr::copy_nonoverlapping(grads[r * dh..].as_ptr(), dk.0.add(at), dh);
+        std::ptr::copy_nonoverlapping(grads[(n + r) * dh..].as_ptr(), dv.0.add(at), dh);
+    }
+}
+
 /// Gradients (dQ, dK, dV) of [`attention_forward`] for the output gradient `dout` [B, Lq, d];
 /// the probabilities are recomputed (cheaper than keeping [B, H, Lq, Lk] per layer).
 pub fn attention_backward(
@@ -188,11 +218,7 @@ pub fn attention_backward(
                 matmul(n, dh, lq, dv_at, rs, pt, go);
                 matmul(lq, n, dh, dp.as_mut_ptr(), n, go, vt);
             }
-            // dS = P o (dP - rowsum(P o dP)), times the score scale.
-            for (pr, gr) in p.chunks(n).zip(dp.chunks_mut(n)) {
-                let dot: f32 = pr.iter().zip(gr.iter()).map(|(a, b)| a * b).sum();
-                gr.iter_mut().zip(pr).for_each(|(g, &pv)| *g = pv * (*g - dot) * scale);
-            }
+            softmax_backward(p, dp, n, scale);
             let ds = View { ptr: dp.as_ptr(), rs: n as isize, cs: 1 };
             let dst_t = View { ptr: dp.as_ptr(), rs: 1, cs: n as isize };
             unsafe {
@@ -200,17 +226,8 @@ pub fn attention_backward(
                 matmul(n, dh, lq, dk_at, rs, dst_t, qh);
             }
             if let Some(c) = compacted {
-                for (r, &j) in c.cols.iter().enumerate() {
-                    let at = (b * lk + j) * s.d + col;
-                    unsafe {
-                        std::ptr::copy_nonoverlapping(grads[r * dh..].as_ptr(), dkp.0.add(at), dh);
-                        std::ptr::copy_nonoverlapping(
-                            grads[(n + r) * dh..].as_ptr(),
-                            dvp.0.add(at),
-                            dh,
-                        );
-                    }
-                }
+                // SAFETY: the rows of sample b, columns of head h, as above.
+                unsafe { scatter_keys(grads, &c.cols, (dkp, dvp), (b * lk) * s.d + col, s.d, dh) };
             }
         },
     );
