@@ -11,8 +11,11 @@ use common::*;
 use diffkfc_data::testing::fixtures;
 
 fn headless(chromium: &Path, extra: &[&str], url: &str) -> Output {
-    let profile = std::env::temp_dir().join(format!("diffkfc-chromium-{}", std::process::id()));
-    Command::new(chromium)
+    // A profile per call: tests run in parallel, and Chromium refuses a profile in use.
+    static CALLS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let n = CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let profile = std::env::temp_dir().join(format!("diffkfc-chromium-{}-{n}", std::process::id()));
+    let out = Command::new(chromium)
         .args([
             "--headless",
             "--no-sandbox",
@@ -27,7 +30,9 @@ fn headless(chromium: &Path, extra: &[&str], url: &str) -> Output {
         .args(extra)
         .arg(url)
         .output()
-        .expect("run chromium")
+        .expect("run chromium");
+    let _ = std::fs::remove_dir_all(&profile);
+    out
 }
 
 /// RGB pixels of the view (the canvas's rows of the screenshot).

@@ -249,7 +249,18 @@ fn section(at: &Path, group: &[&Folder]) -> String {
             escape(&f.keyframes())
         );
     }
-    let head: String = group[0].numbers().iter().map(|(c, _, _)| format!("<th>{c}</th>")).collect();
+    let head: String =
+        group[0]
+            .numbers()
+            .iter()
+            .map(|(c, _, r)| {
+                if r.is_some() {
+                    format!("<th>{c} (source)</th>")
+                } else {
+                    format!("<th>{c}</th>")
+                }
+            })
+            .collect();
     format!("{figs}<table><tr><th>folder (its page)</th><th>prompt</th><th>keyframes</th>{head}</tr>{rows}</table>")
 }
 
