@@ -27,7 +27,10 @@ const FACTORS: [(&str, &[&str]); 10] = [
 
 /// Pairs of levels the command refuses at argument time, each with a needle of its message:
 /// a timeline keys its windows from a JSON keyframe file, not from a motion (`--from`).
-const REFUSED: [((&str, &str), (&str, &str), &str); 2] = [
+/// A factor's level: (factor, level).
+type Level = (&'static str, &'static str);
+
+const REFUSED: [(Level, Level, &str); 2] = [
     (
         ("keys", "pose"),
         ("prompt", "timeline"),

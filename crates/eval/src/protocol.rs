@@ -10,10 +10,9 @@ use diffkfc_data::dataset::cache::PackedSplit;
 use diffkfc_data::dataset::Dataset;
 use diffkfc_data::keyframes::{self, Strategy};
 use diffkfc_data::motion::plausibility::foot_skating_ratio;
-
-use crate::gait;
 use diffkfc_data::motion::representation::{recover_from_ric, Joints};
 use diffkfc_data::motion::root_key::{self, RootKey};
+use diffkfc_data::motion::skeleton::Skeleton;
 use diffkfc_data::rng::Rng;
 use diffkfc_model::diffusion::scheduler::Sampler;
 use diffkfc_model::sampling::fit::{Fit, KeyframeFit};
@@ -23,6 +22,7 @@ use diffkfc_model::sampling::sampler::{self, TgMode};
 use diffkfc_model::text::cache::EmbeddingCache;
 
 use crate::evaluator::{eval_length, TextMotionEvaluator};
+use crate::gait;
 use crate::keyframe_metrics::{displacement_error, k_err_global, k_err_local, k_trans};
 use crate::text_motion::{diversity, finite, multimodality, r_precision, Gaussian};
 
@@ -167,6 +167,15 @@ struct Item<'s> {
 
 fn joints_of(ds: &Dataset, f: &[f32]) -> Joints {
     recover_from_ric(ds.skeleton, &f.iter().map(|&v| v as f64).collect::<Vec<_>>())
+}
+
+/// The plausibility and gait numbers of one motion that every row reports.
+fn motion_measures(skel: &Skeleton, j: &Joints) -> [(&'static str, f64); 3] {
+    [
+        ("foot_skate", foot_skating_ratio(skel, j)),
+        ("planted", gait::planted_share(skel, j)),
+        ("stride", gait::stride_amplitude(skel, j)),
+    ]
 }
 
 fn mean(xs: &[f64]) -> Option<f64> {
@@ -451,17 +460,10 @@ impl Protocol<'_> {
         let mut shared = Values::new();
         self.text_motion(reference, texts, &real_m, rep_seed, &mut shared);
         let skel = self.ds.skeleton;
-        let per_item = |f: &dyn Fn(&Joints) -> f64| {
-            mean(&items.iter().map(|it| f(&it.joints)).collect::<Vec<_>>())
-        };
-        let real_measures: [(&'static str, &dyn Fn(&Joints) -> f64); 3] = [
-            ("foot_skate", &|j| foot_skating_ratio(skel, j)),
-            ("planted", &|j| gait::planted_share(skel, j)),
-            ("stride", &|j| gait::stride_amplitude(skel, j)),
-        ];
-        for (name, f) in real_measures {
-            if let Some(x) = per_item(f) {
-                shared.insert(name, vec![x]);
+        let per: Vec<_> = items.iter().map(|it| motion_measures(skel, &it.joints)).collect();
+        for k in 0..per.first().map_or(0, |m| m.len()) {
+            if let Some(x) = mean(&per.iter().map(|m| m[k].1).collect::<Vec<_>>()) {
+                shared.insert(per[0][k].0, vec![x]);
             }
         }
         for row in real.iter_mut() {
@@ -589,13 +591,16 @@ impl Protocol<'_> {
                 ),
                 ("k_trans", avg(&|j| k_trans(&joints[j], key, K_TRANS_WINDOW))),
                 ("k_trans_real", k_trans(&it.joints, key, K_TRANS_WINDOW)),
-                ("foot_skate", avg(&|j| Some(foot_skating_ratio(skel, &joints[j])))),
-                ("planted", avg(&|j| Some(gait::planted_share(skel, &joints[j])))),
-                ("stride", avg(&|j| Some(gait::stride_amplitude(skel, &joints[j])))),
             ];
             for (name, x) in entries {
                 if let Some(x) = x {
                     per.entry(name).or_default().push(x);
+                }
+            }
+            let measures: Vec<_> = joints.iter().map(|j| motion_measures(skel, j)).collect();
+            for k in 0..measures.first().map_or(0, |m| m.len()) {
+                if let Some(x) = mean(&measures.iter().map(|m| m[k].1).collect::<Vec<_>>()) {
+                    per.entry(measures[0][k].0).or_default().push(x);
                 }
             }
         }

@@ -29,7 +29,7 @@ impl Folder {
             path: path.clone(),
             msg: format!("not a sample folder's results.json: {e}"),
         })?;
-        if !results["samples"].as_array().is_some_and(|s| !s.is_empty()) {
+        if results["samples"].as_array().is_none_or(|s| s.is_empty()) {
             return Err(DataError::Npy { path, msg: "no samples listed".into() });
         }
         Ok(Folder { dir: dir.to_path_buf(), label, results })

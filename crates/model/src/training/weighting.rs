@@ -47,12 +47,10 @@ pub fn channel_weights(cfg: &TrainingConfig, d: usize) -> Option<Vec<f64>> {
         return None;
     }
     let mut w = vec![1.0; d];
-    for c in ROOT_CHANNELS.filter(|&c| c < d) {
-        w[c] = cfg.root_loss_weight;
-    }
-    for c in d.saturating_sub(CONTACT_CHANNELS)..d {
-        w[c] = cfg.contact_loss_weight;
-    }
+    w.iter_mut().take(ROOT_CHANNELS.end).for_each(|v| *v = cfg.root_loss_weight);
+    w.iter_mut()
+        .skip(d.saturating_sub(CONTACT_CHANNELS))
+        .for_each(|v| *v = cfg.contact_loss_weight);
     Some(w)
 }
 
@@ -93,7 +91,7 @@ mod tests {
         assert_eq!(&w[258..263], &[1.0, 9.0, 9.0, 9.0, 9.0]);
         let s = Schedule::cosine(1000);
         let sq = sqrt_weights(&cfg, &s, &[3, 900], 263, &Device::flex()).unwrap();
-        let v = sq.into_data().to_vec::<f32>().unwrap();
+        let v = sq.into_data().try_to_vec::<f32>().unwrap();
         assert_eq!(v.len(), 2 * 263);
         assert_eq!((v[0], v[4], v[262], v[263 + 1]), (2.0, 1.0, 3.0, 2.0));
     }
