@@ -7,7 +7,7 @@ use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 use diffkfc_data::io::rig::{self, ImportOptions};
 use diffkfc_model::diffusion::scheduler::Sampler;
-use diffkfc_model::sampling::fit::{Fit, KeyframeFit};
+use diffkfc_model::sampling::fit::{Feet, Fit, KeyframeFit};
 
 /// How a BVH input is read: its joint names, units and up axis.
 #[derive(Args, Clone, Debug, Default)]
@@ -82,12 +82,18 @@ pub(crate) struct FitArgs {
     /// Same as --keyframe-fit none (kept for older scripts).
     #[arg(long, hide = true)]
     no_snap: bool,
-    /// Leave planted feet where the network put them. By default a foot whose toe the motion
-    /// labels as in contact is held still on the ground (its leg re-solved by two-bone IK,
-    /// fading in and out over 4 frames; pose keyframes and the root untouched): generated walks
+    /// No foot post-process at all: feet stay where the network put them. By default a foot
+    /// the network's contact channel labels as planted is held still on the ground, its leg
+    /// re-solved by two-bone IK (pose keyframes and the root untouched): generated walks
     /// otherwise slide their feet.
     #[arg(long)]
     no_foot_lock: bool,
+    /// How the foot post-process finds and holds planted feet: network (the network's contact
+    /// channels, pinned), warp (contacts from the motion: a toe or ankle low and slow; strides
+    /// scaled so the stance foot stands still under the root's speed, then pinned) or pin
+    /// (contacts from the motion, pinned only). docs/feet.md compares them.
+    #[arg(long, value_enum, default_value = "network")]
+    feet: FeetArg,
     /// Largest move of a planted foot the lock makes, in metres; a contact span whose foot
     /// slides further is left as it is (a dragged foot), as is one whose leg cannot reach the
     /// held foot to within 2 cm at every frame (docs/sampling.md).
@@ -105,6 +111,11 @@ impl FitArgs {
         Fit {
             keyframes: if self.no_snap { KeyframeFit::None } else { self.keyframe_fit },
             foot_lock: !self.no_foot_lock,
+            feet: match self.feet {
+                FeetArg::Warp => Feet::Warp,
+                FeetArg::Pin => Feet::Pin,
+                FeetArg::Network => Feet::Network,
+            },
             lock_reach: self.foot_lock_reach,
             rigid: !self.no_rigid,
         }
@@ -150,6 +161,14 @@ pub(crate) enum KeyframeMode {
     Diffkfc,
     /// MDM-inp baseline: keyframes pasted into x0 at every step, no keyframe branch.
     Inpaint,
+}
+
+/// `--feet`: how planted feet are found and held.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub(crate) enum FeetArg {
+    Warp,
+    Pin,
+    Network,
 }
 
 /// How the transition-guidance gradient is taken (`sample` and `eval`).

@@ -12,3 +12,4 @@ pub mod root_key;
 pub mod root_path;
 pub mod root_track;
 pub mod skeleton;
+pub mod travel;

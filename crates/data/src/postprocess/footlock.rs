@@ -40,6 +40,17 @@ pub struct LockReport {
     pub spans: Vec<PlantSpan>,
 }
 
+/// Where the planted spans come from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ContactSource {
+    /// The motion's own geometry: a toe or ankle low and slow (`contacts::detect`).
+    #[default]
+    Motion,
+    /// The network's foot-contact channels (HumanML3D's speed-only labels: a glide counts).
+    Network,
+}
+
 /// What became of one planted span.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -53,6 +64,9 @@ pub enum Outcome {
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct PlantSpan {
     pub foot: &'static str,
+    pub source: ContactSource,
+    /// The stride warp's factor at the span's middle (1 without stride warping).
+    pub warp_factor: f64,
     pub start: usize,
     pub end: usize,
     pub outcome: Outcome,
@@ -64,16 +78,16 @@ pub struct PlantSpan {
 
 /// One leg's joints, from the hip to the toe.
 #[derive(Clone, Copy)]
-struct Leg {
-    hip: usize,
-    knee: usize,
-    ankle: usize,
-    toe: usize,
+pub(crate) struct Leg {
+    pub hip: usize,
+    pub knee: usize,
+    pub ankle: usize,
+    pub toe: usize,
     /// Index of the toe's contact channel among the 4 contact channels.
-    contact: usize,
+    pub contact: usize,
 }
 
-fn legs(skel: &Skeleton) -> Vec<Leg> {
+pub(crate) fn legs(skel: &Skeleton) -> Vec<Leg> {
     let mut out = Vec::new();
     for (feet, contact) in [(skel.feet_left, 1), (skel.feet_right, 3)] {
         let [ankle, toe] = feet;
@@ -202,7 +216,12 @@ fn read6(row: &[f64], at: usize) -> Quat {
 /// New knee, ankle and toe positions (as deltas [knee, ankle, toe] per frame, zero elsewhere)
 /// where the ankle moves by `o[f]` (two-bone IK from the hip), and which frames moved; held
 /// frames never move.
-fn leg_deltas(joints: &Joints, leg: Leg, o: &[Vec3], hold: &[bool]) -> (Vec<[Vec3; 3]>, Vec<bool>) {
+pub(crate) fn leg_deltas(
+    joints: &Joints,
+    leg: Leg,
+    o: &[Vec3],
+    hold: &[bool],
+) -> (Vec<[Vec3; 3]>, Vec<bool>) {
     let t = joints.len();
     let mut delta = vec![[[0.0; 3]; 3]; t];
     let mut moved = vec![false; t];
@@ -226,6 +245,7 @@ pub fn lock_feet(
     hold: &[bool],
     blend: usize,
     max_shift_m: f64,
+    source: ContactSource,
 ) -> LockReport {
     let layout = Layout::of(skel);
     let d = layout.dim();
@@ -239,10 +259,18 @@ pub fn lock_feet(
     let (rq, _) = recover_root_rot_pos(&f64s, d);
     let unit = skel.metres_per_unit;
     let slack = REACH_SLACK_M / unit;
-    for leg in legs(skel) {
-        let planted: Vec<bool> = (0..t)
-            .map(|f| feats[f * d + layout.contacts().start + leg.contact] > CONTACT)
-            .collect();
+    let detected = crate::postprocess::contacts::detect(
+        skel,
+        &joints,
+        &crate::postprocess::contacts::THRESHOLDS,
+    );
+    for (li, leg) in legs(skel).into_iter().enumerate() {
+        let planted: Vec<bool> = match source {
+            ContactSource::Motion => detected[li].clone(),
+            ContactSource::Network => (0..t)
+                .map(|f| feats[f * d + layout.contacts().start + leg.contact] > CONTACT)
+                .collect(),
+        };
         let toe: Vec<Vec3> = joints.iter().map(|j| j[leg.toe]).collect();
         // The frame's own bone lengths: generated motions stretch them a little.
         let reachable = |f: usize, o: Vec3| {
@@ -262,40 +290,58 @@ pub fn lock_feet(
         let foot = if leg.contact == 1 { "left" } else { "right" };
         report.spans.extend(spans.iter().map(|&(start, end, outcome)| PlantSpan {
             foot,
+            source,
+            warp_factor: 1.0,
             start,
             end,
             outcome,
             drift_before_m: drift(|f| toe[f], start, end, unit),
             drift_after_m: drift(|f| quat::add(toe[f], delta[f][2]), start, end, unit),
         }));
-        let chain = [leg.knee, leg.ankle, leg.toe];
-        // Held rows stay as they are, velocities included.
-        for f in (0..t).filter(|&f| !hold[f] && (moved[f] || (f + 1 < t && moved[f + 1]))) {
-            let row = &mut feats[f * d..(f + 1) * d];
-            let next = if f + 1 < t { delta[f + 1] } else { delta[f] };
-            for (c, &jt) in chain.iter().enumerate() {
-                let ric = quat::qrot(rq[f], delta[f][c]);
-                let vel = quat::qrot(rq[f], quat::sub(next[c], delta[f][c]));
-                for k in 0..3 {
-                    row[layout.ric().start + (jt - 1) * 3 + k] += ric[k] as f32;
-                    row[layout.vel().start + jt * 3 + k] += vel[k] as f32;
-                }
-            }
-            if moved[f] {
-                relocal(
-                    skel,
-                    &layout,
-                    leg,
-                    rq[f],
-                    &joints[f],
-                    &delta[f],
-                    &f64s[f * d..(f + 1) * d],
-                    row,
-                );
-            }
-        }
+        let posed = Posed { joints: &joints, root: &rq, old: &f64s };
+        apply_leg(skel, feats, &posed, leg, (&delta, &moved), hold);
     }
     report
+}
+
+/// A motion's joints, root rotations and original features, as the leg edits read them.
+pub(crate) struct Posed<'a> {
+    pub joints: &'a Joints,
+    pub root: &'a [Quat],
+    pub old: &'a [f64],
+}
+
+/// Write a leg's moved knee, ankle and toe (`delta` per frame, `moved` frames) into the
+/// features: positions, local velocities and the leg's rotations; held rows stay as they are,
+/// velocities included.
+pub(crate) fn apply_leg(
+    skel: &Skeleton,
+    feats: &mut [f32],
+    p: &Posed,
+    leg: Leg,
+    (delta, moved): (&[[Vec3; 3]], &[bool]),
+    hold: &[bool],
+) {
+    let layout = Layout::of(skel);
+    let d = layout.dim();
+    let t = feats.len() / d;
+    let chain = [leg.knee, leg.ankle, leg.toe];
+    for f in (0..t).filter(|&f| !hold[f] && (moved[f] || (f + 1 < t && moved[f + 1]))) {
+        let row = &mut feats[f * d..(f + 1) * d];
+        let next = if f + 1 < t { delta[f + 1] } else { delta[f] };
+        for (c, &jt) in chain.iter().enumerate() {
+            let ric = quat::qrot(p.root[f], delta[f][c]);
+            let vel = quat::qrot(p.root[f], quat::sub(next[c], delta[f][c]));
+            for k in 0..3 {
+                row[layout.ric().start + (jt - 1) * 3 + k] += ric[k] as f32;
+                row[layout.vel().start + jt * 3 + k] += vel[k] as f32;
+            }
+        }
+        if moved[f] {
+            let old = &p.old[f * d..(f + 1) * d];
+            relocal(skel, &layout, leg, p.root[f], &p.joints[f], &delta[f], old, row);
+        }
+    }
 }
 
 /// Rewrite the local rotations of the knee, ankle and toe slots (HumanML3D stores at a joint the
@@ -378,10 +424,14 @@ mod tests {
             none[r * d + layout.contacts().start..(r + 1) * d].iter_mut().for_each(|v| *v = 0.0);
         }
         let before = none.clone();
-        assert_eq!(lock_feet(&T2M, &mut none, &vec![false; t], BLEND, MAX_SHIFT_M).frames, 0);
+        assert_eq!(
+            lock_feet(&T2M, &mut none, &vec![false; t], BLEND, MAX_SHIFT_M, ContactSource::Network)
+                .frames,
+            0
+        );
         assert_eq!(none, before);
         let mut held = f.clone();
-        lock_feet(&T2M, &mut held, &vec![true; t], BLEND, MAX_SHIFT_M);
+        lock_feet(&T2M, &mut held, &vec![true; t], BLEND, MAX_SHIFT_M, ContactSource::Network);
         assert_eq!(held, f);
     }
 
@@ -420,7 +470,7 @@ mod tests {
         let before_j = joints(&T2M, &sliding);
         let skate0 = foot_skating_ratio(&T2M, &before_j);
         let mut locked = sliding.clone();
-        let rep = lock_feet(&T2M, &mut locked, &hold, BLEND, MAX_SHIFT_M);
+        let rep = lock_feet(&T2M, &mut locked, &hold, BLEND, MAX_SHIFT_M, ContactSource::Network);
         let after_j = joints(&T2M, &locked);
         let skate1 = foot_skating_ratio(&T2M, &after_j);
         assert!(
@@ -553,7 +603,8 @@ mod tests {
         // 40 cm: to hold the feet, the legs would have to reach far past their length.
         let mut sliding = sliding_walk(0.4, 20.0);
         let t1 = sliding.len() / Layout::of(&T2M).dim();
-        let rep = lock_feet(&T2M, &mut sliding, &vec![false; t1], BLEND, 2.0);
+        let rep =
+            lock_feet(&T2M, &mut sliding, &vec![false; t1], BLEND, 2.0, ContactSource::Network);
         assert!(rep.out_of_reach > 0, "{rep:?}");
     }
 }

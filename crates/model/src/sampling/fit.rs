@@ -3,8 +3,9 @@
 use diffkfc_data::dataset::denormalise;
 use diffkfc_data::motion::representation::Layout;
 use diffkfc_data::motion::root_key::{RootKey, ROOT_CHANNELS};
-use diffkfc_data::postprocess::footlock::{self, LockReport};
+use diffkfc_data::postprocess::footlock::{self, ContactSource, LockReport};
 use diffkfc_data::postprocess::rigid::{self, RigidReport};
+use diffkfc_data::postprocess::stride::{self, StrideReport};
 use diffkfc_data::postprocess::warp::{self, Correction};
 use diffkfc_data::Skeleton;
 
@@ -49,12 +50,28 @@ impl std::str::FromStr for KeyframeFit {
     }
 }
 
+/// How the foot post-process finds and holds planted feet (with `Fit::foot_lock`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Feet {
+    /// Contacts from the motion's geometry, strides warped to the root's speed, then pinned.
+    Warp,
+    /// Contacts from the motion's geometry, pinned (no stride warping).
+    Pin,
+    /// The network's contact channels, pinned: the default until the other two beat it on
+    /// generated walks (docs/feet.md).
+    #[default]
+    Network,
+}
+
 /// What follows the last denoising step.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Fit {
     pub keyframes: KeyframeFit,
     /// Hold planted feet still after the keyframe fit (`diffkfc_data::postprocess::footlock`).
     pub foot_lock: bool,
+    /// How planted feet are found and held.
+    pub feet: Feet,
     /// Largest move of a planted foot the lock makes (metres; `footlock::MAX_SHIFT_M` by
     /// default): spans that slide further are left as dragged.
     pub lock_reach: f64,
@@ -68,6 +85,7 @@ impl Default for Fit {
         Fit {
             keyframes: KeyframeFit::Track,
             foot_lock: true,
+            feet: Feet::default(),
             lock_reach: footlock::MAX_SHIFT_M,
             rigid: true,
         }
@@ -82,6 +100,8 @@ pub struct Fitted {
     pub features: Vec<f32>,
     pub corrections: Vec<Correction>,
     pub feet: LockReport,
+    /// What stride warping did (`Feet::Warp`).
+    pub stride: Option<StrideReport>,
     pub rigid: Option<RigidReport>,
     /// [len, 3] the root positions (metres) of the track the second stage observed.
     pub root_path: Option<Vec<f32>>,
@@ -141,11 +161,30 @@ pub fn fit_sample(
     let mut hold = vec![false; req.lengths[i]];
     req.key_frames(i).into_iter().for_each(|f| hold[f] = true);
     let rigid = fit.rigid.then(|| rigid::make_rigid(skel, &mut features, &hold));
-    let mut feet = LockReport::default();
-    if fit.foot_lock {
-        feet = footlock::lock_feet(skel, &mut features, &hold, footlock::BLEND, fit.lock_reach);
+    let (feet, stride) =
+        if fit.foot_lock { hold_feet(skel, &mut features, &hold, fit) } else { Default::default() };
+    Fitted { features, corrections, feet, stride, rigid, root_path: None, track: None }
+}
+
+/// The foot post-process: stride warping (`Feet::Warp`), then the lock with the contacts its
+/// mode reads; each planted span records the warp's factor at its middle.
+fn hold_feet(
+    skel: &Skeleton,
+    features: &mut [f32],
+    hold: &[bool],
+    fit: Fit,
+) -> (LockReport, Option<StrideReport>) {
+    let stride = (fit.feet == Feet::Warp).then(|| stride::warp_strides(skel, features, hold));
+    let source =
+        if fit.feet == Feet::Network { ContactSource::Network } else { ContactSource::Motion };
+    let mut feet =
+        footlock::lock_feet(skel, features, hold, footlock::BLEND, fit.lock_reach, source);
+    if let Some(k) = stride.as_ref().map(|s| &s.factors).filter(|k| !k.is_empty()) {
+        for span in &mut feet.spans {
+            span.warp_factor = k[(span.start + span.end) / 2];
+        }
     }
-    Fitted { features, corrections, feet, rigid, root_path: None, track: None }
+    (feet, stride)
 }
 
 fn fit_keys(

@@ -131,6 +131,7 @@ fn write_sample(
         "gait": diffkfc_eval::gait::measure(&T2M, &j),
         "corrections": done.corrections,
         "foot_lock": fit.foot_lock.then_some(&done.feet),
+        "stride": done.stride,
     });
     let view = sample_view(&name, &s, done, keys, j);
     Ok((s, view))
@@ -204,6 +205,7 @@ fn results(
         "transition_guidance": opts.transition,
         "keyframe_fit": fit.keyframes,
         "foot_lock": fit.foot_lock,
+        "feet": fit.foot_lock.then_some(fit.feet),
         "foot_lock_reach_m": fit.lock_reach,
         "root_keys": keys.root.iter().enumerate().filter(|(_, k)| **k != RootKey::default()).map(|(f, k)| json!({"frame": f, "place": k.place, "heading_deg": k.heading.map(f64::to_degrees)})).collect::<Vec<_>>(),
         "keyframe_mode": format!("{:?}", a.keyframe_mode).to_lowercase(),
