@@ -108,17 +108,23 @@ mod tests {
         p
     }
 
-    /// A walk in place: the toes swing ±0.3 m forward and back in opposite phase, each resting
-    /// on the floor while behind, the pelvis still.
+    /// A walk in place: each toe stands still on the floor for half of a 20-frame cycle and
+    /// swings 0.3 m forward and back, lifted, for the other half, the two in opposite phase;
+    /// the pelvis still.
     fn walk_in_place(frames: usize) -> Joints {
         (0..frames)
             .map(|t| {
                 let mut p = pose();
-                let ph = t as f64 / 20.0 * std::f64::consts::TAU;
-                for (toe, s) in [(10, 1.0), (11, -1.0)] {
-                    let swing = (ph * s).sin();
-                    p[toe][2] = 0.3 * swing;
-                    p[toe][1] = if swing > 0.0 { 0.1 * swing } else { 0.0 };
+                for (toe, offset) in [(10, 0), (11, 10)] {
+                    let k = (t + offset) % 20;
+                    if k >= 10 {
+                        let bump = (std::f64::consts::PI * (k - 10) as f64 / 10.0).sin();
+                        p[toe][2] = 0.3 * bump;
+                        p[toe][1] = 0.1 * bump;
+                    } else {
+                        p[toe][2] = 0.0;
+                        p[toe][1] = 0.0;
+                    }
                 }
                 p
             })
@@ -129,11 +135,22 @@ mod tests {
     fn walk_in_place_has_stride_but_no_speed() {
         let g = measure(&T2M, &walk_in_place(80));
         assert!(g.root_speed_mps < 1e-12, "{g:?}");
-        // A sine of amplitude 0.3 m has std 0.3 / sqrt 2.
-        assert!((g.stride_amplitude_m - 0.3 / 2f64.sqrt()).abs() < 0.01, "{g:?}");
-        // A toe at rest on the floor is planted only at the swing's turning points (slow);
-        // most frames have one toe moving fast and the other lifted or moving: not all planted.
-        assert!(g.planted_share > 0.0 && g.planted_share < 1.0, "{g:?}");
+        // Half of the frames at 0, half a sine bump of 0.3 m (mean 0.3 x 2/pi over the swing):
+        // the std of that mix, computed from its frames.
+        let z: Vec<f64> = (0..20)
+            .map(|k| {
+                if k >= 10 {
+                    0.3 * (std::f64::consts::PI * (k - 10) as f64 / 10.0).sin()
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let m = z.iter().sum::<f64>() / 20.0;
+        let want = (z.iter().map(|v| (v - m).powi(2)).sum::<f64>() / 20.0).sqrt();
+        assert!((g.stride_amplitude_m - want).abs() < 1e-9 && want > 0.1, "{g:?} vs {want}");
+        // Each toe stands still on the floor for half the cycle.
+        assert!((g.planted_share - 0.5).abs() < 0.02, "{g:?}");
     }
 
     #[test]

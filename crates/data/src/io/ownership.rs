@@ -141,6 +141,9 @@ pub fn refuse_other_kind(
     if dir.exists() && !dir.is_dir() {
         return refuse("is a file, not a folder".into());
     }
+    if dir.join(marker).exists() {
+        return Ok(true);
+    }
     let wanted = Output::ALL.into_iter().find(|k| k.marker() == marker);
     match found(dir) {
         Some(k) if k.marker() == marker => Ok(true),

@@ -51,7 +51,7 @@ impl std::str::FromStr for StateLocation {
             _ => Err(diffkfc_data::UnknownChoice {
                 what: "optimiser state location",
                 given: s.into(),
-                choices: "host, device",
+                choices: "host or device",
             }),
         }
     }
