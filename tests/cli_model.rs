@@ -280,3 +280,92 @@ fn text_embed_prints_ids_and_embedding() {
         &["fetch-text-encoder.sh"],
     );
 }
+
+/// One ownership rule for every folder a command writes: an exported model is written over by
+/// `model export` alone (`eval train-evaluator --out MODEL` once wrote checkpoints into it), and
+/// a folder of another kind is refused in one line unless `--force`.
+#[test]
+fn commands_refuse_folders_they_do_not_own() {
+    if !have_text_encoder() {
+        return;
+    }
+    let d = scratch("ownership");
+    let data = d.join("synth");
+    assert!(diffkfc(&["data", "synth", "--out", s(&data), "--clips", "40", "--seed", "4"])
+        .status
+        .success());
+    let run = two_step_run(&d, &data, "run", None);
+    let model = d.join("model");
+    let o = diffkfc(&["model", "export", "--checkpoint", s(&run), "--out", s(&model)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let files = |p: &std::path::Path| {
+        let mut v: Vec<String> = std::fs::read_dir(p)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    };
+    let before = files(&model);
+    for force in [false, true] {
+        let mut a = vec![
+            "eval",
+            "train-evaluator",
+            "--data",
+            s(&data),
+            "--out",
+            s(&model),
+            "--max-steps",
+            "2",
+        ];
+        if force {
+            a.push("--force");
+        }
+        assert_one_line_error(
+            &diffkfc(&a),
+            &["is an exported model", "only `diffkfc model export`"],
+        );
+        let o = diffkfc(&[
+            "train",
+            "--config",
+            s(&d.join("run.json")),
+            "--data",
+            s(&data),
+            "--out",
+            s(&model),
+        ]);
+        assert_one_line_error(&o, &["is an exported model"]);
+    }
+    assert_eq!(files(&model), before, "the model folder changed");
+    let o = diffkfc(&[
+        "sample",
+        "--checkpoint",
+        s(&model),
+        "--text",
+        "a person walks.",
+        "--length",
+        "20",
+        "--steps",
+        "2",
+        "--out",
+        s(&d.join("s")),
+    ]);
+    assert!(o.status.success(), "the model still loads: {}", stderr(&o));
+    // Another kind: a run is not an evaluation report's folder, nor a model's, unless forced.
+    let o = diffkfc(&["model", "export", "--checkpoint", s(&run), "--out", s(&d.join("s"))]);
+    assert_one_line_error(&o, &["holds samples (diffkfc sample), not an exported model"]);
+    let o = diffkfc(&[
+        "eval",
+        "train-evaluator",
+        "--data",
+        s(&data),
+        "--out",
+        s(&run),
+        "--max-steps",
+        "2",
+    ]);
+    assert_one_line_error(&o, &["holds a training run (diffkfc train)", "--force"]);
+    // A model is exported again over itself.
+    let o = diffkfc(&["model", "export", "--checkpoint", s(&run), "--out", s(&model)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+}
