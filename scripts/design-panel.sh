@@ -73,13 +73,7 @@ common=(--checkpoint "$out/run" --evaluator "$evaluator" --data "$data" --num-it
 "$bin" eval "${common[@]}" --keyframe-rate 0.05 --keyframe-fit none --no-foot-lock --no-rigid --out "$out/eval-keyed-raw" >/dev/null
 
 # The six keyed walks, raw and through the default pipeline.
-mapfile -t walks < <(python3 - "$data/manifest.json" <<'PY'
-import json, sys
-clips = [c for c in json.load(open(sys.argv[1]))["clips"] if c["split"] == "test"]
-walks = [c["id"] for c in clips if any(a["action"] == "walk_forward" for a in c["actions"]) and c["frames"] >= 120]
-print("\n".join(walks[:6]))
-PY
-)
+mapfile -t walks < <("$bin" data clips "$data" --split test --action walk_forward --min-frames 120 --count 6)
 for w in "${walks[@]}"; do
   text=$(head -n 1 "$data/texts/$w.txt" | cut -d'#' -f1)
   for mode in raw default; do

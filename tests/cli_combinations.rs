@@ -8,7 +8,7 @@
 mod common;
 use common::*;
 use diffkfc_data::io::npy;
-use diffkfc_data::testing::pairwise::all_pairs;
+use diffkfc_data::testing::pairwise::{all_pairs, wrong_pairs};
 use std::path::Path;
 
 /// Factors and their levels.
@@ -67,16 +67,7 @@ fn cover() -> Vec<Vec<usize>> {
 fn the_cover_covers_every_pair() {
     let levels: Vec<usize> = FACTORS.iter().map(|(_, l)| l.len()).collect();
     let rows = cover();
-    for a in 0..levels.len() {
-        for b in a + 1..levels.len() {
-            for x in 0..levels[a] {
-                for y in 0..levels[b] {
-                    let covered = rows.iter().any(|r| r[a] == x && r[b] == y);
-                    assert_eq!(covered, allowed(a, x, b, y), "{a}={x}, {b}={y}");
-                }
-            }
-        }
-    }
+    assert_eq!(wrong_pairs(&levels, &rows, allowed), vec![]);
     // Far fewer than the full product (2 * 3 * 4 * 5 * 2^5 = 3840 here).
     assert!(rows.len() <= 30, "{} rows", rows.len());
 }
@@ -135,10 +126,7 @@ fn sample_options_crossed_pairwise() {
         return;
     }
     let d = scratch("combinations");
-    let data = d.join("synth");
-    assert!(diffkfc(&["data", "synth", "--out", s(&data), "--clips", "12", "--seed", "5"])
-        .status
-        .success());
+    let data = synth(&d, 12, 5);
     let cfg = d.join("run.json");
     std::fs::write(&cfg, RUN).unwrap();
     let run = d.join("run");

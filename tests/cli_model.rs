@@ -290,10 +290,7 @@ fn commands_refuse_folders_they_do_not_own() {
         return;
     }
     let d = scratch("ownership");
-    let data = d.join("synth");
-    assert!(diffkfc(&["data", "synth", "--out", s(&data), "--clips", "40", "--seed", "4"])
-        .status
-        .success());
+    let data = synth(&d, 40, 4);
     let run = two_step_run(&d, &data, "run", None);
     let model = d.join("model");
     let o = diffkfc(&["model", "export", "--checkpoint", s(&run), "--out", s(&model)]);

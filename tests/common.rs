@@ -53,6 +53,23 @@ pub fn have_text_encoder() -> bool {
     false
 }
 
+/// A synthetic dataset of `clips` clips (seed `seed`) in `dir/synth`.
+pub fn synth(dir: &Path, clips: usize, seed: u64) -> PathBuf {
+    let data = dir.join("synth");
+    let o = diffkfc(&[
+        "data",
+        "synth",
+        "--out",
+        s(&data),
+        "--clips",
+        &clips.to_string(),
+        "--seed",
+        &seed.to_string(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    data
+}
+
 /// A run config that trains a one-layer tiny model for 2 steps: enough for a checkpoint that
 /// sampling and evaluation can load.
 pub const TWO_STEP_RUN: &str = r#"{"model": {"preset": "tiny", "dec_layers": 1, "dma_sizes": [2, 0]},

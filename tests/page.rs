@@ -47,20 +47,17 @@ fn pixels(png_path: &Path) -> (usize, usize, Vec<u8>) {
     (info.width as usize, info.height as usize, rgb)
 }
 
-#[test]
-fn page_draws_and_the_slider_moves_the_figures() {
-    let Some(chromium) = chromium() else {
-        return;
-    };
-    let Some(src) = fixtures::require("humanml3d/new_joint_vecs/012314.npy") else {
-        return;
-    };
-    if !have_text_encoder() {
-        return;
-    }
-    let d = scratch("page");
+/// Chromium, a real clip and the text encoder, or None (after a notice) where one is missing.
+fn needs() -> Option<(std::path::PathBuf, std::path::PathBuf)> {
+    let chromium = chromium()?;
+    let src = fixtures::require("humanml3d/new_joint_vecs/012314.npy")?;
+    have_text_encoder().then_some((chromium, src))
+}
+
+/// `samples` 100-frame walks of the reference model keyed at `frames` of `src`, into `out`.
+fn sample_walk(src: &Path, frames: &str, samples: usize, out: &Path) {
     let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/tiny-synth");
-    let out = d.join("walk");
+    let n = samples.to_string();
     let o = diffkfc(&[
         "sample",
         "--checkpoint",
@@ -68,19 +65,29 @@ fn page_draws_and_the_slider_moves_the_figures() {
         "--text",
         "a person walks forward.",
         "--from",
-        s(&src),
+        s(src),
         "--frames",
-        "0,40,80",
+        frames,
         "--length",
         "100",
         "--num-samples",
-        "2",
+        &n,
         "--steps",
         "4",
         "--out",
-        s(&out),
+        s(out),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
+}
+
+#[test]
+fn page_draws_and_the_slider_moves_the_figures() {
+    let Some((chromium, src)) = needs() else {
+        return;
+    };
+    let d = scratch("page");
+    let out = d.join("walk");
+    sample_walk(&src, "0,40,80", 2, &out);
     let url = |frame: usize| format!("file://{}#frame={frame}", out.join("index.html").display());
 
     let dom = headless(&chromium, &["--dump-dom"], &url(40));
@@ -140,36 +147,12 @@ fn page_draws_and_the_slider_moves_the_figures() {
 /// the terminal gets the same numbers as a table.
 #[test]
 fn comparison_page_links_resolve_and_its_view_draws() {
-    let Some(chromium) = chromium() else {
+    let Some((chromium, src)) = needs() else {
         return;
     };
-    let Some(src) = fixtures::require("humanml3d/new_joint_vecs/012314.npy") else {
-        return;
-    };
-    if !have_text_encoder() {
-        return;
-    }
     let d = scratch("compare");
-    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/tiny-synth");
     for (name, frames) in [("walk", "0,40,80"), ("still", "0")] {
-        let o = diffkfc(&[
-            "sample",
-            "--checkpoint",
-            s(&model),
-            "--text",
-            "a person walks forward.",
-            "--from",
-            s(&src),
-            "--frames",
-            frames,
-            "--length",
-            "100",
-            "--steps",
-            "4",
-            "--out",
-            s(&d.join(name)),
-        ]);
-        assert!(o.status.success(), "{}", stderr(&o));
+        sample_walk(&src, frames, 1, &d.join(name));
     }
     let page = d.join("page/index.html");
     let o = diffkfc(&["render", "--page", s(&d.join("walk")), s(&d.join("still")), "-o", s(&page)]);

@@ -7,6 +7,7 @@
 use std::path::{Path, PathBuf};
 
 use crate::io::atomic::remove_dead_leftovers;
+use crate::io::ownership::names as entries;
 use crate::DataError;
 
 /// An output set being written (`ours` must accept "results.json": see `begin`).
@@ -33,17 +34,6 @@ pub enum Committed {
 
 fn io(p: &Path) -> impl Fn(std::io::Error) -> DataError + '_ {
     move |err| DataError::Io { path: p.to_path_buf(), err }
-}
-
-fn entries(dir: &Path) -> Vec<String> {
-    let mut v: Vec<String> = std::fs::read_dir(dir)
-        .into_iter()
-        .flatten()
-        .flatten()
-        .map(|e| e.file_name().to_string_lossy().into_owned())
-        .collect();
-    v.sort();
-    v
 }
 
 impl OutputSet {

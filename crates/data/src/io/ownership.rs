@@ -64,7 +64,8 @@ impl Output {
     }
 }
 
-fn names(dir: &Path) -> Vec<String> {
+/// The names in `dir`, sorted (none when it is missing or unreadable).
+pub(crate) fn names(dir: &Path) -> Vec<String> {
     let mut v: Vec<String> = std::fs::read_dir(dir)
         .into_iter()
         .flatten()
