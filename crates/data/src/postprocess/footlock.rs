@@ -1,12 +1,15 @@
-//! Foot locking: after the keyframe fit, a foot the motion itself labels as planted (its toe's
-//! contact channel) is held still on the ground plane and its leg reaches it by two-bone IK.
+//! Foot locking: after the keyframe fit, a planted foot (by the network's contact channel, or
+//! by the motion's geometry: `contacts`) is held still on the ground plane and its leg reaches
+//! it by two-bone IK (`leg`; motion contacts are pinned by `pin`).
 //! Generated walks slide their planted feet (foot skating); this removes the slide without
 //! touching the root, so keyed places and headings stay exact, and it leaves held frames
 //! (the pose keyframes) unchanged.
 
-use crate::motion::quat::{self, Quat, Vec3};
-use crate::motion::representation::{recover_from_ric, recover_root_rot_pos, Joints, Layout};
+use crate::motion::quat::{self, Vec3};
+use crate::motion::representation::{recover_from_ric, recover_root_rot_pos, Layout};
 use crate::motion::skeleton::Skeleton;
+use crate::postprocess::leg::{apply_leg, leg_deltas, legs, Posed};
+use crate::postprocess::pin;
 
 /// A toe contact channel above this marks its foot planted.
 pub const CONTACT: f32 = 0.5;
@@ -56,6 +59,8 @@ pub enum ContactSource {
 #[serde(rename_all = "snake_case")]
 pub enum Outcome {
     Locked,
+    /// Held as far as the leg reaches (`pin`'s reach fall-off weakened the hold).
+    Faded,
     Dragged,
     OutOfReach,
 }
@@ -74,32 +79,6 @@ pub struct PlantSpan {
     /// (metres), before and after locking.
     pub drift_before_m: f64,
     pub drift_after_m: f64,
-}
-
-/// One leg's joints, from the hip to the toe.
-#[derive(Clone, Copy)]
-pub(crate) struct Leg {
-    pub hip: usize,
-    pub knee: usize,
-    pub ankle: usize,
-    pub toe: usize,
-    /// Index of the toe's contact channel among the 4 contact channels.
-    pub contact: usize,
-}
-
-pub(crate) fn legs(skel: &Skeleton) -> Vec<Leg> {
-    let mut out = Vec::new();
-    for (feet, contact) in [(skel.feet_left, 1), (skel.feet_right, 3)] {
-        let [ankle, toe] = feet;
-        for chain in skel.kinematic_chain {
-            if let Some(p) = chain.iter().position(|&j| j == ankle) {
-                if p >= 2 && chain.get(p + 1) == Some(&toe) {
-                    out.push(Leg { hip: chain[p - 2], knee: chain[p - 1], ankle, toe, contact });
-                }
-            }
-        }
-    }
-    out
 }
 
 fn smoothstep(x: f64) -> f64 {
@@ -181,61 +160,6 @@ fn drift(toe: impl Fn(usize) -> Vec3, start: usize, end: usize, unit: f64) -> f6
     (start..=end).map(toe).map(|p| (p[0] - a[0]).hypot(p[2] - a[2]) * unit).fold(0.0, f64::max)
 }
 
-/// Knee position for a hip `h`, a moved ankle target `a` and the frame's own thigh and shin
-/// lengths, bending towards the original knee `k0`; the ankle is pulled in when out of reach.
-/// Returns (knee, ankle).
-fn two_bone(h: Vec3, k0: Vec3, a0: Vec3, a: Vec3) -> (Vec3, Vec3) {
-    let (l1, l2) = (quat::norm(quat::sub(k0, h)), quat::norm(quat::sub(a0, k0)));
-    let ha = quat::sub(a, h);
-    let dist = quat::norm(ha);
-    if dist < 1e-9 || l1 < 1e-9 || l2 < 1e-9 {
-        return (k0, a0);
-    }
-    let u = quat::scale(ha, 1.0 / dist);
-    let d = dist.clamp((l1 - l2).abs() + 1e-6, (l1 + l2) * (1.0 - 1e-6));
-    let a = quat::add(h, quat::scale(u, d));
-    let along = (l1 * l1 - l2 * l2 + d * d) / (2.0 * d);
-    let up = (l1 * l1 - along * along).max(0.0).sqrt();
-    let hk = quat::sub(k0, h);
-    let bend = quat::sub(hk, quat::scale(u, quat::dot(hk, u)));
-    let bend = if quat::norm(bend) > 1e-9 { quat::normalize(bend) } else { return (k0, a0) };
-    (quat::add(h, quat::add(quat::scale(u, along), quat::scale(bend, up))), a)
-}
-
-fn read6(row: &[f64], at: usize) -> Quat {
-    quat::from_matrix(quat::cont6d_to_matrix([
-        row[at],
-        row[at + 1],
-        row[at + 2],
-        row[at + 3],
-        row[at + 4],
-        row[at + 5],
-    ]))
-}
-
-/// New knee, ankle and toe positions (as deltas [knee, ankle, toe] per frame, zero elsewhere)
-/// where the ankle moves by `o[f]` (two-bone IK from the hip), and which frames moved; held
-/// frames never move.
-pub(crate) fn leg_deltas(
-    joints: &Joints,
-    leg: Leg,
-    o: &[Vec3],
-    hold: &[bool],
-) -> (Vec<[Vec3; 3]>, Vec<bool>) {
-    let t = joints.len();
-    let mut delta = vec![[[0.0; 3]; 3]; t];
-    let mut moved = vec![false; t];
-    for f in (0..t).filter(|&f| quat::norm(o[f]) != 0.0 && !hold[f]) {
-        let j = &joints[f];
-        let (k, a) = two_bone(j[leg.hip], j[leg.knee], j[leg.ankle], quat::add(j[leg.ankle], o[f]));
-        let toe_new = quat::add(a, quat::sub(j[leg.toe], j[leg.ankle]));
-        delta[f] =
-            [quat::sub(k, j[leg.knee]), quat::sub(a, j[leg.ankle]), quat::sub(toe_new, j[leg.toe])];
-        moved[f] = true;
-    }
-    (delta, moved)
-}
-
 /// Lock the planted feet of de-normalised features `feats` [T, D] in place. `hold[f]` marks
 /// frames that must not change (pose keyframes). Positions, local velocities and the leg's
 /// rotations are updated together; the root and the contact labels are not touched.
@@ -280,7 +204,21 @@ pub fn lock_feet(
             let wanted = quat::norm(quat::sub(quat::add(j[leg.ankle], o), j[leg.hip]));
             wanted <= leg_len + slack
         };
-        let (o, spans) = offsets(&toe, &planted, hold, blend, max_shift_m / unit, reachable);
+        let (o, spans) = match source {
+            ContactSource::Network => {
+                offsets(&toe, &planted, hold, blend, max_shift_m / unit, reachable)
+            }
+            ContactSource::Motion => {
+                let weight = |f: usize, o: Vec3| {
+                    let j = &joints[f];
+                    let leg_len = quat::norm(quat::sub(j[leg.knee], j[leg.hip]))
+                        + quat::norm(quat::sub(j[leg.ankle], j[leg.knee]));
+                    let to = quat::norm(quat::sub(quat::add(j[leg.ankle], o), j[leg.hip]));
+                    pin::reach_weight(to / leg_len.max(1e-9))
+                };
+                pin::offsets(&toe, &planted, hold, pin::BLEND, max_shift_m / unit, weight)
+            }
+        };
         report.dragged += spans.iter().filter(|s| s.2 == Outcome::Dragged).count();
         report.out_of_reach += spans.iter().filter(|s| s.2 == Outcome::OutOfReach).count();
         let (delta, moved) = leg_deltas(&joints, leg, &o, hold);
@@ -304,97 +242,13 @@ pub fn lock_feet(
     report
 }
 
-/// A motion's joints, root rotations and original features, as the leg edits read them.
-pub(crate) struct Posed<'a> {
-    pub joints: &'a Joints,
-    pub root: &'a [Quat],
-    pub old: &'a [f64],
-}
-
-/// Write a leg's moved knee, ankle and toe (`delta` per frame, `moved` frames) into the
-/// features: positions, local velocities and the leg's rotations; held rows stay as they are,
-/// velocities included.
-pub(crate) fn apply_leg(
-    skel: &Skeleton,
-    feats: &mut [f32],
-    p: &Posed,
-    leg: Leg,
-    (delta, moved): (&[[Vec3; 3]], &[bool]),
-    hold: &[bool],
-) {
-    let layout = Layout::of(skel);
-    let d = layout.dim();
-    let t = feats.len() / d;
-    let chain = [leg.knee, leg.ankle, leg.toe];
-    for f in (0..t).filter(|&f| !hold[f] && (moved[f] || (f + 1 < t && moved[f + 1]))) {
-        let row = &mut feats[f * d..(f + 1) * d];
-        let next = if f + 1 < t { delta[f + 1] } else { delta[f] };
-        for (c, &jt) in chain.iter().enumerate() {
-            let ric = quat::qrot(p.root[f], delta[f][c]);
-            let vel = quat::qrot(p.root[f], quat::sub(next[c], delta[f][c]));
-            for k in 0..3 {
-                row[layout.ric().start + (jt - 1) * 3 + k] += ric[k] as f32;
-                row[layout.vel().start + jt * 3 + k] += vel[k] as f32;
-            }
-        }
-        if moved[f] {
-            let old = &p.old[f * d..(f + 1) * d];
-            relocal(skel, &layout, leg, p.root[f], &p.joints[f], &delta[f], old, row);
-        }
-    }
-}
-
-/// Rewrite the local rotations of the knee, ankle and toe slots (HumanML3D stores at a joint the
-/// rotation of the bone that ends there) after the thigh and shin turned: each bone's global
-/// rotation is turned by the swing from its old to its new direction; the foot keeps its own.
-#[allow(clippy::too_many_arguments)]
-fn relocal(
-    skel: &Skeleton,
-    layout: &Layout,
-    leg: Leg,
-    root: Quat,
-    j: &[Vec3],
-    delta: &[Vec3; 3],
-    old: &[f64],
-    row: &mut [f32],
-) {
-    let chain = skel.kinematic_chain.iter().find(|c| c.contains(&leg.hip)).expect("leg in a chain");
-    let rot = |jt: usize| layout.rot().start + (jt - 1) * 6;
-    // Global rotations down the chain to the hip slot.
-    let mut g = root;
-    for &jt in &chain[1..] {
-        g = quat::qmul(g, read6(old, rot(jt)));
-        if jt == leg.hip {
-            break;
-        }
-    }
-    let g_hip = g;
-    let g_knee = quat::qmul(g_hip, read6(old, rot(leg.knee)));
-    let g_ankle = quat::qmul(g_knee, read6(old, rot(leg.ankle)));
-    let g_toe = quat::qmul(g_ankle, read6(old, rot(leg.toe)));
-    let (k1, a1) = (quat::add(j[leg.knee], delta[0]), quat::add(j[leg.ankle], delta[1]));
-    let thigh = quat::qbetween(quat::sub(j[leg.knee], j[leg.hip]), quat::sub(k1, j[leg.hip]));
-    let shin = quat::qbetween(quat::sub(j[leg.ankle], j[leg.knee]), quat::sub(a1, k1));
-    let g_knee1 = quat::qmul(thigh, g_knee);
-    let g_ankle1 = quat::qmul(shin, g_ankle);
-    let locals = [
-        (leg.knee, quat::qmul(quat::qinv(g_hip), g_knee1)),
-        (leg.ankle, quat::qmul(quat::qinv(g_knee1), g_ankle1)),
-        (leg.toe, quat::qmul(quat::qinv(g_ankle1), g_toe)),
-    ];
-    for (jt, q) in locals {
-        let c6 = quat::to_cont6d(q);
-        for k in 0..6 {
-            row[rot(jt) + k] = c6[k] as f32;
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::motion::plausibility::foot_skating_ratio;
+    use crate::motion::quat::Vec3;
     use crate::motion::representation::features_from_joints;
+    use crate::postprocess::leg::read6;
     use crate::T2M;
 
     /// A synthetic walk's features, and the same with its planted feet sliding forward.

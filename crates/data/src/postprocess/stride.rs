@@ -18,7 +18,7 @@ use crate::motion::representation::{recover_from_ric, recover_root_rot_pos, Join
 use crate::motion::skeleton::Skeleton;
 use crate::motion::travel::travel_directions;
 use crate::postprocess::contacts::{self, THRESHOLDS};
-use crate::postprocess::footlock::{apply_leg, leg_deltas, legs, Leg, Posed};
+use crate::postprocess::leg::{apply_leg, leg_deltas, legs, Leg, Posed};
 
 /// Smallest and largest stride factor.
 pub const FACTOR_RANGE: (f64, f64) = (0.5, 2.0);
