@@ -9,7 +9,7 @@ use crate::motion::quat::{self, Vec3};
 use crate::motion::representation::{recover_from_ric, recover_root_rot_pos, Layout};
 use crate::motion::skeleton::Skeleton;
 use crate::postprocess::leg::{apply_leg, leg_deltas, legs, Posed};
-use crate::postprocess::pin;
+use crate::postprocess::pin::{self, fade_beside};
 
 /// A toe contact channel above this marks its foot planted.
 pub const CONTACT: f32 = 0.5;
@@ -81,11 +81,6 @@ pub struct PlantSpan {
     pub drift_after_m: f64,
 }
 
-fn smoothstep(x: f64) -> f64 {
-    let x = x.clamp(0.0, 1.0);
-    x * x * (3.0 - 2.0 * x)
-}
-
 /// Horizontal offset of one foot per frame: inside a planted span, from its toe to the span's
 /// anchor (the toe's mean place, or its place at the nearest held frame, so held frames get 0);
 /// outside, the span-end offsets fading over up to `blend` free frames. Spans needing a move
@@ -137,18 +132,7 @@ fn offsets(
         }
         spans.push((s, e, Outcome::Locked));
         o[s..=e].copy_from_slice(&span);
-        // Fade out into the free frames on each side, stopping short of held and planted ones.
-        let free = |f: usize| !planted[f] && !hold[f];
-        let after = (1..=blend).take_while(|&i| e + i < t && free(e + i)).count();
-        for i in 1..=after {
-            let w = smoothstep(1.0 - i as f64 / (after + 1) as f64);
-            o[e + i] = quat::add(o[e + i], quat::scale(o[e], w));
-        }
-        let before = (1..=blend).take_while(|&i| i <= s && free(s - i)).count();
-        for i in 1..=before {
-            let w = smoothstep(1.0 - i as f64 / (before + 1) as f64);
-            o[s - i] = quat::add(o[s - i], quat::scale(o[s], w));
-        }
+        fade_beside(&mut o, (s, e), blend, |f| !planted[f] && !hold[f]);
         s = e + 1;
     }
     (o, spans)

@@ -7,6 +7,7 @@
 use crate::motion::quat::{self, Vec3};
 use crate::postprocess::contacts::spans;
 use crate::postprocess::footlock::Outcome;
+use crate::postprocess::smoothstep;
 
 /// Up to this fraction of the leg's length a target is held fully ...
 pub const REACH_FULL: f64 = 0.97;
@@ -15,9 +16,25 @@ pub const REACH_NONE: f64 = 0.99;
 /// Frames over which a pin fades in and out beside its span (0.25 s).
 pub const BLEND: usize = 5;
 
-fn smoothstep(x: f64) -> f64 {
-    let x = x.clamp(0.0, 1.0);
-    x * x * (3.0 - 2.0 * x)
+/// The offsets at a span's ends (`s..=e`) faded out into up to `blend` frames on each side,
+/// stopping at the first frame that is not `free` (held or planted).
+pub fn fade_beside(
+    o: &mut [Vec3],
+    (s, e): (usize, usize),
+    blend: usize,
+    free: impl Fn(usize) -> bool,
+) {
+    let t = o.len();
+    let after = (1..=blend).take_while(|&i| e + i < t && free(e + i)).count();
+    for i in 1..=after {
+        let w = smoothstep(1.0 - i as f64 / (after + 1) as f64);
+        o[e + i] = quat::add(o[e + i], quat::scale(o[e], w));
+    }
+    let before = (1..=blend).take_while(|&i| i <= s && free(s - i)).count();
+    for i in 1..=before {
+        let w = smoothstep(1.0 - i as f64 / (before + 1) as f64);
+        o[s - i] = quat::add(o[s - i], quat::scale(o[s], w));
+    }
 }
 
 /// How much of a hold a leg can take: 1 up to [`REACH_FULL`] of its length, 0 from
@@ -61,17 +78,7 @@ pub fn offsets(
             o[f] = quat::scale(*v, w);
         }
         out.push((s, e, if faded { Outcome::Faded } else { Outcome::Locked }));
-        let free = |f: usize| !planted[f] && !hold[f];
-        let after = (1..=blend).take_while(|&i| e + i < t && free(e + i)).count();
-        for i in 1..=after {
-            let w = smoothstep(1.0 - i as f64 / (after + 1) as f64);
-            o[e + i] = quat::add(o[e + i], quat::scale(o[e], w));
-        }
-        let before = (1..=blend).take_while(|&i| i <= s && free(s - i)).count();
-        for i in 1..=before {
-            let w = smoothstep(1.0 - i as f64 / (before + 1) as f64);
-            o[s - i] = quat::add(o[s - i], quat::scale(o[s], w));
-        }
+        fade_beside(&mut o, (s, e), blend, |f| !planted[f] && !hold[f]);
     }
     (o, out)
 }

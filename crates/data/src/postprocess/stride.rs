@@ -19,6 +19,7 @@ use crate::motion::skeleton::Skeleton;
 use crate::motion::travel::travel_directions;
 use crate::postprocess::contacts::{self, THRESHOLDS};
 use crate::postprocess::leg::{apply_leg, leg_deltas, legs, Leg, Posed};
+use crate::postprocess::smoothstep;
 
 /// Smallest and largest stride factor.
 pub const FACTOR_RANGE: (f64, f64) = (0.5, 2.0);
@@ -99,11 +100,6 @@ fn stances(skel: &Skeleton, j: &Joints, dirs: &[[f64; 2]], legs: &[Leg]) -> Vec<
         }
     }
     out
-}
-
-fn smoothstep(x: f64) -> f64 {
-    let x = x.clamp(0.0, 1.0);
-    x * x * (3.0 - 2.0 * x)
 }
 
 /// The factor per frame: the spans' factors at their middles, linear between them and flat

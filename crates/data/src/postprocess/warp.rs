@@ -12,11 +12,7 @@
 use crate::motion::quat::{self, Vec3};
 use crate::motion::representation::Layout;
 use crate::motion::root_key::{root_trajectory, RootKey};
-
-fn smoothstep(u: f64) -> f64 {
-    let u = u.clamp(0.0, 1.0);
-    u * u * (3.0 - 2.0 * u)
-}
+use crate::postprocess::smoothstep;
 
 /// How a displacement behaves away from its anchors.
 #[derive(Clone, Copy, Debug)]
