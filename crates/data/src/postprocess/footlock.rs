@@ -8,8 +8,9 @@
 use crate::motion::quat::{self, Vec3};
 use crate::motion::representation::{recover_from_ric, recover_root_rot_pos, Layout};
 use crate::motion::skeleton::Skeleton;
+use crate::postprocess::contacts;
 use crate::postprocess::leg::{apply_leg, leg_deltas, legs, Posed};
-use crate::postprocess::pin::{self, fade_beside};
+use crate::postprocess::pin::{self, fade_beside, held_beside, nearest};
 
 /// A toe contact channel above this marks its foot planted.
 pub const CONTACT: f32 = 0.5;
@@ -97,43 +98,27 @@ fn offsets(
     let t = toe.len();
     let mut o = vec![[0.0; 3]; t];
     let mut spans = Vec::new();
-    let mut s = 0;
-    while s < t {
-        if !planted[s] {
-            s += 1;
-            continue;
-        }
-        let mut e = s;
-        while e + 1 < t && planted[e + 1] {
-            e += 1;
-        }
-        // Held frames in the span or right beside it: the foot stays where they put it (a span
-        // that starts after a pose key must not snap away from the key's foot).
-        let held: Vec<usize> =
-            (s.saturating_sub(1)..=(e + 1).min(t - 1)).filter(|&f| hold[f]).collect();
+    for (s, e) in contacts::spans(planted) {
+        let held = held_beside(hold, (s, e));
         let mean = (s..=e).fold([0.0; 3], |a, f| quat::add(a, toe[f]));
         let mean = quat::scale(mean, 1.0 / (e - s + 1) as f64);
         let span: Vec<Vec3> = (s..=e)
             .map(|f| {
-                let anchor =
-                    held.iter().min_by_key(|&&k| k.abs_diff(f)).map(|&k| toe[k]).unwrap_or(mean);
+                let anchor = nearest(&held, f).map_or(mean, |k| toe[k]);
                 [anchor[0] - toe[f][0], 0.0, anchor[2] - toe[f][2]]
             })
             .collect();
         if span.iter().any(|v| quat::norm(*v) > max_shift) {
             spans.push((s, e, Outcome::Dragged));
-            s = e + 1;
             continue;
         }
         if span.iter().enumerate().any(|(i, v)| !hold[s + i] && !reachable(s + i, *v)) {
             spans.push((s, e, Outcome::OutOfReach));
-            s = e + 1;
             continue;
         }
         spans.push((s, e, Outcome::Locked));
         o[s..=e].copy_from_slice(&span);
         fade_beside(&mut o, (s, e), blend, |f| !planted[f] && !hold[f]);
-        s = e + 1;
     }
     (o, spans)
 }
@@ -167,40 +152,28 @@ pub fn lock_feet(
     let (rq, _) = recover_root_rot_pos(&f64s, d);
     let unit = skel.metres_per_unit;
     let slack = REACH_SLACK_M / unit;
-    let detected = crate::postprocess::contacts::detect(
-        skel,
-        &joints,
-        &crate::postprocess::contacts::THRESHOLDS,
-    );
+    // The motion's own contacts, found once for both feet where they are asked for.
+    let detected = (source == ContactSource::Motion)
+        .then(|| contacts::detect(skel, &joints, &contacts::THRESHOLDS));
     for (li, leg) in legs(skel).into_iter().enumerate() {
-        let planted: Vec<bool> = match source {
-            ContactSource::Motion => detected[li].clone(),
-            ContactSource::Network => (0..t)
-                .map(|f| feats[f * d + layout.contacts().start + leg.contact] > CONTACT)
-                .collect(),
-        };
         let toe: Vec<Vec3> = joints.iter().map(|j| j[leg.toe]).collect();
-        // The frame's own bone lengths: generated motions stretch them a little.
-        let reachable = |f: usize, o: Vec3| {
-            let j = &joints[f];
-            let leg_len = quat::norm(quat::sub(j[leg.knee], j[leg.hip]))
-                + quat::norm(quat::sub(j[leg.ankle], j[leg.knee]));
-            let wanted = quat::norm(quat::sub(quat::add(j[leg.ankle], o), j[leg.hip]));
-            wanted <= leg_len + slack
-        };
-        let (o, spans) = match source {
-            ContactSource::Network => {
+        let (o, spans) = match &detected {
+            None => {
+                let planted: Vec<bool> = (0..t)
+                    .map(|f| feats[f * d + layout.contacts().start + leg.contact] > CONTACT)
+                    .collect();
+                let reachable = |f: usize, o: Vec3| {
+                    let (wanted, length) = leg.reach(&joints[f], o);
+                    wanted <= length + slack
+                };
                 offsets(&toe, &planted, hold, blend, max_shift_m / unit, reachable)
             }
-            ContactSource::Motion => {
+            Some(planted) => {
                 let weight = |f: usize, o: Vec3| {
-                    let j = &joints[f];
-                    let leg_len = quat::norm(quat::sub(j[leg.knee], j[leg.hip]))
-                        + quat::norm(quat::sub(j[leg.ankle], j[leg.knee]));
-                    let to = quat::norm(quat::sub(quat::add(j[leg.ankle], o), j[leg.hip]));
-                    pin::reach_weight(to / leg_len.max(1e-9))
+                    let (wanted, length) = leg.reach(&joints[f], o);
+                    pin::reach_weight(wanted / length.max(1e-9))
                 };
-                pin::offsets(&toe, &planted, hold, pin::BLEND, max_shift_m / unit, weight)
+                pin::offsets(&toe, &planted[li], hold, pin::BLEND, max_shift_m / unit, weight)
             }
         };
         report.dragged += spans.iter().filter(|s| s.2 == Outcome::Dragged).count();

@@ -18,6 +18,16 @@ pub(crate) struct Leg {
     pub contact: usize,
 }
 
+impl Leg {
+    /// At frame `j` (the frame's own bone lengths: generated motions stretch them a little):
+    /// the hip's distance to the ankle moved by `o`, and the thigh and shin together.
+    pub fn reach(&self, j: &[Vec3], o: Vec3) -> (f64, f64) {
+        let length = quat::norm(quat::sub(j[self.knee], j[self.hip]))
+            + quat::norm(quat::sub(j[self.ankle], j[self.knee]));
+        (quat::norm(quat::sub(quat::add(j[self.ankle], o), j[self.hip])), length)
+    }
+}
+
 pub(crate) fn legs(skel: &Skeleton) -> Vec<Leg> {
     let mut out = Vec::new();
     for (feet, contact) in [(skel.feet_left, 1), (skel.feet_right, 3)] {

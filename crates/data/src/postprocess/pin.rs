@@ -37,6 +37,17 @@ pub fn fade_beside(
     }
 }
 
+/// Held frames in the span `s..=e` or right beside it: the foot stays where they put it (a span
+/// that starts after a pose key must not snap away from the key's foot).
+pub fn held_beside(hold: &[bool], (s, e): (usize, usize)) -> Vec<usize> {
+    (s.saturating_sub(1)..=(e + 1).min(hold.len() - 1)).filter(|&f| hold[f]).collect()
+}
+
+/// The held frame of `held` nearest frame `f`.
+pub fn nearest(held: &[usize], f: usize) -> Option<usize> {
+    held.iter().copied().min_by_key(|&k| k.abs_diff(f))
+}
+
 /// How much of a hold a leg can take: 1 up to [`REACH_FULL`] of its length, 0 from
 /// [`REACH_NONE`], smooth between. `reach` is the hip-to-target distance over the leg's length.
 pub fn reach_weight(reach: f64) -> f64 {
@@ -59,11 +70,9 @@ pub fn offsets(
     let mut o = vec![[0.0; 3]; t];
     let mut out = Vec::new();
     for (s, e) in spans(planted) {
-        let held: Vec<usize> =
-            (s.saturating_sub(1)..=(e + 1).min(t - 1)).filter(|&f| hold[f]).collect();
+        let held = held_beside(hold, (s, e));
         let mid = toe[(s + e) / 2];
-        let target =
-            |f: usize| held.iter().min_by_key(|&&k| k.abs_diff(f)).map(|&k| toe[k]).unwrap_or(mid);
+        let target = |f: usize| nearest(&held, f).map_or(mid, |k| toe[k]);
         let want: Vec<Vec3> =
             (s..=e).map(|f| [target(f)[0] - toe[f][0], 0.0, target(f)[2] - toe[f][2]]).collect();
         if want.iter().any(|v| quat::norm(*v) > max_shift) {

@@ -145,11 +145,8 @@ pub fn warp_strides(skel: &Skeleton, feats: &mut [f32], hold: &[bool]) -> Stride
             ..Default::default()
         };
     }
-    let f64s: Vec<f64> = feats.iter().map(|&v| v as f64).collect();
-    let joints = recover_from_ric(skel, &f64s);
-    let dirs = travel_directions(skel, &joints);
-    let legs = legs(skel);
-    let spans = stances(skel, &joints, &dirs, &legs);
+    let w = Walk::of(skel, feats);
+    let spans = stances(skel, &w.joints, &w.dirs, &legs(skel));
     if spans.is_empty() {
         return StrideReport {
             note: Some(
@@ -160,7 +157,7 @@ pub fn warp_strides(skel: &Skeleton, feats: &mut [f32], hold: &[bool]) -> Stride
         };
     }
     let k = factor_curve(&spans, hold);
-    scale_strides(skel, feats, hold, &k);
+    w.scale(skel, feats, hold, &k);
     let mean_factor = k.iter().sum::<f64>() / t as f64;
     StrideReport { warped: true, note: None, mean_factor, spans, factors: k }
 }
@@ -168,22 +165,39 @@ pub fn warp_strides(skel: &Skeleton, feats: &mut [f32], hold: &[bool]) -> Stride
 /// Scale each ankle's along-travel offset from its hip by `k[f]` at frame f (the knee by IK,
 /// the toe with the ankle); held frames stay.
 pub fn scale_strides(skel: &Skeleton, feats: &mut [f32], hold: &[bool], k: &[f64]) {
-    let d = Layout::of(skel).dim();
-    let t = feats.len() / d;
-    let f64s: Vec<f64> = feats.iter().map(|&v| v as f64).collect();
-    let joints = recover_from_ric(skel, &f64s);
-    let dirs = travel_directions(skel, &joints);
-    let (rq, _) = recover_root_rot_pos(&f64s, d);
-    let posed = Posed { joints: &joints, root: &rq, old: &f64s };
-    for leg in legs(skel) {
-        let o: Vec<Vec3> = (0..t)
-            .map(|f| {
-                let a = along(&joints, &dirs, f, leg.hip, leg.ankle) * (k[f] - 1.0);
-                [a * dirs[f][0], 0.0, a * dirs[f][1]]
-            })
-            .collect();
-        let (delta, moved) = leg_deltas(&joints, leg, &o, hold);
-        apply_leg(skel, feats, &posed, leg, (&delta, &moved), hold);
+    Walk::of(skel, feats).scale(skel, feats, hold, k);
+}
+
+/// A motion's features as numbers, its joints and its travel directions, read once for both
+/// finding the stances and scaling them.
+struct Walk {
+    f64s: Vec<f64>,
+    joints: Joints,
+    dirs: Vec<[f64; 2]>,
+}
+
+impl Walk {
+    fn of(skel: &Skeleton, feats: &[f32]) -> Walk {
+        let f64s: Vec<f64> = feats.iter().map(|&v| v as f64).collect();
+        let joints = recover_from_ric(skel, &f64s);
+        let dirs = travel_directions(skel, &joints);
+        Walk { f64s, joints, dirs }
+    }
+
+    /// [`scale_strides`] of the motion this walk was read from (`feats`).
+    fn scale(&self, skel: &Skeleton, feats: &mut [f32], hold: &[bool], k: &[f64]) {
+        let (rq, _) = recover_root_rot_pos(&self.f64s, Layout::of(skel).dim());
+        let posed = Posed { joints: &self.joints, root: &rq, old: &self.f64s };
+        for leg in legs(skel) {
+            let o: Vec<Vec3> = (0..self.joints.len())
+                .map(|f| {
+                    let a = along(&self.joints, &self.dirs, f, leg.hip, leg.ankle) * (k[f] - 1.0);
+                    [a * self.dirs[f][0], 0.0, a * self.dirs[f][1]]
+                })
+                .collect();
+            let (delta, moved) = leg_deltas(&self.joints, leg, &o, hold);
+            apply_leg(skel, feats, &posed, leg, (&delta, &moved), hold);
+        }
     }
 }
 

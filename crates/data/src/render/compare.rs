@@ -114,26 +114,27 @@ fn pair(s: Option<f64>, r: Option<f64>, has_source: bool) -> String {
 /// The numbers of every folder as a plain-text table (aligned columns; a source's value in
 /// brackets after the sample's).
 pub fn text_table(folders: &[Folder]) -> String {
-    let Some(first) = folders.first() else { return String::new() };
+    let numbers: Vec<_> = folders.iter().map(Folder::numbers).collect();
+    let Some(first) = numbers.first() else { return String::new() };
+    // A column shows a source's value where any folder has one.
+    let has_source: Vec<bool> =
+        (0..first.len()).map(|c| numbers.iter().any(|n| n[c].2.is_some())).collect();
     let mut head = vec!["folder".to_string(), "prompt".into(), "keyframes".into()];
-    head.extend(first.numbers().iter().map(|(c, _, r)| {
-        if r.is_some()
-            || folders.iter().any(|f| f.numbers().iter().any(|n| n.0 == *c && n.2.is_some()))
-        {
+    head.extend(first.iter().zip(&has_source).map(|((c, _, _), &h)| {
+        if h {
             format!("{c} (source)")
         } else {
             c.to_string()
         }
     }));
-    let has_source: Vec<bool> = head[3..].iter().map(|h| h.ends_with("(source)")).collect();
     let mut rows = vec![head];
-    for f in folders {
+    for (f, n) in folders.iter().zip(&numbers) {
         let mut row = vec![
             f.label.clone(),
             f.results["text"].as_str().unwrap_or("").to_string(),
             f.keyframes(),
         ];
-        row.extend(f.numbers().iter().zip(&has_source).map(|((_, s, r), &h)| pair(*s, *r, h)));
+        row.extend(n.iter().zip(&has_source).map(|((_, s, r), &h)| pair(*s, *r, h)));
         rows.push(row);
     }
     let widths: Vec<usize> = (0..rows[0].len())
