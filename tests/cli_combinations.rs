@@ -12,7 +12,7 @@ use diffkfc_data::testing::pairwise::{all_pairs, wrong_pairs};
 use std::path::Path;
 
 /// Factors and their levels.
-const FACTORS: [(&str, &[&str]); 10] = [
+const FACTORS: [(&str, &[&str]); 11] = [
     ("sampler", &["dpm", "ddim", "ddpm"]),
     ("tg-mode", &["x0", "exact"]),
     ("keyframe-fit", &["track", "warp", "paste", "none"]),
@@ -23,6 +23,7 @@ const FACTORS: [(&str, &[&str]); 10] = [
     ("keys", &["none", "pose", "place", "pose+place", "suggested"]),
     ("prompt", &["text", "timeline", "body-parts"]),
     ("kf-guidance", &["1", "2.5"]),
+    ("feet", &["network", "warp", "pin"]),
 ];
 
 /// Pairs of levels the command refuses at argument time, each with a needle of its message:
@@ -68,7 +69,7 @@ fn the_cover_covers_every_pair() {
     let levels: Vec<usize> = FACTORS.iter().map(|(_, l)| l.len()).collect();
     let rows = cover();
     assert_eq!(wrong_pairs(&levels, &rows, allowed), vec![]);
-    // Far fewer than the full product (2 * 3 * 4 * 5 * 2^5 = 3840 here).
+    // Far fewer than the full product (2 * 3 * 3 * 4 * 5 * 2^5 = 11520 here).
     assert!(rows.len() <= 30, "{} rows", rows.len());
 }
 
@@ -90,7 +91,7 @@ fn args(row: &[usize], run: &Path, src: &Path, keys: &Path, out: &Path) -> Vec<S
         .map(|x| x.to_string())
         .collect();
     let mut push = |xs: &[&str]| a.extend(xs.iter().map(|x| x.to_string()));
-    for name in ["sampler", "tg-mode", "keyframe-fit", "keyframe-mode", "kf-guidance"] {
+    for name in ["sampler", "tg-mode", "keyframe-fit", "keyframe-mode", "kf-guidance", "feet"] {
         push(&[&format!("--{name}"), level(name)]);
     }
     push(&["--place-guidance", level("place-guidance")]);
@@ -175,6 +176,13 @@ fn sample_options_crossed_pairwise() {
             let json = std::fs::read_to_string(out.join("results.json")).unwrap();
             if !finite || json.contains("NaN") {
                 failures.push(format!("not finite: {shown}"));
+            }
+            // The foot post-process asked for is the one that ran.
+            let feet = a.iter().position(|x| x == "--feet").map(|i| a[i + 1].clone());
+            let r: serde_json::Value = serde_json::from_str(&json).unwrap();
+            let want = if a.iter().any(|x| x == "--no-foot-lock") { None } else { feet };
+            if r["feet"].as_str().map(str::to_string) != want {
+                failures.push(format!("feet {:?} recorded as {}: {shown}", want, r["feet"]));
             }
         }
     }

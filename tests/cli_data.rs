@@ -426,3 +426,22 @@ fn broken_files_are_refused(d: &Path, bvh: &Path, joints: &Path) {
     );
     assert!(!d.join("r.txt").exists() && !d.join("o.npy").exists());
 }
+
+/// This session's new commands refuse bad input in one line: `data clips` with no manifest or no
+/// match, `render --page` of a folder that is not a sample set or to a non-HTML file.
+#[test]
+fn clips_and_page_refuse_bad_input() {
+    let d = scratch("clips-page");
+    let data = synth(&d, 12, 6);
+    let o = diffkfc(&["data", "clips", s(&d), "--split", "test"]);
+    assert_one_line_error(&o, &["manifest.json"]);
+    let o = diffkfc(&["data", "clips", s(&data), "--action", "fly_to_the_moon"]);
+    assert_one_line_error(&o, &["no clip matches", "fly_to_the_moon"]);
+    let o = diffkfc(&["data", "clips", s(&data), "--count", "2"]);
+    assert!(o.status.success() && stdout(&o).lines().count() == 2, "{}", stderr(&o));
+    let o = diffkfc(&["render", "--page", s(&data), "-o", s(&d.join("page.html"))]);
+    assert_one_line_error(&o, &["results.json"]);
+    let o = diffkfc(&["render", "--page", s(&data), "-o", s(&d.join("page.png"))]);
+    assert_one_line_error(&o, &["must end in .html with --page"]);
+    assert!(!d.join("page.html").exists() && !d.join("view.html").exists());
+}
