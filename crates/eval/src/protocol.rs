@@ -145,7 +145,13 @@ pub struct RowResult {
     pub setting: Option<Setting>,
     pub rate: f64,
     pub values: Values,
+    /// Per replication, each item's value of the measures in [`PER_ITEM`] (generated rows), so
+    /// two runs on the same items compare item by item.
+    pub per_item: BTreeMap<&'static str, Vec<Vec<f64>>>,
 }
+
+/// The measures kept per item as well as on average.
+pub const PER_ITEM: [&str; 1] = ["foot_skate"];
 
 pub struct Protocol<'a> {
     /// The model, its schedule and the normalisation it was trained with.
@@ -422,11 +428,21 @@ impl Protocol<'_> {
         rates.dedup();
         let mut real: Vec<RowResult> = rates
             .iter()
-            .map(|&rate| RowResult { setting: None, rate, values: Values::new() })
+            .map(|&rate| RowResult {
+                setting: None,
+                rate,
+                values: Values::new(),
+                per_item: BTreeMap::new(),
+            })
             .collect();
         let mut rows: Vec<RowResult> = settings
             .iter()
-            .map(|s| RowResult { setting: Some(s.clone()), rate: s.rate, values: Values::new() })
+            .map(|s| RowResult {
+                setting: Some(s.clone()),
+                rate: s.rate,
+                values: Values::new(),
+                per_item: BTreeMap::new(),
+            })
             .collect();
         for rep in 0..self.opts.replications {
             let items = self.items(rep);
@@ -532,6 +548,9 @@ impl Protocol<'_> {
         let gens = self.generate(targets, &keys, &s, k, rep_seed, tick);
         for (name, xs) in self.keyframe_scores(targets, &keys, &gens) {
             row.values.entry(name).or_default().extend(mean(&xs));
+            if PER_ITEM.contains(&name) {
+                row.per_item.entry(name).or_default().push(xs);
+            }
         }
         let first: Vec<&[f32]> = gens.iter().map(|g| g[0].as_slice()).collect();
         let motions =

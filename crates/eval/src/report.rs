@@ -125,6 +125,7 @@ pub fn to_json(rows: &[RowResult], meta: Value) -> Value {
                 "keyframe_mode": r.setting.as_ref().map(|s| if s.inpaint { "inpaint" } else { "diffkfc" }),
                 "transition_guidance": r.setting.as_ref().map(|s| s.transition),
                 "metrics": metrics,
+                "per_item": r.per_item,
             })
         })
         .collect();
@@ -153,6 +154,7 @@ mod tests {
         let mut values = Values::new();
         values.insert("fid", fid.to_vec());
         RowResult {
+            per_item: Default::default(),
             setting: name.map(|n| Setting {
                 name: n.into(),
                 rate,

@@ -9,8 +9,9 @@
 //! interpolated between spans and smoothed over [`SMOOTH`] frames, faded to 1 over
 //! [`KEY_FADE`] frames at held (keyed) frames so keys stay exact. Only the along-travel
 //! component of the hip-to-ankle offset scales (sideways and height kept); the thigh and shin
-//! are re-solved by two-bone IK at their own lengths, the ankle clamped where the leg would
-//! over-extend; the root is never moved. Where the legs do not cycle (no span whose foot moves
+//! are re-solved by two-bone IK at their own lengths, the pelvis lowered where a leg would
+//! over-extend (between keys, [`pelvis`]), the ankle clamped beyond that; the root never moves
+//! sideways or along the path. Where the legs do not cycle (no span whose foot moves
 //! back relative to the hip), nothing changes and the report says so.
 
 use crate::motion::quat::Vec3;
@@ -19,7 +20,7 @@ use crate::motion::skeleton::Skeleton;
 use crate::motion::travel::travel_directions;
 use crate::postprocess::contacts::{self, THRESHOLDS};
 use crate::postprocess::leg::{apply_leg, leg_deltas, legs, Leg, Posed};
-use crate::postprocess::smoothstep;
+use crate::postprocess::{pelvis, smoothstep};
 
 /// Smallest and largest stride factor.
 pub const FACTOR_RANGE: (f64, f64) = (0.5, 2.0);
@@ -55,6 +56,8 @@ pub struct StrideReport {
     pub note: Option<&'static str>,
     /// Mean factor over the frames (1 where nothing changed).
     pub mean_factor: f64,
+    /// The largest pelvis drop (m) that let an over-extended leg reach its warped place.
+    pub pelvis_drop_m: f64,
     pub spans: Vec<StanceWarp>,
     /// The factor per frame (empty where nothing changed).
     #[serde(skip)]
@@ -157,15 +160,16 @@ pub fn warp_strides(skel: &Skeleton, feats: &mut [f32], hold: &[bool]) -> Stride
         };
     }
     let k = factor_curve(&spans, hold);
-    w.scale(skel, feats, hold, &k);
+    let pelvis_drop_m = w.scale(skel, feats, hold, &k);
     let mean_factor = k.iter().sum::<f64>() / t as f64;
-    StrideReport { warped: true, note: None, mean_factor, spans, factors: k }
+    StrideReport { warped: true, note: None, mean_factor, pelvis_drop_m, spans, factors: k }
 }
 
 /// Scale each ankle's along-travel offset from its hip by `k[f]` at frame f (the knee by IK,
-/// the toe with the ankle); held frames stay.
-pub fn scale_strides(skel: &Skeleton, feats: &mut [f32], hold: &[bool], k: &[f64]) {
-    Walk::of(skel, feats).scale(skel, feats, hold, k);
+/// the toe with the ankle, the pelvis lowered where a leg would over-extend); held frames stay.
+/// Returns the largest pelvis drop (m).
+pub fn scale_strides(skel: &Skeleton, feats: &mut [f32], hold: &[bool], k: &[f64]) -> f64 {
+    Walk::of(skel, feats).scale(skel, feats, hold, k)
 }
 
 /// A motion's features as numbers, its joints and its travel directions, read once for both
@@ -184,20 +188,34 @@ impl Walk {
         Walk { f64s, joints, dirs }
     }
 
-    /// [`scale_strides`] of the motion this walk was read from (`feats`).
-    fn scale(&self, skel: &Skeleton, feats: &mut [f32], hold: &[bool], k: &[f64]) {
+    /// [`scale_strides`] of the motion this walk was read from (`feats`), the pelvis lowered
+    /// where a leg would over-extend ([`pelvis`]); returns the largest drop (m).
+    fn scale(&self, skel: &Skeleton, feats: &mut [f32], hold: &[bool], k: &[f64]) -> f64 {
         let (rq, _) = recover_root_rot_pos(&self.f64s, Layout::of(skel).dim());
-        let posed = Posed { joints: &self.joints, root: &rq, old: &self.f64s };
-        for leg in legs(skel) {
-            let o: Vec<Vec3> = (0..self.joints.len())
-                .map(|f| {
-                    let a = along(&self.joints, &self.dirs, f, leg.hip, leg.ankle) * (k[f] - 1.0);
-                    [a * self.dirs[f][0], 0.0, a * self.dirs[f][1]]
-                })
-                .collect();
-            let (delta, moved) = leg_deltas(&self.joints, leg, &o, hold);
-            apply_leg(skel, feats, &posed, leg, (&delta, &moved), hold);
+        let legs = legs(skel);
+        let offsets: Vec<Vec<Vec3>> = legs
+            .iter()
+            .map(|leg| {
+                (0..self.joints.len())
+                    .map(|f| {
+                        let a =
+                            along(&self.joints, &self.dirs, f, leg.hip, leg.ankle) * (k[f] - 1.0);
+                        [a * self.dirs[f][0], 0.0, a * self.dirs[f][1]]
+                    })
+                    .collect()
+            })
+            .collect();
+        let drop = pelvis::drop(skel, &self.joints, &legs, &offsets, hold);
+        let joints = pelvis::lowered(&self.joints, &drop);
+        pelvis::lower(skel, feats, &drop, hold);
+        let posed = Posed { joints: &joints, root: &rq, old: &self.f64s };
+        for (leg, o) in legs.iter().zip(offsets) {
+            // The ankle's place stays where the unlowered leg put it.
+            let o: Vec<Vec3> = o.iter().zip(&drop).map(|(o, &h)| [o[0], o[1] + h, o[2]]).collect();
+            let (delta, moved) = leg_deltas(&joints, *leg, &o, hold);
+            apply_leg(skel, feats, &posed, *leg, (&delta, &moved), hold);
         }
+        drop.iter().copied().fold(0.0, f64::max) * skel.metres_per_unit
     }
 }
 
@@ -253,10 +271,12 @@ mod tests {
                 after < before && after <= (1.5 * real_skate).max(0.05),
                 "scale {s}: {before} -> {after} (real {real_skate})"
             );
-            // Bones keep their lengths; the root stays.
+            // Bones keep their lengths; the root stays on its path, lowered at most a little.
             let bj = joints(&glide(&real, s));
             for (a, b) in after_j.iter().zip(&bj) {
-                assert!(quat::norm(quat::sub(a[0], b[0])) < 1e-6);
+                let (ra, rb) = (a[0], b[0]);
+                assert!((ra[0] - rb[0]).abs() < 1e-6 && (ra[2] - rb[2]).abs() < 1e-6);
+                assert!((-1e-6..=pelvis::MAX_DROP_M).contains(&(rb[1] - ra[1])));
                 for (p, c) in [(1usize, 4usize), (4, 7), (2, 5), (5, 8)] {
                     let l = |j: &Vec<Vec3>| quat::norm(quat::sub(j[c], j[p]));
                     assert!((l(a) - l(b)).abs() < 1e-4);
@@ -282,5 +302,53 @@ mod tests {
         let free = vec![false; sf.len() / d];
         let rep = warp_strides(&T2M, &mut sf, &free);
         assert!(!rep.warped && rep.note.is_some() && sf == before, "{rep:?}");
+    }
+
+    #[test]
+    fn an_overextended_leg_lowers_the_pelvis_between_keys_and_reaches() {
+        let real = walk();
+        let f0 = features_from_joints(&T2M, &real, FOOT_CONTACT_THRESHOLD).unwrap();
+        let t = f0.len() / T2M.feature_dim();
+        let hold: Vec<bool> = (0..t).map(|f| f == 0 || f == t / 2).collect();
+        // A stride 1.3x the walk's own: its feet land further than its legs reach.
+        let k: Vec<f64> = (0..t).map(|f| if hold[f] { 1.0 } else { 1.3 }).collect();
+        let mut f = f0.clone();
+        let drop = scale_strides(&T2M, &mut f, &hold, &k);
+        assert!(drop > 0.01 && drop <= pelvis::MAX_DROP_M + 1e-9, "drop {drop}");
+        let (a, b) = (joints(&f), &joints(&f0));
+        let dirs = travel_directions(&T2M, b);
+        let mut reached = 0;
+        for fr in (0..t).filter(|&fr| !hold[fr]) {
+            let dy = b[fr][0][1] - a[fr][0][1];
+            assert!((-1e-6..=pelvis::MAX_DROP_M + 1e-6).contains(&dy), "frame {fr}: drop {dy}");
+            for (p, c) in [(1usize, 4usize), (4, 7), (2, 5), (5, 8)] {
+                let l = |j: &Vec<Vec3>| quat::norm(quat::sub(j[c], j[p]));
+                assert!((l(&a[fr]) - l(&b[fr])).abs() < 1e-4, "frame {fr}: bone {p}-{c}");
+            }
+            // Where the drop was not capped, each ankle lies where the factor puts it.
+            let want = |ankle: usize, hip: usize| {
+                let o = along(b, &dirs, fr, hip, ankle) * 0.3;
+                [
+                    b[fr][ankle][0] + o * dirs[fr][0],
+                    b[fr][ankle][1],
+                    b[fr][ankle][2] + o * dirs[fr][1],
+                ]
+            };
+            let miss = [(7usize, 1usize), (8, 2)]
+                .iter()
+                .map(|&(an, hp)| quat::norm(quat::sub(a[fr][an], want(an, hp))))
+                .fold(0.0, f64::max);
+            if dy < pelvis::MAX_DROP_M - 1e-3 && miss < 1e-3 {
+                reached += 1;
+            }
+        }
+        // Keys unchanged; the frames the fade leaves undropped near them are the only misses.
+        for fr in (0..t).filter(|&fr| hold[fr]) {
+            let d = T2M.feature_dim();
+            assert_eq!(f[fr * d..(fr + 1) * d], f0[fr * d..(fr + 1) * d]);
+        }
+        let free = hold.iter().filter(|h| !**h).count();
+        eprintln!("stride 1.3x: pelvis drop up to {drop:.3} m; {reached} of {free} free frames put both ankles within 1 mm of their warped places");
+        assert!(reached as f64 >= 0.95 * free as f64, "{reached} of {free} frames reach");
     }
 }

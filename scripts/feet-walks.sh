@@ -1,0 +1,60 @@
+#!/usr/bin/env bash
+# Foot skating of a model's keyed walks under each foot post-process (docs/feet.md): the six
+# keyed test walks of the design panel (5% keys, seed 2) and the quick start's walk (seed 1),
+# each through the default track fit with --no-foot-lock, --feet warp, pin and network.
+#   scripts/feet-walks.sh MODEL OUT [--data DIR]
+# Prints one Markdown table (also OUT/feet.md; the samples stay under OUT).
+set -euo pipefail
+usage="usage: scripts/feet-walks.sh MODEL OUT [--data DIR]"
+[ $# -ge 2 ] || { echo "$usage" >&2; exit 2; }
+model=$1 out=$2
+shift 2
+data="${DIFFKFC_WORK:-work}/synth"
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --data) data=$2; shift 2 ;;
+    *) echo "error: unknown argument '$1' ($usage)" >&2; exit 2 ;;
+  esac
+done
+[ -e "$model" ] || { echo "error: MODEL $model does not exist" >&2; exit 2; }
+[ -f "$data/manifest.json" ] || { echo "error: --data $data has no manifest.json (diffkfc data synth --out $data)" >&2; exit 2; }
+bin=${DIFFKFC_BIN:-${CARGO_TARGET_DIR:-target}/release/diffkfc}
+mkdir -p "$out"
+
+mapfile -t walks < <("$bin" data clips "$data" --split test --action walk_forward --min-frames 120 --count 6)
+quick=$("$bin" data clips "$data" --split test --count 1 --action walk_forward --action wave)
+cases=()
+for w in "${walks[@]}"; do cases+=("$w:2"); done
+cases+=("$quick:1")
+for c in "${cases[@]}"; do
+  w=${c%%:*} seed=${c##*:}
+  text=$(head -n 1 "$data/texts/$w.txt" | cut -d'#' -f1)
+  for mode in none warp pin network; do
+    flags=(--feet "$mode")
+    [ "$mode" = none ] && flags=(--no-foot-lock)
+    "$bin" sample --checkpoint "$model" --text "$text" --from "$data/new_joint_vecs/$w.npy" \
+      --keyframe-rate 0.05 --seed "$seed" --out "$out/$w-seed$seed/$mode" --force "${flags[@]}" >/dev/null
+  done
+done
+
+python3 - "$out" "${cases[@]}" <<'PY' | tee "$out/feet.md"
+import json, os, statistics, sys
+out, cases = sys.argv[1], sys.argv[2:]
+modes = ["none", "warp", "pin", "network"]
+print("| walk | source | " + " | ".join(modes) + " | planted share warp / source | mean stride factor | pelvis drop (m) |")
+print("|---|---|" + "---|" * len(modes) + "---|---|---|")
+cols = {m: [] for m in modes}
+for c in cases:
+    w, seed = c.split(":")
+    r = {m: json.load(open(os.path.join(out, f"{w}-seed{seed}", m, "results.json"))) for m in modes}
+    skate = {m: r[m]["samples"][0]["foot_skating"] for m in modes}
+    for m in modes:
+        cols[m].append(skate[m])
+    warp = r["warp"]["samples"][0]
+    st = warp.get("stride") or {}
+    factor = f"{st.get('mean_factor', 1.0):.2f}" + ("" if st.get("warped") else " (legs do not cycle)")
+    print(f"| {w} (seed {seed}) | {r['none']['real_foot_skating']:.3f} | "
+          + " | ".join(f"{skate[m]:.3f}" for m in modes)
+          + f" | {warp['gait']['planted_share']:.2f} / {r['none']['real_gait']['planted_share']:.2f} | {factor} | {st.get('pelvis_drop_m', 0.0):.3f} |")
+print("| mean | | " + " | ".join(f"{statistics.fmean(cols[m]):.3f}" for m in modes) + " | | | |")
+PY
