@@ -96,11 +96,20 @@ fn blender_reads_our_bvh_as_we_do() {
     if !have_text_encoder() {
         return;
     }
-    let out = d.join("sample");
+    // The default foot lock, and stride warping (which lowers the pelvis between keys).
+    for feet in ["network", "warp"] {
+        generated_bvh_reads_back(&blender, &model, &d, feet);
+    }
+}
+
+/// A generated motion (feet post-process `feet`): Blender reads its BVH as our own reader does,
+/// and as the sample's joints are.
+fn generated_bvh_reads_back(blender: &Path, model: &Path, d: &Path, feet: &str) {
+    let out = d.join(format!("sample-{feet}"));
     let o = diffkfc(&[
         "sample",
         "--checkpoint",
-        s(&model),
+        s(model),
         "--text",
         "a person walks forward and waves the left hand.",
         "--length",
@@ -109,18 +118,20 @@ fn blender_reads_our_bvh_as_we_do() {
         "1",
         "--steps",
         "4",
+        "--feet",
+        feet,
         "--out",
         s(&out),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let bvh = out.join("sample_00.bvh");
-    let back = d.join("back.npy");
+    let back = d.join(format!("back-{feet}.npy"));
     let o = diffkfc(&["data", "joints", s(&bvh), "-o", s(&back)]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let b = blender_positions(&blender, &bvh, &[0, 30, 77, 119], &d);
+    let b = blender_positions(blender, &bvh, &[0, 30, 77, 119], d);
     let (mean, max) = compare(&b, &joints(&back));
     eprintln!(
-        "generated sample, Blender vs our reading of its BVH: mean {:.4} mm, max {:.4} mm",
+        "generated sample (--feet {feet}), Blender vs our reading of its BVH: mean {:.4} mm, max {:.4} mm",
         mean * 1e3,
         max * 1e3
     );
@@ -128,7 +139,7 @@ fn blender_reads_our_bvh_as_we_do() {
     // The sample is made rigid before it is written, so the BVH is the motion itself.
     let (mean, max) = compare(&b, &joints(&out.join("sample_00_joints.npy")));
     eprintln!(
-        "generated sample, Blender vs the sample's own joints: mean {:.4} mm, max {:.4} mm",
+        "generated sample (--feet {feet}), Blender vs the sample's own joints: mean {:.4} mm, max {:.4} mm",
         mean * 1e3,
         max * 1e3
     );
@@ -136,6 +147,13 @@ fn blender_reads_our_bvh_as_we_do() {
     let r: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
     let reported = r["samples"][0]["bvh_error_m"]["max"].as_f64().unwrap();
+    if feet == "warp" {
+        let st = &r["samples"][0]["stride"];
+        eprintln!(
+            "stride warp: mean factor {}, pelvis drop {} m",
+            st["mean_factor"], st["pelvis_drop_m"]
+        );
+    }
     assert!(
         max <= reported + 1e-3,
         "results.json says the BVH is within {reported} m of the joints; Blender finds {max} m"

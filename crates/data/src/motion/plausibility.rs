@@ -1,7 +1,7 @@
 //! Physical plausibility measures of joint-position motions (metres, Y up): what the
 //! synthetic set is tested against and what `eval` reports as foot skating.
 
-use crate::motion::quat;
+use crate::motion::quat::{self, Vec3};
 use crate::motion::representation::Joints;
 use crate::motion::skeleton::Skeleton;
 
@@ -53,20 +53,29 @@ pub fn measure(skel: &Skeleton, j: &Joints) -> Plausibility {
     }
 }
 
+/// A toe below this height (m) is on the ground for the foot skating measure ...
+pub const SKATE_HEIGHT_M: f64 = 0.05;
+/// ... and skates when it moves horizontally faster than this (m/s).
+pub const SKATE_SPEED_MPS: f64 = 0.5;
+
+/// One toe's step from `a` to `b` (one frame): `None` when `b` is off the ground, else whether
+/// it skates.
+pub fn skates(skel: &Skeleton, a: Vec3, b: Vec3) -> Option<bool> {
+    let unit = skel.metres_per_unit;
+    (b[1] * unit < SKATE_HEIGHT_M).then(|| {
+        ((b[0] - a[0]).powi(2) + (b[2] - a[2]).powi(2)).sqrt() * unit * skel.fps > SKATE_SPEED_MPS
+    })
+}
+
 /// Foot skating ratio: among frames where a toe joint is below 5 cm, the share in which it
 /// moves horizontally faster than 0.5 m/s. 0 when the feet never touch the ground.
 pub fn foot_skating_ratio(skel: &Skeleton, j: &Joints) -> f64 {
-    let (h, v) = (0.05 / skel.metres_per_unit, 0.5 / skel.metres_per_unit);
     let (mut contact, mut skate) = (0usize, 0usize);
     for w in j.windows(2) {
         for foot in [skel.feet_left[1], skel.feet_right[1]] {
-            let (a, b) = (w[0][foot], w[1][foot]);
-            if b[1] < h {
+            if let Some(s) = skates(skel, w[0][foot], w[1][foot]) {
                 contact += 1;
-                let speed = ((b[0] - a[0]).powi(2) + (b[2] - a[2]).powi(2)).sqrt() * skel.fps;
-                if speed > v {
-                    skate += 1;
-                }
+                skate += s as usize;
             }
         }
     }

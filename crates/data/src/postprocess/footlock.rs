@@ -5,12 +5,14 @@
 //! touching the root, so keyed places and headings stay exact, and it leaves held frames
 //! (the pose keyframes) unchanged.
 
+use crate::motion::plausibility::skates;
 use crate::motion::quat::{self, Vec3};
 use crate::motion::representation::{recover_from_ric, recover_root_rot_pos, Layout};
 use crate::motion::skeleton::Skeleton;
 use crate::postprocess::contacts;
 use crate::postprocess::leg::{apply_leg, leg_deltas, legs, Posed};
 use crate::postprocess::pin::{self, fade_beside, held_beside, nearest};
+use std::ops::RangeInclusive;
 
 /// A toe contact channel above this marks its foot planted.
 pub const CONTACT: f32 = 0.5;
@@ -40,6 +42,8 @@ pub struct LockReport {
     pub dragged: usize,
     /// Planted spans left unlocked because the leg could reach the held foot only straight.
     pub out_of_reach: usize,
+    /// Planted spans left unlocked because holding them would make the foot skate more.
+    pub worse: usize,
     /// Every planted span, with how far its toe slid before and after locking.
     pub spans: Vec<PlantSpan>,
 }
@@ -64,6 +68,9 @@ pub enum Outcome {
     Faded,
     Dragged,
     OutOfReach,
+    /// Left as it was: holding it would move the toe faster on the ground, where the hold
+    /// fades in and out, than its slide did (more foot skating, not less).
+    Worse,
 }
 
 /// One planted span of one foot: frames `start..=end` whose toe the motion labels in contact.
@@ -129,6 +136,59 @@ fn drift(toe: impl Fn(usize) -> Vec3, start: usize, end: usize, unit: f64) -> f6
     (start..=end).map(toe).map(|p| (p[0] - a[0]).hypot(p[2] - a[2]) * unit).fold(0.0, f64::max)
 }
 
+/// Toe steps (frame f to f + 1, f in `range`) that skate with the toe moved by `o`
+/// (`plausibility::skates`: the foot skating measure's own test).
+fn skating(skel: &Skeleton, toe: &[Vec3], o: &[Vec3], range: RangeInclusive<usize>) -> usize {
+    range
+        .filter(|&f| f + 1 < toe.len())
+        .filter(|&f| {
+            let (a, b) = (quat::add(toe[f], o[f]), quat::add(toe[f + 1], o[f + 1]));
+            skates(skel, a, b) == Some(true)
+        })
+        .count()
+}
+
+/// The offsets `plan` makes of the planted spans, less the spans whose hold would make the toe
+/// skate on more frames of the span and its fades than it does unheld (a slow slide pinned
+/// catches up where the hold fades, on the ground, faster than it slid), and none at all if
+/// the foot would still skate more overall. Heights never change, so the foot skating ratio
+/// of the motion never rises.
+fn no_worse(
+    skel: &Skeleton,
+    toe: &[Vec3],
+    planted: &[bool],
+    fade: usize,
+    plan: impl Fn(&[bool]) -> (Vec<Vec3>, Vec<(usize, usize, Outcome)>),
+) -> (Vec<Vec3>, Vec<(usize, usize, Outcome)>) {
+    let t = toe.len();
+    let zero = vec![[0.0; 3]; t];
+    let (o, spans) = plan(planted);
+    let held = |o: &Outcome| matches!(o, Outcome::Locked | Outcome::Faded);
+    let worse: Vec<(usize, usize)> = spans
+        .iter()
+        .filter(|(s, e, out)| {
+            let w = s.saturating_sub(fade + 1)..=(e + fade).min(t - 1);
+            held(out) && skating(skel, toe, &o, w.clone()) > skating(skel, toe, &zero, w)
+        })
+        .map(|&(s, e, _)| (s, e))
+        .collect();
+    let (o, mut spans) = if worse.is_empty() {
+        (o, spans)
+    } else {
+        let mut kept = planted.to_vec();
+        worse.iter().for_each(|&(s, e)| kept[s..=e].fill(false));
+        let (o, mut spans) = plan(&kept);
+        spans.extend(worse.iter().map(|&(s, e)| (s, e, Outcome::Worse)));
+        spans.sort_by_key(|s| s.0);
+        (o, spans)
+    };
+    if skating(skel, toe, &o, 0..=t - 1) > skating(skel, toe, &zero, 0..=t - 1) {
+        spans.iter_mut().filter(|s| held(&s.2)).for_each(|s| s.2 = Outcome::Worse);
+        return (zero, spans);
+    }
+    (o, spans)
+}
+
 /// Lock the planted feet of de-normalised features `feats` [T, D] in place. `hold[f]` marks
 /// frames that must not change (pose keyframes). Positions, local velocities and the leg's
 /// rotations are updated together; the root and the contact labels are not touched.
@@ -157,25 +217,31 @@ pub fn lock_feet(
         .then(|| contacts::detect(skel, &joints, &contacts::THRESHOLDS));
     for (li, leg) in legs(skel).into_iter().enumerate() {
         let toe: Vec<Vec3> = joints.iter().map(|j| j[leg.toe]).collect();
-        let (o, spans) = match &detected {
+        let planted: Vec<bool> = match &detected {
+            None => (0..t)
+                .map(|f| feats[f * d + layout.contacts().start + leg.contact] > CONTACT)
+                .collect(),
+            Some(found) => found[li].clone(),
+        };
+        let plan = |planted: &[bool]| match &detected {
             None => {
-                let planted: Vec<bool> = (0..t)
-                    .map(|f| feats[f * d + layout.contacts().start + leg.contact] > CONTACT)
-                    .collect();
                 let reachable = |f: usize, o: Vec3| {
                     let (wanted, length) = leg.reach(&joints[f], o);
                     wanted <= length + slack
                 };
-                offsets(&toe, &planted, hold, blend, max_shift_m / unit, reachable)
+                offsets(&toe, planted, hold, blend, max_shift_m / unit, reachable)
             }
-            Some(planted) => {
+            Some(_) => {
                 let weight = |f: usize, o: Vec3| {
                     let (wanted, length) = leg.reach(&joints[f], o);
                     pin::reach_weight(wanted / length.max(1e-9))
                 };
-                pin::offsets(&toe, &planted[li], hold, pin::BLEND, max_shift_m / unit, weight)
+                pin::offsets(&toe, planted, hold, pin::BLEND, max_shift_m / unit, weight)
             }
         };
+        let fade = if detected.is_some() { pin::BLEND } else { blend };
+        let (o, spans) = no_worse(skel, &toe, &planted, fade, plan);
+        report.worse += spans.iter().filter(|s| s.2 == Outcome::Worse).count();
         report.dragged += spans.iter().filter(|s| s.2 == Outcome::Dragged).count();
         report.out_of_reach += spans.iter().filter(|s| s.2 == Outcome::OutOfReach).count();
         let (delta, moved) = leg_deltas(&joints, leg, &o, hold);

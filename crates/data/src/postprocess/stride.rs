@@ -64,6 +64,18 @@ pub struct StrideReport {
     pub factors: Vec<f64>,
 }
 
+impl StrideReport {
+    /// Mark the warp undone (the motion was kept unwarped), saying why; the spans stay for
+    /// the record.
+    pub fn undo(&mut self, why: &'static str) {
+        self.warped = false;
+        self.note = Some(why);
+        self.mean_factor = 1.0;
+        self.pelvis_drop_m = 0.0;
+        self.factors.clear();
+    }
+}
+
 /// The along-travel offset of `joint` from the leg's hip at frame `f` (horizontal, units).
 fn along(j: &Joints, dirs: &[[f64; 2]], f: usize, hip: usize, joint: usize) -> f64 {
     let (a, h) = (j[f][joint], j[f][hip]);

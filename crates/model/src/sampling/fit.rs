@@ -1,7 +1,8 @@
 //! After the last denoising step: how a generated motion is made to meet its keyframes exactly.
 
 use diffkfc_data::dataset::denormalise;
-use diffkfc_data::motion::representation::Layout;
+use diffkfc_data::motion::plausibility::foot_skating_ratio;
+use diffkfc_data::motion::representation::{recover_from_ric, Layout};
 use diffkfc_data::motion::root_key::{RootKey, ROOT_CHANNELS};
 use diffkfc_data::postprocess::footlock::{self, ContactSource, LockReport};
 use diffkfc_data::postprocess::rigid::{self, RigidReport};
@@ -167,24 +168,43 @@ pub fn fit_sample(
 }
 
 /// The foot post-process: stride warping (`Feet::Warp`), then the lock with the contacts its
-/// mode reads; each planted span records the warp's factor at its middle.
+/// mode reads; each planted span records the warp's factor at its middle. A warp after which
+/// the feet skate more than with the pinning alone is undone (the report says so).
 fn hold_feet(
     skel: &Skeleton,
     features: &mut [f32],
     hold: &[bool],
     fit: Fit,
 ) -> (LockReport, Option<StrideReport>) {
-    let stride = (fit.feet == Feet::Warp).then(|| stride::warp_strides(skel, features, hold));
     let source =
         if fit.feet == Feet::Network { ContactSource::Network } else { ContactSource::Motion };
-    let mut feet =
-        footlock::lock_feet(skel, features, hold, footlock::BLEND, fit.lock_reach, source);
-    if let Some(k) = stride.as_ref().map(|s| &s.factors).filter(|k| !k.is_empty()) {
-        for span in &mut feet.spans {
-            span.warp_factor = k[(span.start + span.end) / 2];
+    let lock =
+        |f: &mut [f32]| footlock::lock_feet(skel, f, hold, footlock::BLEND, fit.lock_reach, source);
+    if fit.feet != Feet::Warp {
+        return (lock(features), None);
+    }
+    let mut warped = features.to_vec();
+    let mut stride = stride::warp_strides(skel, &mut warped, hold);
+    let mut feet = lock(&mut warped);
+    if stride.warped {
+        let mut pinned = features.to_vec();
+        let pinned_feet = lock(&mut pinned);
+        let skating = |f: &[f32]| {
+            let j = recover_from_ric(skel, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
+            foot_skating_ratio(skel, &j)
+        };
+        if skating(&warped) > skating(&pinned) {
+            stride.undo("undone: the feet skated more with the warp than with the pinning alone");
+            (warped, feet) = (pinned, pinned_feet);
         }
     }
-    (feet, stride)
+    features.copy_from_slice(&warped);
+    if !stride.factors.is_empty() {
+        for span in &mut feet.spans {
+            span.warp_factor = stride.factors[(span.start + span.end) / 2];
+        }
+    }
+    (feet, Some(stride))
 }
 
 fn fit_keys(
