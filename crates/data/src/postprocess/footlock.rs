@@ -484,4 +484,33 @@ mod tests {
             lock_feet(&T2M, &mut sliding, &vec![false; t1], BLEND, 2.0, ContactSource::Network);
         assert!(rep.out_of_reach > 0, "{rep:?}");
     }
+
+    #[test]
+    fn a_hold_that_would_skate_more_is_left() {
+        // A toe on the ground gliding along z at `speed` m/s; frames 10..=40 planted.
+        let toe = |speed: f64| -> Vec<Vec3> {
+            (0..60).map(|f| [0.0, 0.01, speed / T2M.fps * f as f64]).collect()
+        };
+        let planted: Vec<bool> = (0..60).map(|f| (10..=40).contains(&f)).collect();
+        let hold = vec![false; 60];
+        let zero = vec![[0.0; 3]; 60];
+        for (speed, want) in [(0.25, Outcome::Worse), (0.8, Outcome::Locked)] {
+            let toe = toe(speed);
+            let plan = |p: &[bool]| pin::offsets(&toe, p, &hold, pin::BLEND, 10.0, |_, _| 1.0);
+            let (o, spans) = no_worse(&T2M, &toe, &planted, pin::BLEND, plan);
+            assert_eq!(spans, vec![(10, 40, want)], "{speed} m/s");
+            let (before, after) =
+                (skating(&T2M, &toe, &zero, 0..=59), skating(&T2M, &toe, &o, 0..=59));
+            eprintln!("glide {speed} m/s: skating steps {before} unheld, {after} with the guard");
+            assert!(after <= before);
+            if want == Outcome::Worse {
+                // Held, its 0.25 m/s slide would be caught up at about 0.7 m/s in the fades.
+                let (o, _) = plan(&planted);
+                assert!(skating(&T2M, &toe, &o, 0..=59) > before);
+            } else {
+                // The span's 30 steps are still; the fades were skating already.
+                assert!(after + 30 <= before, "{after} of {before}");
+            }
+        }
+    }
 }
