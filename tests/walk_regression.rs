@@ -9,7 +9,7 @@ use common::*;
 use std::path::Path;
 
 /// The reference model the README's quick start uses.
-const MODEL: &str = "models/walk-synth";
+const MODEL: &str = "models/mid-synth";
 /// What the committed model measured on these walks, less a margin for floating-point
 /// differences between machines: a regression below them is a network that shuffles again.
 const MIN_MEAN_SPEED_RATIO: f64 = 0.0;

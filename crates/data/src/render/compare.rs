@@ -87,6 +87,7 @@ impl Folder {
                 r["real_gait"]["root_speed_mps"].as_f64(),
             ),
             ("largest place correction (m)", place, None),
+            ("stride warp factor", s["stride"]["mean_factor"].as_f64(), None),
         ]
     }
 

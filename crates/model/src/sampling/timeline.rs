@@ -74,6 +74,7 @@ pub fn generate<E>(
             feet[i].frames += f.feet.frames;
             feet[i].dragged += f.feet.dragged;
             feet[i].out_of_reach += f.feet.out_of_reach;
+            feet[i].worse += f.feet.worse;
             feet[i].max_shift_m = feet[i].max_shift_m.max(f.feet.max_shift_m);
         }
     }

@@ -248,8 +248,8 @@ fn fit_note(s: &serde_json::Value, fit: Fit) -> String {
 fn lock_note(s: &serde_json::Value) -> String {
     match s["foot_lock"]["frames"].as_u64() {
         Some(frames) => format!(
-            "; foot lock moved {frames} frame(s) (left {} dragged span(s), {} out of the leg's reach)",
-            s["foot_lock"]["dragged"], s["foot_lock"]["out_of_reach"]
+            "; foot lock moved {frames} frame(s) (left {} dragged span(s), {} out of the leg's reach, {} that holding would make skate more)",
+            s["foot_lock"]["dragged"], s["foot_lock"]["out_of_reach"], s["foot_lock"]["worse"]
         ),
         None => String::new(),
     }
