@@ -4,8 +4,9 @@
 //! that stills the stance foot turns the glide into steps, before the foot lock pins them.
 //!
 //! Per stance span (a toe near the floor, `contacts::low`: a gliding foot is fast, so speed
-//! cannot find it), the factor is the root's speed along the travel direction over the speed
-//! at which the ankle moves backwards relative to its hip; clamped to [`FACTOR_RANGE`],
+//! cannot find it), the factor is the one that keeps the toe in place: the hip's travel along
+//! the travel direction plus the toe's travel relative to the ankle (the foot rolling over its
+//! toe), over the ankle's backward travel relative to its hip; clamped to [`FACTOR_RANGE`],
 //! interpolated between spans and smoothed over [`SMOOTH`] frames, faded to 1 over
 //! [`KEY_FADE`] frames at held (keyed) frames so keys stay exact. Only the along-travel
 //! component of the hip-to-ankle offset scales (sideways and height kept); the thigh and shin
@@ -102,7 +103,17 @@ fn stances(skel: &Skeleton, j: &Joints, dirs: &[[f64; 2]], legs: &[Leg]) -> Vec<
             if foot_speed < MIN_SPEED_MPS || root_speed < MIN_SPEED_MPS {
                 continue;
             }
-            let factor = (root_speed / foot_speed).clamp(FACTOR_RANGE.0, FACTOR_RANGE.1);
+            // The toe stays put when the hip's travel, the scaled ankle's travel relative to
+            // the hip and the toe's relative to the ankle (the foot rolling over it) cancel.
+            let hip: f64 = (s..e)
+                .map(|f| {
+                    let (p, q) = (j[f][leg.hip], j[f + 1][leg.hip]);
+                    (q[0] - p[0]) * dirs[f][0] + (q[2] - p[2]) * dirs[f][1]
+                })
+                .sum();
+            let roll =
+                along(j, dirs, e, leg.ankle, leg.toe) - along(j, dirs, s, leg.ankle, leg.toe);
+            let factor = ((hip + roll) / back).clamp(FACTOR_RANGE.0, FACTOR_RANGE.1);
             let foot = if leg.ankle == skel.feet_left[0] { "left" } else { "right" };
             out.push(StanceWarp {
                 foot,
