@@ -52,7 +52,9 @@ for c in cases:
         cols[m].append(skate[m])
     warp = r["warp"]["samples"][0]
     st = warp.get("stride") or {}
-    factor = f"{st.get('mean_factor', 1.0):.2f}" + ("" if st.get("warped") else " (legs do not cycle)")
+    note = st.get("note") or ""
+    why = " (undone: skated more)" if note.startswith("undone") else " (legs do not cycle)"
+    factor = f"{st.get('mean_factor', 1.0):.2f}" + ("" if st.get("warped") else why)
     print(f"| {w} (seed {seed}) | {r['none']['real_foot_skating']:.3f} | "
           + " | ".join(f"{skate[m]:.3f}" for m in modes)
           + f" | {warp['gait']['planted_share']:.2f} / {r['none']['real_gait']['planted_share']:.2f} | {factor} | {st.get('pelvis_drop_m', 0.0):.3f} |")
