@@ -97,7 +97,7 @@ done
 
 log "sample the reference model on $dev and on flex (keyframe guidance 2.5, DPM-10, no fit)"
 for d in "$dev" flex; do
-  "$bin" sample --checkpoint models/tiny-synth --text "a person walks forward." --from "$work/synth/new_joint_vecs/000001.npy" \
+  "$bin" sample --checkpoint models/mid-synth --text "a person walks forward." --from "$work/synth/new_joint_vecs/000001.npy" \
     --frames 0,30,59 --length 60 --kf-guidance 2.5 --keyframe-fit none --no-foot-lock --no-rigid --device "$d" --out "$work/sample-$d" --force
 done
 

@@ -15,7 +15,7 @@ done
 work="${DIFFKFC_WORK:-work}"
 bin=${DIFFKFC_BIN:-${CARGO_TARGET_DIR:-target}/release/diffkfc}
 # The reference model (README, "Reference model"): trained on this same synthetic set.
-model="${DIFFKFC_MODEL:-models/tiny-synth}"
+model="${DIFFKFC_MODEL:-models/mid-synth}"
 t0=$(date +%s)
 stage() { echo "== [$1] $2 ($(( $(date +%s) - t0 )) s elapsed)"; }
 

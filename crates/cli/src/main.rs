@@ -39,12 +39,12 @@ enum Command {
     Train(commands::train::TrainArgs),
     /// Generate motion from text and keyframes with keyframe and transition guidance.
     #[command(
-        after_help = "Examples (after scripts/quickstart.sh, which writes work/synth):\n  diffkfc sample --checkpoint models/tiny-synth --text \"a person walks forward and waves\" --num-samples 2\n  diffkfc sample --checkpoint models/tiny-synth --text \"a person walks forward\" --from work/synth/new_joint_vecs/000001.npy --frames 0,40,80\n  diffkfc sample --checkpoint models/tiny-synth --text \"a person dances\" --from mixamo_dance.bvh --frames all --joints lower_body\n  diffkfc sample --checkpoint models/tiny-synth --text \"a person squats\" --keyframes keys.json --out out/squat\n\nkeys.json (poses in metres, places and headings in the output's frame: frame 0 at the origin facing +Z):\n  {\"length\": 120, \"keyframes\": [\n    {\"frame\": 0, \"joints\": [[x, y, z], ... 22 joints]},\n    {\"frame\": 60, \"joints\": [[x, y, z], ...], \"root\": [0.0, 0.9, 2.0], \"heading\": 90},\n    {\"frame\": 119, \"root\": [1.5, 0.9, 3.0]}]}"
+        after_help = "Examples (after scripts/quickstart.sh, which writes work/synth):\n  diffkfc sample --checkpoint models/mid-synth --text \"a person walks forward and waves\" --num-samples 2\n  diffkfc sample --checkpoint models/mid-synth --text \"a person walks forward\" --from work/synth/new_joint_vecs/000001.npy --frames 0,40,80\n  diffkfc sample --checkpoint models/mid-synth --text \"a person dances\" --from mixamo_dance.bvh --frames all --joints lower_body\n  diffkfc sample --checkpoint models/mid-synth --text \"a person squats\" --keyframes keys.json --out out/squat\n\nkeys.json (poses in metres, places and headings in the output's frame: frame 0 at the origin facing +Z):\n  {\"length\": 120, \"keyframes\": [\n    {\"frame\": 0, \"joints\": [[x, y, z], ... 22 joints]},\n    {\"frame\": 60, \"joints\": [[x, y, z], ...], \"root\": [0.0, 0.9, 2.0], \"heading\": 90},\n    {\"frame\": 119, \"root\": [1.5, 0.9, 3.0]}]}"
     )]
     Sample(commands::sample::SampleArgs),
     /// Keyframe files: suggest keyframes from a text (or a motion) to edit and in-fill.
     #[command(
-        after_help = "Example:\n  diffkfc keyframes suggest --checkpoint models/tiny-synth --text \"a person jumps forward.\" --count 4 -o keys.json"
+        after_help = "Example:\n  diffkfc keyframes suggest --checkpoint models/mid-synth --text \"a person jumps forward.\" --count 4 -o keys.json"
     )]
     Keyframes(commands::sample::suggest::KeyframesArgs),
     /// The keyframe editor in the browser: pose keys, drag them in time and space, type a

@@ -11,7 +11,7 @@ use crate::signals::StopSignal;
 
 #[derive(Args, Clone, Debug)]
 #[command(
-    after_help = "Example:\n  diffkfc serve --checkpoint models/tiny-synth\n  then open http://127.0.0.1:7860/ in a browser"
+    after_help = "Example:\n  diffkfc serve --checkpoint models/mid-synth\n  then open http://127.0.0.1:7860/ in a browser"
 )]
 pub struct ServeArgs {
     /// Run directory, model directory or checkpoint file of the model to edit with.

@@ -19,7 +19,7 @@ enum KeyframesCommand {
     /// Suggest keyframes: generate a motion from the text alone (or take --from), pick its most
     /// distinct poses, and write them (pose, place, heading) as a `sample --keyframes` file.
     #[command(
-        after_help = "Examples:\n  diffkfc keyframes suggest --checkpoint models/tiny-synth --text \"a person jumps forward.\" --count 4 -o keys.json\n  diffkfc sample --checkpoint models/tiny-synth --text \"a person jumps forward.\" --keyframes keys.json --out out/jump\n  diffkfc keyframes suggest --from work/synth/new_joint_vecs/000001.npy --count 5 --strategy uniform -o keys.json"
+        after_help = "Examples:\n  diffkfc keyframes suggest --checkpoint models/mid-synth --text \"a person jumps forward.\" --count 4 -o keys.json\n  diffkfc sample --checkpoint models/mid-synth --text \"a person jumps forward.\" --keyframes keys.json --out out/jump\n  diffkfc keyframes suggest --from work/synth/new_joint_vecs/000001.npy --count 5 --strategy uniform -o keys.json"
     )]
     Suggest(SuggestArgs),
 }
