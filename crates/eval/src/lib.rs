@@ -14,6 +14,7 @@ pub mod keyframe_metrics;
 pub(crate) mod linalg;
 pub mod protocol;
 pub mod report;
+pub mod rows;
 pub mod t2m;
 pub mod text_motion;
 pub mod train_evaluator;

@@ -48,6 +48,37 @@ pub struct LockReport {
     pub spans: Vec<PlantSpan>,
 }
 
+impl LockReport {
+    /// One leg's spans and moves: its toe per frame, the knee, ankle and toe deltas per frame
+    /// and which frames moved (`unit`: metres per skeleton unit).
+    fn add_leg(
+        &mut self,
+        (foot, source): (&'static str, ContactSource),
+        spans: &[(usize, usize, Outcome)],
+        toe: &[Vec3],
+        (delta, moved): (&[[Vec3; 3]], &[bool]),
+        unit: f64,
+    ) {
+        let count = |o: Outcome| spans.iter().filter(|s| s.2 == o).count();
+        self.worse += count(Outcome::Worse);
+        self.dragged += count(Outcome::Dragged);
+        self.out_of_reach += count(Outcome::OutOfReach);
+        self.frames += moved.iter().filter(|&&m| m).count();
+        let most = delta.iter().map(|d| quat::norm(d[1]) * unit).fold(0.0, f64::max);
+        self.max_shift_m = self.max_shift_m.max(most);
+        self.spans.extend(spans.iter().map(|&(start, end, outcome)| PlantSpan {
+            foot,
+            source,
+            warp_factor: 1.0,
+            start,
+            end,
+            outcome,
+            drift_before_m: drift(|f| toe[f], start, end, unit),
+            drift_after_m: drift(|f| quat::add(toe[f], delta[f][2]), start, end, unit),
+        }));
+    }
+}
+
 /// Where the planted spans come from.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -241,24 +272,9 @@ pub fn lock_feet(
         };
         let fade = if detected.is_some() { pin::BLEND } else { blend };
         let (o, spans) = no_worse(skel, &toe, &planted, fade, plan);
-        report.worse += spans.iter().filter(|s| s.2 == Outcome::Worse).count();
-        report.dragged += spans.iter().filter(|s| s.2 == Outcome::Dragged).count();
-        report.out_of_reach += spans.iter().filter(|s| s.2 == Outcome::OutOfReach).count();
         let (delta, moved) = leg_deltas(&joints, leg, &o, hold);
-        report.frames += moved.iter().filter(|&&m| m).count();
-        let most = delta.iter().map(|d| quat::norm(d[1]) * unit).fold(0.0, f64::max);
-        report.max_shift_m = report.max_shift_m.max(most);
         let foot = if leg.contact == 1 { "left" } else { "right" };
-        report.spans.extend(spans.iter().map(|&(start, end, outcome)| PlantSpan {
-            foot,
-            source,
-            warp_factor: 1.0,
-            start,
-            end,
-            outcome,
-            drift_before_m: drift(|f| toe[f], start, end, unit),
-            drift_after_m: drift(|f| quat::add(toe[f], delta[f][2]), start, end, unit),
-        }));
+        report.add_leg((foot, source), &spans, &toe, (&delta, &moved), unit);
         let posed = Posed { joints: &joints, root: &rq, old: &f64s };
         apply_leg(skel, feats, &posed, leg, (&delta, &moved), hold);
     }
