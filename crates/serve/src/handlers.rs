@@ -157,8 +157,7 @@ pub async fn import(
                 "{name}: {n} frames; at most {max_frames} are read"
             )));
         }
-        let joints =
-            rep::recover_from_ric(&T2M, &feats.iter().map(|&v| v as f64).collect::<Vec<_>>());
+        let joints = rep::recover_from_ric_f32(&T2M, &feats);
         let traj = root_key::root_trajectory(&feats, T2M.feature_dim());
         let mut v = report::motion_json(&joints, &traj);
         v["name"] = Value::String(name);

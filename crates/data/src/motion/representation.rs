@@ -102,6 +102,11 @@ pub fn recover_from_ric(skel: &Skeleton, feats: &[f64]) -> Joints {
         .collect()
 }
 
+/// [`recover_from_ric`] of f32 features, as files and the network hold them.
+pub fn recover_from_ric_f32(skel: &Skeleton, feats: &[f32]) -> Joints {
+    recover_from_ric(skel, &feats.iter().map(|&v| v as f64).collect::<Vec<_>>())
+}
+
 /// scipy's `gaussian_filter1d(x, sigma, axis=0, mode='nearest')` (truncate 4.0) on a sequence of
 /// 3-vectors: HumanML3D smooths the facing direction with it before IK.
 pub fn gaussian_filter_nearest(x: &[Vec3], sigma: f64) -> Vec<Vec3> {

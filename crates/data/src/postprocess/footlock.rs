@@ -11,7 +11,7 @@ use crate::motion::representation::{recover_from_ric, recover_root_rot_pos, Layo
 use crate::motion::skeleton::Skeleton;
 use crate::postprocess::contacts;
 use crate::postprocess::leg::{apply_leg, leg_deltas, legs, Posed};
-use crate::postprocess::pin::{self, fade_beside, held_beside, nearest};
+use crate::postprocess::pin::{self, fade_beside, moves_to};
 use std::ops::RangeInclusive;
 
 /// A toe contact channel above this marks its foot planted.
@@ -137,15 +137,8 @@ fn offsets(
     let mut o = vec![[0.0; 3]; t];
     let mut spans = Vec::new();
     for (s, e) in contacts::spans(planted) {
-        let held = held_beside(hold, (s, e));
         let mean = (s..=e).fold([0.0; 3], |a, f| quat::add(a, toe[f]));
-        let mean = quat::scale(mean, 1.0 / (e - s + 1) as f64);
-        let span: Vec<Vec3> = (s..=e)
-            .map(|f| {
-                let anchor = nearest(&held, f).map_or(mean, |k| toe[k]);
-                [anchor[0] - toe[f][0], 0.0, anchor[2] - toe[f][2]]
-            })
-            .collect();
+        let span = moves_to(toe, hold, (s, e), quat::scale(mean, 1.0 / (e - s + 1) as f64));
         if span.iter().any(|v| quat::norm(*v) > max_shift) {
             spans.push((s, e, Outcome::Dragged));
             continue;
@@ -286,7 +279,7 @@ mod tests {
     use super::*;
     use crate::motion::plausibility::foot_skating_ratio;
     use crate::motion::quat::Vec3;
-    use crate::motion::representation::features_from_joints;
+    use crate::motion::representation::{features_from_joints, recover_from_ric_f32};
     use crate::postprocess::leg::read6;
     use crate::T2M;
 
@@ -304,7 +297,7 @@ mod tests {
     }
 
     fn joints(skel: &Skeleton, f: &[f32]) -> crate::motion::representation::Joints {
-        recover_from_ric(skel, &f.iter().map(|&v| v as f64).collect::<Vec<_>>())
+        recover_from_ric_f32(skel, f)
     }
 
     #[test]

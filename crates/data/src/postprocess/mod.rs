@@ -16,3 +16,20 @@ pub(crate) fn smoothstep(x: f64) -> f64 {
     let x = x.clamp(0.0, 1.0);
     x * x * (3.0 - 2.0 * x)
 }
+
+/// The frames of a window `width` wide (odd) centred on frame `f` of `t`, cut at the ends.
+pub(crate) fn window(f: usize, width: usize, t: usize) -> std::ops::Range<usize> {
+    f.saturating_sub(width / 2)..(f + width / 2 + 1).min(t)
+}
+
+/// Per frame, how much of a change may act there: nothing on a held frame, rising smoothly
+/// to all of it `fade` frames away from the nearest one (all of it where nothing is held).
+pub(crate) fn key_weights(hold: &[bool], fade: usize) -> Vec<f64> {
+    let keys: Vec<usize> = (0..hold.len()).filter(|&f| hold[f]).collect();
+    (0..hold.len())
+        .map(|f| {
+            let near = keys.iter().map(|&h| h.abs_diff(f)).min().unwrap_or(usize::MAX);
+            smoothstep(near as f64 / fade as f64)
+        })
+        .collect()
+}

@@ -9,7 +9,7 @@ use crate::motion::quat::{self, Vec3};
 use crate::motion::representation::{Joints, Layout};
 use crate::motion::skeleton::Skeleton;
 use crate::postprocess::leg::Leg;
-use crate::postprocess::smoothstep;
+use crate::postprocess::{key_weights, window};
 
 /// Share of a leg's length its ankle target is brought within (a straight knee pops).
 pub const REACH: f64 = 0.97;
@@ -40,17 +40,14 @@ pub(crate) fn drop(
                 .min(cap)
         })
         .collect();
-    let half = SPREAD / 2;
-    let window = |f: usize| f.saturating_sub(half)..(f + half + 1).min(t);
     let peak: Vec<f64> =
-        (0..t).map(|f| need[window(f)].iter().copied().fold(0.0, f64::max)).collect();
-    let keys: Vec<usize> = (0..t).filter(|&f| hold[f]).collect();
-    (0..t)
-        .map(|f| {
-            let w = window(f);
-            let mean = peak[w.clone()].iter().sum::<f64>() / w.len() as f64;
-            let near = keys.iter().map(|&h| h.abs_diff(f)).min().unwrap_or(usize::MAX);
-            mean * smoothstep(near as f64 / KEY_FADE as f64)
+        (0..t).map(|f| need[window(f, SPREAD, t)].iter().copied().fold(0.0, f64::max)).collect();
+    key_weights(hold, KEY_FADE)
+        .iter()
+        .enumerate()
+        .map(|(f, w)| {
+            let win = &peak[window(f, SPREAD, t)];
+            win.iter().sum::<f64>() / win.len() as f64 * w
         })
         .collect()
 }

@@ -37,15 +37,18 @@ pub fn fade_beside(
     }
 }
 
-/// Held frames in the span `s..=e` or right beside it: the foot stays where they put it (a span
-/// that starts after a pose key must not snap away from the key's foot).
-pub fn held_beside(hold: &[bool], (s, e): (usize, usize)) -> Vec<usize> {
-    (s.saturating_sub(1)..=(e + 1).min(hold.len() - 1)).filter(|&f| hold[f]).collect()
-}
-
-/// The held frame of `held` nearest frame `f`.
-pub fn nearest(held: &[usize], f: usize) -> Option<usize> {
-    held.iter().copied().min_by_key(|&k| k.abs_diff(f))
+/// Per frame of the span `s..=e`, the toe's horizontal move to `anchor`, or to the toe's place
+/// at the nearest held frame in the span or right beside it: the foot stays where a key put it
+/// (a span that starts after a pose key must not snap away from the key's foot).
+pub fn moves_to(toe: &[Vec3], hold: &[bool], (s, e): (usize, usize), anchor: Vec3) -> Vec<Vec3> {
+    let held: Vec<usize> =
+        (s.saturating_sub(1)..=(e + 1).min(hold.len() - 1)).filter(|&f| hold[f]).collect();
+    (s..=e)
+        .map(|f| {
+            let at = held.iter().min_by_key(|&&k| k.abs_diff(f)).map_or(anchor, |&k| toe[k]);
+            [at[0] - toe[f][0], 0.0, at[2] - toe[f][2]]
+        })
+        .collect()
 }
 
 /// How much of a hold a leg can take: 1 up to [`REACH_FULL`] of its length, 0 from
@@ -70,11 +73,7 @@ pub fn offsets(
     let mut o = vec![[0.0; 3]; t];
     let mut out = Vec::new();
     for (s, e) in spans(planted) {
-        let held = held_beside(hold, (s, e));
-        let mid = toe[(s + e) / 2];
-        let target = |f: usize| nearest(&held, f).map_or(mid, |k| toe[k]);
-        let want: Vec<Vec3> =
-            (s..=e).map(|f| [target(f)[0] - toe[f][0], 0.0, target(f)[2] - toe[f][2]]).collect();
+        let want = moves_to(toe, hold, (s, e), toe[(s + e) / 2]);
         if want.iter().any(|v| quat::norm(*v) > max_shift) {
             out.push((s, e, Outcome::Dragged));
             continue;

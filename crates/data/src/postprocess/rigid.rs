@@ -168,8 +168,7 @@ mod tests {
         let Some(mut feats) = real_features() else {
             return;
         };
-        let before =
-            rep::recover_from_ric(&T2M, &feats.iter().map(|&v| v as f64).collect::<Vec<_>>());
+        let before = rep::recover_from_ric_f32(&T2M, &feats);
         assert!(bone_length_std(&T2M, &before) < 1e-4, "the fixture is rigid");
         let hold = vec![true; before.len()];
         let r = make_rigid(&T2M, &mut feats, &hold);
@@ -181,8 +180,7 @@ mod tests {
         let Some(feats) = real_features() else {
             return;
         };
-        let real =
-            rep::recover_from_ric(&T2M, &feats.iter().map(|&v| v as f64).collect::<Vec<_>>());
+        let real = rep::recover_from_ric_f32(&T2M, &feats);
         let loose = stretched(&real);
         assert!(bone_length_std(&T2M, &loose) > 0.005, "the test motion stretches");
         let fixed = rigid_joints(&T2M, &loose, &rest(&T2M, &loose, &[]));
@@ -222,8 +220,7 @@ mod tests {
         }
         let r = make_rigid(&T2M, &mut feats2, &vec![false; real.len()]);
         assert!(r.bone_std_before_m > 0.005 && r.max_key_move_m == 0.0, "{r:?}");
-        let out =
-            rep::recover_from_ric(&T2M, &feats2.iter().map(|&v| v as f64).collect::<Vec<_>>());
+        let out = rep::recover_from_ric_f32(&T2M, &feats2);
         assert!(bone_length_std(&T2M, &out) < 1e-5, "{}", bone_length_std(&T2M, &out));
         // The root is untouched.
         for f in 0..out.len() {

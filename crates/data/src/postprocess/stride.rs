@@ -21,7 +21,7 @@ use crate::motion::skeleton::Skeleton;
 use crate::motion::travel::travel_directions;
 use crate::postprocess::contacts::{self, THRESHOLDS};
 use crate::postprocess::leg::{apply_leg, leg_deltas, legs, Leg, Posed};
-use crate::postprocess::{pelvis, smoothstep};
+use crate::postprocess::{key_weights, pelvis, window};
 
 /// Smallest and largest stride factor.
 pub const FACTOR_RANGE: (f64, f64) = (0.5, 2.0);
@@ -83,6 +83,16 @@ fn along(j: &Joints, dirs: &[[f64; 2]], f: usize, hip: usize, joint: usize) -> f
     (a[0] - h[0]) * dirs[f][0] + (a[2] - h[2]) * dirs[f][1]
 }
 
+/// How far `joint` travels along the travel direction over frames `s..=e` (units).
+fn travel(j: &Joints, dirs: &[[f64; 2]], (s, e): (usize, usize), joint: usize) -> f64 {
+    (s..e)
+        .map(|f| {
+            let (p, q) = (j[f][joint], j[f + 1][joint]);
+            (q[0] - p[0]) * dirs[f][0] + (q[2] - p[2]) * dirs[f][1]
+        })
+        .sum()
+}
+
 /// The stance spans of the motion with their factors (both feet).
 fn stances(skel: &Skeleton, j: &Joints, dirs: &[[f64; 2]], legs: &[Leg]) -> Vec<StanceWarp> {
     let (unit, fps) = (skel.metres_per_unit, skel.fps);
@@ -93,24 +103,14 @@ fn stances(skel: &Skeleton, j: &Joints, dirs: &[[f64; 2]], legs: &[Leg]) -> Vec<
             let secs = (e - s) as f64 / fps;
             let back =
                 along(j, dirs, s, leg.hip, leg.ankle) - along(j, dirs, e, leg.hip, leg.ankle);
-            let root: f64 = (s..e)
-                .map(|f| {
-                    let (p, q) = (j[f][0], j[f + 1][0]);
-                    (q[0] - p[0]) * dirs[f][0] + (q[2] - p[2]) * dirs[f][1]
-                })
-                .sum();
+            let root = travel(j, dirs, (s, e), 0);
             let (foot_speed, root_speed) = (back * unit / secs, root * unit / secs);
             if foot_speed < MIN_SPEED_MPS || root_speed < MIN_SPEED_MPS {
                 continue;
             }
             // The toe stays put when the hip's travel, the scaled ankle's travel relative to
             // the hip and the toe's relative to the ankle (the foot rolling over it) cancel.
-            let hip: f64 = (s..e)
-                .map(|f| {
-                    let (p, q) = (j[f][leg.hip], j[f + 1][leg.hip]);
-                    (q[0] - p[0]) * dirs[f][0] + (q[2] - p[2]) * dirs[f][1]
-                })
-                .sum();
+            let hip = travel(j, dirs, (s, e), leg.hip);
             let roll =
                 along(j, dirs, e, leg.ankle, leg.toe) - along(j, dirs, s, leg.ankle, leg.toe);
             let factor = ((hip + roll) / back).clamp(FACTOR_RANGE.0, FACTOR_RANGE.1);
@@ -148,13 +148,13 @@ fn factor_curve(spans: &[StanceWarp], hold: &[bool]) -> Vec<f64> {
             }
         })
         .collect();
-    let keys: Vec<usize> = (0..t).filter(|&f| hold[f]).collect();
-    (0..t)
-        .map(|f| {
-            let win = &raw[f.saturating_sub(SMOOTH / 2)..(f + SMOOTH / 2 + 1).min(t)];
+    key_weights(hold, KEY_FADE)
+        .iter()
+        .enumerate()
+        .map(|(f, w)| {
+            let win = &raw[window(f, SMOOTH, t)];
             let k = win.iter().sum::<f64>() / win.len() as f64;
-            let near = keys.iter().map(|&h| h.abs_diff(f)).min().unwrap_or(usize::MAX);
-            1.0 + (k - 1.0) * smoothstep(near as f64 / KEY_FADE as f64)
+            1.0 + (k - 1.0) * w
         })
         .collect()
 }
@@ -247,7 +247,9 @@ mod tests {
     use super::*;
     use crate::motion::plausibility::foot_skating_ratio;
     use crate::motion::quat;
-    use crate::motion::representation::{features_from_joints, FOOT_CONTACT_THRESHOLD};
+    use crate::motion::representation::{
+        features_from_joints, recover_from_ric_f32, FOOT_CONTACT_THRESHOLD,
+    };
     use crate::T2M;
 
     /// A synthetic forward walk's joints.
@@ -255,7 +257,7 @@ mod tests {
         for i in 0..400 {
             let (c, f) = crate::dataset::synth::clip(3, i);
             if c.meta.actions.len() == 1 && c.meta.actions[0].action == "walk_forward" {
-                return recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
+                return recover_from_ric_f32(&T2M, &f);
             }
         }
         panic!("a walk among the first synthetic clips")
@@ -271,7 +273,7 @@ mod tests {
     }
 
     fn joints(f: &[f32]) -> Joints {
-        recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>())
+        recover_from_ric_f32(&T2M, f)
     }
 
     #[test]

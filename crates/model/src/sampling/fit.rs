@@ -2,7 +2,7 @@
 
 use diffkfc_data::dataset::denormalise;
 use diffkfc_data::motion::plausibility::foot_skating_ratio;
-use diffkfc_data::motion::representation::{recover_from_ric, Layout};
+use diffkfc_data::motion::representation::{recover_from_ric_f32, Layout};
 use diffkfc_data::motion::root_key::{RootKey, ROOT_CHANNELS};
 use diffkfc_data::postprocess::footlock::{self, ContactSource, LockReport};
 use diffkfc_data::postprocess::rigid::{self, RigidReport};
@@ -190,7 +190,7 @@ fn hold_feet(
         let mut pinned = features.to_vec();
         let pinned_feet = lock(&mut pinned);
         let skating = |f: &[f32]| {
-            let j = recover_from_ric(skel, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
+            let j = recover_from_ric_f32(skel, f);
             foot_skating_ratio(skel, &j)
         };
         if skating(&warped) > skating(&pinned) {

@@ -100,7 +100,7 @@ fn write_sample(
 ) -> Result<(serde_json::Value, ViewMotion)> {
     let (n, d) = (keys.length, T2M.feature_dim());
     let f = &done.features;
-    let j = rep::recover_from_ric(&T2M, &f.iter().map(|&v| v as f64).collect::<Vec<_>>());
+    let j = rep::recover_from_ric_f32(&T2M, f);
     let name = format!("sample_{i:02}");
     let stem = dir.join(&name);
     npy::write(stem.with_extension("npy"), &[n, d], f)?;

@@ -113,7 +113,7 @@ fn suggest(a: SuggestArgs) -> Result<()> {
         (c, None) => c.unwrap_or(5).min(n) as f64 / n as f64,
     };
     let frames = keyframes::select(strategy, n, rate, &feats, d, &mut Rng::new(a.seed));
-    let joints = rep::recover_from_ric(&T2M, &feats.iter().map(|&v| v as f64).collect::<Vec<_>>());
+    let joints = rep::recover_from_ric_f32(&T2M, &feats);
     let traj = root_key::root_trajectory(&feats, d);
     let keys = KeySpec::from_motion(&joints, &traj, &frames);
     let doc = json!({"length": n, "source": source, "strategy": a.strategy, "keyframes": keys});
