@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Foot skating of a model's keyed walks under each foot post-process (docs/feet.md): the six
 # keyed test walks of the design panel (5% keys, seed 2) and the quick start's walk (seed 1),
-# each through the default track fit with --no-foot-lock, --feet warp, pin and network.
+# each through the default track fit with --no-foot-lock, --feet warp, pin, network and steps.
 #   scripts/feet-walks.sh MODEL OUT [--data DIR]
 # Prints one Markdown table (also OUT/feet.md; the samples stay under OUT).
 set -euo pipefail
@@ -29,7 +29,7 @@ cases+=("$quick:1")
 for c in "${cases[@]}"; do
   w=${c%%:*} seed=${c##*:}
   text=$(head -n 1 "$data/texts/$w.txt" | cut -d'#' -f1)
-  for mode in none warp pin network; do
+  for mode in none warp pin network steps; do
     flags=(--feet "$mode")
     [ "$mode" = none ] && flags=(--no-foot-lock)
     "$bin" sample --checkpoint "$model" --text "$text" --from "$data/new_joint_vecs/$w.npy" \
@@ -40,8 +40,8 @@ done
 python3 - "$out" "${cases[@]}" <<'PY' | tee "$out/feet.md"
 import json, os, statistics, sys
 out, cases = sys.argv[1], sys.argv[2:]
-modes = ["none", "warp", "pin", "network"]
-print("| walk | source | " + " | ".join(modes) + " | planted share warp / source | mean stride factor | pelvis drop (m) |")
+modes = ["none", "warp", "pin", "network", "steps"]
+print("| walk | source | " + " | ".join(modes) + " | planted share steps / source | warp: mean stride factor | pelvis drop warp / steps (m) |")
 print("|---|---|" + "---|" * len(modes) + "---|---|---|")
 cols = {m: [] for m in modes}
 for c in cases:
@@ -57,6 +57,7 @@ for c in cases:
     factor = f"{st.get('mean_factor', 1.0):.2f}" + ("" if st.get("warped") else why)
     print(f"| {w} (seed {seed}) | {r['none']['real_foot_skating']:.3f} | "
           + " | ".join(f"{skate[m]:.3f}" for m in modes)
-          + f" | {warp['gait']['planted_share']:.2f} / {r['none']['real_gait']['planted_share']:.2f} | {factor} | {st.get('pelvis_drop_m', 0.0):.3f} |")
+          + f" | {r['steps']['samples'][0]['gait']['planted_share']:.2f} / {r['none']['real_gait']['planted_share']:.2f} | {factor}"
+          + f" | {st.get('pelvis_drop_m', 0.0):.3f} / {r['steps']['samples'][0]['foot_lock']['pelvis_drop_m']:.3f} |")
 print("| mean | | " + " | ".join(f"{statistics.fmean(cols[m]):.3f}" for m in modes) + " | | | |")
 PY

@@ -96,8 +96,9 @@ fn blender_reads_our_bvh_as_we_do() {
     if !have_text_encoder() {
         return;
     }
-    // The default foot lock, and stride warping (which lowers the pelvis between keys).
-    for feet in ["network", "warp"] {
+    // The default steps (which lift swinging feet and may lower the pelvis) and stride warping
+    // (which lowers the pelvis between keys).
+    for feet in ["steps", "warp"] {
         generated_bvh_reads_back(&blender, &model, &d, feet);
     }
 }

@@ -23,7 +23,7 @@ const FACTORS: [(&str, &[&str]); 11] = [
     ("keys", &["none", "pose", "place", "pose+place", "suggested"]),
     ("prompt", &["text", "timeline", "body-parts"]),
     ("kf-guidance", &["1", "2.5"]),
-    ("feet", &["network", "warp", "pin"]),
+    ("feet", &["steps", "network", "warp", "pin"]),
 ];
 
 /// Pairs of levels the command refuses at argument time, each with a needle of its message:

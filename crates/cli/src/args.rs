@@ -82,17 +82,20 @@ pub(crate) struct FitArgs {
     /// Same as --keyframe-fit none (kept for older scripts).
     #[arg(long, hide = true)]
     no_snap: bool,
-    /// No foot post-process at all: feet stay where the network put them. By default a foot
-    /// the network's contact channel labels as planted is held still on the ground, its leg
-    /// re-solved by two-bone IK (pose keyframes and the root untouched): generated walks
-    /// otherwise slide their feet.
+    /// No foot post-process at all: feet stay where the network put them. By default a
+    /// standing foot is held still on the ground and a swinging one lifted clear of it, the
+    /// leg re-solved by two-bone IK (pose keyframes and the root's path untouched; see
+    /// --feet): generated walks otherwise slide their feet.
     #[arg(long)]
     no_foot_lock: bool,
-    /// How the foot post-process finds and holds planted feet: network (the network's contact
-    /// channels, pinned), warp (contacts from the motion: a toe or ankle low and slow; strides
-    /// scaled so the stance foot stands still under the root's speed, then pinned) or pin
-    /// (contacts from the motion, pinned only). docs/feet.md compares them.
-    #[arg(long, value_enum, default_value = "network")]
+    /// How the foot post-process finds and holds planted feet: steps (the default: stances
+    /// where a low toe is slow or slower than the pelvis, and set into glides; the pelvis
+    /// lowered up to 6 cm where a leg could not hold them; pinned, and the swings between them
+    /// lifted off the floor where they would slide), network (the network's contact channels,
+    /// pinned), warp (contacts from the motion: a toe or ankle low and slow; strides scaled so
+    /// the stance foot stands still under the root's speed, then pinned) or pin (contacts from
+    /// the motion, pinned only). docs/feet.md compares them.
+    #[arg(long, value_enum, default_value = "steps")]
     feet: FeetArg,
     /// Largest move of a planted foot the lock makes, in metres; a contact span whose foot
     /// slides further is left as it is (a dragged foot), as is one whose leg cannot reach the
@@ -115,6 +118,7 @@ impl FitArgs {
                 FeetArg::Warp => Feet::Warp,
                 FeetArg::Pin => Feet::Pin,
                 FeetArg::Network => Feet::Network,
+                FeetArg::Steps => Feet::Steps,
             },
             lock_reach: self.foot_lock_reach,
             rigid: !self.no_rigid,
@@ -169,6 +173,7 @@ pub(crate) enum FeetArg {
     Warp,
     Pin,
     Network,
+    Steps,
 }
 
 /// How the transition-guidance gradient is taken (`sample` and `eval`).

@@ -77,7 +77,7 @@ pub fn spans(on: &[bool]) -> Vec<(usize, usize)> {
 }
 
 /// `on` without its runs shorter than `min` frames.
-fn drop_short(mut on: Vec<bool>, min: usize) -> Vec<bool> {
+pub(crate) fn drop_short(mut on: Vec<bool>, min: usize) -> Vec<bool> {
     for (s, e) in spans(&on) {
         if e + 1 - s < min {
             on[s..=e].iter_mut().for_each(|v| *v = false);

@@ -12,6 +12,7 @@ use crate::motion::skeleton::Skeleton;
 use crate::postprocess::contacts;
 use crate::postprocess::leg::{apply_leg, leg_deltas, legs, Posed};
 use crate::postprocess::pin::{self, fade_beside, moves_to};
+use crate::postprocess::{key_weights, steps};
 use std::ops::RangeInclusive;
 
 /// A toe contact channel above this marks its foot planted.
@@ -31,6 +32,9 @@ pub const MAX_SHIFT_M: f64 = 0.5;
 /// would stretch the leg straight and still slide.
 pub const REACH_SLACK_M: f64 = 0.02;
 
+/// A toe raised more than this (metres) counts as lifted in [`LockReport::lifted`].
+const LIFTED_M: f64 = 0.005;
+
 /// What locking did to one motion.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
 pub struct LockReport {
@@ -44,6 +48,13 @@ pub struct LockReport {
     pub out_of_reach: usize,
     /// Planted spans left unlocked because holding them would make the foot skate more.
     pub worse: usize,
+    /// Frames (per foot, summed) whose toe was lifted off the floor in a swing (`steps`).
+    pub lifted: usize,
+    /// Largest lowering of the pelvis that lets the legs reach held stances (m; `steps`).
+    pub pelvis_drop_m: f64,
+    /// Why the post-process asked for was replaced by another (`fit::hold_feet`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
     /// Every planted span, with how far its toe slid before and after locking.
     pub spans: Vec<PlantSpan>,
 }
@@ -88,6 +99,9 @@ pub enum ContactSource {
     Motion,
     /// The network's foot-contact channels (HumanML3D's speed-only labels: a glide counts).
     Network,
+    /// The motion's gait: a toe low and slow, or low and slower than the pelvis; the swing
+    /// between held stances lifted off the floor where it would skate (`steps`).
+    Gait,
 }
 
 /// What became of one planted span.
@@ -175,8 +189,9 @@ fn skating(skel: &Skeleton, toe: &[Vec3], o: &[Vec3], range: RangeInclusive<usiz
 /// The offsets `plan` makes of the planted spans, less the spans whose hold would make the toe
 /// skate on more frames of the span and its fades than it does unheld (a slow slide pinned
 /// catches up where the hold fades, on the ground, faster than it slid), and none at all if
-/// the foot would still skate more overall. Heights never change, so the foot skating ratio
-/// of the motion never rises.
+/// the foot would still skate more overall. Without a lift heights never change, so the foot
+/// skating ratio of the motion never rises; a lift takes frames off the floor, so its caller
+/// compares ratios (`fit::hold_feet`).
 fn no_worse(
     skel: &Skeleton,
     toe: &[Vec3],
@@ -237,8 +252,12 @@ pub fn lock_feet(
     let unit = skel.metres_per_unit;
     let slack = REACH_SLACK_M / unit;
     // The motion's own contacts, found once for both feet where they are asked for.
-    let detected = (source == ContactSource::Motion)
-        .then(|| contacts::detect(skel, &joints, &contacts::THRESHOLDS));
+    let detected = match source {
+        ContactSource::Network => None,
+        ContactSource::Motion => Some(contacts::detect(skel, &joints, &contacts::THRESHOLDS)),
+        ContactSource::Gait => Some(steps::stances(skel, &joints, &contacts::THRESHOLDS)),
+    };
+    let lift_weights = key_weights(hold, pin::BLEND);
     for (li, leg) in legs(skel).into_iter().enumerate() {
         let toe: Vec<Vec3> = joints.iter().map(|j| j[leg.toe]).collect();
         let planted: Vec<bool> = match &detected {
@@ -260,11 +279,26 @@ pub fn lock_feet(
                     let (wanted, length) = leg.reach(&joints[f], o);
                     pin::reach_weight(wanted / length.max(1e-9))
                 };
-                pin::offsets(&toe, planted, hold, pin::BLEND, max_shift_m / unit, weight)
+                if source != ContactSource::Gait {
+                    return pin::offsets(
+                        &toe,
+                        planted,
+                        hold,
+                        pin::BLEND,
+                        max_shift_m / unit,
+                        weight,
+                    );
+                }
+                let planted = steps::trim(&toe, planted, hold, |f, o| weight(f, o) >= 1.0);
+                let (mut o, spans) =
+                    pin::offsets(&toe, &planted, hold, pin::BLEND, max_shift_m / unit, weight);
+                steps::lift(skel, &toe, &mut o, &lift_weights, &planted);
+                (o, spans)
             }
         };
         let fade = if detected.is_some() { pin::BLEND } else { blend };
         let (o, spans) = no_worse(skel, &toe, &planted, fade, plan);
+        report.lifted += o.iter().filter(|v| v[1] * unit > LIFTED_M).count();
         let (delta, moved) = leg_deltas(&joints, leg, &o, hold);
         let foot = if leg.contact == 1 { "left" } else { "right" };
         report.add_leg((foot, source), &spans, &toe, (&delta, &moved), unit);

@@ -1,6 +1,6 @@
 //! After sampling: meeting keyframes without a seam (warp), one rigid skeleton (rigid), and
 //! planted feet held still: contacts from the motion (contacts), stride warping (stride, pelvis),
-//! pinning (pin, footlock), on one leg's machinery (leg).
+//! pinning (pin, footlock), steps out of a shuffle (steps), on one leg's machinery (leg).
 
 pub mod contacts;
 pub mod footlock;
@@ -8,6 +8,7 @@ pub(crate) mod leg;
 pub mod pelvis;
 pub mod pin;
 pub mod rigid;
+pub mod steps;
 pub mod stride;
 pub mod warp;
 

@@ -6,6 +6,7 @@ use diffkfc_data::motion::representation::{recover_from_ric_f32, Layout};
 use diffkfc_data::motion::root_key::{RootKey, ROOT_CHANNELS};
 use diffkfc_data::postprocess::footlock::{self, ContactSource, LockReport};
 use diffkfc_data::postprocess::rigid::{self, RigidReport};
+use diffkfc_data::postprocess::steps;
 use diffkfc_data::postprocess::stride::{self, StrideReport};
 use diffkfc_data::postprocess::warp::{self, Correction};
 use diffkfc_data::Skeleton;
@@ -59,10 +60,14 @@ pub enum Feet {
     Warp,
     /// Contacts from the motion's geometry, pinned (no stride warping).
     Pin,
-    /// The network's contact channels, pinned: the default until the other two beat it on
-    /// generated walks (docs/feet.md).
-    #[default]
+    /// The network's contact channels, pinned.
     Network,
+    /// Stances from the motion's gait (low and slow, low and slower than the pelvis, or set
+    /// into a glide), the pelvis lowered where a leg could not hold them, pinned, and the
+    /// swings between them lifted off the floor where they would skate: the default, lowest
+    /// on generated walks and the table (docs/feet.md).
+    #[default]
+    Steps,
 }
 
 /// What follows the last denoising step.
@@ -176,24 +181,22 @@ fn hold_feet(
     hold: &[bool],
     fit: Fit,
 ) -> (LockReport, Option<StrideReport>) {
-    let source =
-        if fit.feet == Feet::Network { ContactSource::Network } else { ContactSource::Motion };
-    let lock =
-        |f: &mut [f32]| footlock::lock_feet(skel, f, hold, footlock::BLEND, fit.lock_reach, source);
-    if fit.feet != Feet::Warp {
-        return (lock(features), None);
+    let lock = |f: &mut [f32], source| {
+        footlock::lock_feet(skel, f, hold, footlock::BLEND, fit.lock_reach, source)
+    };
+    match fit.feet {
+        Feet::Network => return (lock(features, ContactSource::Network), None),
+        Feet::Pin => return (lock(features, ContactSource::Motion), None),
+        Feet::Steps => return (steps_or_pin(skel, features, hold, fit, &lock), None),
+        Feet::Warp => {}
     }
     let mut warped = features.to_vec();
     let mut stride = stride::warp_strides(skel, &mut warped, hold);
-    let mut feet = lock(&mut warped);
+    let mut feet = lock(&mut warped, ContactSource::Motion);
     if stride.warped {
         let mut pinned = features.to_vec();
-        let pinned_feet = lock(&mut pinned);
-        let skating = |f: &[f32]| {
-            let j = recover_from_ric_f32(skel, f);
-            foot_skating_ratio(skel, &j)
-        };
-        if skating(&warped) > skating(&pinned) {
+        let pinned_feet = lock(&mut pinned, ContactSource::Motion);
+        if skating_ratio(skel, &warped) > skating_ratio(skel, &pinned) {
             stride.undo("undone: the feet skated more with the warp than with the pinning alone");
             (warped, feet) = (pinned, pinned_feet);
         }
@@ -205,6 +208,33 @@ fn hold_feet(
         }
     }
     (feet, Some(stride))
+}
+
+/// `Feet::Steps`, or the pinning alone where the lifted swings leave a higher foot skating
+/// ratio than the motion had (a lift takes frames off the floor, which the ratio counts).
+fn steps_or_pin(
+    skel: &Skeleton,
+    features: &mut [f32],
+    hold: &[bool],
+    fit: Fit,
+    lock: &dyn Fn(&mut [f32], ContactSource) -> LockReport,
+) -> LockReport {
+    let mut stepped = features.to_vec();
+    let drop = steps::lower_for_stances(skel, &mut stepped, hold, fit.lock_reach);
+    let mut report = lock(&mut stepped, ContactSource::Gait);
+    report.pelvis_drop_m = drop;
+    if skating_ratio(skel, &stepped) <= skating_ratio(skel, features) {
+        features.copy_from_slice(&stepped);
+        return report;
+    }
+    let mut pinned = lock(features, ContactSource::Motion);
+    pinned.note = Some("steps undone: the feet skated more with the lifted swings".into());
+    pinned
+}
+
+/// The foot skating ratio (`plausibility::foot_skating_ratio`) of de-normalised features.
+fn skating_ratio(skel: &Skeleton, features: &[f32]) -> f64 {
+    foot_skating_ratio(skel, &recover_from_ric_f32(skel, features))
 }
 
 fn fit_keys(
