@@ -7,6 +7,7 @@ use diffkfc_data::motion::quat;
 use diffkfc_data::motion::representation::{recover_from_ric, Joints};
 use diffkfc_data::postprocess::footlock::{lock_feet, ContactSource, BLEND, MAX_SHIFT_M};
 use diffkfc_data::postprocess::stride::scale_strides;
+use diffkfc_data::testing::feet::assert_legs_and_keys_kept;
 use diffkfc_data::{io::npy, testing::fixtures, T2M};
 
 fn joints(f: &[f32]) -> Joints {
@@ -64,15 +65,7 @@ fn a_real_walk_made_to_shuffle_gets_its_steps_back() {
             assert!(moved < 0.08 && after <= own, "{moved} m, skating {after}");
         }
         // Bones keep their lengths; keyed rows are unchanged.
-        for (a, b) in after_j.iter().zip(&gj) {
-            for (p, c) in [(1usize, 4usize), (4, 7), (2, 5), (5, 8), (7, 10), (8, 11)] {
-                let l = |j: &Vec<quat::Vec3>| quat::norm(quat::sub(j[c], j[p]));
-                assert!((l(a) - l(b)).abs() < 1e-4);
-            }
-        }
-        for k in [20, 120] {
-            assert_eq!(f[k * d..(k + 1) * d], glided[k * d..(k + 1) * d]);
-        }
+        assert_legs_and_keys_kept((&after_j, &gj), (&f, &glided), d, &[20, 120]);
     }
 }
 

@@ -2,9 +2,9 @@
 //! 012314.npy`): its strides shortened to simulate a network that glides, then warped back.
 
 use diffkfc_data::motion::plausibility::foot_skating_ratio;
-use diffkfc_data::motion::quat;
 use diffkfc_data::motion::representation::{recover_from_ric, Joints};
 use diffkfc_data::postprocess::stride::{scale_strides, warp_strides};
+use diffkfc_data::testing::feet::assert_legs_and_keys_kept;
 use diffkfc_data::{io::npy, testing::fixtures, T2M};
 
 fn joints(f: &[f32]) -> Joints {
@@ -35,15 +35,6 @@ fn a_real_walk_glided_is_warped_back_to_its_own_skating() {
         assert!(rep.warped, "{rep:?}");
         assert!(after <= (1.5 * own).max(own + 0.02), "x{s}: {after} against its own {own}");
         // Bones keep their lengths; keyed rows are unchanged.
-        let gj = joints(&glided);
-        for (a, b) in after_j.iter().zip(&gj) {
-            for (p, c) in [(1usize, 4usize), (4, 7), (2, 5), (5, 8), (7, 10), (8, 11)] {
-                let l = |j: &Vec<quat::Vec3>| quat::norm(quat::sub(j[c], j[p]));
-                assert!((l(a) - l(b)).abs() < 1e-4);
-            }
-        }
-        for k in [20, 120] {
-            assert_eq!(f[k * d..(k + 1) * d], glided[k * d..(k + 1) * d]);
-        }
+        assert_legs_and_keys_kept((&after_j, &joints(&glided)), (&f, &glided), d, &[20, 120]);
     }
 }

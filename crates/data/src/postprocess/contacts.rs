@@ -107,20 +107,9 @@ mod tests {
     use super::*;
     use crate::T2M;
 
-    /// 40 frames of a standing pose with the left foot doing `left(f) -> (x, y, z)` (its ankle
-    /// 8 cm above its toe) and the right foot at rest.
+    /// A standing body whose left foot does `left(f)`.
     fn motion(left: impl Fn(usize) -> [f64; 3]) -> Joints {
-        (0..40)
-            .map(|f| {
-                let mut p = vec![[0.0, 0.9, 0.0]; 22];
-                let l = left(f);
-                p[T2M.feet_left[1]] = l;
-                p[T2M.feet_left[0]] = [l[0], l[1] + 0.08, l[2] - 0.12];
-                p[T2M.feet_right[1]] = [-0.1, 0.0, 0.05];
-                p[T2M.feet_right[0]] = [-0.1, 0.08, -0.07];
-                p
-            })
-            .collect()
+        crate::testing::feet::feet_motion(0.0, left)
     }
 
     #[test]

@@ -291,21 +291,7 @@ mod tests {
     use crate::postprocess::contacts::THRESHOLDS;
     use crate::T2M;
 
-    /// 40 frames of a body whose pelvis moves forward at `pelvis` m/s, its left toe doing
-    /// `left(f)` (its ankle 8 cm above and behind it), its right foot at rest.
-    fn motion(pelvis: f64, left: impl Fn(usize) -> Vec3) -> Joints {
-        (0..40)
-            .map(|f| {
-                let mut p = vec![[0.0, 0.9, pelvis * f as f64 / 20.0]; 22];
-                let l = left(f);
-                p[T2M.feet_left[1]] = l;
-                p[T2M.feet_left[0]] = [l[0], l[1] + 0.08, l[2] - 0.12];
-                p[T2M.feet_right[1]] = [-0.1, 0.0, 0.05];
-                p[T2M.feet_right[0]] = [-0.1, 0.08, -0.07];
-                p
-            })
-            .collect()
-    }
+    use crate::testing::feet::feet_motion as motion;
 
     #[test]
     fn a_toe_gliding_slower_than_the_pelvis_stands_a_faster_or_lifted_one_does_not() {
