@@ -66,6 +66,15 @@ impl Folder {
         let place = s["corrections"].as_array().map(|c| {
             c.iter().filter_map(|c| c["place_m"].as_f64()).fold(0.0, |m, v| v.abs().max(m))
         });
+        let lifted = s["foot_lock"]["lifted"]
+            .as_f64()
+            .zip(r["length"].as_f64())
+            .map(|(l, n)| l / (2.0 * n).max(1.0));
+        // Steps lowers the pelvis for its stances, the stride warp for its strides.
+        let drop = s["foot_lock"]["pelvis_drop_m"]
+            .as_f64()
+            .filter(|&d| d > 0.0)
+            .or_else(|| s["stride"]["pelvis_drop_m"].as_f64());
         vec![
             ("K-Err (m)", s["k_err_m"].as_f64(), None),
             ("K-Err root-rel. (m)", s["k_err_root_relative_m"].as_f64(), None),
@@ -88,6 +97,8 @@ impl Folder {
             ),
             ("largest place correction (m)", place, None),
             ("stride warp factor", s["stride"]["mean_factor"].as_f64(), None),
+            ("share of toe frames lifted", lifted, None),
+            ("pelvis drop (m)", drop, None),
         ]
     }
 
