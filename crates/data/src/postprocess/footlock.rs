@@ -7,10 +7,10 @@
 
 use crate::motion::plausibility::skates;
 use crate::motion::quat::{self, Vec3};
-use crate::motion::representation::{recover_from_ric, recover_root_rot_pos, Layout};
+use crate::motion::representation::{recover_from_ric, recover_root_rot_pos, Joints, Layout};
 use crate::motion::skeleton::Skeleton;
 use crate::postprocess::contacts;
-use crate::postprocess::leg::{apply_leg, leg_deltas, legs, Posed};
+use crate::postprocess::leg::{apply_leg, leg_deltas, legs, Leg, Posed};
 use crate::postprocess::pin::{self, fade_beside, moves_to};
 use crate::postprocess::{key_weights, steps};
 use std::ops::RangeInclusive;
@@ -228,6 +228,55 @@ fn no_worse(
     (o, spans)
 }
 
+/// One leg's motion, as planning its offsets reads it.
+struct Planner<'a> {
+    skel: &'a Skeleton,
+    joints: &'a Joints,
+    leg: Leg,
+    toe: &'a [Vec3],
+    hold: &'a [bool],
+    source: ContactSource,
+}
+
+impl Planner<'_> {
+    /// The network's spans, each held whole or left (a leg reaching within `slack`).
+    fn network(
+        &self,
+        planted: &[bool],
+        blend: usize,
+        max_shift: f64,
+        slack: f64,
+    ) -> (Vec<Vec3>, Vec<(usize, usize, Outcome)>) {
+        let reachable = |f: usize, o: Vec3| {
+            let (wanted, length) = self.leg.reach(&self.joints[f], o);
+            wanted <= length + slack
+        };
+        offsets(self.toe, planted, self.hold, blend, max_shift, reachable)
+    }
+
+    /// The motion's spans pinned with the reach fall-off (`pin`); for the gait, each stance cut
+    /// to what the leg holds fully and the swings lifted (`steps`).
+    fn motion(
+        &self,
+        planted: &[bool],
+        max_shift: f64,
+        lift_weights: &[f64],
+    ) -> (Vec<Vec3>, Vec<(usize, usize, Outcome)>) {
+        let weight = |f: usize, o: Vec3| {
+            let (wanted, length) = self.leg.reach(&self.joints[f], o);
+            pin::reach_weight(wanted / length.max(1e-9))
+        };
+        let (toe, hold) = (self.toe, self.hold);
+        if self.source != ContactSource::Gait {
+            return pin::offsets(toe, planted, hold, pin::BLEND, max_shift, weight);
+        }
+        let planted = steps::trim(toe, planted, hold, |f, o| weight(f, o) >= 1.0);
+        let (mut o, spans) = pin::offsets(toe, &planted, hold, pin::BLEND, max_shift, weight);
+        steps::lift(self.skel, toe, &mut o, lift_weights, &planted);
+        (o, spans)
+    }
+}
+
 /// Lock the planted feet of de-normalised features `feats` [T, D] in place. `hold[f]` marks
 /// frames that must not change (pose keyframes). Positions, local velocities and the leg's
 /// rotations are updated together; the root and the contact labels are not touched.
@@ -266,37 +315,12 @@ pub fn lock_feet(
                 .collect(),
             Some(found) => found[li].clone(),
         };
-        let plan = |planted: &[bool]| match &detected {
-            None => {
-                let reachable = |f: usize, o: Vec3| {
-                    let (wanted, length) = leg.reach(&joints[f], o);
-                    wanted <= length + slack
-                };
-                offsets(&toe, planted, hold, blend, max_shift_m / unit, reachable)
-            }
-            Some(_) => {
-                let weight = |f: usize, o: Vec3| {
-                    let (wanted, length) = leg.reach(&joints[f], o);
-                    pin::reach_weight(wanted / length.max(1e-9))
-                };
-                if source != ContactSource::Gait {
-                    return pin::offsets(
-                        &toe,
-                        planted,
-                        hold,
-                        pin::BLEND,
-                        max_shift_m / unit,
-                        weight,
-                    );
-                }
-                let planted = steps::trim(&toe, planted, hold, |f, o| weight(f, o) >= 1.0);
-                let (mut o, spans) =
-                    pin::offsets(&toe, &planted, hold, pin::BLEND, max_shift_m / unit, weight);
-                steps::lift(skel, &toe, &mut o, &lift_weights, &planted);
-                (o, spans)
-            }
+        let planner = Planner { skel, joints: &joints, leg, toe: &toe, hold, source };
+        let plan = |planted: &[bool]| match source {
+            ContactSource::Network => planner.network(planted, blend, max_shift_m / unit, slack),
+            _ => planner.motion(planted, max_shift_m / unit, &lift_weights),
         };
-        let fade = if detected.is_some() { pin::BLEND } else { blend };
+        let fade = if source == ContactSource::Network { blend } else { pin::BLEND };
         let (o, spans) = no_worse(skel, &toe, &planted, fade, plan);
         report.lifted += o.iter().filter(|v| v[1] * unit > LIFTED_M).count();
         let (delta, moved) = leg_deltas(&joints, leg, &o, hold);
