@@ -32,29 +32,42 @@ pub const THRESHOLDS: Thresholds = Thresholds {
     min_frames: 3,
 };
 
-/// Per frame whether `joint` is in contact: low and slow, with hysteresis. Frame f's speed is
-/// its step to the next frame (the last frame repeats the previous step).
-fn joint_contacts(skel: &Skeleton, j: &Joints, joint: usize, th: &Thresholds) -> Vec<bool> {
+/// Horizontal speed (m/s) of `joint` at frame `f`: its step to the next frame (the last frame
+/// repeats the previous step).
+pub(crate) fn ground_speed(skel: &Skeleton, j: &Joints, joint: usize, f: usize) -> f64 {
     let t = j.len();
-    let unit = skel.metres_per_unit;
-    let floor = j.iter().map(|f| f[joint][1]).fold(f64::INFINITY, f64::min);
-    let speed = |f: usize| {
-        let (a, b) = if f + 1 < t { (f, f + 1) } else { (f.saturating_sub(1), f) };
-        let (p, q) = (j[a][joint], j[b][joint]);
-        (q[0] - p[0]).hypot(q[2] - p[2]) * unit * skel.fps
-    };
+    let (a, b) = if f + 1 < t { (f, f + 1) } else { (f.saturating_sub(1), f) };
+    let (p, q) = (j[a][joint], j[b][joint]);
+    (q[0] - p[0]).hypot(q[2] - p[2]) * skel.metres_per_unit * skel.fps
+}
+
+/// Per frame of `t` whether a state with hysteresis is on: it turns on where `start(f)` holds
+/// and stays on while `keep(f)` does.
+pub(crate) fn hysteresis(
+    t: usize,
+    start: impl Fn(usize) -> bool,
+    keep: impl Fn(usize) -> bool,
+) -> Vec<bool> {
     let mut on = false;
     (0..t)
         .map(|f| {
-            let (h, v) = ((j[f][joint][1] - floor) * unit, speed(f));
-            on = if on {
-                h < th.height_off_m && v < th.speed_off_mps
-            } else {
-                h < th.height_on_m && v < th.speed_on_mps
-            };
+            on = if on { keep(f) } else { start(f) };
             on
         })
         .collect()
+}
+
+/// Per frame whether `joint` is in contact: low and slow, with hysteresis.
+fn joint_contacts(skel: &Skeleton, j: &Joints, joint: usize, th: &Thresholds) -> Vec<bool> {
+    let unit = skel.metres_per_unit;
+    let floor = j.iter().map(|f| f[joint][1]).fold(f64::INFINITY, f64::min);
+    let h = |f: usize| (j[f][joint][1] - floor) * unit;
+    let v = |f: usize| ground_speed(skel, j, joint, f);
+    hysteresis(
+        j.len(),
+        |f| h(f) < th.height_on_m && v(f) < th.speed_on_mps,
+        |f| h(f) < th.height_off_m && v(f) < th.speed_off_mps,
+    )
 }
 
 /// Spans (first, last frame) of the true runs of `on`.

@@ -10,8 +10,7 @@
 
 use crate::motion::plausibility::skates;
 use crate::motion::quat::{self, Vec3};
-use crate::motion::representation::Joints;
-use crate::motion::representation::{recover_from_ric, recover_root_rot_pos, Layout};
+use crate::motion::representation::{recover_from_ric, recover_root_rot_pos, Joints, Layout};
 use crate::motion::skeleton::Skeleton;
 use crate::postprocess::contacts::{self, drop_short, Thresholds, THRESHOLDS};
 use crate::postprocess::leg::{apply_leg, leg_deltas, legs, Posed};
@@ -47,15 +46,11 @@ pub const STEP_STANCE: usize = 7;
 pub const STEP_SWING: usize = 7;
 
 /// Per frame whether each foot ([left, right]) stands: low and slow (`contacts::detect`), or
-/// low and slower than the pelvis (a stance of a gliding gait).
+/// low and slower than the pelvis (a stance of a gliding gait), and in every glide longer than
+/// a swing, stances set at even steps (`split_glides`).
 pub fn stances(skel: &Skeleton, j: &Joints, th: &Thresholds) -> [Vec<bool>; 2] {
     let t = j.len();
-    let unit = skel.metres_per_unit;
-    let speed = |joint: usize, f: usize| {
-        let (a, b) = if f + 1 < t { (f, f + 1) } else { (f.saturating_sub(1), f) };
-        let (p, q) = (j[a][joint], j[b][joint]);
-        (q[0] - p[0]).hypot(q[2] - p[2]) * unit * skel.fps
-    };
+    let speed = |joint: usize, f: usize| contacts::ground_speed(skel, j, joint, f);
     let pelvis: Vec<f64> = (0..t)
         .map(|f| {
             let w = super::window(f, PELVIS_WINDOW, t);
@@ -67,19 +62,11 @@ pub fn stances(skel: &Skeleton, j: &Joints, th: &Thresholds) -> [Vec<bool>; 2] {
     let feet = [skel.feet_left[1], skel.feet_right[1]];
     let mut out = [Vec::new(), Vec::new()];
     for (k, toe) in feet.into_iter().enumerate() {
-        let mut on = false;
-        let gliding: Vec<bool> = (0..t)
-            .map(|f| {
-                let v = speed(toe, f);
-                on = low[k][f]
-                    && if on {
-                        v < th.speed_off_mps.max(FASTER * pelvis[f])
-                    } else {
-                        v < th.speed_on_mps.max(SLOWER * pelvis[f])
-                    };
-                on
-            })
-            .collect();
+        let gliding = contacts::hysteresis(
+            t,
+            |f| low[k][f] && speed(toe, f) < th.speed_on_mps.max(SLOWER * pelvis[f]),
+            |f| low[k][f] && speed(toe, f) < th.speed_off_mps.max(FASTER * pelvis[f]),
+        );
         let mut both: Vec<bool> = (0..t).map(|f| slow[k][f] || gliding[f]).collect();
         // The foot skating measure's own test: its floor is absolute.
         let sliding: Vec<bool> = (0..t)
@@ -92,8 +79,8 @@ pub fn stances(skel: &Skeleton, j: &Joints, th: &Thresholds) -> [Vec<bool>; 2] {
 }
 
 /// Lower the pelvis of de-normalised features [T, D] where holding the stances still would
-/// take a leg past its reach (`pelvis::drop`: at most 12 cm, spread and faded towards held
-/// frames), the feet kept where they were by bending the knees; returns the largest drop (m).
+/// take a leg past its reach (`pelvis::drop`, spread and faded towards held frames, capped at
+/// [`MAX_DROP_M`]), the feet kept where they were by bending the knees; returns the largest drop (m).
 /// A network that shuffles keeps its legs nearly straight, so without it a held foot can
 /// barely fall behind the hip before the reach fall-off lets it go.
 pub fn lower_for_stances(skel: &Skeleton, feats: &mut [f32], hold: &[bool], max_shift: f64) -> f64 {
