@@ -295,7 +295,8 @@ mod tests {
             "real_gait": {"planted_share": 0.6, "stride_amplitude_m": 0.17, "root_speed_mps": 0.8},
             "samples": [{"gif": "sample_00.gif", "joints": "sample_00_joints.npy", "k_err_m": 0.0, "k_trans": 0.009,
                          "foot_skating": 0.2, "gait": {"planted_share": 0.3, "stride_amplitude_m": 0.1, "root_speed_mps": 0.5},
-                         "corrections": [{"place_m": -0.25}, {"place_m": 0.1}]}],
+                         "corrections": [{"place_m": -0.25}, {"place_m": 0.1}],
+                         "foot_lock": {"lifted": 24, "pelvis_drop_m": 0.045}}],
         });
         Folder { dir: PathBuf::from(format!("/w/out/{label}")), label: label.into(), results }
     }
@@ -307,6 +308,9 @@ mod tests {
         assert_eq!(t.lines().count(), 3, "{t}");
         assert!(t.contains("foot skating (source)") && t.contains("0.200 (0.040)"), "{t}");
         assert!(t.contains("0, 20") && t.contains("0.250"), "{t}");
+        // Steps' lifted toe frames as a share of both toes' frames (24 of 2 x 40), its drop.
+        assert!(t.contains("share of toe frames lifted") && t.contains("0.300"), "{t}");
+        assert!(t.contains("pelvis drop (m)") && t.contains("0.045"), "{t}");
         assert!(!t.contains('<') || t.contains("<walks>"), "plain text, no HTML: {t}");
         let parts = PageParts {
             title: "T",
