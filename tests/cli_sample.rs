@@ -515,6 +515,9 @@ fn sample_outputs_errors_and_determinism() {
     run_err(&["--kf-guidance", "-1"], &["--kf-guidance", "-1"]);
     run_err(&["--kf-guidance", "inf"], &["--kf-guidance", "inf"]);
     run_err(&["--kf-guidance", "nan"], &["--kf-guidance", "NaN"]);
+    run_err(&["--text-guidance", "-1"], &["--text-guidance", "-1"]);
+    // This run was trained without text drop: it has no text-free branch to guide against.
+    run_err(&["--text-guidance", "2.5"], &["--text-guidance: 2.5", "text_drop_prob"]);
     run_err(&["--transition-guidance", "1e30"], &["--transition-guidance"]);
     run_err(&["--place-guidance", "1e30"], &["--place-guidance"]);
     run_err(&["--place-guidance", "-2"], &["--place-guidance", "-2"]);

@@ -194,6 +194,63 @@ fn train_resume_and_outputs() {
     let o = sample_keyed(&ki, &keys, &ki_out, &["--steps", "2"]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert_finite_sample(&ki_out);
+    // A run trained with text drop samples with text guidance, alone and beside keyframe
+    // guidance (three branches); one trained without it is refused by sample and eval.
+    let cfg_td = d.join("text-drop.json");
+    std::fs::write(
+        &cfg_td,
+        CFG.replace(r#""training": {"#, r#""training": {"text_drop_prob": 0.5, "#),
+    )
+    .unwrap();
+    let td = d.join("text-drop");
+    let o = diffkfc(&[
+        "train",
+        "--config",
+        s(&cfg_td),
+        "--data",
+        s(&data),
+        "--out",
+        s(&td),
+        "--max-steps",
+        "2",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let td_out = d.join("td-sample");
+    // Pose keys from a clip, so that keyframe guidance has its branch.
+    let clip =
+        std::fs::read_dir(data.join("new_joint_vecs")).unwrap().next().unwrap().unwrap().path();
+    for extra in
+        [&["--text-guidance", "2.5"][..], &["--text-guidance", "2.5", "--kf-guidance", "2"]]
+    {
+        let mut args = vec!["sample", "--checkpoint", s(&td), "--text", "a person walks."];
+        args.extend(["--from", s(&clip), "--keyframe-rate", "0.1", "--steps", "2"]);
+        args.extend(["--out", s(&td_out), "--force"]);
+        let o = diffkfc(&[&args[..], extra].concat());
+        assert!(o.status.success(), "{}", stderr(&o));
+        let feats = diffkfc_data::io::npy::read_f32(td_out.join("sample_00.npy")).unwrap().data;
+        assert!(!feats.is_empty() && feats.iter().all(|v| v.is_finite()));
+        let r: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(td_out.join("results.json")).unwrap())
+                .unwrap();
+        assert_eq!(r["text_guidance"], 2.5);
+    }
+    let refused = ["--text-guidance: 2", "text_drop_prob"];
+    assert_one_line_error(
+        &sample_keyed(&run, &keys, &td_out, &["--text-guidance", "2", "--force"]),
+        &refused,
+    );
+    let o = diffkfc(&[
+        "eval",
+        "--checkpoint",
+        s(&run),
+        "--evaluator",
+        s(&d.join("no-evaluator")),
+        "--data",
+        s(&data),
+        "--text-guidance",
+        "2",
+    ]);
+    assert_one_line_error(&o, &refused);
     // An absolute-root run records the data's velocity statistics, and its samples come back
     // as HumanML3D features.
     let (abs, o) = train_variant(&d, &data, "abs", "\"absolute_root\": true", &[]);

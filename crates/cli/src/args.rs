@@ -142,12 +142,14 @@ pub(crate) use diffkfc_model::sampling::guidance::MAX_GUIDANCE;
 /// The guidance and step flags of `sample` and `eval`, in their ranges.
 pub(crate) fn check_guidance(
     kf: f64,
+    text: f64,
     place: f64,
     transition: f64,
     steps: usize,
 ) -> anyhow::Result<()> {
     use diffkfc_model::sampling::guidance::{check_range, MAX_STRENGTH};
     check_range("--kf-guidance", kf, MAX_GUIDANCE, " (1 = no guidance, 2.5 = the paper)")
+        .and_then(|_| check_range("--text-guidance", text, MAX_GUIDANCE, " (1 = no guidance)"))
         .and_then(|_| check_range("--place-guidance", place, MAX_STRENGTH, ""))
         .and_then(|_| {
             check_range("--transition-guidance", transition, MAX_STRENGTH, " (100 = the paper)")

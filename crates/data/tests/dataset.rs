@@ -239,3 +239,32 @@ fn dense_root_tracks_keep_the_sparse_keys_and_observe_the_root() {
     }
     std::fs::remove_dir_all(root).unwrap();
 }
+
+#[test]
+fn text_drop_keeps_the_batch_and_drops_some_texts() {
+    let Some((root, _)) = small_dataset("text_drop") else {
+        return;
+    };
+    let ds = Dataset::open(&root).unwrap();
+    let split = PackedSplit::open(&ds, "train", &root.join(".cache"), |_, _| {}).unwrap();
+    let kf = KeyframeConfig::default();
+    let plain = Loader::new(&ds, &split, 4, 7, kf.clone());
+    let dropping = Loader { text_drop_prob: 0.5, ..Loader::new(&ds, &split, 4, 7, kf.clone()) };
+    let all = Loader { text_drop_prob: 1.0, ..Loader::new(&ds, &split, 4, 7, kf) };
+    let (mut dropped, mut total) = (0, 0);
+    for b in 0..plain.batches_per_epoch().min(8) {
+        let (a, c) = (plain.batch(0, b), dropping.batch(0, b));
+        assert!(a.text_dropped.iter().all(|&d| !d), "no drop when the probability is 0");
+        // The draw comes last: motions, keys, root tracks and captions are those of the plain run.
+        let mut same = c.clone();
+        same.text_dropped = a.text_dropped.clone();
+        assert_eq!(same, a, "batch {b}");
+        assert!(all.batch(0, b).text_dropped.iter().all(|&d| d));
+        dropped += c.text_dropped.iter().filter(|&&d| d).count();
+        total += c.text_dropped.len();
+    }
+    assert!(dropped > 0 && dropped < total, "{dropped} of {total} texts dropped at 0.5");
+    let shard = dropping.batch(0, 0).shard(1..3);
+    assert_eq!(shard.text_dropped, dropping.batch(0, 0).text_dropped[1..3]);
+    std::fs::remove_dir_all(root).unwrap();
+}

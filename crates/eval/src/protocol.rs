@@ -16,6 +16,7 @@ use diffkfc_data::motion::skeleton::Skeleton;
 use diffkfc_data::rng::Rng;
 use diffkfc_model::diffusion::scheduler::Sampler;
 use diffkfc_model::sampling::fit::{Fit, KeyframeFit};
+use diffkfc_model::sampling::guidance::Guidance;
 use diffkfc_model::sampling::pipeline::{Generator, KeyedItem};
 use diffkfc_model::sampling::place::PlaceGuidance;
 use diffkfc_model::sampling::sampler::{self, TgMode};
@@ -44,6 +45,8 @@ pub struct Options {
     pub multimodality: usize,
     pub sampler: Sampler,
     pub kf_guidance: f64,
+    /// Text guidance scale (1 = off; `sampler::Options::text_guidance`).
+    pub text_guidance: f64,
     /// How transition guidance takes its gradient (exact: through the denoiser, which must be
     /// on an autodiff device).
     pub tg_mode: TgMode,
@@ -181,9 +184,10 @@ impl Protocol<'_> {
                 + proposals)
     }
 
-    /// Whether generating `s` runs both keyframe-guidance branches (a doubled batch).
-    fn guided(&self, s: &Setting) -> bool {
-        diffkfc_model::sampling::guidance::is_guided(self.opts.kf_guidance, s.rate > 0.0, s.inpaint)
+    /// Guidance branches of generating `s` (each multiplies the denoiser batch).
+    fn branches(&self, s: &Setting) -> usize {
+        let o = &self.opts;
+        Guidance::new(o.kf_guidance, o.text_guidance, s.rate > 0.0, s.inpaint).branches()
     }
 
     /// Generation jobs (item, sample) in denoiser batches, sorted by length to limit padding.
@@ -194,10 +198,10 @@ impl Protocol<'_> {
         jobs.chunks(self.opts.batch.max(1)).map(<[_]>::to_vec).collect()
     }
 
-    /// Work of one generation in frame-rows per denoising step (padded batch x frames, doubled
-    /// when guided), summed over batches.
+    /// Work of one generation in frame-rows per denoising step (padded batch x frames, times
+    /// the guidance branches), summed over batches.
     fn units(&self, items: &[Item], k: usize, s: &Setting) -> f64 {
-        let per_row = if self.guided(s) { 2.0 } else { 1.0 };
+        let per_row = self.branches(s) as f64;
         self.batches(items, k)
             .iter()
             .map(|c| {
@@ -299,6 +303,7 @@ impl Protocol<'_> {
             let opts = sampler::Options {
                 sampler: self.opts.sampler,
                 kf_guidance: self.opts.kf_guidance,
+                text_guidance: self.opts.text_guidance,
                 transition: s.transition,
                 seed: Rng::derive(seed, 7, c as u64).next_u64(),
                 tg_mode: self.opts.tg_mode,

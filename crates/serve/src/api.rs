@@ -61,6 +61,8 @@ pub struct SampleRequest {
     pub steps: Option<usize>,
     /// Keyframe guidance scale (default 1).
     pub kf_guidance: Option<f64>,
+    /// Text guidance scale (default 1; other values need a model trained with text drop).
+    pub text_guidance: Option<f64>,
     /// Transition guidance strength (default 10).
     pub transition_guidance: Option<f64>,
     /// track (default), warp, paste or none.
@@ -112,6 +114,10 @@ impl SampleRequest {
         use diffkfc_model::sampling::guidance::{check_range, MAX_GUIDANCE, MAX_STRENGTH};
         if let Some(s) = self.kf_guidance {
             check_range("kf_guidance", s, MAX_GUIDANCE, " (1 = no guidance)")
+                .map_err(|e| ApiError::invalid(e.to_string()))?;
+        }
+        if let Some(s) = self.text_guidance {
+            check_range("text_guidance", s, MAX_GUIDANCE, " (1 = no guidance)")
                 .map_err(|e| ApiError::invalid(e.to_string()))?;
         }
         if let Some(r) = self.transition_guidance {

@@ -86,11 +86,18 @@ impl Engine {
             .keyframes
             .resolve(&T2M, Some(length), None, self.limits.max_frames)
             .map_err(|e| ApiError::invalid(format!("keyframes: {e}")))?;
+        diffkfc_model::sampling::guidance::check_text_guidance(
+            "text_guidance",
+            r.text_guidance.unwrap_or(1.0),
+            &self.loaded.cfg,
+        )
+        .map_err(|e| ApiError::invalid(e.to_string()))?;
         let text = self.embed(&r.text)?;
         let t0 = std::time::Instant::now();
         let opts = Options {
             sampler: Sampler::DpmSolver(r.steps.unwrap_or(DEFAULT_STEPS)),
             kf_guidance: r.kf_guidance.unwrap_or(1.0),
+            text_guidance: r.text_guidance.unwrap_or(1.0),
             transition: r.transition_guidance.unwrap_or(Options::default().transition),
             seed: r.seed,
             ..Options::default()

@@ -142,6 +142,23 @@ fn bad_requests_get_4xx_and_one_line() {
             "POST",
             "/api/sample",
             vec![],
+            with(&|v| v["text_guidance"] = json!(-1)),
+            422,
+            "text_guidance",
+        ),
+        // The test model was trained without text drop: no text-free branch to guide against.
+        (
+            "POST",
+            "/api/sample",
+            vec![],
+            with(&|v| v["text_guidance"] = json!(2.5)),
+            422,
+            "text_drop_prob",
+        ),
+        (
+            "POST",
+            "/api/sample",
+            vec![],
             with(&|v| v["transition_guidance"] = json!(1e9)),
             422,
             "transition_guidance",

@@ -13,6 +13,7 @@ use diffkfc_data::{io::npy, motion::representation as rep, render, T2M};
 use diffkfc_eval::keyframe_metrics::{k_err_global, k_err_local, k_trans};
 use diffkfc_model::run::load::InferenceModel;
 use diffkfc_model::sampling::fit::{Fit, Fitted};
+use diffkfc_model::sampling::guidance;
 use diffkfc_model::sampling::pipeline::KeyedItem;
 use diffkfc_model::sampling::place::PlaceGuidance;
 use diffkfc_model::sampling::sampler::{self, Options, Request};
@@ -106,6 +107,11 @@ pub struct SampleArgs {
     /// branch alone (the default: measured better than the paper's 2.5 with DDIM-50, see README).
     #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     kf_guidance: f64,
+    /// Text guidance scale s (MDM's classifier-free guidance over the text): X(no text) +
+    /// s (X(text) - X(no text)); 1 = off. Only for models trained with text drop
+    /// (`training.text_drop_prob`); each scale other than 1 adds a branch to every denoiser call.
+    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
+    text_guidance: f64,
     /// Transition guidance strength r (paper Eq. 4-5): each reverse step is nudged to make the
     /// window around every keyframe smooth in the DCT sense; 0 = off. The default 10 lowers
     /// K-TranS at equal FID; the paper's 100 doubles FID here (see README).
@@ -209,7 +215,13 @@ pub fn run(a: SampleArgs) -> Result<()> {
 
 /// Flag values in their ranges, before any work.
 fn check_flags(a: &SampleArgs) -> Result<()> {
-    crate::args::check_guidance(a.kf_guidance, a.place_guidance, a.transition_guidance, a.steps)?;
+    crate::args::check_guidance(
+        a.kf_guidance,
+        a.text_guidance,
+        a.place_guidance,
+        a.transition_guidance,
+        a.steps,
+    )?;
     if a.tg_bases == 0 {
         bail!("--tg-bases: must be at least 1");
     }
@@ -315,9 +327,11 @@ impl Generator {
         }
         let place =
             PlaceGuidance::for_model(a.place_guidance, &loaded.model, &loaded.mean, &loaded.std)?;
+        guidance::check_text_guidance("--text-guidance", a.text_guidance, &loaded.cfg)?;
         let opts = Options {
             sampler: a.sampler.sampler(a.steps),
             kf_guidance: a.kf_guidance,
+            text_guidance: a.text_guidance,
             transition: a.transition_guidance,
             seed: a.seed,
             window: a.tg_window,

@@ -67,6 +67,8 @@ pub struct Batch {
     pub root_mask: Vec<f32>,
     pub lengths: Vec<usize>,
     pub captions: Vec<String>,
+    /// Samples whose text is dropped (`Loader::text_drop_prob`): they see no caption.
+    pub text_dropped: Vec<bool>,
     /// Item indices in the split.
     pub items: Vec<usize>,
 }
@@ -88,6 +90,7 @@ impl Batch {
             root_mask: rows(&self.root_mask, n * r),
             lengths: self.lengths[range.clone()].to_vec(),
             captions: self.captions[range.clone()].to_vec(),
+            text_dropped: self.text_dropped[range.clone()].to_vec(),
             items: self.items[range].to_vec(),
         }
     }
@@ -104,6 +107,7 @@ struct Sample {
     root: Vec<f32>,
     root_mask: Vec<f32>,
     caption: String,
+    text_dropped: bool,
 }
 
 pub struct Loader<'a> {
@@ -113,6 +117,8 @@ pub struct Loader<'a> {
     pub seed: u64,
     pub keyframes: KeyframeConfig,
     pub threads: usize,
+    /// Probability that a sample's text is dropped (text classifier-free guidance; 0 = never).
+    pub text_drop_prob: f64,
 }
 
 impl<'a> Loader<'a> {
@@ -123,7 +129,7 @@ impl<'a> Loader<'a> {
         seed: u64,
         keyframes: KeyframeConfig,
     ) -> Self {
-        Loader { ds, split, batch_size, seed, keyframes, threads: 1 }
+        Loader { ds, split, batch_size, seed, keyframes, threads: 1, text_drop_prob: 0.0 }
     }
 
     /// Full batches per epoch (the last partial one is dropped, as MDM does); at least one when
@@ -198,7 +204,10 @@ impl<'a> Loader<'a> {
         for &f in &track {
             root_mask[f * ROOT_CHANNELS..(f + 1) * ROOT_CHANNELS].iter_mut().for_each(|m| *m = 1.0);
         }
-        Sample { x0, len, kf, track, root, root_mask, caption }
+        // Drawn after everything else and only when enabled, so that runs without text drop
+        // keep their batches.
+        let text_dropped = self.text_drop_prob > 0.0 && rng.chance(self.text_drop_prob);
+        Sample { x0, len, kf, track, root, root_mask, caption, text_dropped }
     }
 
     fn assemble(&self, samples: Vec<Sample>, items: Vec<usize>) -> Batch {
@@ -212,6 +221,7 @@ impl<'a> Loader<'a> {
         let all_dims = vec![true; d];
         let mut lengths = Vec::with_capacity(bsz);
         let mut captions = Vec::with_capacity(bsz);
+        let mut text_dropped = Vec::with_capacity(bsz);
         for (i, s) in samples.into_iter().enumerate() {
             x0[i * n * d..i * n * d + s.len * d].copy_from_slice(&s.x0);
             valid[i * n..i * n + s.len].iter_mut().for_each(|v| *v = 1.0);
@@ -224,6 +234,7 @@ impl<'a> Loader<'a> {
             root_mask[i * n * r..i * n * r + s.len * r].copy_from_slice(&s.root_mask);
             lengths.push(s.len);
             captions.push(s.caption);
+            text_dropped.push(s.text_dropped);
         }
         Batch {
             batch_size: bsz,
@@ -236,6 +247,7 @@ impl<'a> Loader<'a> {
             root_mask,
             lengths,
             captions,
+            text_dropped,
             items,
         }
     }

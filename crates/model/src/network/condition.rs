@@ -77,6 +77,12 @@ impl Condition {
         }
     }
 
+    /// The same condition with its text dropped (a zero embedding, as training drops it):
+    /// text classifier-free guidance.
+    pub fn without_text(&self) -> Condition {
+        Condition { text: self.text.zeros_like(), ..self.clone() }
+    }
+
     /// The same condition with all keyframes dropped (keyframe classifier-free guidance).
     pub fn without_keyframes(&self) -> Condition {
         Condition {

@@ -86,6 +86,10 @@ pub struct TrainingConfig {
     /// Min-SNR weighting of the reconstruction terms: min(SNR(t), gamma) / gamma per sample
     /// (`training::weighting`; 0 = off, the paper).
     pub min_snr_gamma: f64,
+    /// Probability that a training sample's text is dropped (a zero embedding), so that the
+    /// text-free branch of text classifier-free guidance is learned (MDM: 0.1; 0 = off, the paper).
+    /// Drawn independently of the keyframes' drop; validation keeps every text.
+    pub text_drop_prob: f64,
 }
 
 impl TrainingConfig {
@@ -126,6 +130,7 @@ impl Default for TrainingConfig {
             root_loss_weight: 1.0,
             contact_loss_weight: 1.0,
             min_snr_gamma: 0.0,
+            text_drop_prob: 0.0,
         }
     }
 }
@@ -295,6 +300,7 @@ impl RunConfig {
             ("keyframes.dense_root_prob", k.dense_root_prob),
             ("keyframes.dense_root_min_density", k.dense_root_min_density),
             ("training.ema_decay", t.ema_decay),
+            ("training.text_drop_prob", t.text_drop_prob),
         ];
         for (key, v) in unit {
             if !(0.0..=1.0).contains(&v) {

@@ -1,9 +1,13 @@
-//! Keyframe classifier-free guidance (paper Eq. 3): X = X(C, none) + s (X(C, kf) - X(C, none)).
-//! Training drops all keyframes of some samples (`diffkfc_data::dataset::batch`) so that the keyframe-free
-//! branch is learned; sampling runs both branches in one batched forward and combines them here.
+//! Classifier-free guidance over keyframes (paper Eq. 3: X = X(C, none) + s (X(C, kf) - X(C, none)))
+//! and over the text (MDM's). Training drops all keyframes of some samples
+//! (`diffkfc_data::dataset::batch`), and, where `training.text_drop_prob` is set, the text of
+//! some, so that the keyframe-free and text-free branches are learned; sampling runs the branches
+//! in one batched forward and combines them here.
 
 use burn::prelude::*;
 
+use crate::error::ModelError;
+use crate::run::config::RunConfig;
 use crate::Condition;
 
 /// Largest keyframe guidance scale accepted (at 100 the sampler already diverges).
@@ -32,25 +36,83 @@ pub fn check_range(name: &str, v: f64, max: f64, hint: &str) -> Result<(), OutOf
     }
 }
 
-/// Whether sampling with keyframe guidance scale `s` runs both branches (a doubled batch): only
-/// when there are keyframes, the keyframe branch is used (not MDM-inp) and s is not 1 (where
-/// the combination is the conditional branch alone).
-pub fn is_guided(s: f64, any_keys: bool, inpaint: bool) -> bool {
-    any_keys && !inpaint && (s - 1.0).abs() > 1e-12
+/// Refuses a text guidance scale `s` (named `name`, a flag or request field) other than 1 for a
+/// model trained without text drop (`training.text_drop_prob` 0): it never learned the
+/// text-free branch.
+pub fn check_text_guidance(name: &str, s: f64, cfg: &RunConfig) -> Result<(), ModelError> {
+    if is_scaled(s) && cfg.training.text_drop_prob <= 0.0 {
+        return Err(ModelError::Config(format!(
+            "{name}: {s} needs a model trained with text drop (training.text_drop_prob > 0); this one was trained without it, so it has no text-free branch: leave it at 1"
+        )));
+    }
+    Ok(())
 }
 
-/// The guidance batch of a condition: [with keyframes; without], one forward for both.
+/// Whether sampling with keyframe guidance scale `s` runs the keyframe-free branch: only when
+/// there are keyframes, the keyframe branch is used (not MDM-inp) and s is not 1 (where the
+/// combination is the conditional branch alone).
+pub fn is_guided(s: f64, any_keys: bool, inpaint: bool) -> bool {
+    any_keys && !inpaint && is_scaled(s)
+}
+
+fn is_scaled(s: f64) -> bool {
+    (s - 1.0).abs() > 1e-12
+}
+
+/// The branches of one guided prediction: the conditional one, and the keyframe-free and
+/// text-free ones where their scales are not 1. Combined as
+/// X = X(c) + (s_kf - 1) (X(c) - X(c, no keys)) + (s_text - 1) (X(c) - X(c, no text)),
+/// which is Eq. 3 (and MDM's text guidance) when only one scale is set.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Guidance {
+    kf: Option<f64>,
+    text: Option<f64>,
+}
+
+impl Guidance {
+    /// Keyframe scale `kf` (used as [`is_guided`] says) and text scale `text` (used unless 1).
+    pub fn new(kf: f64, text: f64, any_keys: bool, inpaint: bool) -> Guidance {
+        Guidance {
+            kf: is_guided(kf, any_keys, inpaint).then_some(kf),
+            text: is_scaled(text).then_some(text),
+        }
+    }
+
+    /// Samples per request row in each decoder call: 1 to 3.
+    pub fn branches(&self) -> usize {
+        1 + usize::from(self.kf.is_some()) + usize::from(self.text.is_some())
+    }
+
+    /// The batch of all branches, [c; c without keyframes; c without text] (those used).
+    pub fn condition(&self, c: &Condition) -> Condition {
+        let mut out = c.clone();
+        if self.kf.is_some() {
+            out = stack(&out, &c.without_keyframes());
+        }
+        if self.text.is_some() {
+            out = stack(&out, &c.without_text());
+        }
+        out
+    }
+
+    /// The guided prediction from the output of a [`Guidance::condition`] batch,
+    /// [branches * B, N, D] -> [B, N, D].
+    pub fn combine(&self, out: Tensor<3>) -> Tensor<3> {
+        let [bk, n, d] = out.dims();
+        let b = bk / self.branches();
+        let part = |k: usize| out.clone().slice([k * b..(k + 1) * b, 0..n, 0..d]);
+        let c = part(0);
+        let mut x = c.clone();
+        for (k, s) in [self.kf, self.text].into_iter().flatten().enumerate() {
+            x = x + (c.clone() - part(k + 1)) * (s - 1.0);
+        }
+        x
+    }
+}
+
+/// The keyframe guidance batch of a condition: [with keyframes; without], one forward for both.
 pub fn pair(c: &Condition) -> Condition {
     stack(c, &c.without_keyframes())
-}
-
-/// The guided prediction from the output of a [`pair`] batch, [2B, N, D] -> [B, N, D].
-pub fn combine(out: Tensor<3>, s: f64) -> Tensor<3> {
-    let [b2, n, d] = out.dims();
-    let b = b2 / 2;
-    let c = out.clone().slice([0..b, 0..n, 0..d]);
-    let u = out.slice([b..b2, 0..n, 0..d]);
-    u.clone() + (c - u) * s
 }
 
 /// Two conditions stacked along the batch: [a; b].
@@ -64,5 +126,54 @@ fn stack(a: &Condition, b: &Condition) -> Condition {
         path: Tensor::cat(vec![a.path.clone(), b.path.clone()], 0),
         kf_frames: a.kf_frames.iter().chain(&b.kf_frames).copied().collect(),
         real: a.real.iter().chain(&b.real).copied().collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn host(t: Tensor<3>) -> Vec<f32> {
+        t.into_data().convert::<f32>().to_vec().unwrap()
+    }
+
+    /// Branch outputs [c; u_kf; u_text] of one request row each, as a decoder would return them.
+    fn outputs(rows: &[[f32; 2]]) -> Tensor<3> {
+        let flat: Vec<f32> = rows.iter().flatten().copied().collect();
+        Tensor::<1>::from_floats(flat.as_slice(), &Device::flex()).reshape([rows.len(), 1, 2])
+    }
+
+    #[test]
+    fn branches_combine_as_the_guidance_formulas() {
+        let (c, uk, ut) = ([1.0, 2.0], [0.5, 1.0], [3.0, -1.0]);
+        // Neither scale: the conditional branch alone.
+        let none = Guidance::new(1.0, 1.0, true, false);
+        assert_eq!(none.branches(), 1);
+        assert_eq!(host(none.combine(outputs(&[c]))), c);
+        // Keyframe guidance alone is Eq. 3: u + s (c - u).
+        let kf = Guidance::new(2.5, 1.0, true, false);
+        assert_eq!(kf.branches(), 2);
+        assert_eq!(host(kf.combine(outputs(&[c, uk]))), [0.5 + 2.5 * 0.5, 1.0 + 2.5 * 1.0]);
+        // Without keys (or for MDM-inp) only the text branch is added: MDM's u + s (c - u).
+        let text = Guidance::new(2.5, 3.0, false, false);
+        assert_eq!(text, Guidance::new(2.5, 3.0, true, true));
+        assert_eq!(text.branches(), 2);
+        assert_eq!(host(text.combine(outputs(&[c, ut]))), [3.0 + 3.0 * -2.0, -1.0 + 3.0 * 3.0]);
+        // Both: each guidance term added to the conditional prediction.
+        let both = Guidance::new(2.0, 3.0, true, false);
+        assert_eq!(both.branches(), 3);
+        let want = [1.0 + 1.0 * 0.5 + 2.0 * -2.0, 2.0 + 1.0 * 1.0 + 2.0 * 3.0];
+        assert_eq!(host(both.combine(outputs(&[c, uk, ut]))), want);
+    }
+
+    #[test]
+    fn text_guidance_needs_a_model_trained_with_text_drop() {
+        let mut cfg = RunConfig::parse(r#"{"model": "tiny"}"#).unwrap();
+        assert!(check_text_guidance("--text-guidance", 1.0, &cfg).is_ok());
+        let e = check_text_guidance("--text-guidance", 2.5, &cfg).unwrap_err().to_string();
+        assert!(e.contains("--text-guidance: 2.5") && e.contains("text_drop_prob"), "{e}");
+        cfg =
+            RunConfig::parse(r#"{"model": "tiny", "training": {"text_drop_prob": 0.1}}"#).unwrap();
+        assert!(check_text_guidance("--text-guidance", 2.5, &cfg).is_ok());
     }
 }

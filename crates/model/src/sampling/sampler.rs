@@ -12,7 +12,7 @@ use diffkfc_data::rng::Rng;
 use crate::diffusion::scheduler::{self, timesteps, Sampler};
 use crate::diffusion::Schedule;
 use crate::network::params::host;
-use crate::sampling::guidance;
+use crate::sampling::guidance::Guidance;
 use crate::sampling::place::PlaceGuidance;
 use crate::sampling::transition;
 use crate::{Condition, Denoiser};
@@ -46,6 +46,9 @@ pub struct Options {
     /// Keyframe guidance scale s: X = X(C, none) + s (X(C, kf) - X(C, none)); 1 = conditional
     /// only (one forward per step instead of a doubled batch).
     pub kf_guidance: f64,
+    /// Text guidance scale (MDM's): X = X(no text) + s (X(text) - X(no text)); 1 = off. Only
+    /// for models trained with `training.text_drop_prob`.
+    pub text_guidance: f64,
     /// Transition guidance strength r (0 = off).
     pub transition: f64,
     /// Half window l and number of DCT bases m of transition guidance.
@@ -69,6 +72,7 @@ impl Default for Options {
         Options {
             sampler: DEFAULT_SAMPLER,
             kf_guidance: 1.0,
+            text_guidance: 1.0,
             transition: DEFAULT_TRANSITION,
             window: 2,
             dct_bases: 3,
@@ -190,17 +194,17 @@ pub fn sample(
     let cond = req.condition(&device);
     let keys: Vec<Vec<usize>> = (0..b).map(|i| req.key_frames(i)).collect();
     let any_keys = keys.iter().any(|k| !k.is_empty());
-    let guided = guidance::is_guided(opts.kf_guidance, any_keys, opts.inpaint);
+    let guidance = Guidance::new(opts.kf_guidance, opts.text_guidance, any_keys, opts.inpaint);
     let exact = opts.tg_mode == TgMode::Exact && opts.transition > 0.0 && any_keys;
     assert!(
         !exact || device.is_autodiff(),
         "exact transition guidance needs the model on an autodiff device"
     );
-    // The encoder runs once; both guidance branches share each decoder call. Its output is
+    // The encoder runs once; the guidance branches share each decoder call. Its output is
     // detached so per-step backward passes (exact mode) never reach into it.
     let cond = if opts.inpaint { cond.without_keyframes() } else { cond };
-    let enc = if guided { model.encode(&guidance::pair(&cond)) } else { model.encode(&cond) };
-    let enc = enc.detach();
+    let enc = model.encode(&guidance.condition(&cond)).detach();
+    let branches = guidance.branches();
     let kf_t = Tensor::<1>::from_floats(req.kf.as_slice(), &device).reshape([b, n, d]);
     let mask_t = Tensor::<1>::from_floats(req.mask.as_slice(), &device).reshape([b, n, d]);
     let track_mask = opts.impose_track.then(|| {
@@ -217,11 +221,9 @@ pub fn sample(
         if exact {
             xt = xt.require_grad();
         }
-        let x0_t = if guided {
-            guidance::combine(
-                model.decode(Tensor::cat(vec![xt.clone(), xt.clone()], 0), &vec![t; 2 * b], &enc),
-                opts.kf_guidance,
-            )
+        let x0_t = if branches > 1 {
+            let xs = Tensor::cat(vec![xt.clone(); branches], 0);
+            guidance.combine(model.decode(xs, &vec![t; branches * b], &enc))
         } else {
             model.decode(xt.clone(), &vec![t; b], &enc)
         };

@@ -143,11 +143,18 @@ fn scalar(t: Tensor<1>) -> f64 {
 }
 
 impl Trainer<'_> {
+    /// The batch's text embeddings, [B * text_dim]; a dropped text is the zero embedding.
     fn text_of(&self, b: &Batch) -> Vec<f32> {
         b.captions
             .iter()
-            .flat_map(|c| {
-                self.text.get(c).unwrap_or_else(|| panic!("caption not embedded: {c}")).to_vec()
+            .zip(&b.text_dropped)
+            .flat_map(|(c, &dropped)| {
+                let e = self.text.get(c).unwrap_or_else(|| panic!("caption not embedded: {c}"));
+                if dropped {
+                    vec![0.0; e.len()]
+                } else {
+                    e.to_vec()
+                }
             })
             .collect()
     }
@@ -320,8 +327,10 @@ impl Trainer<'_> {
     ) -> Result<Outcome> {
         let tc = &self.cfg.training;
         let (start, max_steps) = (steps.start, steps.end);
-        let loader =
-            Loader::new(self.ds, self.train, tc.batch_size, tc.seed, self.cfg.keyframes.clone());
+        let loader = Loader {
+            text_drop_prob: tc.text_drop_prob,
+            ..Loader::new(self.ds, self.train, tc.batch_size, tc.seed, self.cfg.keyframes.clone())
+        };
         let (mut step, mut last, mut stopped) = (start, None, false);
         // The next step's batch and noise are drawn on another thread while this one trains
         // (single-threaded work that would otherwise leave a core idle).

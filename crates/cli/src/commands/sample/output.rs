@@ -202,6 +202,7 @@ fn results(
         "keyframe_joints": keys.joints,
         "sampler": format!("{:?}", opts.sampler),
         "kf_guidance": opts.kf_guidance,
+        "text_guidance": opts.text_guidance,
         "transition_guidance": opts.transition,
         "keyframe_fit": fit.keyframes,
         "foot_lock": fit.foot_lock,
@@ -258,11 +259,12 @@ fn lock_note(s: &serde_json::Value) -> String {
 /// The folder's page: the 3D view of the source and every sample, the settings above it.
 fn index_html(r: &serde_json::Value, views: &[ViewMotion], segments: &[(usize, String)]) -> String {
     let intro = format!(
-        "<p>{} frames &middot; {} &middot; {} &middot; keyframe guidance {} &middot; transition guidance {} &middot; fit {} &middot; <a href=results.json>results.json</a>{}</p>",
+        "<p>{} frames &middot; {} &middot; {} &middot; keyframe guidance {} &middot; text guidance {} &middot; transition guidance {} &middot; fit {} &middot; <a href=results.json>results.json</a>{}</p>",
         r["length"],
         keyframe_list(&r["keyframes"]),
         escape(r["sampler"].as_str().unwrap_or("")),
         r["kf_guidance"],
+        r["text_guidance"],
         r["transition_guidance"],
         escape(&r["keyframe_fit"].to_string()),
         r["source"].as_str().map(|s| format!(" &middot; source {}", escape(s))).unwrap_or_default()
