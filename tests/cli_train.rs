@@ -194,8 +194,9 @@ fn train_resume_and_outputs() {
     let o = sample_keyed(&ki, &keys, &ki_out, &["--steps", "2"]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert_finite_sample(&ki_out);
-    // A run trained with text drop samples with text guidance, alone and beside keyframe
-    // guidance (three branches); one trained without it is refused by sample and eval.
+    // A run trained with text drop samples with text guidance (2.5 by default), alone and
+    // beside keyframe guidance (three branches); one trained without it is refused by sample
+    // and eval, and samples without it by default.
     let cfg_td = d.join("text-drop.json");
     std::fs::write(
         &cfg_td,
@@ -219,9 +220,7 @@ fn train_resume_and_outputs() {
     // Pose keys from a clip, so that keyframe guidance has its branch.
     let clip =
         std::fs::read_dir(data.join("new_joint_vecs")).unwrap().next().unwrap().unwrap().path();
-    for extra in
-        [&["--text-guidance", "2.5"][..], &["--text-guidance", "2.5", "--kf-guidance", "2"]]
-    {
+    for extra in [&[][..], &["--text-guidance", "2.5", "--kf-guidance", "2"]] {
         let mut args = vec!["sample", "--checkpoint", s(&td), "--text", "a person walks."];
         args.extend(["--from", s(&clip), "--keyframe-rate", "0.1", "--steps", "2"]);
         args.extend(["--out", s(&td_out), "--force"]);
@@ -234,6 +233,10 @@ fn train_resume_and_outputs() {
                 .unwrap();
         assert_eq!(r["text_guidance"], 2.5);
     }
+    let o = sample_keyed(&run, &keys, &td_out, &["--steps", "2", "--force"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r = std::fs::read_to_string(td_out.join("results.json")).unwrap();
+    assert_eq!(serde_json::from_str::<serde_json::Value>(&r).unwrap()["text_guidance"], 1.0);
     let refused = ["--text-guidance: 2", "text_drop_prob"];
     assert_one_line_error(
         &sample_keyed(&run, &keys, &td_out, &["--text-guidance", "2", "--force"]),

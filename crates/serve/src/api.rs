@@ -61,7 +61,8 @@ pub struct SampleRequest {
     pub steps: Option<usize>,
     /// Keyframe guidance scale (default 1).
     pub kf_guidance: Option<f64>,
-    /// Text guidance scale (default 1; other values need a model trained with text drop).
+    /// Text guidance scale (default 2.5 for a model trained with text drop, else 1; other
+    /// values need such a model).
     pub text_guidance: Option<f64>,
     /// Transition guidance strength (default 10).
     pub transition_guidance: Option<f64>,

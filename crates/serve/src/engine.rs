@@ -86,9 +86,9 @@ impl Engine {
             .keyframes
             .resolve(&T2M, Some(length), None, self.limits.max_frames)
             .map_err(|e| ApiError::invalid(format!("keyframes: {e}")))?;
-        diffkfc_model::sampling::guidance::check_text_guidance(
+        let text_guidance = diffkfc_model::sampling::guidance::text_guidance(
             "text_guidance",
-            r.text_guidance.unwrap_or(1.0),
+            r.text_guidance,
             &self.loaded.cfg,
         )
         .map_err(|e| ApiError::invalid(e.to_string()))?;
@@ -97,7 +97,7 @@ impl Engine {
         let opts = Options {
             sampler: Sampler::DpmSolver(r.steps.unwrap_or(DEFAULT_STEPS)),
             kf_guidance: r.kf_guidance.unwrap_or(1.0),
-            text_guidance: r.text_guidance.unwrap_or(1.0),
+            text_guidance,
             transition: r.transition_guidance.unwrap_or(Options::default().transition),
             seed: r.seed,
             ..Options::default()

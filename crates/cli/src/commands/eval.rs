@@ -88,10 +88,11 @@ struct RunArgs {
     #[arg(long, default_value_t = 1.0)]
     kf_guidance: f64,
     /// Text guidance scale s (MDM's classifier-free guidance over the text): X(no text) +
-    /// s (X(text) - X(no text)); 1 = off. Only for models trained with text drop
-    /// (`training.text_drop_prob`); each scale other than 1 adds a branch to every denoiser call.
-    #[arg(long, default_value_t = 1.0)]
-    text_guidance: f64,
+    /// s (X(text) - X(no text)); 1 = off. Default: 2.5 for a model trained with text drop
+    /// (`training.text_drop_prob`), 1 for others (which refuse any other value). A scale other
+    /// than 1 adds a branch to every denoiser call.
+    #[arg(long)]
+    text_guidance: Option<f64>,
     /// How the transition-guidance gradient is taken: x0 (on the predicted x0) or exact (through
     /// the denoiser, paper Eq. 5: a backward pass per step).
     #[arg(long, value_enum, default_value = "x0")]
@@ -182,7 +183,7 @@ fn settings(a: &RunArgs) -> Result<Vec<Setting>> {
     let rate = parse_rate(a.keyframe_rate, "--keyframe-rate")?;
     crate::args::check_guidance(
         a.kf_guidance,
-        a.text_guidance,
+        a.text_guidance.unwrap_or(1.0),
         a.place_guidance,
         a.transition_guidance,
         a.steps,
@@ -265,7 +266,7 @@ fn options(a: &RunArgs, num_items: usize, strategy: Strategy) -> protocol::Optio
         multimodality: if a.multimodality { a.mm_texts } else { 0 },
         sampler: a.sampler.sampler(a.steps),
         kf_guidance: a.kf_guidance,
-        text_guidance: a.text_guidance,
+        text_guidance: a.text_guidance.unwrap_or(1.0),
         tg_mode: a.tg_mode.mode(),
         fit: a.fit.fit(),
         place_guidance: a.place_guidance,
@@ -295,7 +296,7 @@ fn check_split(a: &RunArgs, split: &PackedSplit, max_frames: usize) -> Result<us
     Ok(num_items)
 }
 
-fn evaluate(a: RunArgs) -> Result<()> {
+fn evaluate(mut a: RunArgs) -> Result<()> {
     let (Some(run_dir), Some(eval_dir), Some(data)) =
         (a.checkpoint.clone(), a.evaluator.clone(), a.data.clone())
     else {
@@ -308,11 +309,12 @@ fn evaluate(a: RunArgs) -> Result<()> {
     let loaded = InferenceModel::load(&run_dir, &device)?;
     let (cfg, step) = (&loaded.cfg, loaded.step);
     PlaceGuidance::for_model(a.place_guidance, &loaded.model, &loaded.mean, &loaded.std)?;
-    diffkfc_model::sampling::guidance::check_text_guidance(
+    // From here on the scale is the one used: the flag's or the model's default.
+    a.text_guidance = Some(diffkfc_model::sampling::guidance::text_guidance(
         "--text-guidance",
         a.text_guidance,
         &loaded.cfg,
-    )?;
+    )?);
     let ds = Dataset::open(&data)?;
     if ds.dim() != cfg.model.feat_dim {
         bail!(
@@ -388,7 +390,7 @@ fn write_report(
     let meta = serde_json::json!({
         "checkpoint": run.run_dir.display().to_string(), "checkpoint_step": step, "evaluator": run.eval_dir.display().to_string(), "evaluator_name": run.evaluator,
         "data": run.data.display().to_string(), "split": a.split, "replications": a.replications, "num_items": num_items,
-        "samples_for_ade": a.samples_for_ade, "sampler": format!("{sampler:?}"), "kf_guidance": a.kf_guidance, "text_guidance": a.text_guidance, "place_guidance": a.place_guidance,
+        "samples_for_ade": a.samples_for_ade, "sampler": format!("{sampler:?}"), "kf_guidance": a.kf_guidance, "text_guidance": a.text_guidance.unwrap_or(1.0), "place_guidance": a.place_guidance,
         "keyframe_strategy": a.keyframe_strategy, "keyframe_fit": fit.keyframes, "foot_lock": fit.foot_lock, "foot_lock_reach_m": fit.lock_reach, "root_keys": !a.no_root_keys, "multimodality_texts": if a.multimodality { a.mm_texts } else { 0 },
         "seed": a.seed, "seconds": secs, "reference_motions": reference_motions,
     });
@@ -400,7 +402,7 @@ fn write_report(
         run.data.display(),
         a.replications,
         a.kf_guidance,
-        a.text_guidance,
+        a.text_guidance.unwrap_or(1.0),
         a.keyframe_strategy,
         a.samples_for_ade,
         fit.keyframes,

@@ -108,10 +108,11 @@ pub struct SampleArgs {
     #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     kf_guidance: f64,
     /// Text guidance scale s (MDM's classifier-free guidance over the text): X(no text) +
-    /// s (X(text) - X(no text)); 1 = off. Only for models trained with text drop
-    /// (`training.text_drop_prob`); each scale other than 1 adds a branch to every denoiser call.
-    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
-    text_guidance: f64,
+    /// s (X(text) - X(no text)); 1 = off. Default: 2.5 for a model trained with text drop
+    /// (`training.text_drop_prob`), 1 for others (which refuse any other value). A scale other
+    /// than 1 adds a branch to every denoiser call.
+    #[arg(long, allow_negative_numbers = true)]
+    text_guidance: Option<f64>,
     /// Transition guidance strength r (paper Eq. 4-5): each reverse step is nudged to make the
     /// window around every keyframe smooth in the DCT sense; 0 = off. The default 10 lowers
     /// K-TranS at equal FID; the paper's 100 doubles FID here (see README).
@@ -217,7 +218,7 @@ pub fn run(a: SampleArgs) -> Result<()> {
 fn check_flags(a: &SampleArgs) -> Result<()> {
     crate::args::check_guidance(
         a.kf_guidance,
-        a.text_guidance,
+        a.text_guidance.unwrap_or(1.0),
         a.place_guidance,
         a.transition_guidance,
         a.steps,
@@ -327,11 +328,12 @@ impl Generator {
         }
         let place =
             PlaceGuidance::for_model(a.place_guidance, &loaded.model, &loaded.mean, &loaded.std)?;
-        guidance::check_text_guidance("--text-guidance", a.text_guidance, &loaded.cfg)?;
+        let text_guidance =
+            guidance::text_guidance("--text-guidance", a.text_guidance, &loaded.cfg)?;
         let opts = Options {
             sampler: a.sampler.sampler(a.steps),
             kf_guidance: a.kf_guidance,
-            text_guidance: a.text_guidance,
+            text_guidance,
             transition: a.transition_guidance,
             seed: a.seed,
             window: a.tg_window,

@@ -36,16 +36,22 @@ pub fn check_range(name: &str, v: f64, max: f64, hint: &str) -> Result<(), OutOf
     }
 }
 
-/// Refuses a text guidance scale `s` (named `name`, a flag or request field) other than 1 for a
-/// model trained without text drop (`training.text_drop_prob` 0): it never learned the
-/// text-free branch.
-pub fn check_text_guidance(name: &str, s: f64, cfg: &RunConfig) -> Result<(), ModelError> {
-    if is_scaled(s) && cfg.training.text_drop_prob <= 0.0 {
-        return Err(ModelError::Config(format!(
+/// The text guidance scale a model trained with text drop samples with by default (MDM's).
+pub const DEFAULT_TEXT_GUIDANCE: f64 = 2.5;
+
+/// The text guidance scale to sample `cfg`'s model with: `given` (named `name`, a flag or
+/// request field), or by default [`DEFAULT_TEXT_GUIDANCE`] for a model trained with text drop
+/// (`training.text_drop_prob` > 0) and 1 (off) for one without. A scale other than 1 is refused
+/// for a model trained without text drop: it never learned the text-free branch.
+pub fn text_guidance(name: &str, given: Option<f64>, cfg: &RunConfig) -> Result<f64, ModelError> {
+    let trained = cfg.training.text_drop_prob > 0.0;
+    match given {
+        Some(s) if is_scaled(s) && !trained => Err(ModelError::Config(format!(
             "{name}: {s} needs a model trained with text drop (training.text_drop_prob > 0); this one was trained without it, so it has no text-free branch: leave it at 1"
-        )));
+        ))),
+        Some(s) => Ok(s),
+        None => Ok(if trained { DEFAULT_TEXT_GUIDANCE } else { 1.0 }),
     }
-    Ok(())
 }
 
 /// Whether sampling with keyframe guidance scale `s` runs the keyframe-free branch: only when
@@ -134,7 +140,7 @@ mod tests {
     use super::*;
 
     fn host(t: Tensor<3>) -> Vec<f32> {
-        t.into_data().convert::<f32>().to_vec().unwrap()
+        t.into_data().convert::<f32>().try_to_vec::<f32>().unwrap()
     }
 
     /// Branch outputs [c; u_kf; u_text] of one request row each, as a decoder would return them.
@@ -168,12 +174,16 @@ mod tests {
 
     #[test]
     fn text_guidance_needs_a_model_trained_with_text_drop() {
-        let mut cfg = RunConfig::parse(r#"{"model": "tiny"}"#).unwrap();
-        assert!(check_text_guidance("--text-guidance", 1.0, &cfg).is_ok());
-        let e = check_text_guidance("--text-guidance", 2.5, &cfg).unwrap_err().to_string();
+        let name = "--text-guidance";
+        let without = RunConfig::parse(r#"{"model": "tiny"}"#).unwrap();
+        assert_eq!(text_guidance(name, None, &without).unwrap(), 1.0);
+        assert_eq!(text_guidance(name, Some(1.0), &without).unwrap(), 1.0);
+        let e = text_guidance(name, Some(2.5), &without).unwrap_err().to_string();
         assert!(e.contains("--text-guidance: 2.5") && e.contains("text_drop_prob"), "{e}");
-        cfg =
+        let with =
             RunConfig::parse(r#"{"model": "tiny", "training": {"text_drop_prob": 0.1}}"#).unwrap();
-        assert!(check_text_guidance("--text-guidance", 2.5, &cfg).is_ok());
+        assert_eq!(text_guidance(name, None, &with).unwrap(), DEFAULT_TEXT_GUIDANCE);
+        assert_eq!(text_guidance(name, Some(1.0), &with).unwrap(), 1.0);
+        assert_eq!(text_guidance(name, Some(4.0), &with).unwrap(), 4.0);
     }
 }
