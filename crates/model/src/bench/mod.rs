@@ -11,9 +11,10 @@ use diffkfc_data::rng::Rng;
 
 use crate::diffusion::scheduler::Sampler;
 use crate::diffusion::Schedule;
+use crate::sampling::guidance::Guidance;
 use crate::sampling::sampler::{self, Options, Request};
 use crate::training::optim::{Optimiser, StateLocation};
-use crate::{network::params, Denoiser, DiffKfcConfig, Encoded};
+use crate::{network::params, Condition, Denoiser, DiffKfcConfig, Encoded};
 
 /// Random inputs of a fixed seed: `batch` motions of `frames` frames with 5% uniform keyframes.
 pub fn request(cfg: &DiffKfcConfig, batch: usize, frames: usize, seed: u64) -> Request {
@@ -128,6 +129,19 @@ pub struct Sampling<'a> {
     t: Vec<usize>,
 }
 
+/// Keyframe guidance scale of the timed sampling: the paper's.
+const PAPER_KF_GUIDANCE: f64 = 2.5;
+
+/// The guidance the timed calls run: keyframe guidance, both branches in one batch.
+fn paper_guidance() -> Guidance {
+    Guidance::new(PAPER_KF_GUIDANCE, 1.0, true, false)
+}
+
+/// A condition as the guided call batches it, [c; c without keyframes].
+fn guided(c: &Condition) -> Condition {
+    paper_guidance().condition(c)
+}
+
 impl<'a> Sampling<'a> {
     pub fn new(
         model: &'a Denoiser,
@@ -137,15 +151,16 @@ impl<'a> Sampling<'a> {
     ) -> Sampling<'a> {
         let device = model.devices().first().cloned().unwrap_or_else(Device::flex);
         let req = request(cfg, batch, frames, 3);
-        let encoded = model.encode(&crate::sampling::guidance::pair(&req.condition(&device)));
+        let encoded = model.encode(&guided(&req.condition(&device)));
         let mut r = Rng::new(4);
-        let x = normal_tensor(&mut r, [2 * batch, frames, cfg.feat_dim], &device);
-        Sampling { model, req, encoded, x, t: vec![500; 2 * batch] }
+        let rows = paper_guidance().branches() * batch;
+        let x = normal_tensor(&mut r, [rows, frames, cfg.feat_dim], &device);
+        Sampling { model, req, encoded, x, t: vec![500; rows] }
     }
 
     /// Matrix-product FLOPs of one guided call as computed (see `TrainStep::flops`).
     pub fn flops(&self, cfg: &DiffKfcConfig) -> crate::bench::flops::Flops {
-        let cond = crate::sampling::guidance::pair(&self.req.condition(&self.x.device()));
+        let cond = guided(&self.req.condition(&self.x.device()));
         let [b, n, _] = cond.kf.dims();
         crate::bench::flops::forward_planned(cfg, b, n, &block_work(cfg, &cond))
     }
@@ -154,9 +169,7 @@ impl<'a> Sampling<'a> {
     /// the first) or encoder + decoder.
     pub fn call(&self, with_encoder: bool) -> Vec<f32> {
         let out = if with_encoder {
-            let enc = self
-                .model
-                .encode(&crate::sampling::guidance::pair(&self.req.condition(&self.x.device())));
+            let enc = self.model.encode(&guided(&self.req.condition(&self.x.device())));
             self.model.decode(self.x.clone(), &self.t, &enc)
         } else {
             self.model.decode(self.x.clone(), &self.t, &self.encoded)
@@ -169,7 +182,7 @@ impl<'a> Sampling<'a> {
         let schedule = Schedule::cosine(1000);
         let opts = Options {
             sampler: Sampler::Ddim(steps),
-            kf_guidance: 2.5,
+            kf_guidance: PAPER_KF_GUIDANCE,
             transition: 100.0,
             ..Options::default()
         };

@@ -116,11 +116,6 @@ impl Guidance {
     }
 }
 
-/// The keyframe guidance batch of a condition: [with keyframes; without], one forward for both.
-pub fn pair(c: &Condition) -> Condition {
-    stack(c, &c.without_keyframes())
-}
-
 /// Two conditions stacked along the batch: [a; b].
 fn stack(a: &Condition, b: &Condition) -> Condition {
     Condition {
