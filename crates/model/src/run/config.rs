@@ -386,6 +386,7 @@ mod tests {
             (r#""training": {"grad_clip": -1}"#, "training.grad_clip: -1"),
             (r#""training": {"root_loss_weight": -2}"#, "training.root_loss_weight: -2"),
             (r#""training": {"min_snr_gamma": -1}"#, "training.min_snr_gamma: -1"),
+            (r#""training": {"text_drop_prob": 1.5}"#, "training.text_drop_prob: 1.5"),
             (r#""keyframes": {"rate": 2}"#, "keyframes.rate: 2"),
             (r#""diffusion": {"schedule": "foo"}"#, "diffusion.schedule: unknown 'foo'"),
         ] {
