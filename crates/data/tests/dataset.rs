@@ -268,3 +268,48 @@ fn text_drop_keeps_the_batch_and_drops_some_texts() {
     assert_eq!(shard.text_dropped, dropping.batch(0, 0).text_dropped[1..3]);
     std::fs::remove_dir_all(root).unwrap();
 }
+
+#[test]
+fn body_part_keys_observe_one_half_of_the_body_and_keep_the_batch() {
+    let Some((root, _)) = small_dataset("part_keys") else {
+        return;
+    };
+    let ds = Dataset::open(&root).unwrap();
+    let split = PackedSplit::open(&ds, "train", &root.join(".cache"), |_, _| {}).unwrap();
+    let whole = KeyframeConfig { drop_prob: 0.0, ..Default::default() };
+    let parts = KeyframeConfig { part_prob: 1.0, ..whole.clone() };
+    let skel = ds.skeleton;
+    let half = |name: &str| -> Vec<f32> {
+        let joints = skel.part(name).unwrap().joints;
+        diffkfc_data::keyframes::dim_mask(skel, Some(joints))
+            .iter()
+            .map(|&on| if on { 1.0 } else { 0.0 })
+            .collect()
+    };
+    let (lower, upper) = (half("lower_body"), half("upper_body"));
+    // The lower body owns the root's velocity and height, the upper body none of them.
+    assert!(lower[..4].iter().all(|&m| m == 1.0) && upper[..4].iter().all(|&m| m == 0.0));
+    let (mut seen_lower, mut seen_upper) = (false, false);
+    for b in 0..8 {
+        let a = Loader::new(&ds, &split, 4, 7, whole.clone()).batch(0, b);
+        let p = Loader::new(&ds, &split, 4, 7, parts.clone()).batch(0, b);
+        // Drawn last: motions, keyframe frames, places and captions are the whole-key run's.
+        assert_eq!(
+            (&a.x0, &a.root, &a.root_mask, &a.captions),
+            (&p.x0, &p.root, &p.root_mask, &p.captions)
+        );
+        let d = a.dim;
+        for (ka, kp) in a.kf_mask.chunks(d).zip(p.kf_mask.chunks(d)) {
+            if ka.iter().all(|&m| m == 0.0) {
+                assert!(kp.iter().all(|&m| m == 0.0), "a part key on a frame without a key");
+                continue;
+            }
+            assert!(ka.iter().all(|&m| m == 1.0), "whole keys observe every dim");
+            seen_lower |= kp == lower.as_slice();
+            seen_upper |= kp == upper.as_slice();
+            assert!(kp == lower.as_slice() || kp == upper.as_slice(), "a key observes one half");
+        }
+    }
+    assert!(seen_lower && seen_upper, "both halves drawn");
+    std::fs::remove_dir_all(root).unwrap();
+}

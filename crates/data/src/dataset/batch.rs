@@ -27,6 +27,11 @@ pub struct KeyframeConfig {
     pub dense_root_prob: f64,
     /// Smallest fraction of frames a dense root track observes (`root_track::TrackSchedule`).
     pub dense_root_min_density: f64,
+    /// Probability that a sample's keys (when not dropped) observe one body part only, the
+    /// lower body (with the root) or the upper body at even odds, as `sample --joints` asks:
+    /// the network learns to read the legs and the root's velocity apart from the arms. 0 keeps
+    /// every key whole and the random draws of earlier runs unchanged.
+    pub part_prob: f64,
 }
 
 impl KeyframeConfig {
@@ -44,6 +49,7 @@ impl Default for KeyframeConfig {
             root_drop_prob: 0.5,
             dense_root_prob: 0.0,
             dense_root_min_density: 0.25,
+            part_prob: 0.0,
         }
     }
 }
@@ -108,6 +114,8 @@ struct Sample {
     root_mask: Vec<f32>,
     caption: String,
     text_dropped: bool,
+    /// The body part its keys observe (`KeyframeConfig::part_prob`); None: whole keys.
+    part: Option<&'static str>,
 }
 
 pub struct Loader<'a> {
@@ -207,7 +215,22 @@ impl<'a> Loader<'a> {
         // Drawn after everything else and only when enabled, so that runs without text drop
         // keep their batches.
         let text_dropped = self.text_drop_prob > 0.0 && rng.chance(self.text_drop_prob);
-        Sample { x0, len, kf, track, root, root_mask, caption, text_dropped }
+        // Drawn after the text drop, and only when enabled, for the same reason.
+        let part = (kc.part_prob > 0.0 && !kf.is_empty() && rng.chance(kc.part_prob)).then(|| {
+            if rng.chance(0.5) {
+                "lower_body"
+            } else {
+                "upper_body"
+            }
+        });
+        Sample { x0, len, kf, track, root, root_mask, caption, text_dropped, part }
+    }
+
+    /// The feature dims a key of body part `name` observes.
+    fn part_dims(&self, name: &str) -> Vec<bool> {
+        let skel = self.ds.skeleton;
+        let part = skel.part(name).expect("HumanML3D and KIT-ML skeletons name both body halves");
+        keyframes::dim_mask(skel, Some(part.joints))
     }
 
     fn assemble(&self, samples: Vec<Sample>, items: Vec<usize>) -> Batch {
@@ -226,7 +249,12 @@ impl<'a> Loader<'a> {
             x0[i * n * d..i * n * d + s.len * d].copy_from_slice(&s.x0);
             valid[i * n..i * n + s.len].iter_mut().for_each(|v| *v = 1.0);
             let mask = &mut kf_mask[i * n * d..(i + 1) * n * d];
-            mask.copy_from_slice(&keyframes::frame_mask(n, &s.kf, &all_dims));
+            let dims = s.part.map(|p| self.part_dims(p));
+            mask.copy_from_slice(&keyframes::frame_mask(
+                n,
+                &s.kf,
+                dims.as_deref().unwrap_or(&all_dims),
+            ));
             for &f in &s.track {
                 mask[f * d..][root_track::TRACK_DIMS].iter_mut().for_each(|m| *m = 1.0);
             }

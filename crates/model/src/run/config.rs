@@ -299,6 +299,7 @@ impl RunConfig {
             ("keyframes.root_drop_prob", k.root_drop_prob),
             ("keyframes.dense_root_prob", k.dense_root_prob),
             ("keyframes.dense_root_min_density", k.dense_root_min_density),
+            ("keyframes.part_prob", k.part_prob),
             ("training.ema_decay", t.ema_decay),
             ("training.text_drop_prob", t.text_drop_prob),
         ];
@@ -388,6 +389,7 @@ mod tests {
             (r#""training": {"min_snr_gamma": -1}"#, "training.min_snr_gamma: -1"),
             (r#""training": {"text_drop_prob": 1.5}"#, "training.text_drop_prob: 1.5"),
             (r#""keyframes": {"rate": 2}"#, "keyframes.rate: 2"),
+            (r#""keyframes": {"part_prob": -0.1}"#, "keyframes.part_prob: -0.1"),
             (r#""diffusion": {"schedule": "foo"}"#, "diffusion.schedule: unknown 'foo'"),
         ] {
             let e = RunConfig::parse(&format!(r#"{{"model": "tiny", {body}}}"#))
@@ -423,34 +425,36 @@ mod tests {
     #[test]
     fn shipped_configs_parse() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
-        let study = std::fs::read_dir(dir.join("study")).unwrap().map(|e| {
-            let p = e.unwrap().path();
-            format!("study/{}", p.file_stem().unwrap().to_string_lossy())
-        });
-        let names =
-            ["tiny", "small", "mid", "paper-humanml3d", "paper-kit", "reference", "reference-feet"];
-        for name in names.iter().map(|s| s.to_string()).chain(study) {
-            let c = RunConfig::load(&dir.join(format!("{name}.json"))).unwrap();
+        let json = |d: &Path| -> Vec<std::path::PathBuf> {
+            let files = std::fs::read_dir(d).unwrap().map(|e| e.unwrap().path());
+            files.filter(|p| p.extension().is_some_and(|e| e == "json")).collect()
+        };
+        let paths = [json(&dir), json(&dir.join("study"))].concat();
+        assert!(paths.len() >= 20, "{} configs", paths.len());
+        for path in paths {
+            let c = RunConfig::load(&path).unwrap();
             let again = RunConfig::parse(&c.to_json()).unwrap();
-            assert_eq!(c, again, "{name} does not round-trip");
+            assert_eq!(c, again, "{} does not round-trip", path.display());
         }
     }
 
     /// The study's options round-trip, and a config written before they existed (no such keys)
-    /// reads as the paper's behaviour: one frame per token, uniform loss weights.
+    /// reads as the paper's behaviour: one frame per token, uniform loss weights, whole keys.
     #[test]
     fn new_options_default_to_the_old_behaviour() {
         let old = RunConfig::parse(r#"{"model": "tiny", "training": {"lr": 0.001}}"#).unwrap();
         assert_eq!(old.model.patch_frames, 1);
         let t = &old.training;
         assert_eq!((t.root_loss_weight, t.contact_loss_weight, t.min_snr_gamma), (1.0, 1.0, 0.0));
+        assert_eq!(old.keyframes.part_prob, 0.0);
         let c = RunConfig::parse(
-            r#"{"model": {"preset": "tiny", "patch_frames": 4},
+            r#"{"model": {"preset": "tiny", "patch_frames": 4}, "keyframes": {"part_prob": 0.3},
                 "training": {"root_loss_weight": 8, "contact_loss_weight": 4, "min_snr_gamma": 5}}"#,
         )
         .unwrap();
         let again = RunConfig::parse(&c.to_json()).unwrap();
         assert_eq!(c, again);
         assert_eq!((again.model.patch_frames, again.training.root_loss_weight), (4, 8.0));
+        assert_eq!(again.keyframes.part_prob, 0.3);
     }
 }
