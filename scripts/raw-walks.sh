@@ -2,20 +2,22 @@
 # The raw network on the design panel's six keyed walks (docs/design-study.md), with several
 # samples per walk: one sample per walk (the panel's, seed 2) moves by up to 0.3 of speed ratio
 # from seed to seed on the slowest walk, too much to tell two checkpoints apart.
-#   scripts/raw-walks.sh MODEL OUT [--data DIR] [--samples 4] [--seed 2]
+#   scripts/raw-walks.sh MODEL OUT [--data DIR] [--samples 4] [--seed 2] [-- SAMPLE FLAGS...]
 # MODEL is an exported model or a run directory (its latest checkpoint). Each walk: its first
 # caption, 5% keys with their places, `--keyframe-fit none --no-foot-lock --no-rigid`.
 # Prints one Markdown table (also OUT/walks.md and OUT/walks.json): per walk the mean over the
 # samples of the root-speed and stride-amplitude ratios to the source's, then the mean of the
-# six (the panel's numbers) and the smallest walk mean.
+# six (the panel's numbers) and the smallest walk mean. Flags after `--` go to every `sample`
+# (e.g. `-- --sampler ddim --steps 1`, `-- --joints lower_body`).
 set -euo pipefail
-usage="usage: scripts/raw-walks.sh MODEL OUT [--data DIR] [--samples N] [--seed S]"
+usage="usage: scripts/raw-walks.sh MODEL OUT [--data DIR] [--samples N] [--seed S] [-- SAMPLE FLAGS...]"
 [ $# -ge 2 ] || { echo "$usage" >&2; exit 2; }
 model=$1 out=$2
 shift 2
-data="${DIFFKFC_WORK:-work}/synth" samples=4 seed=2
+data="${DIFFKFC_WORK:-work}/synth" samples=4 seed=2 extra=()
 while [ $# -gt 0 ]; do
   case "$1" in
+    --) shift; extra=("$@"); break ;;
     --data) data=$2; shift 2 ;;
     --samples) samples=$2; shift 2 ;;
     --seed) seed=$2; shift 2 ;;
@@ -32,7 +34,7 @@ for w in "${walks[@]}"; do
   text=$(head -n 1 "$data/texts/$w.txt" | cut -d'#' -f1)
   "$bin" sample --checkpoint "$model" --text "$text" --from "$data/new_joint_vecs/$w.npy" \
     --keyframe-rate 0.05 --seed "$seed" --num-samples "$samples" --out "$out/$w" --force \
-    --keyframe-fit none --no-foot-lock --no-rigid >/dev/null
+    --keyframe-fit none --no-foot-lock --no-rigid "${extra[@]}" >/dev/null
 done
 
 python3 - "$out" "$model" "${walks[@]}" <<'PY' | tee "$out/walks.md"

@@ -149,6 +149,30 @@ fn resume_is_exact_and_checkpoints_rotate() {
     std::fs::remove_dir_all(root).unwrap();
 }
 
+/// Training on the sampler's own step (`training.rollout_prob`): the rolled-out x_t changes
+/// the losses from the first step, and such a run resumes exactly like any other.
+#[test]
+fn rollout_training_changes_x_t_and_resumes_exactly() {
+    let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let p = Prepared::new("rollout", 24);
+    let mut cfg = config();
+    cfg.training.rollout_prob = 1.0;
+    cfg.training.rollout_gap = 100;
+    let never = || false;
+    p.trainer(&cfg, "full").run(false, 4, &never, &mut |_| {}).unwrap();
+    let half = p.trainer(&cfg, "half");
+    half.run(false, 2, &never, &mut |_| {}).unwrap();
+    half.run(true, 4, &never, &mut |_| {}).unwrap();
+    let (a, b) = (losses(&p.root.join("full")), losses(&p.root.join("half")));
+    assert_eq!(a.len(), 4);
+    assert_eq!(a, b, "resumed rollout run differs from the uninterrupted one");
+    let plain = config();
+    p.trainer(&plain, "plain").run(false, 1, &never, &mut |_| {}).unwrap();
+    let c = losses(&p.root.join("plain"));
+    assert!(a[0].1.is_finite() && a[0].1 != c[0].1, "rolled {} plain {}", a[0].1, c[0].1);
+    std::fs::remove_dir_all(&p.root).unwrap();
+}
+
 /// Weights, EMA and both Adam moments of two checkpoints within `bound` (relative L2).
 fn same_state(a: &Checkpoint, b: &Checkpoint, what: &str, bound: f64) {
     for (part, x, y) in [

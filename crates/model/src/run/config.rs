@@ -90,6 +90,13 @@ pub struct TrainingConfig {
     /// text-free branch of text classifier-free guidance is learned (MDM: 0.1; 0 = off, the paper).
     /// Drawn independently of the keyframes' drop; validation keeps every text.
     pub text_drop_prob: f64,
+    /// Share of the training samples whose x_t is one DDIM step, made with the network itself,
+    /// from x0 noised at t + `rollout_gap` (`training::rollout`: the sampler's own step, so the
+    /// network learns to correct its estimate rather than follow it; 0 = off, the paper).
+    pub rollout_prob: f64,
+    /// Timesteps between the noisier sample and x_t in a rolled-out sample (100: one step of a
+    /// 10-step sampler over 1000).
+    pub rollout_gap: usize,
 }
 
 impl TrainingConfig {
@@ -131,6 +138,8 @@ impl Default for TrainingConfig {
             contact_loss_weight: 1.0,
             min_snr_gamma: 0.0,
             text_drop_prob: 0.0,
+            rollout_prob: 0.0,
+            rollout_gap: 100,
         }
     }
 }
@@ -302,6 +311,7 @@ impl RunConfig {
             ("keyframes.part_prob", k.part_prob),
             ("training.ema_decay", t.ema_decay),
             ("training.text_drop_prob", t.text_drop_prob),
+            ("training.rollout_prob", t.rollout_prob),
         ];
         for (key, v) in unit {
             if !(0.0..=1.0).contains(&v) {
@@ -326,6 +336,13 @@ impl RunConfig {
         }
         if !(t.lr.is_finite() && t.lr > 0.0) {
             return bad("training.lr", &t.lr, "must be a finite number > 0");
+        }
+        if t.rollout_prob > 0.0 && !(1..=self.diffusion.steps).contains(&t.rollout_gap) {
+            return bad(
+                "training.rollout_gap",
+                &t.rollout_gap,
+                &format!("must be 1 to diffusion.steps ({})", self.diffusion.steps),
+            );
         }
         if m.absolute_root && t.lambda_pos + t.lambda_vel + t.lambda_foot > 0.0 {
             return bad(
@@ -390,6 +407,8 @@ mod tests {
             (r#""training": {"text_drop_prob": 1.5}"#, "training.text_drop_prob: 1.5"),
             (r#""keyframes": {"rate": 2}"#, "keyframes.rate: 2"),
             (r#""keyframes": {"part_prob": -0.1}"#, "keyframes.part_prob: -0.1"),
+            (r#""training": {"rollout_prob": 2}"#, "training.rollout_prob: 2"),
+            (r#""training": {"rollout_prob": 0.5, "rollout_gap": 0}"#, "training.rollout_gap: 0"),
             (r#""diffusion": {"schedule": "foo"}"#, "diffusion.schedule: unknown 'foo'"),
         ] {
             let e = RunConfig::parse(&format!(r#"{{"model": "tiny", {body}}}"#))
@@ -446,15 +465,17 @@ mod tests {
         assert_eq!(old.model.patch_frames, 1);
         let t = &old.training;
         assert_eq!((t.root_loss_weight, t.contact_loss_weight, t.min_snr_gamma), (1.0, 1.0, 0.0));
-        assert_eq!(old.keyframes.part_prob, 0.0);
+        assert_eq!((old.keyframes.part_prob, old.training.rollout_prob), (0.0, 0.0));
         let c = RunConfig::parse(
             r#"{"model": {"preset": "tiny", "patch_frames": 4}, "keyframes": {"part_prob": 0.3},
-                "training": {"root_loss_weight": 8, "contact_loss_weight": 4, "min_snr_gamma": 5}}"#,
+                "training": {"root_loss_weight": 8, "contact_loss_weight": 4, "min_snr_gamma": 5,
+                             "rollout_prob": 0.5, "rollout_gap": 50}}"#,
         )
         .unwrap();
         let again = RunConfig::parse(&c.to_json()).unwrap();
         assert_eq!(c, again);
         assert_eq!((again.model.patch_frames, again.training.root_loss_weight), (4, 8.0));
         assert_eq!(again.keyframes.part_prob, 0.3);
+        assert_eq!((again.training.rollout_prob, again.training.rollout_gap), (0.5, 50));
     }
 }

@@ -9,6 +9,7 @@ pub(crate) mod losses;
 pub mod memory;
 pub mod optim;
 pub mod parallel;
+pub mod rollout;
 pub(crate) mod run_files;
 pub mod trainer;
 pub(crate) mod warm_start;

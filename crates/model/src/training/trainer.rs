@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use burn::prelude::*;
-use diffkfc_data::dataset::batch::{Batch, Loader};
+use diffkfc_data::dataset::batch::{Batch, KeyframeConfig, Loader};
 use diffkfc_data::dataset::cache::PackedSplit;
 use diffkfc_data::dataset::Dataset;
 use diffkfc_data::motion::absolute_root::VelocityStats;
@@ -33,6 +33,7 @@ use crate::training::losses::{losses, Kinematic};
 use crate::training::memory::device_memory;
 use crate::training::optim::{learning_rate, Optimiser, Snapshot, StateLocation};
 use crate::training::parallel::{shard_objective, Combine, Shares};
+use crate::training::rollout;
 pub use crate::training::run_files::StepRecord;
 use crate::training::run_files::{non_finite, RunFiles};
 use crate::training::weighting;
@@ -198,7 +199,9 @@ impl Trainer<'_> {
         (t, noise)
     }
 
-    /// Loss of the model on a batch at the given timesteps and noise ([B * N * D]).
+    /// Loss of the model on a batch at the given timesteps and noise ([B * N * D]); `train`:
+    /// the training objective (with `training.rollout_prob`), not validation's.
+    #[allow(clippy::too_many_arguments)]
     fn batch_loss(
         &self,
         model: &Denoiser,
@@ -207,10 +210,20 @@ impl Trainer<'_> {
         t: &[usize],
         noise: &[f32],
         device: &Device,
+        train: bool,
     ) -> Losses {
         let abs = self.cfg.model.absolute();
         let noised = (schedule, t, noise);
-        let tb = to_tensors(b, &self.text_of(b), self.text.dim, abs.as_ref(), noised, device);
+        let mut tb = to_tensors(b, &self.text_of(b), self.text.dim, abs.as_ref(), noised, device);
+        let tc = &self.cfg.training;
+        if train && tc.rollout_prob > 0.0 {
+            let rolled = rollout::chosen(tc.seed, tc.rollout_prob, t, noise);
+            let shape = [b.batch_size, b.frames, b.dim];
+            let noise = Tensor::<1>::from_floats(noise, device).reshape(shape);
+            let (x0, x_t) = (tb.x0.clone(), tb.x_t.clone());
+            let step = rollout::Step { t, rolled: &rolled, gap: tc.rollout_gap };
+            tb.x_t = rollout::rolled_x_t(model, schedule, &tb.cond, x0, noise, x_t, step);
+        }
         let pred = model.forward(tb.x_t, t, &tb.cond);
         let w = weighting::sqrt_weights(&self.cfg.training, schedule, t, b.dim, device);
         losses(tb.x0, pred, tb.cond.kf_mask, tb.valid, w, &self.kinematic())
@@ -233,7 +246,7 @@ impl Trainer<'_> {
         let device = model.devices().first().cloned().expect("a model device");
         let mut sum: Vec<Vec<f32>> = Vec::new();
         for sh in data_parallel::shards(b.clone(), t.to_vec(), noise.to_vec(), shards) {
-            let l = self.batch_loss(model, &schedule, &sh.batch, sh.t(), sh.noise(), &device);
+            let l = self.batch_loss(model, &schedule, &sh.batch, sh.t(), sh.noise(), &device, true);
             let shares = Shares::of(&sh.mine, &sh.all, sh.shards, combine);
             let obj = shard_objective(&l, &self.kinematic(), &shares);
             let grads = burn::optim::GradientsParams::from_grads(obj.backward(), model);
@@ -258,8 +271,9 @@ impl Trainer<'_> {
         }
         let model = params::load(self.cfg.model.init(&self.device), weights);
         let tc = &self.cfg.training;
-        let loader =
-            Loader::new(self.ds, val, tc.batch_size, tc.seed ^ 0x5A17, self.cfg.keyframes.clone());
+        // Whole keys, as every text is kept: validation losses compare across configs.
+        let keys = KeyframeConfig { part_prob: 0.0, ..self.cfg.keyframes.clone() };
+        let loader = Loader::new(self.ds, val, tc.batch_size, tc.seed ^ 0x5A17, keys);
         let dev = self.device.clone();
         let n = tc.val_batches.min(loader.batches_per_epoch()).max(1);
         let mut total = 0.0;
@@ -267,7 +281,7 @@ impl Trainer<'_> {
             let b = loader.batch(0, k);
             let (t, noise) =
                 self.draw(0xFA11, k as u64, [b.batch_size, b.frames, b.dim], schedule.steps);
-            let l = self.batch_loss(&model, schedule, &b, &t, &noise, &dev);
+            let l = self.batch_loss(&model, schedule, &b, &t, &noise, &dev, false);
             total += scalar(l.total(&self.kinematic()));
         }
         Some(total / n as f64)
@@ -524,7 +538,8 @@ impl Trainer<'_> {
     /// A replica's objective on its shard (the batch's loss when it is the only one) and the
     /// values of its terms, each weighted by the shard's share of the batch.
     fn shard_loss(&self, r: &Replica, schedule: &Schedule, sh: &Shard) -> (Tensor<1>, Terms) {
-        let l = self.batch_loss(r.model(), schedule, &sh.batch, sh.t(), sh.noise(), &r.device);
+        let l =
+            self.batch_loss(r.model(), schedule, &sh.batch, sh.t(), sh.noise(), &r.device, true);
         let k = self.kinematic();
         let (obj, shares) = if sh.shards == 1 {
             (l.total(&k), Shares::ONE)
