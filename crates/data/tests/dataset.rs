@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use diffkfc_data::dataset::batch::{KeyframeConfig, Loader};
 use diffkfc_data::dataset::cache::PackedSplit;
 use diffkfc_data::dataset::Dataset;
-use diffkfc_data::keyframes::Strategy;
+use diffkfc_data::keyframes::{self, Strategy};
 use diffkfc_data::{io::npy, testing::fixtures};
 
 fn write_clip(root: &Path, id: &str, feats: &[f32], dim: usize, captions: &[&str]) {
@@ -279,12 +279,10 @@ fn body_part_keys_observe_one_half_of_the_body_and_keep_the_batch() {
     let whole = KeyframeConfig { drop_prob: 0.0, ..Default::default() };
     let parts = KeyframeConfig { part_prob: 1.0, ..whole.clone() };
     let skel = ds.skeleton;
-    let half = |name: &str| -> Vec<f32> {
-        let joints = skel.part(name).unwrap().joints;
-        diffkfc_data::keyframes::dim_mask(skel, Some(joints))
-            .iter()
-            .map(|&on| if on { 1.0 } else { 0.0 })
-            .collect()
+    // One keyed frame's mask of that half, as the loader builds it.
+    let half = |name: &str| {
+        let dims = keyframes::dim_mask(skel, Some(skel.part(name).unwrap().joints));
+        keyframes::frame_mask(1, &[0], &dims)
     };
     let (lower, upper) = (half("lower_body"), half("upper_body"));
     // The lower body owns the root's velocity and height, the upper body none of them.

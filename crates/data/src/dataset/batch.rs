@@ -114,8 +114,8 @@ struct Sample {
     root_mask: Vec<f32>,
     caption: String,
     text_dropped: bool,
-    /// The body part its keys observe (`KeyframeConfig::part_prob`); None: whole keys.
-    part: Option<&'static str>,
+    /// The joints its keys observe (`KeyframeConfig::part_prob`); None: whole keys.
+    part: Option<&'static [usize]>,
 }
 
 pub struct Loader<'a> {
@@ -217,20 +217,11 @@ impl<'a> Loader<'a> {
         let text_dropped = self.text_drop_prob > 0.0 && rng.chance(self.text_drop_prob);
         // Drawn after the text drop, and only when enabled, for the same reason.
         let part = (kc.part_prob > 0.0 && !kf.is_empty() && rng.chance(kc.part_prob)).then(|| {
-            if rng.chance(0.5) {
-                "lower_body"
-            } else {
-                "upper_body"
-            }
+            let half = if rng.chance(0.5) { "lower_body" } else { "upper_body" };
+            let part = self.ds.skeleton.part(half);
+            part.expect("HumanML3D and KIT-ML skeletons name both body halves").joints
         });
         Sample { x0, len, kf, track, root, root_mask, caption, text_dropped, part }
-    }
-
-    /// The feature dims a key of body part `name` observes.
-    fn part_dims(&self, name: &str) -> Vec<bool> {
-        let skel = self.ds.skeleton;
-        let part = skel.part(name).expect("HumanML3D and KIT-ML skeletons name both body halves");
-        keyframes::dim_mask(skel, Some(part.joints))
     }
 
     fn assemble(&self, samples: Vec<Sample>, items: Vec<usize>) -> Batch {
@@ -249,7 +240,7 @@ impl<'a> Loader<'a> {
             x0[i * n * d..i * n * d + s.len * d].copy_from_slice(&s.x0);
             valid[i * n..i * n + s.len].iter_mut().for_each(|v| *v = 1.0);
             let mask = &mut kf_mask[i * n * d..(i + 1) * n * d];
-            let dims = s.part.map(|p| self.part_dims(p));
+            let dims = s.part.map(|joints| keyframes::dim_mask(self.ds.skeleton, Some(joints)));
             mask.copy_from_slice(&keyframes::frame_mask(
                 n,
                 &s.kf,
