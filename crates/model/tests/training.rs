@@ -170,6 +170,12 @@ fn rollout_training_changes_x_t_and_resumes_exactly() {
     p.trainer(&plain, "plain").run(false, 1, &never, &mut |_| {}).unwrap();
     let c = losses(&p.root.join("plain"));
     assert!(a[0].1.is_finite() && a[0].1 != c[0].1, "rolled {} plain {}", a[0].1, c[0].1);
+    // Two steps of the network start higher: another x_t, another loss.
+    let mut two = cfg.clone();
+    two.training.rollout_steps = 2;
+    p.trainer(&two, "two").run(false, 1, &never, &mut |_| {}).unwrap();
+    let d = losses(&p.root.join("two"));
+    assert!(d[0].1.is_finite() && d[0].1 != a[0].1, "two steps {} one {}", d[0].1, a[0].1);
     std::fs::remove_dir_all(&p.root).unwrap();
 }
 

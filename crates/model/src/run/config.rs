@@ -97,6 +97,9 @@ pub struct TrainingConfig {
     /// Timesteps between the noisier sample and x_t in a rolled-out sample (100: one step of a
     /// 10-step sampler over 1000).
     pub rollout_gap: usize,
+    /// DDIM steps of a rolled-out sample, from t + steps * `rollout_gap` down to t (1: one step;
+    /// each further step is one more forward pass of the network, without gradients).
+    pub rollout_steps: usize,
 }
 
 impl TrainingConfig {
@@ -140,6 +143,7 @@ impl Default for TrainingConfig {
             text_drop_prob: 0.0,
             rollout_prob: 0.0,
             rollout_gap: 100,
+            rollout_steps: 1,
         }
     }
 }
@@ -344,6 +348,9 @@ impl RunConfig {
                 &format!("must be 1 to diffusion.steps ({})", self.diffusion.steps),
             );
         }
+        if t.rollout_prob > 0.0 && !(1..=10).contains(&t.rollout_steps) {
+            return bad("training.rollout_steps", &t.rollout_steps, "must be 1 to 10");
+        }
         if m.absolute_root && t.lambda_pos + t.lambda_vel + t.lambda_foot > 0.0 {
             return bad(
                 "model.absolute_root",
@@ -409,6 +416,14 @@ mod tests {
             (r#""keyframes": {"part_prob": -0.1}"#, "keyframes.part_prob: -0.1"),
             (r#""training": {"rollout_prob": 2}"#, "training.rollout_prob: 2"),
             (r#""training": {"rollout_prob": 0.5, "rollout_gap": 0}"#, "training.rollout_gap: 0"),
+            (
+                r#""training": {"rollout_prob": 0.5, "rollout_steps": 0}"#,
+                "training.rollout_steps: 0",
+            ),
+            (
+                r#""training": {"rollout_prob": 1, "rollout_steps": 11}"#,
+                "training.rollout_steps: 11",
+            ),
             (r#""diffusion": {"schedule": "foo"}"#, "diffusion.schedule: unknown 'foo'"),
         ] {
             let e = RunConfig::parse(&format!(r#"{{"model": "tiny", {body}}}"#))
@@ -466,16 +481,18 @@ mod tests {
         let t = &old.training;
         assert_eq!((t.root_loss_weight, t.contact_loss_weight, t.min_snr_gamma), (1.0, 1.0, 0.0));
         assert_eq!((old.keyframes.part_prob, old.training.rollout_prob), (0.0, 0.0));
+        assert_eq!(old.training.rollout_steps, 1);
         let c = RunConfig::parse(
             r#"{"model": {"preset": "tiny", "patch_frames": 4}, "keyframes": {"part_prob": 0.3},
                 "training": {"root_loss_weight": 8, "contact_loss_weight": 4, "min_snr_gamma": 5,
-                             "rollout_prob": 0.5, "rollout_gap": 50}}"#,
+                             "rollout_prob": 0.5, "rollout_gap": 50, "rollout_steps": 2}}"#,
         )
         .unwrap();
         let again = RunConfig::parse(&c.to_json()).unwrap();
         assert_eq!(c, again);
         assert_eq!((again.model.patch_frames, again.training.root_loss_weight), (4, 8.0));
         assert_eq!(again.keyframes.part_prob, 0.3);
-        assert_eq!((again.training.rollout_prob, again.training.rollout_gap), (0.5, 50));
+        let t = &again.training;
+        assert_eq!((t.rollout_prob, t.rollout_gap, t.rollout_steps), (0.5, 50, 2));
     }
 }

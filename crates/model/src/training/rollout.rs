@@ -3,10 +3,11 @@
 //! ambiguous caption, a walk half way to a stand), whereas training noises the true motion; a
 //! network that trusts x_t then drifts towards the blur from step to step (measured on the
 //! quick start's walk: 0.59 m/s after one DDIM step, 0.32 after five, the source 0.84). For a
-//! share of the samples x_t is instead one DDIM step, made with the network itself (detached),
-//! from the true motion noised at t + gap: the network learns to correct its own estimate from
-//! the condition rather than copy it. The target stays the true x0. This is one step of the
-//! trajectory, as in the scheduled-sampling remedies of exposure bias in diffusion models.
+//! share of the samples x_t is instead made by DDIM steps of the network itself (detached), one
+//! from the true motion noised at t + gap, or `rollout_steps` from t + steps * gap: the network
+//! learns to correct its own estimate from the condition rather than copy it. The target stays
+//! the true x0. These are steps of the trajectory, as in the scheduled-sampling remedies of
+//! exposure bias in diffusion models.
 
 use burn::prelude::*;
 use diffkfc_data::rng::Rng;
@@ -30,18 +31,20 @@ pub fn chosen(seed: u64, prob: f64, t: &[usize], noise: &[f32]) -> Vec<bool> {
         .collect()
 }
 
-/// Which samples of a batch roll out, at which timesteps, and how far back.
+/// Which samples of a batch roll out, at which timesteps, how far back and in how many steps.
 pub struct Step<'a> {
     /// Each sample's timestep.
     pub t: &'a [usize],
     pub rolled: &'a [bool],
-    /// Timesteps between the noisier x and x_t (`training.rollout_gap`).
+    /// Timesteps between two levels of the rollout (`training.rollout_gap`).
     pub gap: usize,
+    /// Sampler steps from the noisiest level down to t (`training.rollout_steps`).
+    pub steps: usize,
 }
 
-/// x_t of every sample, rolled-out ones replaced by a DDIM step from t + gap (capped at the
-/// schedule's last step) of x0 noised with the same `noise`, through `model`'s own x0 estimate.
-/// `x0`, `noise`, `x_t` [B, N, D] -> [B, N, D].
+/// x_t of every sample, rolled-out ones replaced by `steps` DDIM steps, `gap` timesteps apart
+/// (levels capped at the schedule's last step), from x0 noised with the same `noise` at
+/// t + steps * gap, each through `model`'s own x0 estimate. `x0`, `noise`, `x_t` [B, N, D] -> [B, N, D].
 pub fn rolled_x_t(
     model: &Denoiser,
     schedule: &Schedule,
@@ -55,30 +58,41 @@ pub fn rolled_x_t(
         return x_t;
     }
     let last = schedule.alphas_cumprod.len() - 1;
-    let hi: Vec<usize> = (step.t.iter().zip(step.rolled))
-        .map(|(&t, &r)| if r { (t + step.gap).min(last) } else { t })
-        .collect();
+    // A sample's timestep `j` steps above t; t itself for samples that do not roll.
+    let level = |j: usize| -> Vec<usize> {
+        (step.t.iter().zip(step.rolled))
+            .map(|(&t, &r)| if r { (t + j * step.gap).min(last) } else { t })
+            .collect()
+    };
     let device = x0.device();
-    let x_hi = schedule.q_sample(x0, &hi, noise);
-    let est = model.forward(x_hi.clone(), &hi, cond).detach();
-    let [c_est, c_hi, keep] = coefficients(schedule, step.t, &hi);
-    est * per_sample(&c_est, &device)
-        + x_hi.detach() * per_sample(&c_hi, &device)
-        + x_t * per_sample(&keep, &device)
+    let mut x = schedule.q_sample(x0, &level(step.steps), noise).detach();
+    for j in (1..=step.steps).rev() {
+        let (hi, lo) = (level(j), level(j - 1));
+        let est = model.forward(x.clone(), &hi, cond).detach();
+        let [c_est, c_x] = coefficients(schedule, &lo, &hi);
+        x = est * per_sample(&c_est, &device) + x * per_sample(&c_x, &device);
+    }
+    // The other samples keep the x_t they were given, bit for bit.
+    let on: Vec<f32> = step.rolled.iter().map(|&r| if r { 1.0 } else { 0.0 }).collect();
+    let off: Vec<f32> = on.iter().map(|r| 1.0 - r).collect();
+    x * per_sample(&on, &device) + x_t * per_sample(&off, &device)
 }
 
-/// Per sample, the weights of the estimate, of x at `hi` and of the plain x_t in the new x_t:
-/// DDIM's x_t = sqrt(ab_t) est + sqrt(1 - ab_t) eps with eps = (x_hi - sqrt(ab_hi) est) /
-/// sqrt(1 - ab_hi); a sample with `hi` = t keeps its x_t.
-fn coefficients(schedule: &Schedule, t: &[usize], hi: &[usize]) -> [Vec<f32>; 3] {
-    let mut c = [Vec::new(), Vec::new(), Vec::new()];
-    for (&t, &h) in t.iter().zip(hi) {
-        let (ab, ab_hi) = (schedule.alphas_cumprod[t], schedule.alphas_cumprod[h]);
-        let ratio = ((1.0 - ab) / (1.0 - ab_hi)).sqrt();
-        let on = if h > t { 1.0 } else { 0.0 };
-        c[0].push((on * (ab.sqrt() - ab_hi.sqrt() * ratio)) as f32);
-        c[1].push((on * ratio) as f32);
-        c[2].push((1.0 - on) as f32);
+/// Per sample, the weights of the estimate and of x at `hi` in x at `lo`: DDIM's
+/// x_lo = sqrt(ab_lo) est + sqrt(1 - ab_lo) eps with eps = (x_hi - sqrt(ab_hi) est) /
+/// sqrt(1 - ab_hi); a sample with `hi` = `lo` keeps its x.
+fn coefficients(schedule: &Schedule, lo: &[usize], hi: &[usize]) -> [Vec<f32>; 2] {
+    let mut c = [Vec::new(), Vec::new()];
+    for (&l, &h) in lo.iter().zip(hi) {
+        let (ab, ab_hi) = (schedule.alphas_cumprod[l], schedule.alphas_cumprod[h]);
+        let (c_est, c_x) = if h > l {
+            let ratio = ((1.0 - ab) / (1.0 - ab_hi)).sqrt();
+            (ab.sqrt() - ab_hi.sqrt() * ratio, ratio)
+        } else {
+            (0.0, 1.0)
+        };
+        c[0].push(c_est as f32);
+        c[1].push(c_x as f32);
     }
     c
 }
@@ -107,16 +121,16 @@ mod tests {
     fn an_exact_estimate_gives_the_plain_x_t() {
         let schedule = Schedule::cosine(1000);
         let (t, hi) = ([0usize, 10, 400, 899, 999], [100usize, 110, 500, 999, 999]);
-        let [c_est, c_hi, keep] = coefficients(&schedule, &t, &hi);
+        let [c_est, c_x] = coefficients(&schedule, &t, &hi);
         for i in 0..t.len() {
             let (x0, n) = (0.7f64, -1.3f64);
             let a = |k: usize| schedule.alphas_cumprod[k].sqrt();
             let s = |k: usize| (1.0 - schedule.alphas_cumprod[k]).sqrt();
             let x_hi = a(hi[i]) * x0 + s(hi[i]) * n;
             let plain = a(t[i]) * x0 + s(t[i]) * n;
-            let rolled = c_est[i] as f64 * x0 + c_hi[i] as f64 * x_hi + keep[i] as f64 * plain;
+            let rolled = c_est[i] as f64 * x0 + c_x[i] as f64 * x_hi;
             assert!((rolled - plain).abs() < 1e-5, "t {}: {rolled} against {plain}", t[i]);
         }
-        assert_eq!(keep, [0.0, 0.0, 0.0, 0.0, 1.0], "t at the last step keeps its x_t");
+        assert_eq!((c_est[4], c_x[4]), (0.0, 1.0), "t at the last step keeps its x_t");
     }
 }

@@ -221,7 +221,8 @@ impl Trainer<'_> {
             let shape = [b.batch_size, b.frames, b.dim];
             let noise = Tensor::<1>::from_floats(noise, device).reshape(shape);
             let (x0, x_t) = (tb.x0.clone(), tb.x_t.clone());
-            let step = rollout::Step { t, rolled: &rolled, gap: tc.rollout_gap };
+            let (gap, steps) = (tc.rollout_gap, tc.rollout_steps);
+            let step = rollout::Step { t, rolled: &rolled, gap, steps };
             tb.x_t = rollout::rolled_x_t(model, schedule, &tb.cond, x0, noise, x_t, step);
         }
         let pred = model.forward(tb.x_t, t, &tb.cond);
