@@ -7,6 +7,7 @@ use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 use diffkfc_data::io::rig::{self, ImportOptions};
 use diffkfc_model::diffusion::scheduler::Sampler;
+use diffkfc_model::sampling::sampler::DEFAULT_SAMPLER;
 use diffkfc_model::sampling::fit::{Feet, Fit, KeyframeFit};
 
 /// How a BVH input is read: its joint names, units and up axis.
@@ -215,6 +216,13 @@ pub(crate) enum SamplerArg {
 }
 
 impl SamplerArg {
+    /// The default sampler's kind (`sampling::sampler::DEFAULT_SAMPLER`).
+    pub(crate) const DEFAULT: SamplerArg = match DEFAULT_SAMPLER {
+        Sampler::Ddpm => SamplerArg::Ddpm,
+        Sampler::Ddim(_) => SamplerArg::Ddim,
+        Sampler::DpmSolver(_) => SamplerArg::Dpm,
+    };
+
     /// The sampler; `steps` counts DDIM steps (DDPM runs every step of the schedule).
     pub(crate) fn sampler(self, steps: usize) -> Sampler {
         match self {

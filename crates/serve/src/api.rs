@@ -57,7 +57,7 @@ pub struct SampleRequest {
     pub length: Option<usize>,
     #[serde(default)]
     pub seed: u64,
-    /// DPM-Solver++ steps (default 10).
+    /// Steps of the default sampler (`sample`'s; default 20).
     pub steps: Option<usize>,
     /// Keyframe guidance scale (default 1).
     pub kf_guidance: Option<f64>,

@@ -10,11 +10,10 @@ use diffkfc_data::io::keyframe_file::{self, KeyframeSet, KeyframeSpec};
 use diffkfc_data::motion::representation::Joints;
 use diffkfc_data::motion::root_key::{self, RootKey};
 use diffkfc_data::{render, T2M};
-use diffkfc_model::diffusion::scheduler::Sampler;
 use diffkfc_model::run::load::InferenceModel;
 use diffkfc_model::sampling::fit::{Fit, Fitted};
 use diffkfc_model::sampling::pipeline::KeyedItem;
-use diffkfc_model::sampling::sampler::{Options, DEFAULT_STEPS};
+use diffkfc_model::sampling::sampler::{Options, DEFAULT_SAMPLER, DEFAULT_STEPS};
 use diffkfc_model::text::{self, minilm::MiniLm, TextEncoder};
 
 use crate::api::{Limits, SampleRequest};
@@ -95,7 +94,7 @@ impl Engine {
         let text = self.embed(&r.text)?;
         let t0 = std::time::Instant::now();
         let opts = Options {
-            sampler: Sampler::DpmSolver(r.steps.unwrap_or(DEFAULT_STEPS)),
+            sampler: DEFAULT_SAMPLER.with_steps(r.steps.unwrap_or(DEFAULT_STEPS)),
             kf_guidance: r.kf_guidance.unwrap_or(1.0),
             text_guidance,
             transition: r.transition_guidance.unwrap_or(Options::default().transition),

@@ -99,7 +99,7 @@ struct RunArgs {
     tg_mode: TgModeArg,
     /// ddim or dpm (DPM-Solver++(2M)) over --steps evenly spaced steps, or ddpm (every step of
     /// the schedule).
-    #[arg(long, value_enum, default_value = "dpm")]
+    #[arg(long, value_enum, default_value_t = SamplerArg::DEFAULT)]
     sampler: SamplerArg,
     /// Steps of ddim and dpm (DDPM runs every step of the schedule).
     #[arg(long, default_value_t = sampler::DEFAULT_STEPS)]

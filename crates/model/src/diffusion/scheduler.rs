@@ -19,6 +19,17 @@ pub enum Sampler {
     DpmSolver(usize),
 }
 
+impl Sampler {
+    /// The same sampler over `steps` steps (DDPM always runs every step of the schedule).
+    pub fn with_steps(self, steps: usize) -> Sampler {
+        match self {
+            Sampler::Ddpm => Sampler::Ddpm,
+            Sampler::Ddim(_) => Sampler::Ddim(steps),
+            Sampler::DpmSolver(_) => Sampler::DpmSolver(steps),
+        }
+    }
+}
+
 /// The timesteps visited, from noisy to clean.
 pub fn timesteps(schedule: &Schedule, sampler: Sampler) -> Vec<usize> {
     let t = schedule.steps;
