@@ -7,8 +7,8 @@ use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 use diffkfc_data::io::rig::{self, ImportOptions};
 use diffkfc_model::diffusion::scheduler::Sampler;
-use diffkfc_model::sampling::sampler::DEFAULT_SAMPLER;
 use diffkfc_model::sampling::fit::{Feet, Fit, KeyframeFit};
+use diffkfc_model::sampling::sampler::DEFAULT_SAMPLER;
 
 /// How a BVH input is read: its joint names, units and up axis.
 #[derive(Args, Clone, Debug, Default)]
