@@ -44,7 +44,8 @@ pub struct Step<'a> {
 
 /// x_t of every sample, rolled-out ones replaced by `steps` DDIM steps, `gap` timesteps apart
 /// (levels capped at the schedule's last step), from x0 noised with the same `noise` at
-/// t + steps * gap, each through `model`'s own x0 estimate. `x0`, `noise`, `x_t` [B, N, D] -> [B, N, D].
+/// t + steps * gap, each through `model`'s own x0 estimate.
+/// `x0`, `noise`, `x_t` [B, N, D] -> [B, N, D].
 pub fn rolled_x_t(
     model: &Denoiser,
     schedule: &Schedule,
