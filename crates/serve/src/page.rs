@@ -4,6 +4,7 @@
 use diffkfc_data::motion::{quat, representation as rep};
 use diffkfc_data::render::viewer::{escape, SCENE_JS};
 use diffkfc_data::{Skeleton, T2M};
+use diffkfc_model::sampling::sampler::DEFAULT_STEPS;
 use serde_json::json;
 
 use crate::api::Limits;
@@ -95,7 +96,10 @@ pub fn html(limits: &Limits, step: usize) -> String {
     let data = info(limits, step).to_string().replace("</", "<\\/");
     format!(
         "<!doctype html>\n<html lang=en><meta charset=utf-8><title>diffkfc editor</title>\n<style>{STYLE}</style>\n{body}\n<script type=\"application/json\" id=\"editor-info\">{data}</script>\n<script>{SCENE_JS}</script>\n<script>{POSE_JS}</script>\n<script>{VIEW_JS}</script>\n<script>{EDITOR_JS}</script>\n</html>\n",
-        body = BODY.replace("{DEFAULT_TEXT}", &escape(DEFAULT_TEXT)).replace("{STEP}", &step.to_string()),
+        body = BODY
+            .replace("{DEFAULT_TEXT}", &escape(DEFAULT_TEXT))
+            .replace("{STEPS}", &DEFAULT_STEPS.to_string())
+            .replace("{STEP}", &step.to_string()),
     )
 }
 
@@ -125,5 +129,8 @@ mod tests {
         assert_eq!(v["parents"].as_array().unwrap().len(), 22);
         assert_eq!(v["chains"]["20"], json!([16, 18, 20]));
         assert!((v["rest"][0][1].as_f64().unwrap() - 0.93).abs() < 1e-9);
+        // The steps field starts at the samplers' default, every placeholder filled.
+        assert!(page.contains(&format!("id=steps type=number value={DEFAULT_STEPS} ")));
+        assert!(!page.contains("{STEPS}") && !page.contains("{STEP}"));
     }
 }
