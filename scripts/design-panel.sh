@@ -19,7 +19,8 @@
 #  - the training rate: samples per second and the fraction of the measured matmul peak.
 set -euo pipefail
 usage="usage: scripts/design-panel.sh CONFIG OUT (--steps N | --budget 45m) [--data DIR] [--evaluator DIR] [--items 256]"
-[ $# -ge 2 ] || { echo "$usage" >&2; exit 2; }
+source "$(dirname "$0")/args.sh"
+need_args $# 2
 config=$1 out=$2
 shift 2
 work="${DIFFKFC_WORK:-work}"
@@ -31,14 +32,14 @@ while [ $# -gt 0 ]; do
     --data) data=$2; shift 2 ;;
     --evaluator) evaluator=$2; shift 2 ;;
     --items) items=$2; shift 2 ;;
-    *) echo "error: unknown argument '$1' ($usage)" >&2; exit 2 ;;
+    *) unknown_arg "$1" ;;
   esac
 done
-[ -n "$steps$budget" ] || { echo "error: give --steps N or --budget DURATION ($usage)" >&2; exit 2; }
-[ -f "$config" ] || { echo "error: config $config does not exist" >&2; exit 2; }
-[ -f "$data/manifest.json" ] || { echo "error: --data $data has no manifest.json (diffkfc data synth --out $data)" >&2; exit 2; }
-[ -d "$evaluator" ] || { echo "error: --evaluator $evaluator does not exist (diffkfc eval train-evaluator --data $data --out $evaluator --max-steps 800)" >&2; exit 2; }
-bin=${DIFFKFC_BIN:-${CARGO_TARGET_DIR:-target}/release/diffkfc}
+[ -n "$steps$budget" ] || die "give --steps N or --budget DURATION ($usage)"
+need_path CONFIG "$config"
+need_data --data "$data"
+[ -d "$evaluator" ] || die "--evaluator $evaluator does not exist (diffkfc eval train-evaluator --data $data --out $evaluator --max-steps 800)"
+need_bin
 mkdir -p "$out"
 
 # The training step's time and rate on this machine (batch of the config).

@@ -6,19 +6,20 @@
 # Prints one Markdown table (also OUT/feet.md; the samples stay under OUT).
 set -euo pipefail
 usage="usage: scripts/feet-walks.sh MODEL OUT [--data DIR]"
-[ $# -ge 2 ] || { echo "$usage" >&2; exit 2; }
+source "$(dirname "$0")/args.sh"
+need_args $# 2
 model=$1 out=$2
 shift 2
 data="${DIFFKFC_WORK:-work}/synth"
 while [ $# -gt 0 ]; do
   case "$1" in
     --data) data=$2; shift 2 ;;
-    *) echo "error: unknown argument '$1' ($usage)" >&2; exit 2 ;;
+    *) unknown_arg "$1" ;;
   esac
 done
-[ -e "$model" ] || { echo "error: MODEL $model does not exist" >&2; exit 2; }
-[ -f "$data/manifest.json" ] || { echo "error: --data $data has no manifest.json (diffkfc data synth --out $data)" >&2; exit 2; }
-bin=${DIFFKFC_BIN:-${CARGO_TARGET_DIR:-target}/release/diffkfc}
+need_path MODEL "$model"
+need_data --data "$data"
+need_bin
 mkdir -p "$out"
 
 mapfile -t walks < <("$bin" data clips "$data" --split test --action walk_forward --min-frames 120 --count 6)

@@ -3,13 +3,15 @@
 # evaluated with each fit (track, warp, paste, none), with and without root keyframes.
 #   scripts/keyframe-fit-table.sh RUN EVALUATOR DATA OUT [extra eval flags...]
 set -euo pipefail
-if [ $# -lt 4 ]; then
-  echo "usage: scripts/keyframe-fit-table.sh RUN EVALUATOR DATA OUT [extra eval flags]" >&2
-  exit 2
-fi
+usage="usage: scripts/keyframe-fit-table.sh RUN EVALUATOR DATA OUT [extra eval flags]"
+source "$(dirname "$0")/args.sh"
+need_args $# 4
 run=$1 evaluator=$2 data=$3 out=$4
 shift 4
-bin=${DIFFKFC_BIN:-${CARGO_TARGET_DIR:-target}/release/diffkfc}
+need_path RUN "$run"
+need_path EVALUATOR "$evaluator"
+need_data DATA "$data"
+need_bin
 for fit in track warp paste none; do
   for root in on off; do
     flags=()

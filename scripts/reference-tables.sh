@@ -4,10 +4,9 @@
 # steps, each row an `diffkfc eval` report under OUT, then one markdown summary.
 #   scripts/reference-tables.sh MODEL EVALUATOR DATA OUT [--items 256] [--reps 3] [--ade 1]
 set -euo pipefail
-if [ $# -lt 4 ]; then
-  echo "usage: scripts/reference-tables.sh MODEL EVALUATOR DATA OUT [--items N] [--reps N] [--ade N]" >&2
-  exit 2
-fi
+usage="usage: scripts/reference-tables.sh MODEL EVALUATOR DATA OUT [--items N] [--reps N] [--ade N]"
+source "$(dirname "$0")/args.sh"
+need_args $# 4
 model=$1 evaluator=$2 data=$3 out=$4
 shift 4
 items=256 reps=3 ade=1
@@ -16,10 +15,13 @@ while [ $# -gt 0 ]; do
     --items) items=$2; shift 2 ;;
     --reps) reps=$2; shift 2 ;;
     --ade) ade=$2; shift 2 ;;
-    *) echo "error: unknown argument '$1'" >&2; exit 2 ;;
+    *) unknown_arg "$1" ;;
   esac
 done
-bin=${DIFFKFC_BIN:-${CARGO_TARGET_DIR:-target}/release/diffkfc}
+need_path MODEL "$model"
+need_path EVALUATOR "$evaluator"
+need_data DATA "$data"
+need_bin
 ev() { # name, then eval flags
   local name=$1; shift
   if [ -f "$out/$name/report.json" ]; then echo "present: $out/$name" >&2; return; fi

@@ -10,7 +10,8 @@
 # `sample` (e.g. `-- --text-guidance 1.5`).
 set -euo pipefail
 usage="usage: scripts/text-only-root.sh MODEL OUT [--data DIR] [--count N] [--seed S] [-- SAMPLE FLAGS...]"
-[ $# -ge 2 ] || { echo "$usage" >&2; exit 2; }
+source "$(dirname "$0")/args.sh"
+need_args $# 2
 model=$1 out=$2
 shift 2
 data="${DIFFKFC_WORK:-work}/synth" count=64 seed=1 extra=()
@@ -20,12 +21,12 @@ while [ $# -gt 0 ]; do
     --data) data=$2; shift 2 ;;
     --count) count=$2; shift 2 ;;
     --seed) seed=$2; shift 2 ;;
-    *) echo "error: unknown argument '$1' ($usage)" >&2; exit 2 ;;
+    *) unknown_arg "$1" ;;
   esac
 done
-[ -e "$model" ] || { echo "error: MODEL $model does not exist" >&2; exit 2; }
-[ -f "$data/manifest.json" ] || { echo "error: --data $data has no manifest.json (diffkfc data synth --out $data)" >&2; exit 2; }
-bin=${DIFFKFC_BIN:-${CARGO_TARGET_DIR:-target}/release/diffkfc}
+need_path MODEL "$model"
+need_data --data "$data"
+need_bin
 mkdir -p "$out"
 
 mapfile -t clips < <("$bin" data clips "$data" --split test --count "$count")
@@ -52,10 +53,12 @@ def root(path):
 gen = np.array([root(f"{out}/{w}/sample_00.npy") for w in clips])
 src = np.array([root(f"{data}/new_joint_vecs/{w}.npy") for w in clips])
 moving = src[:, 0] > 0.3
+corr = f"{np.corrcoef(gen[:, 0], src[:, 0])[0, 1]:.2f}" if gen[:, 0].std() > 0 and src[:, 0].std() > 0 else "n/a"
+ratio = f"{gen[moving, 0].mean() / src[moving, 0].mean():.2f}" if moving.any() else "n/a (none moves)"
 print(
     f"{len(clips)} clips: root speed {gen[:, 0].mean():.2f} m/s (sources {src[:, 0].mean():.2f}); "
-    f"moving clips' ratio of means {gen[moving, 0].mean() / src[moving, 0].mean():.2f}; "
-    f"speed correlation {np.corrcoef(gen[:, 0], src[:, 0])[0, 1]:.2f}; "
+    f"moving clips' ratio of means {ratio}; "
+    f"speed correlation {corr}; "
     f"|yaw rate| {gen[:, 1].mean():.3f} rad/s (sources {src[:, 1].mean():.3f})"
 )
 PY

@@ -4,10 +4,14 @@
 # seconds of compute per minute of motion.
 #   scripts/timeline-table.sh MODEL OUT [--samples 8]
 set -euo pipefail
+usage="usage: scripts/timeline-table.sh MODEL OUT [--samples N]"
+source "$(dirname "$0")/args.sh"
+need_args $# 2
 model=$1 out=$2; shift 2
 samples=8
-while [ $# -gt 0 ]; do case "$1" in --samples) samples=$2; shift 2 ;; *) echo "error: unknown argument '$1'" >&2; exit 2 ;; esac; done
-bin=${DIFFKFC_BIN:-${CARGO_TARGET_DIR:-target}/release/diffkfc}
+while [ $# -gt 0 ]; do case "$1" in --samples) samples=$2; shift 2 ;; *) unknown_arg "$1" ;; esac; done
+need_path MODEL "$model"
+need_bin
 timeline="0-8s: a person walks forward. | 8-11s: a person jumps forward. | 11-20s: a person walks in a circle. | 20-30s: a person runs forward."
 t0=$(date +%s.%N)
 "$bin" sample --checkpoint "$model" --timeline "$timeline" --num-samples "$samples" --out "$out/long" > "$out.long.log" 2>&1

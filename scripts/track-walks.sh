@@ -6,13 +6,14 @@
 # the final motion, and foot skating of the final motion against the source's.
 #   scripts/track-walks.sh MODEL DATA OUT [extra sample flags...]
 set -euo pipefail
-if [ $# -lt 3 ]; then
-  echo "usage: scripts/track-walks.sh MODEL DATA OUT [extra sample flags]" >&2
-  exit 2
-fi
+usage="usage: scripts/track-walks.sh MODEL DATA OUT [extra sample flags]"
+source "$(dirname "$0")/args.sh"
+need_args $# 3
 model=$1 data=$2 out=$3
 shift 3
-bin=${DIFFKFC_BIN:-${CARGO_TARGET_DIR:-target}/release/diffkfc}
+need_path MODEL "$model"
+need_data DATA "$data"
+need_bin
 mapfile -t walks < <(python3 - "$data/manifest.json" <<'PY'
 import json, sys
 clips = [c for c in json.load(open(sys.argv[1]))["clips"] if c["split"] == "test"]
