@@ -11,4 +11,4 @@ unknown_arg() { die "unknown argument '$1' ($usage)"; }
 need_path() { [ -e "$2" ] || die "$1 $2 does not exist"; }
 # need_data LABEL DIR: a dataset written by `diffkfc data synth` (or `data prepare`).
 need_data() { [ -f "$2/manifest.json" ] || die "$1 $2 has no manifest.json (diffkfc data synth --out $2)"; }
-need_bin() { [ -x "$bin" ] || die "the binary $bin is not built (cargo build --release, or set DIFFKFC_BIN)"; }
+need_bin() { command -v "$bin" >/dev/null || die "the binary $bin is not built (cargo build --release, or set DIFFKFC_BIN)"; }
