@@ -269,6 +269,42 @@ fn text_drop_keeps_the_batch_and_drops_some_texts() {
     std::fs::remove_dir_all(root).unwrap();
 }
 
+/// `text_drop_prob_unkeyed` drops the text of exactly the samples whose keys were dropped (at
+/// 1, with no drop elsewhere) and leaves motions, keys and captions as the plain run draws them.
+#[test]
+fn unkeyed_text_drop_drops_the_texts_of_the_key_free_samples_only() {
+    let Some((root, _)) = small_dataset("text_drop_unkeyed") else {
+        return;
+    };
+    let ds = Dataset::open(&root).unwrap();
+    let split = PackedSplit::open(&ds, "train", &root.join(".cache"), |_, _| {}).unwrap();
+    let kf = KeyframeConfig { drop_prob: 0.5, ..KeyframeConfig::default() };
+    let plain = Loader::new(&ds, &split, 8, 3, kf.clone());
+    let unkeyed =
+        Loader { text_drop_prob_unkeyed: Some(1.0), ..Loader::new(&ds, &split, 8, 3, kf) };
+    let (mut key_free, mut keyed) = (0, 0);
+    for b in 0..plain.batches_per_epoch().min(8) {
+        let (a, c) = (plain.batch(0, b), unkeyed.batch(0, b));
+        let per = |v: &[f32], i: usize| {
+            v.chunks(v.len() / a.batch_size).nth(i).unwrap().iter().sum::<f32>()
+        };
+        for i in 0..a.batch_size {
+            let has_keys = per(&a.kf_mask, i) > 0.0 || per(&a.root_mask, i) > 0.0;
+            assert_eq!(c.text_dropped[i], !has_keys, "batch {b} sample {i}");
+            if has_keys {
+                keyed += 1
+            } else {
+                key_free += 1
+            }
+        }
+        let mut same = c.clone();
+        same.text_dropped = a.text_dropped.clone();
+        assert_eq!(same, a, "batch {b}");
+    }
+    assert!(key_free > 0 && keyed > 0, "{key_free} key-free, {keyed} keyed samples");
+    std::fs::remove_dir_all(root).unwrap();
+}
+
 #[test]
 fn body_part_keys_observe_one_half_of_the_body_and_keep_the_batch() {
     let Some((root, _)) = small_dataset("part_keys") else {

@@ -127,6 +127,10 @@ pub struct Loader<'a> {
     pub threads: usize,
     /// Probability that a sample's text is dropped (text classifier-free guidance; 0 = never).
     pub text_drop_prob: f64,
+    /// The text drop's probability for a sample whose keys were dropped (`drop_prob`); `None`
+    /// = `text_drop_prob`. Raising it trains the key-free, text-free branch that text-only
+    /// guidance subtracts without taking keys or text from the keyed samples.
+    pub text_drop_prob_unkeyed: Option<f64>,
 }
 
 impl<'a> Loader<'a> {
@@ -137,7 +141,16 @@ impl<'a> Loader<'a> {
         seed: u64,
         keyframes: KeyframeConfig,
     ) -> Self {
-        Loader { ds, split, batch_size, seed, keyframes, threads: 1, text_drop_prob: 0.0 }
+        Loader {
+            ds,
+            split,
+            batch_size,
+            seed,
+            keyframes,
+            threads: 1,
+            text_drop_prob: 0.0,
+            text_drop_prob_unkeyed: None,
+        }
     }
 
     /// Full batches per epoch (the last partial one is dropped, as MDM does); at least one when
@@ -214,7 +227,10 @@ impl<'a> Loader<'a> {
         }
         // Drawn after everything else and only when enabled, so that runs without text drop
         // keep their batches.
-        let text_dropped = self.text_drop_prob > 0.0 && rng.chance(self.text_drop_prob);
+        let unkeyed = self.text_drop_prob_unkeyed.filter(|_| dropped);
+        let enabled =
+            self.text_drop_prob > 0.0 || self.text_drop_prob_unkeyed.is_some_and(|q| q > 0.0);
+        let text_dropped = enabled && rng.chance(unkeyed.unwrap_or(self.text_drop_prob));
         // Drawn after the text drop, and only when enabled, for the same reason.
         let part = (kc.part_prob > 0.0 && !kf.is_empty() && rng.chance(kc.part_prob)).then(|| {
             let half = if rng.chance(0.5) { "lower_body" } else { "upper_body" };

@@ -90,6 +90,12 @@ pub struct TrainingConfig {
     /// text-free branch of text classifier-free guidance is learned (MDM: 0.1; 0 = off, the paper).
     /// Drawn independently of the keyframes' drop; validation keeps every text.
     pub text_drop_prob: f64,
+    /// The text drop's probability for the samples whose keys were dropped
+    /// (`keyframes.drop_prob`); unset = `text_drop_prob`. Text-only guidance subtracts the
+    /// key-free, text-free branch, which `text_drop_prob` x `drop_prob` of the samples train
+    /// (1% at 0.1 x 0.1); this raises that share without dropping keys or text elsewhere.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub text_drop_prob_unkeyed: Option<f64>,
     /// Share of the training samples whose x_t is one DDIM step, made with the network itself,
     /// from x0 noised at t + `rollout_gap` (`training::rollout`: the sampler's own step, so the
     /// network learns to correct its estimate rather than follow it; 0 = off, the paper).
@@ -141,6 +147,7 @@ impl Default for TrainingConfig {
             contact_loss_weight: 1.0,
             min_snr_gamma: 0.0,
             text_drop_prob: 0.0,
+            text_drop_prob_unkeyed: None,
             rollout_prob: 0.0,
             rollout_gap: 100,
             rollout_steps: 1,
@@ -315,12 +322,17 @@ impl RunConfig {
             ("keyframes.part_prob", k.part_prob),
             ("training.ema_decay", t.ema_decay),
             ("training.text_drop_prob", t.text_drop_prob),
+            ("training.text_drop_prob_unkeyed", t.text_drop_prob_unkeyed.unwrap_or(0.0)),
             ("training.rollout_prob", t.rollout_prob),
         ];
         for (key, v) in unit {
             if !(0.0..=1.0).contains(&v) {
                 return bad(key, &v, "must be in [0, 1]");
             }
+        }
+        if let Some(q) = t.text_drop_prob_unkeyed.filter(|_| t.text_drop_prob == 0.0) {
+            // Text guidance of keyed samples needs the keyed text-free branch too.
+            return bad("training.text_drop_prob_unkeyed", &q, "needs training.text_drop_prob > 0");
         }
         let non_negative = [
             ("training.grad_clip", t.grad_clip),
@@ -412,6 +424,14 @@ mod tests {
             (r#""training": {"root_loss_weight": -2}"#, "training.root_loss_weight: -2"),
             (r#""training": {"min_snr_gamma": -1}"#, "training.min_snr_gamma: -1"),
             (r#""training": {"text_drop_prob": 1.5}"#, "training.text_drop_prob: 1.5"),
+            (
+                r#""training": {"text_drop_prob": 0.1, "text_drop_prob_unkeyed": 2}"#,
+                "training.text_drop_prob_unkeyed: 2 must be in [0, 1]",
+            ),
+            (
+                r#""training": {"text_drop_prob_unkeyed": 0.5}"#,
+                "training.text_drop_prob_unkeyed: 0.5 needs training.text_drop_prob > 0",
+            ),
             (r#""keyframes": {"rate": 2}"#, "keyframes.rate: 2"),
             (r#""keyframes": {"part_prob": -0.1}"#, "keyframes.part_prob: -0.1"),
             (r#""training": {"rollout_prob": 2}"#, "training.rollout_prob: 2"),
@@ -482,10 +502,13 @@ mod tests {
         assert_eq!((t.root_loss_weight, t.contact_loss_weight, t.min_snr_gamma), (1.0, 1.0, 0.0));
         assert_eq!((old.keyframes.part_prob, old.training.rollout_prob), (0.0, 0.0));
         assert_eq!(old.training.rollout_steps, 1);
+        assert_eq!(old.training.text_drop_prob_unkeyed, None);
+        assert!(!old.to_json().contains("text_drop_prob_unkeyed"), "old configs write as before");
         let c = RunConfig::parse(
             r#"{"model": {"preset": "tiny", "patch_frames": 4}, "keyframes": {"part_prob": 0.3},
                 "training": {"root_loss_weight": 8, "contact_loss_weight": 4, "min_snr_gamma": 5,
-                             "rollout_prob": 0.5, "rollout_gap": 50, "rollout_steps": 2}}"#,
+                             "rollout_prob": 0.5, "rollout_gap": 50, "rollout_steps": 2,
+                             "text_drop_prob": 0.1, "text_drop_prob_unkeyed": 0.5}}"#,
         )
         .unwrap();
         let again = RunConfig::parse(&c.to_json()).unwrap();
@@ -494,5 +517,6 @@ mod tests {
         assert_eq!(again.keyframes.part_prob, 0.3);
         let t = &again.training;
         assert_eq!((t.rollout_prob, t.rollout_gap, t.rollout_steps), (0.5, 50, 2));
+        assert_eq!(t.text_drop_prob_unkeyed, Some(0.5));
     }
 }

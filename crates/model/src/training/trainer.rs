@@ -344,6 +344,7 @@ impl Trainer<'_> {
         let (start, max_steps) = (steps.start, steps.end);
         let loader = Loader {
             text_drop_prob: tc.text_drop_prob,
+            text_drop_prob_unkeyed: tc.text_drop_prob_unkeyed,
             ..Loader::new(self.ds, self.train, tc.batch_size, tc.seed, self.cfg.keyframes.clone())
         };
         let (mut step, mut last, mut stopped) = (start, None, false);
