@@ -198,12 +198,19 @@ fn show_event(
             pb.set_message(format!("loss {:.4}{mem}", r.loss));
         }
         Event::Checkpoint(_, _) => {}
-        Event::WarmStart(fresh) => pb.suspend(|| {
+        Event::WarmStart { fresh, widened } => pb.suspend(|| {
+            let list = |v: &[String]| if v.is_empty() { "none".to_string() } else { v.join(", ") };
             eprintln!(
                 "started from {}; initialised: {}",
                 init.map_or(String::new(), |p| p.display().to_string()),
-                if fresh.is_empty() { "none".to_string() } else { fresh.join(", ") }
-            )
+                list(&fresh)
+            );
+            if !widened.is_empty() {
+                eprintln!(
+                    "feed-forward blocks widened (new units add nothing yet): {}",
+                    list(&widened)
+                );
+            }
         }),
     }
 }

@@ -109,9 +109,12 @@ impl Terms {
 pub enum Event<'a> {
     Step(&'a StepRecord),
     Checkpoint(usize, &'a Path),
-    /// A fresh run took its weights from `Trainer::init`; these parameters it had no tensor
-    /// for keep their initialisation.
-    WarmStart(Vec<String>),
+    /// A fresh run took its weights from `Trainer::init`: the parameters it had no tensor for
+    /// (they keep their initialisation), and the feed-forward ones it widened.
+    WarmStart {
+        fresh: Vec<String>,
+        widened: Vec<String>,
+    },
 }
 
 pub struct Trainer<'a> {
@@ -444,9 +447,9 @@ impl Trainer<'_> {
         }
         if let Some(path) = &self.init {
             let ck = crate::run::load::checkpoint_at(path)?;
-            let (m, fresh) = crate::training::warm_start::warm_start(model, &ck, path)?;
-            model = m;
-            on_event(Event::WarmStart(fresh));
+            let w = crate::training::warm_start::warm_start(model, &ck, path)?;
+            model = w.model;
+            on_event(Event::WarmStart { fresh: w.fresh, widened: w.widened });
         }
         let optim = Optimiser::new(&model, self.optimiser, keep_ema);
         Ok((model, optim, 0))

@@ -3,6 +3,13 @@
 //! the checkpoint has, by name (or by position, for checkpoints written before names, whose
 //! parameters are a prefix of the grown model's), with the same shape, is taken; the rest keep
 //! their initialisation.
+//!
+//! A model with wider feed-forward blocks (`model.ffn`) starts from a narrower one's weights as
+//! the same function: the stored hidden units fill the first columns of the first layer and the
+//! first rows of the second, the new units keep their initialisation on the way in and read
+//! zero weights on the way out, so they add nothing until training moves them (growth with a
+//! zero-initialised output, as Net2Net's function-preserving widening). Only the feed-forward
+//! width may differ: any other tensor of another shape is an error.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -12,14 +19,72 @@ use crate::network::params;
 use crate::run::checkpoint::Checkpoint;
 use crate::Denoiser;
 
+/// A warm-started model and what it did not take as stored.
+pub struct WarmStart {
+    pub model: Denoiser,
+    /// Parameters the checkpoint has no tensor for: they keep their initialisation.
+    pub fresh: Vec<String>,
+    /// Feed-forward parameters taken from a narrower block (their new hidden units added).
+    pub widened: Vec<String>,
+}
+
+/// How a feed-forward tensor grows with the hidden width: the first layer's weight [d, ffn]
+/// and bias [ffn] gain units (initialised as fresh), the second layer's weight [ffn, d] gains
+/// input rows that must be zero for the block to compute what it did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Growth {
+    NewUnits,
+    ZeroInputs,
+}
+
+/// The growth a parameter allows, by its name (decoder `ff1`/`ff2`, keyframe encoder
+/// `mlp1`/`mlp2`); None: its shape must match.
+fn growth(name: &str) -> Option<Growth> {
+    let (module, tensor) = name.rsplit_once('.')?;
+    let layer = module.rsplit('.').next()?;
+    match (layer, tensor) {
+        ("ff1" | "mlp1", "weight" | "bias") => Some(Growth::NewUnits),
+        ("ff2" | "mlp2", "weight") => Some(Growth::ZeroInputs),
+        _ => None,
+    }
+}
+
+/// `stored` of shape `from` placed in a tensor of shape `to` along the hidden dimension
+/// (`init` holds the parameter's initialisation); None when `from` is not a narrower `to`.
+fn widen(
+    g: Growth,
+    from: &[usize],
+    to: &[usize],
+    stored: &[f32],
+    init: &[f32],
+) -> Option<Vec<f32>> {
+    match (g, from, to) {
+        (Growth::NewUnits, [h0], [h1]) if h0 < h1 => {
+            let mut v = init.to_vec();
+            v[..*h0].copy_from_slice(stored);
+            Some(v)
+        }
+        (Growth::NewUnits, [d0, h0], [d1, h1]) if d0 == d1 && h0 < h1 => {
+            let mut v = init.to_vec();
+            for (row, old) in v.chunks_mut(*h1).zip(stored.chunks(*h0)) {
+                row[..*h0].copy_from_slice(old);
+            }
+            Some(v)
+        }
+        (Growth::ZeroInputs, [h0, d0], [h1, d1]) if d0 == d1 && h0 < h1 => {
+            let mut v = vec![0.0; h1 * d1];
+            v[..stored.len()].copy_from_slice(stored);
+            Some(v)
+        }
+        _ => None,
+    }
+}
+
 /// `model` with the checkpoint's weights (its EMA when it has one), and the names of the
-/// parameters left as initialised. Errors when a tensor the model shares by name has another
-/// shape, or when nothing matches (not a checkpoint of this kind of model).
-pub fn warm_start(
-    model: Denoiser,
-    ck: &Checkpoint,
-    path: &Path,
-) -> Result<(Denoiser, Vec<String>)> {
+/// parameters left as initialised or widened. Errors when a tensor the model shares by name
+/// has another shape (other than a narrower feed-forward block), or when nothing matches (not a
+/// checkpoint of this kind of model).
+pub fn warm_start(model: Denoiser, ck: &Checkpoint, path: &Path) -> Result<WarmStart> {
     let names = params::names(&model);
     let stored = ck.ema.as_ref().unwrap_or(&ck.model);
     let keys: Vec<String> = if ck.names.is_empty() {
@@ -29,24 +94,34 @@ pub fn warm_start(
     };
     let at: HashMap<&str, usize> = keys.iter().enumerate().map(|(i, n)| (n.as_str(), i)).collect();
     let mut values = params::values(&model);
-    let mut fresh = Vec::new();
+    let (mut fresh, mut widened) = (Vec::new(), Vec::new());
     for (name, (shape, v)) in names.iter().zip(values.iter_mut()) {
-        match at.get(name.as_str()) {
-            Some(&i) if &ck.shapes[i] == shape => *v = stored[i].clone(),
-            Some(&i) => {
+        let Some(&i) = at.get(name.as_str()) else {
+            fresh.push(name.clone());
+            continue;
+        };
+        if &ck.shapes[i] == shape {
+            *v = stored[i].clone();
+            continue;
+        }
+        match growth(name).and_then(|g| widen(g, &ck.shapes[i], shape, &stored[i], v)) {
+            Some(w) => {
+                *v = w;
+                widened.push(name.clone());
+            }
+            None => {
                 return Err(ModelError::file(
                     path,
                     format!("tensor {name} has shape {:?}; the model's is {shape:?}", ck.shapes[i]),
                 ))
             }
-            None => fresh.push(name.clone()),
         }
     }
     if fresh.len() == names.len() {
         return Err(ModelError::file(path, "no tensor matches the model's parameters"));
     }
     let vals: Vec<Vec<f32>> = values.into_iter().map(|(_, v)| v).collect();
-    Ok((params::load(model, &vals), fresh))
+    Ok(WarmStart { model: params::load(model, &vals), fresh, widened })
 }
 
 #[cfg(test)]
@@ -90,18 +165,51 @@ mod tests {
         for (cfg, new) in grown_by {
             for named in [true, false] {
                 let ck = checkpoint_of(&old, named);
-                let (grown, fresh) = warm_start(cfg.init(&dev), &ck, Path::new("ck")).unwrap();
-                assert_eq!(fresh, new, "named {named}");
-                let got = params::host(grown.forward(x.clone(), &[10, 500], &cond));
+                let w = warm_start(cfg.init(&dev), &ck, Path::new("ck")).unwrap();
+                assert_eq!(w.fresh, new, "named {named}");
+                assert!(w.widened.is_empty());
+                let got = params::host(w.model.forward(x.clone(), &[10, 500], &cond));
                 assert_eq!(got, want, "named {named}: the zero projection {new:?} changes nothing");
             }
         }
         // Tensors of another width are an error naming the tensor, not a silent skip.
         let narrow = DiffKfcConfig::tiny().with_d_model(32).init(&dev);
         let err = warm_start(base.init(&dev), &checkpoint_of(&narrow, true), Path::new("ck"))
-            .expect_err("shape mismatch")
+            .err()
+            .expect("shape mismatch")
             .to_string();
         assert!(err.contains("ck") && err.contains("shape"), "{err}");
+    }
+
+    #[test]
+    fn a_wider_feed_forward_starts_as_the_narrow_model() {
+        let dev = Device::flex();
+        let base = DiffKfcConfig::tiny().with_temporal_kernel(3).with_key_input(true);
+        let old = base.init(&dev);
+        let cond = request().condition(&dev);
+        let x = Tensor::<3>::random([2, 30, 263], burn::tensor::Distribution::Default, &dev);
+        let want = params::host(old.forward(x.clone(), &[10, 500], &cond));
+        let wide = base.clone().with_ffn(3 * base.ffn);
+        let w = warm_start(wide.init(&dev), &checkpoint_of(&old, true), Path::new("ck")).unwrap();
+        assert!(w.fresh.is_empty(), "{:?}", w.fresh);
+        // Two decoder layers and the encoder's blocks, three tensors each.
+        let blocks = base.dec_layers + base.dma_sizes.len();
+        assert_eq!(w.widened.len(), 3 * blocks, "{:?}", w.widened);
+        assert!(w.widened.iter().all(|n| n.contains("ff") || n.contains("mlp")));
+        let got = params::host(w.model.forward(x.clone(), &[10, 500], &cond));
+        let worst = got.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+        assert!(worst < 1e-5, "the new units change the output by {worst}");
+        // The new units are live on the way in (initialised, not zero), so training moves them.
+        let names = params::names(&w.model);
+        let vals = params::values(&w.model);
+        let (i, _) = names.iter().enumerate().find(|(_, n)| n.ends_with("ff1.weight")).unwrap();
+        let (shape, v) = &vals[i];
+        assert_eq!(shape, &vec![base.d_model, 3 * base.ffn]);
+        assert!(v.chunks(shape[1]).any(|row| row[base.ffn..].iter().any(|&a| a != 0.0)));
+        // A narrower block cannot take a wider one's weights.
+        let back = warm_start(old.clone(), &checkpoint_of(&w.model, true), Path::new("ck"));
+        let err = back.err().expect("narrowing is refused").to_string();
+        assert!(err.contains("mlp1.weight") && err.contains("shape"), "{err}");
     }
 
     #[test]
