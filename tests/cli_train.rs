@@ -194,6 +194,14 @@ fn train_resume_and_outputs() {
     let o = sample_keyed(&ki, &keys, &ki_out, &["--steps", "2"]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert_finite_sample(&ki_out);
+    // Wider feed-forward blocks start from the run's weights (named as widened); narrower
+    // ones are refused, naming the tensor.
+    let (wide, o) = train_variant(&d, &data, "wide", "\"ffn\": 256", &["--init", s(&run)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("widened") && stderr(&o).contains("layers.0.ff2.weight"));
+    assert_eq!(steps(&wide), vec![1, 2]);
+    let (_, o) = train_variant(&d, &data, "narrow", "\"ffn\": 64", &["--init", s(&run)]);
+    assert_one_line_error(&o, &["--init", "mlp1.weight", "shape"]);
     // A run trained with text drop samples with text guidance (2.5 by default), alone and
     // beside keyframe guidance (three branches); one trained without it is refused by sample
     // and eval, and samples without it by default.

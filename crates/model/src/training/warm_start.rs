@@ -110,10 +110,12 @@ pub fn warm_start(model: Denoiser, ck: &Checkpoint, path: &Path) -> Result<WarmS
                 widened.push(name.clone());
             }
             None => {
-                return Err(ModelError::file(
-                    path,
-                    format!("tensor {name} has shape {:?}; the model's is {shape:?}", ck.shapes[i]),
-                ))
+                return Err(ModelError::Refused(format!(
+                    "--init {}: tensor {name} has shape {:?}; the model's is {shape:?} (only \
+                     feed-forward blocks may differ, and only wider in the model)",
+                    path.display(),
+                    ck.shapes[i]
+                )))
             }
         }
     }
