@@ -110,3 +110,68 @@ fn text_only_root_runs_against_the_binary() {
         .filter(|e| e.as_ref().is_ok_and(|e| e.path().join("sample_00.npy").is_file()));
     assert_eq!(samples.count(), 2, "one sample per clip under {}", out.display());
 }
+
+/// Joints of a hand-made walk, 80 frames: each toe stands still on the floor for 10 frames at
+/// x = 0.5 k (the left half a cycle later), then swings 12 cm above it to the next place;
+/// `moved` shifts the right toe's second stance by that many metres, and `glide` keeps the
+/// toes on the floor at 1 m/s instead of lifting them. Every other joint stays at the origin.
+fn stepping(moved: f32, glide: bool) -> Vec<f32> {
+    let (frames, half) = (80, 10);
+    let mut j = vec![0.0f32; frames * 22 * 3];
+    for f in 0..frames {
+        for (toe, offset) in [(10, half), (11, 0)] {
+            let t = f + offset;
+            let (k, phase) = (t / (2 * half), t % (2 * half));
+            let (mut x, mut y) = (0.5 * k as f32, 0.0);
+            if phase >= half {
+                x += 0.5 * (phase - half) as f32 / half as f32;
+                y = 0.12;
+            }
+            if toe == 11 && k == 1 && phase < half {
+                x += moved;
+            }
+            if glide {
+                (x, y) = (f as f32 / 20.0, 0.0);
+            }
+            let at = (f * 22 + toe) * 3;
+            j[at..at + 3].copy_from_slice(&[x, y, 0.0]);
+        }
+    }
+    j
+}
+
+/// `stances.py` counts a moved stance as off by its distance, a glide as no stance, and names
+/// bad arguments in one line.
+#[test]
+fn stances_match_hand_made_footprints() {
+    if diffkfc_data::testing::fixtures::python(&["numpy"], "", &[]).is_none() {
+        return;
+    }
+    let dir = scratch("scripts-stances");
+    let npy = |name: &str, j: Vec<f32>| {
+        let p = dir.join(name);
+        diffkfc_data::io::npy::write(&p, &[80, 22, 3], &j).unwrap();
+        p
+    };
+    let source = npy("source.npy", stepping(0.0, false));
+    let moved = npy("moved.npy", stepping(0.1, false));
+    let glide = npy("glide.npy", stepping(0.0, true));
+    let py = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scripts/stances.py");
+    let run = |args: &[&str]| Command::new("python3").arg(&py).args(args).output().unwrap();
+    let o = run(&[s(&moved), s(&source)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(
+        stdout(&o),
+        "right: 3 of 4 stances within 0.04 m of the source's 4; the others 0.10 m off\n\
+         left: 4 of 4 stances within 0.04 m of the source's 4\n"
+    );
+    let o = run(&[s(&glide), s(&source)]);
+    assert_eq!(stdout(&o), "right: 0 stances, source 4\nleft: 0 stances, source 4\n");
+    let o = run(&[s(&source)]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_one_line_error(&o, &["usage: scripts/stances.py"]);
+    let o = run(&[s(&source), s(&source), "--within"]);
+    assert_one_line_error(&o, &["--within needs a number"]);
+    let o = run(&[s(&source), s(&dir.join("absent.npy"))]);
+    assert_one_line_error(&o, &["absent.npy", "No such file"]);
+}
