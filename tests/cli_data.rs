@@ -445,3 +445,27 @@ fn clips_and_page_refuse_bad_input() {
     assert_one_line_error(&o, &["must end in .html with --page"]);
     assert!(!d.join("page.html").exists() && !d.join("view.html").exists());
 }
+
+/// A reader that goes away (`diffkfc ... | head -1`) ends the process quietly, by SIGPIPE as it
+/// ends other command-line tools, never with a panic.
+#[test]
+#[cfg(unix)]
+fn a_closed_stdout_is_not_a_panic() {
+    use std::os::unix::process::ExitStatusExt;
+    use std::process::{Command, Stdio};
+    let dir = scratch("closed-stdout");
+    let data = synth(&dir, 12, 1);
+    // The pipe's reading end is closed before the process starts: its first line meets EPIPE.
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let o = Command::new(env!("CARGO_BIN_EXE_diffkfc"))
+        .args(["data", "clips", s(&data), "--count", "12"])
+        .stdout(writer)
+        .stderr(Stdio::piped())
+        .output()
+        .expect("run diffkfc");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+    // 13: SIGPIPE.
+    assert_eq!(o.status.signal(), Some(13), "SIGPIPE expected, got {:?}: {err}", o.status);
+}

@@ -85,8 +85,20 @@ fn tune_allocator() {
     }
 }
 
+/// A closed stdout (`diffkfc ... | head -1`) ends the process quietly, as it ends `cat` or
+/// `ls`, instead of a panic in `println!`; every output file is written to a temporary name and
+/// renamed, so ending mid-way leaves complete files only.
+fn quiet_on_closed_pipe() {
+    #[cfg(unix)]
+    // SAFETY: restores the default action of one signal; called before any other thread exists.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
 fn main() {
     tune_allocator();
+    quiet_on_closed_pipe();
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) if !e.use_stderr() => e.exit(), // --help, --version
