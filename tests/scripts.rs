@@ -1,6 +1,6 @@
 //! The analysis scripts in scripts/ (the design study's measurements): bad arguments get one
-//! line naming the argument and the value with exit status 2, and one script runs end to end
-//! against the binary, so that a renamed flag of `diffkfc` cannot break them unnoticed.
+//! line naming the argument and the value with exit status 2, and some run end to end against
+//! the binary, so that a renamed flag of `diffkfc` cannot break them unnoticed.
 
 mod common;
 
@@ -18,6 +18,7 @@ const SCRIPTS: &[(&str, usize, &str)] = &[
     ("track-walks", 3, "MODEL"),
     ("keyframe-fit-table", 4, "RUN"),
     ("reference-tables", 4, "MODEL"),
+    ("fixture-walks", 2, "MODEL"),
 ];
 
 fn script(name: &str) -> PathBuf {
@@ -109,6 +110,41 @@ fn text_only_root_runs_against_the_binary() {
         .unwrap()
         .filter(|e| e.as_ref().is_ok_and(|e| e.path().join("sample_00.npy").is_file()));
     assert_eq!(samples.count(), 2, "one sample per clip under {}", out.display());
+}
+
+/// `fixture-walks.sh` samples the two real fixture clips with the tiny reference model and
+/// tabulates each against the clip's own gait; a fixtures folder without them is named.
+#[test]
+fn fixture_walks_runs_against_the_binary() {
+    let Some(fixtures) = diffkfc_data::testing::fixtures::dir() else {
+        diffkfc_data::testing::fixtures::require("humanml3d/new_joint_vecs/012314.npy");
+        return;
+    };
+    let bin = env!("CARGO_BIN_EXE_diffkfc");
+    let dir = scratch("scripts-fixture-walks");
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/tiny-synth");
+    let o = run_script("fixture-walks", &[s(&model), s(&dir), "--fixtures", s(&dir)], bin);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert_one_line_error(&o, &["--fixtures", s(&dir), "012314.npy"]);
+    if !have_text_encoder()
+        || diffkfc_data::testing::fixtures::python(&["numpy"], "", &[]).is_none()
+    {
+        return;
+    }
+    let out = dir.join("out");
+    let args = [s(&model), s(&out), "--fixtures", s(&fixtures), "--samples", "1"];
+    let o = run_script("fixture-walks", &[&args[..], &["--", "--steps", "2"]].concat(), bin);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let table = stdout(&o);
+    assert_eq!(table.matches("| 012314 |").count(), 2, "{table}");
+    assert_eq!(table.matches("| 000021 |").count(), 2, "{table}");
+    assert!(!table.contains("nan"), "{table}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("fixture-walks.json")).unwrap())
+            .unwrap();
+    assert_eq!(json["rows"].as_array().unwrap().len(), 4);
+    // The clips' own skating is the real motion's, whatever the model.
+    assert!((json["rows"][0]["real_foot_skating"].as_f64().unwrap() - 0.129).abs() < 0.001);
 }
 
 /// Joints of a hand-made walk, 80 frames: each toe stands still on the floor for 10 frames at
