@@ -208,6 +208,8 @@ fn stances_match_hand_made_footprints() {
     assert_one_line_error(&o, &["usage: scripts/stances.py"]);
     let o = run(&[s(&source), s(&source), "--within"]);
     assert_one_line_error(&o, &["--within needs a number"]);
+    let o = run(&[s(&source), s(&source), "--within", "0"]);
+    assert_one_line_error(&o, &["--within 0", "expected M > 0"]);
     let o = run(&[s(&source), s(&dir.join("absent.npy"))]);
     assert_one_line_error(&o, &["absent.npy", "No such file"]);
 }
