@@ -96,4 +96,39 @@ impl Condition {
             real: self.real.clone(),
         }
     }
+
+    /// The condition of batch rows `rows` (in that order).
+    pub fn select_rows(&self, rows: &[usize]) -> Condition {
+        let n = self.kf.dims()[1];
+        let device = self.kf.device();
+        let idx: Vec<i64> = rows.iter().map(|&r| r as i64).collect();
+        let idx = Tensor::<1, Int>::from_ints(idx.as_slice(), &device);
+        let frames = |v: &[bool]| -> Vec<bool> {
+            rows.iter().flat_map(|&r| v[r * n..(r + 1) * n].iter().copied()).collect()
+        };
+        Condition {
+            text: self.text.clone().select(0, idx.clone()),
+            kf: self.kf.clone().select(0, idx.clone()),
+            kf_mask: self.kf_mask.clone().select(0, idx.clone()),
+            root: self.root.clone().select(0, idx.clone()),
+            root_mask: self.root_mask.clone().select(0, idx.clone()),
+            path: self.path.clone().select(0, idx),
+            kf_frames: frames(&self.kf_frames),
+            real: frames(&self.real),
+        }
+    }
+
+    /// The same condition on the inner backend: for a forward pass nothing differentiates.
+    pub fn without_autodiff(&self) -> Condition {
+        Condition {
+            text: self.text.clone().without_autodiff(),
+            kf: self.kf.clone().without_autodiff(),
+            kf_mask: self.kf_mask.clone().without_autodiff(),
+            root: self.root.clone().without_autodiff(),
+            root_mask: self.root_mask.clone().without_autodiff(),
+            path: self.path.clone().without_autodiff(),
+            kf_frames: self.kf_frames.clone(),
+            real: self.real.clone(),
+        }
+    }
 }

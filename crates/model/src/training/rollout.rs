@@ -10,6 +10,7 @@
 //! exposure bias in diffusion models.
 
 use burn::prelude::*;
+use burn::tensor::IndexingUpdateOp;
 use diffkfc_data::rng::Rng;
 
 use crate::diffusion::{per_sample, Schedule};
@@ -46,6 +47,10 @@ pub struct Step<'a> {
 /// (levels capped at the schedule's last step), from x0 noised with the same `noise` at
 /// t + steps * gap, each through `model`'s own x0 estimate.
 /// `x0`, `noise`, `x_t` [B, N, D] -> [B, N, D].
+///
+/// Only the rolled-out rows go through the network, on the inner backend with the model's
+/// validation copy: nothing here is differentiated, so no graph is recorded, and the network
+/// runs without dropout, as the sampler runs it.
 pub fn rolled_x_t(
     model: &Denoiser,
     schedule: &Schedule,
@@ -55,28 +60,36 @@ pub fn rolled_x_t(
     x_t: Tensor<3>,
     step: Step,
 ) -> Tensor<3> {
-    if !step.rolled.iter().any(|&r| r) {
+    let rows: Vec<usize> = (0..step.rolled.len()).filter(|&i| step.rolled[i]).collect();
+    if rows.is_empty() {
         return x_t;
     }
     let last = schedule.alphas_cumprod.len() - 1;
-    // A sample's timestep `j` steps above t; t itself for samples that do not roll.
+    // Each rolled sample's timestep `j` steps above its t.
     let level = |j: usize| -> Vec<usize> {
-        (step.t.iter().zip(step.rolled))
-            .map(|(&t, &r)| if r { (t + j * step.gap).min(last) } else { t })
-            .collect()
+        rows.iter().map(|&i| (step.t[i] + j * step.gap).min(last)).collect()
     };
-    let device = x0.device();
-    let mut x = schedule.q_sample(x0, &level(step.steps), noise).detach();
+    let autodiff = x_t.is_autodiff();
+    let x_t = x_t.without_autodiff();
+    let device = x_t.device();
+    let idx: Vec<i64> = rows.iter().map(|&i| i as i64).collect();
+    let idx = Tensor::<1, Int>::from_ints(idx.as_slice(), &device);
+    let pick = |t: Tensor<3>| t.without_autodiff().select(0, idx.clone());
+    let (model, cond) = (model.valid(), cond.select_rows(&rows).without_autodiff());
+    let mut x = schedule.q_sample(pick(x0), &level(step.steps), pick(noise));
     for j in (1..=step.steps).rev() {
         let (hi, lo) = (level(j), level(j - 1));
-        let est = model.forward(x.clone(), &hi, cond).detach();
+        let est = model.forward(x.clone(), &hi, &cond);
         let [c_est, c_x] = coefficients(schedule, &lo, &hi);
         x = est * per_sample(&c_est, &device) + x * per_sample(&c_x, &device);
     }
     // The other samples keep the x_t they were given, bit for bit.
-    let on: Vec<f32> = step.rolled.iter().map(|&r| if r { 1.0 } else { 0.0 }).collect();
-    let off: Vec<f32> = on.iter().map(|r| 1.0 - r).collect();
-    x * per_sample(&on, &device) + x_t * per_sample(&off, &device)
+    let out = x_t.select_assign(0, idx, x, IndexingUpdateOp::Assign);
+    if autodiff {
+        out.autodiff()
+    } else {
+        out
+    }
 }
 
 /// Per sample, the weights of the estimate and of x at `hi` in x at `lo`: DDIM's
@@ -101,6 +114,7 @@ fn coefficients(schedule: &Schedule, lo: &[usize], hi: &[usize]) -> [Vec<f32>; 2
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::network::params;
 
     #[test]
     fn the_choice_follows_the_draws_and_its_rate() {
@@ -114,6 +128,54 @@ mod tests {
         assert!(chosen(5, 1.0, &t, &noise).iter().all(|&c| c));
         // A shard of the batch chooses what the whole batch chose for its samples.
         assert_eq!(chosen(5, 0.5, &t[10..20], &noise[30..60]), a[10..20]);
+    }
+
+    /// The rolled-out rows are what each sample's own DDIM steps through the validation model
+    /// give (one sample a batch), the others keep x_t bit for bit, and two calls agree (no
+    /// dropout), on an autodiff device as in training.
+    #[test]
+    fn only_the_rolled_rows_roll_each_as_alone() {
+        use crate::DiffKfcConfig;
+        let dev = Device::flex().autodiff();
+        let cfg = DiffKfcConfig::tiny().with_key_input(true).with_temporal_kernel(3);
+        let model = cfg.init(&dev);
+        let cond = crate::bench::request(&cfg, 4, 30, 1).condition(&dev);
+        let schedule = Schedule::cosine(1000);
+        let dist = burn::tensor::Distribution::Normal(0.0, 1.0);
+        let (x0, noise) = (
+            Tensor::<3>::random([4, 30, 263], dist, &dev),
+            Tensor::random([4, 30, 263], dist, &dev),
+        );
+        let t = [10usize, 300, 600, 990];
+        let rolled = [true, false, true, true];
+        let x_t = schedule.q_sample(x0.clone(), &t, noise.clone());
+        let step = || Step { t: &t, rolled: &rolled, gap: 100, steps: 2 };
+        let run =
+            || rolled_x_t(&model, &schedule, &cond, x0.clone(), noise.clone(), x_t.clone(), step());
+        let out = run();
+        assert!(out.is_autodiff());
+        let (got, again, plain) = (params::host(out), params::host(run()), params::host(x_t));
+        assert_eq!(got, again, "no dropout in the rollout");
+        let row = 30 * 263;
+        assert_eq!(got[row..2 * row], plain[row..2 * row], "an unrolled row keeps x_t");
+        let valid = model.valid();
+        for i in [0usize, 2, 3] {
+            let one = |x: &Tensor<3>| x.clone().without_autodiff().slice(i..i + 1);
+            let c = cond.select_rows(&[i]).without_autodiff();
+            let lv = |j: usize| vec![(t[i] + 100 * j).min(999)];
+            let mut x = schedule.q_sample(one(&x0), &lv(2), one(&noise));
+            for j in [2, 1] {
+                let est = valid.forward(x.clone(), &lv(j), &c);
+                let [ce, cx] = coefficients(&schedule, &lv(j - 1), &lv(j));
+                x = est * ce[0] + x * cx[0];
+            }
+            let want = params::host(x);
+            let worst = (want.iter().zip(&got[i * row..(i + 1) * row]))
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0f32, f32::max);
+            assert!(worst < 1e-4, "row {i}: {worst} from its own rollout");
+            assert!(want != plain[i * row..(i + 1) * row], "row {i} rolled");
+        }
     }
 
     /// With an exact estimate (est = x0) the DDIM step lands on x0 noised at t with the same
