@@ -147,6 +147,47 @@ fn fixture_walks_runs_against_the_binary() {
     assert!((json["rows"][0]["real_foot_skating"].as_f64().unwrap() - 0.129).abs() < 0.001);
 }
 
+/// `feet-walks.sh --samples 2` on the tiny reference model: every walk's row, and the planted
+/// share line is the panel walks' per-walk mean shares summed against the sources', as read
+/// back from the samples' own results (the quick start's walk, the last row, left out).
+#[test]
+fn feet_walks_sums_the_planted_share_over_the_samples() {
+    if !have_text_encoder() {
+        return;
+    }
+    let dir = scratch("scripts-feet-walks");
+    let data = synth(&dir, 60, 1);
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/tiny-synth");
+    let out = dir.join("out");
+    let args = [s(&model), s(&out), "--data", s(&data), "--samples", "2"];
+    let o = run_script("feet-walks", &args, env!("CARGO_BIN_EXE_diffkfc"));
+    assert!(o.status.success(), "{}", stderr(&o));
+    let table = stdout(&o);
+    let rows: Vec<&str> = table.lines().filter(|l| l.contains(" (seed ")).collect();
+    assert!(rows.len() >= 2, "at least one panel walk and the quick start's walk: {table}");
+    let (mut shares, mut sources) = (0.0, 0.0);
+    for row in &rows[..rows.len() - 1] {
+        let (walk, seed) = row[2..].split_once(" (seed ").unwrap();
+        let case = out.join(format!("{walk}-seed{}", &seed[..1]));
+        let read = |mode: &str| -> serde_json::Value {
+            let text = std::fs::read_to_string(case.join(mode).join("results.json")).unwrap();
+            serde_json::from_str(&text).unwrap()
+        };
+        let steps = read("steps");
+        let samples = steps["samples"].as_array().unwrap();
+        assert_eq!(samples.len(), 2, "{walk}");
+        let mean =
+            samples.iter().map(|x| x["gait"]["planted_share"].as_f64().unwrap()).sum::<f64>() / 2.0;
+        shares += mean;
+        sources += read("none")["real_gait"]["planted_share"].as_f64().unwrap();
+    }
+    let line = table.lines().find(|l| l.starts_with("planted share")).expect(&table);
+    let walks = rows.len() - 1;
+    assert!(line.contains(&format!("{walks} walks x 2 sample(s)")), "{line}");
+    let want = format!("{:.3} of the sources' ({shares:.3} / {sources:.3})", shares / sources);
+    assert!(line.ends_with(&want), "{line} against {want}");
+}
+
 /// Joints of a hand-made walk, 80 frames: each toe stands still on the floor for 10 frames at
 /// x = 0.5 k (the left half a cycle later), then swings 12 cm above it to the next place;
 /// `moved` shifts the right toe's second stance by that many metres, and `glide` keeps the
