@@ -4,8 +4,8 @@
 # each through the default track fit with --no-foot-lock, --feet warp, pin, network and steps.
 #   scripts/feet-walks.sh MODEL OUT [--data DIR] [--samples N]
 # Prints one Markdown table (also OUT/feet.md; the samples stay under OUT): per walk, the mean
-# over its N samples (default 1) of each mode's foot skating and of the default pipeline's
-# (steps) planted share, then the issue's planted share: the six walks' shares summed against
+# over its N samples (default 1) of each mode's foot skating, the default pipeline's (steps)
+# planted share, the warp's stride factor and both pelvis drops, then the issue's planted share: the six walks' shares summed against
 # the sources' (one sample moves it by about 0.03; four read it steadier).
 set -euo pipefail
 usage="usage: scripts/feet-walks.sh MODEL OUT [--data DIR] [--samples N]"
@@ -17,7 +17,7 @@ data="${DIFFKFC_WORK:-work}/synth" samples=1
 while [ $# -gt 0 ]; do
   case "$1" in
     --data) data=$2; shift 2 ;;
-    --samples) samples=$2; shift 2 ;;
+    --samples) need_count --samples "${2-}"; samples=$2; shift 2 ;;
     *) unknown_arg "$1" ;;
   esac
 done
@@ -62,15 +62,18 @@ for c in cases:
     if c != cases[-1]:  # the panel's six walks; the last case is the quick start's walk
         planted.append(share)
         planted_src.append(src)
-    warp = r["warp"]["samples"][0]
-    st = warp.get("stride") or {}
-    note = st.get("note") or ""
-    why = " (undone: skated more)" if note.startswith("undone") else " (legs do not cycle)"
-    factor = f"{st.get('mean_factor', 1.0):.2f}" + ("" if st.get("warped") else why)
+    strides = [s.get("stride") or {} for s in r["warp"]["samples"]]
+    factor = f"{mean(st.get('mean_factor', 1.0) for st in strides):.2f}"
+    kept = sum(1 for st in strides if st.get("warped"))
+    if kept < len(strides):  # why the first unwarped sample was left as it was
+        note = next(st.get("note") or "" for st in strides if not st.get("warped"))
+        why = "undone: skated more" if note.startswith("undone") else "legs do not cycle"
+        factor += f" ({len(strides) - kept} of {len(strides)} unwarped: {why})"
+    drop_warp = mean(st.get("pelvis_drop_m", 0.0) for st in strides)
+    drop_steps = mean(s["foot_lock"]["pelvis_drop_m"] for s in r["steps"]["samples"])
     print(f"| {w} (seed {seed}) | {r['none']['real_foot_skating']:.3f} | "
           + " | ".join(f"{skate[m]:.3f}" for m in modes)
-          + f" | {share:.2f} / {src:.2f} | {factor}"
-          + f" | {st.get('pelvis_drop_m', 0.0):.3f} / {r['steps']['samples'][0]['foot_lock']['pelvis_drop_m']:.3f} |")
+          + f" | {share:.2f} / {src:.2f} | {factor} | {drop_warp:.3f} / {drop_steps:.3f} |")
 print("| mean | | " + " | ".join(f"{mean(cols[m]):.3f}" for m in modes) + " | | | |")
 n = len(r["steps"]["samples"])
 ratio = sum(planted) / sum(planted_src) if sum(planted_src) > 0 else float("nan")

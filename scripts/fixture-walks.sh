@@ -16,8 +16,8 @@ while [ $# -gt 0 ]; do
   case "$1" in
     --) shift; extra=("$@"); break ;;
     --fixtures) fixtures=$2; shift 2 ;;
-    --samples) samples=$2; shift 2 ;;
-    --seed) seed=$2; shift 2 ;;
+    --samples) need_count --samples "${2-}"; samples=$2; shift 2 ;;
+    --seed) need_uint --seed "${2-}"; seed=$2; shift 2 ;;
     *) unknown_arg "$1" ;;
   esac
 done

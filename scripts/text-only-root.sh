@@ -20,7 +20,7 @@ while [ $# -gt 0 ]; do
     --) shift; extra=("$@"); break ;;
     --data) data=$2; shift 2 ;;
     --count) count=$2; shift 2 ;;
-    --seed) seed=$2; shift 2 ;;
+    --seed) need_uint --seed "${2-}"; seed=$2; shift 2 ;;
     *) unknown_arg "$1" ;;
   esac
 done

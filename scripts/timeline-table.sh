@@ -9,7 +9,7 @@ source "$(dirname "$0")/args.sh"
 need_args $# 2
 model=$1 out=$2; shift 2
 samples=8
-while [ $# -gt 0 ]; do case "$1" in --samples) samples=$2; shift 2 ;; *) unknown_arg "$1" ;; esac; done
+while [ $# -gt 0 ]; do case "$1" in --samples) need_count --samples "${2-}"; samples=$2; shift 2 ;; *) unknown_arg "$1" ;; esac; done
 need_path MODEL "$model"
 need_bin
 timeline="0-8s: a person walks forward. | 8-11s: a person jumps forward. | 11-20s: a person walks in a circle. | 20-30s: a person runs forward."

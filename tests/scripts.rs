@@ -87,6 +87,31 @@ fn unknown_flags_missing_data_and_an_unbuilt_binary_are_named() {
 /// `text-only-root.sh` samples two test clips (one walks at 0.75 m/s, one stands) from their
 /// captions with the tiny reference model and compares their root speed with the sources'.
 #[test]
+fn bad_sample_counts_and_seeds_are_named_before_anything_runs() {
+    let dir = scratch("scripts-counts");
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/tiny-synth");
+    let bin = env!("CARGO_BIN_EXE_diffkfc");
+    let cases: &[(&str, &str, &str)] = &[
+        ("feet-walks", "--samples", "0"),
+        ("raw-walks", "--samples", "abc"),
+        ("raw-walks", "--seed", "-1"),
+        ("fixture-walks", "--samples", "2.5"),
+        ("fixture-walks", "--seed", "x"),
+        ("text-only-root", "--seed", ""),
+        ("timeline-table", "--samples", "00"),
+    ];
+    for (name, flag, value) in cases {
+        let o = run_script(name, &[s(&model), s(&dir), flag, value], bin);
+        assert_eq!(o.status.code(), Some(2), "{name} {flag} '{value}': {}", stderr(&o));
+        assert_one_line_error(&o, &[&format!("{flag} '{value}'"), "expected a whole number"]);
+    }
+    // A flag at the end with no value is named the same way, not bash's unbound variable.
+    let o = run_script("raw-walks", &[s(&model), s(&dir), "--samples"], bin);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert_one_line_error(&o, &["--samples ''", "expected a whole number"]);
+}
+
+#[test]
 fn text_only_root_runs_against_the_binary() {
     if !have_text_encoder() {
         return;

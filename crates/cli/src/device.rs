@@ -31,11 +31,38 @@ pub fn parse(name: &str) -> Result<Device> {
             None => burn::tensor::DeviceKind::DefaultDevice,
         })),
         #[cfg(feature = "cuda")]
-        "cuda" => Ok(Device::cuda(index.unwrap_or(0))),
+        "cuda" => {
+            cuda_driver(name)?;
+            Ok(Device::cuda(index.unwrap_or(0)))
+        }
         // A guard, not a pattern: in builds with a backend its name is matched above.
         n if matches!(n, "ndarray" | "wgpu" | "cuda") => bail!("--device {name}: this build lacks it; rebuild with `cargo build --release --features {n}`"),
         other => bail!("--device: unknown device '{other}' (flex, ndarray, wgpu, cuda; a GPU with an index: cuda:1)"),
     }
+}
+
+/// CubeCL's CUDA runtime loads the driver library on first use and panics on another thread
+/// when it is missing; a machine without one gets this one-line error instead.
+#[cfg(all(feature = "cuda", unix))]
+fn cuda_driver(name: &str) -> Result<()> {
+    let found = ["libcuda.so.1", "libcuda.so"].iter().any(|lib| {
+        let c = std::ffi::CString::new(*lib).expect("no NUL");
+        // SAFETY: dlopen with a valid C string; the handle is released at once.
+        let h = unsafe { libc::dlopen(c.as_ptr(), libc::RTLD_LAZY | libc::RTLD_LOCAL) };
+        if !h.is_null() {
+            unsafe { libc::dlclose(h) };
+        }
+        !h.is_null()
+    });
+    if !found {
+        bail!("--device {name}: no CUDA driver on this machine (libcuda.so.1 could not be loaded)");
+    }
+    Ok(())
+}
+
+#[cfg(all(feature = "cuda", not(unix)))]
+fn cuda_driver(_: &str) -> Result<()> {
+    Ok(())
 }
 
 /// `--devices cuda:0,cuda:1,...`: the devices of a data-parallel run, checked (two or more,

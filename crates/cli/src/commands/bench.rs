@@ -169,6 +169,12 @@ fn torch_reference(python: &PathBuf, a: &BenchArgs, preset: &str, repeats: usize
     if a.torch_compile {
         cmd.arg("--compile");
     }
+    // On a GPU the reference runs on the GPU too (the first CUDA device; wgpu's adapter is the
+    // machine's GPU as well), so the ratio compares like with like.
+    let shared = a.reference.file_name().is_some_and(|n| n == "reference_diffkfc.py");
+    if !shared && !matches!(a.device.as_str(), "flex" | "ndarray") {
+        cmd.args(["--device", "cuda"]);
+    }
     let out = cmd.output().with_context(|| format!("--torch: running {}", python.display()))?;
     let text = String::from_utf8_lossy(&out.stdout);
     let last = text.lines().rev().find(|l| l.trim_start().starts_with('{'));

@@ -100,9 +100,7 @@ impl Condition {
     /// The condition of batch rows `rows` (in that order).
     pub fn select_rows(&self, rows: &[usize]) -> Condition {
         let n = self.kf.dims()[1];
-        let device = self.kf.device();
-        let idx: Vec<i64> = rows.iter().map(|&r| r as i64).collect();
-        let idx = Tensor::<1, Int>::from_ints(idx.as_slice(), &device);
+        let idx = row_index(rows, &self.kf.device());
         let frames = |v: &[bool]| -> Vec<bool> {
             rows.iter().flat_map(|&r| v[r * n..(r + 1) * n].iter().copied()).collect()
         };
@@ -131,4 +129,10 @@ impl Condition {
             real: self.real.clone(),
         }
     }
+}
+
+/// `rows` as the index tensor of `select` / `select_assign` along the batch axis.
+pub fn row_index(rows: &[usize], device: &Device) -> Tensor<1, Int> {
+    let idx: Vec<i64> = rows.iter().map(|&r| r as i64).collect();
+    Tensor::<1, Int>::from_ints(idx.as_slice(), device)
 }

@@ -14,7 +14,7 @@ use burn::tensor::IndexingUpdateOp;
 use diffkfc_data::rng::Rng;
 
 use crate::diffusion::{per_sample, Schedule};
-use crate::network::condition::Condition;
+use crate::network::condition::{row_index, Condition};
 use crate::Denoiser;
 
 /// Which samples take the rolled-out x_t: a hash of the training seed, the sample's timestep
@@ -72,8 +72,7 @@ pub fn rolled_x_t(
     let autodiff = x_t.is_autodiff();
     let x_t = x_t.without_autodiff();
     let device = x_t.device();
-    let idx: Vec<i64> = rows.iter().map(|&i| i as i64).collect();
-    let idx = Tensor::<1, Int>::from_ints(idx.as_slice(), &device);
+    let idx = row_index(&rows, &device);
     let pick = |t: Tensor<3>| t.without_autodiff().select(0, idx.clone());
     let (model, cond) = (model.valid(), cond.select_rows(&rows).without_autodiff());
     let mut x = schedule.q_sample(pick(x0), &level(step.steps), pick(noise));
