@@ -5,8 +5,9 @@
 #   scripts/feet-walks.sh MODEL OUT [--data DIR] [--samples N]
 # Prints one Markdown table (also OUT/feet.md; the samples stay under OUT): per walk, the mean
 # over its N samples (default 1) of each mode's foot skating, the default pipeline's (steps)
-# planted share, the warp's stride factor and both pelvis drops, then the issue's planted share: the six walks' shares summed against
-# the sources' (one sample moves it by about 0.03; four read it steadier).
+# planted share, the warp's stride factor and both pelvis drops, then the issue's planted
+# share: the six walks' shares summed against the sources' (one sample moves it by about 0.03;
+# four read it steadier).
 set -euo pipefail
 usage="usage: scripts/feet-walks.sh MODEL OUT [--data DIR] [--samples N]"
 source "$(dirname "$0")/args.sh"
