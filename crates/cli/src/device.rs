@@ -12,7 +12,7 @@ pub fn parse(name: &str) -> Result<Device> {
             let i: usize = i.parse().map_err(|_| {
                 anyhow!("--device {name}: the index after ':' must be a number (e.g. cuda:1)")
             })?;
-            if !matches!(k, "wgpu" | "cuda") {
+            if !is_gpu(k) {
                 bail!("--device {name}: only wgpu and cuda devices take an index");
             }
             (k, Some(i))
@@ -39,6 +39,11 @@ pub fn parse(name: &str) -> Result<Device> {
         n if matches!(n, "ndarray" | "wgpu" | "cuda") => bail!("--device {name}: this build lacks it; rebuild with `cargo build --release --features {n}`"),
         other => bail!("--device: unknown device '{other}' (flex, ndarray, wgpu, cuda; a GPU with an index: cuda:1)"),
     }
+}
+
+/// Whether a `--device` name (with or without its index) is a GPU's: wgpu or cuda.
+pub fn is_gpu(name: &str) -> bool {
+    matches!(name.split(':').next(), Some("wgpu" | "cuda"))
 }
 
 /// CubeCL's CUDA runtime loads the driver library on first use and panics on another thread
@@ -86,6 +91,8 @@ mod tests {
         assert!(e.contains("must be a number"), "{e}");
         let e = parse("flex:1").unwrap_err().to_string();
         assert!(e.contains("only wgpu and cuda"), "{e}");
+        assert!(is_gpu("cuda") && is_gpu("cuda:1") && is_gpu("wgpu"));
+        assert!(!is_gpu("flex") && !is_gpu("cpu") && !is_gpu("ndarray"));
         let e = parse("tpu").unwrap_err().to_string();
         assert!(e.contains("unknown device 'tpu'"), "{e}");
     }

@@ -141,14 +141,18 @@ fn line(
 /// The reference's name for `--config`: the shared script calls torch-tiny "tiny" and has only
 /// that and paper; scripts/torch_reference.py takes every preset by its own name.
 fn reference_preset(a: &BenchArgs) -> Result<String> {
-    let shared = a.reference.file_name().is_some_and(|n| n == "reference_diffkfc.py");
-    match (a.config.as_str(), shared) {
+    match (a.config.as_str(), shared_reference(a)) {
         (c, false) if ["paper", "small", "mid", "tiny", "torch-tiny"].contains(&c) => Ok(c.into()),
         ("paper", true) => Ok("paper".into()),
         ("torch-tiny", true) => Ok("tiny".into()),
         _ if a.torch.is_none() => Ok(String::new()),
         (c, _) => bail!("--torch: {} has no network for --config {c} (scripts/torch_reference.py has paper, small, mid, tiny, torch-tiny)", a.reference.display()),
     }
+}
+
+/// Whether `--reference` is ../shared/bench's own script (its names and flags, not ours).
+fn shared_reference(a: &BenchArgs) -> bool {
+    a.reference.file_name().is_some_and(|n| n == "reference_diffkfc.py")
 }
 
 fn torch_reference(python: &PathBuf, a: &BenchArgs, preset: &str, repeats: usize) -> Result<Value> {
@@ -171,8 +175,7 @@ fn torch_reference(python: &PathBuf, a: &BenchArgs, preset: &str, repeats: usize
     }
     // On a GPU the reference runs on the GPU too (the first CUDA device; wgpu's adapter is the
     // machine's GPU as well), so the ratio compares like with like.
-    let shared = a.reference.file_name().is_some_and(|n| n == "reference_diffkfc.py");
-    if !shared && !matches!(a.device.as_str(), "flex" | "ndarray") {
+    if !shared_reference(a) && crate::device::is_gpu(&a.device) {
         cmd.args(["--device", "cuda"]);
     }
     let out = cmd.output().with_context(|| format!("--torch: running {}", python.display()))?;
