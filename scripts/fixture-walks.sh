@@ -2,8 +2,9 @@
 # A model on real motion: the two HumanML3D clips of the shared fixtures (012314: a walk forward,
 # a turn and back, then standing; 000021, through HumanML3D's own processing: a walk in a loop),
 # keyed at 5%, sampled by the network alone and by the default pipeline; root speed and stride
-# against the clip's own, foot skating and K-TranS (docs/long-run.md, "Real motion"). The
-# fixtures carry no captions: the ones below are ours, the same for every model.
+# against the clip's own, foot skating, K-TranS and how far under the floor the body goes
+# (docs/long-run.md, "Real motion"). The fixtures carry no captions: the ones below are ours,
+# the same for every model.
 #   scripts/fixture-walks.sh MODEL OUT [--fixtures DIR] [--samples N] [--seed S] [-- SAMPLE FLAGS...]
 set -euo pipefail
 usage="usage: scripts/fixture-walks.sh MODEL OUT [--fixtures DIR] [--samples N] [--seed S] [-- SAMPLE FLAGS...]"
@@ -45,8 +46,8 @@ import json, os, statistics, sys
 out, model = sys.argv[1], sys.argv[2]
 print(f"{model}: the fixtures' real clips, 5% keys")
 print()
-print("| clip | sampled by | speed ratio | stride ratio | foot skating (clip's own) | K-TranS (clip's own) |")
-print("|---|---|---|---|---|---|")
+print("| clip | sampled by | speed ratio | stride ratio | foot skating (clip's own) | K-TranS (clip's own) | under the floor, m (clip's own) |")
+print("|---|---|---|---|---|---|---|")
 rows = []
 for clip in ["012314", "000021"]:
     for mode in ["raw", "default"]:
@@ -57,10 +58,12 @@ for clip in ["012314", "000021"]:
                "speed_ratio": mean(lambda x: x["gait"]["root_speed_mps"] / src["root_speed_mps"]),
                "stride_ratio": mean(lambda x: x["gait"]["stride_amplitude_m"] / src["stride_amplitude_m"]),
                "foot_skating": mean(lambda x: x["foot_skating"]), "real_foot_skating": r["real_foot_skating"],
-               "k_trans": mean(lambda x: x["k_trans"]), "real_k_trans": r["real_k_trans"]}
+               "k_trans": mean(lambda x: x["k_trans"]), "real_k_trans": r["real_k_trans"],
+               "penetration_m": mean(lambda x: x["penetration_m"]), "real_penetration_m": r["real_penetration_m"]}
         rows.append(row)
         name = "the network alone" if mode == "raw" else "the default pipeline"
         print(f"| {clip} | {name} | {row['speed_ratio']:.2f} | {row['stride_ratio']:.2f} | "
-              f"{row['foot_skating']:.3f} ({row['real_foot_skating']:.3f}) | {row['k_trans']:.4f} ({row['real_k_trans']:.4f}) |")
+              f"{row['foot_skating']:.3f} ({row['real_foot_skating']:.3f}) | {row['k_trans']:.4f} ({row['real_k_trans']:.4f}) | "
+              f"{row['penetration_m']:.4f} ({row['real_penetration_m']:.4f}) |")
 json.dump({"model": model, "samples": len(s), "rows": rows}, open(os.path.join(out, "fixture-walks.json"), "w"), indent=1)
 PY

@@ -9,7 +9,7 @@ use std::collections::BTreeMap;
 use diffkfc_data::dataset::cache::PackedSplit;
 use diffkfc_data::dataset::Dataset;
 use diffkfc_data::keyframes::{self, Strategy};
-use diffkfc_data::motion::plausibility::foot_skating_ratio;
+use diffkfc_data::motion::plausibility::{foot_skating_ratio, penetration};
 use diffkfc_data::motion::representation::{recover_from_ric, Joints};
 use diffkfc_data::motion::root_key::{self, RootKey};
 use diffkfc_data::motion::skeleton::Skeleton;
@@ -103,9 +103,10 @@ fn joints_of(ds: &Dataset, f: &[f32]) -> Joints {
 }
 
 /// The plausibility and gait numbers of one motion that every row reports.
-fn motion_measures(skel: &Skeleton, j: &Joints) -> [(&'static str, f64); 3] {
+fn motion_measures(skel: &Skeleton, j: &Joints) -> [(&'static str, f64); 4] {
     [
         ("foot_skate", foot_skating_ratio(skel, j)),
+        ("penetrate", penetration(skel, j)),
         ("planted", gait::planted_share(skel, j)),
         ("stride", gait::stride_amplitude(skel, j)),
     ]

@@ -8,7 +8,7 @@ use crate::protocol::RowResult;
 use crate::text_motion::mean_ci;
 
 /// Metric key, column header (arrow: lower / higher / closer to real is better).
-pub const COLUMNS: [(&str, &str); 15] = [
+pub const COLUMNS: [(&str, &str); 16] = [
     ("fid", "FID ↓"),
     ("r_top1", "R-Prec top-1 ↑"),
     ("r_top2", "top-2 ↑"),
@@ -22,6 +22,7 @@ pub const COLUMNS: [(&str, &str); 15] = [
     ("k_trans", "K-TranS →"),
     ("k_trans_real", "K-TranS real"),
     ("foot_skate", "Foot skate ↓"),
+    ("penetrate", "Penetrate (m) ↓"),
     ("planted", "Planted →"),
     ("stride", "Stride (m) →"),
 ];
@@ -33,6 +34,7 @@ pub const DEFINITIONS: &str = "\
 - K-Err: mean L2 joint error at keyframe frames between the given keyframe and the generated pose (global; root-rel.: joint heights/RIC positions in the facing-normalised root frame).
 - K-TranS: mean |x[j+1] - 2x[j] + x[j-1]| (metres per frame^2) over frames within 2 of a keyframe, averaged over joints and keyframes; the real motion gives the reference (closer is better).
 - Foot skate: among frames with a toe below 5 cm, the share moving horizontally faster than 0.5 m/s.
+- Penetrate: per frame, how far the lowest joint is below the floor (height 0; nothing when above), the mean over frames (metres; PhysDiff's measure).
 - Planted: the share of frames on which a toe is within 5 cm of the motion's floor (the lowest toe height) and moves slower than 0.15 m/s horizontally, the mean of the two toes; the real motion gives the reference.
 - Stride: per toe, the standard deviation over frames of its offset from the pelvis along the travel direction (the root's velocity over 9 frames, or the facing direction where slower than 0.1 m/s), mean of the two toes (metres); the real motion gives the reference.
 - Keyframe metrics average over every generated sample; text-motion metrics use the first sample of each item.";

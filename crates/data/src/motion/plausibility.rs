@@ -67,6 +67,16 @@ pub fn skates(skel: &Skeleton, a: Vec3, b: Vec3) -> Option<bool> {
     })
 }
 
+/// Ground penetration (PhysDiff's "Penetrate"): per frame, how far the lowest joint is below
+/// the floor (height 0; nothing when above it), the mean over frames (m).
+pub fn penetration(skel: &Skeleton, j: &Joints) -> f64 {
+    if j.is_empty() {
+        return 0.0;
+    }
+    let below = |f: &Vec<Vec3>| (-f.iter().map(|p| p[1]).fold(f64::INFINITY, f64::min)).max(0.0);
+    j.iter().map(below).sum::<f64>() / j.len() as f64 * skel.metres_per_unit
+}
+
 /// Foot skating ratio: among frames where a toe joint is below 5 cm, the share in which it
 /// moves horizontally faster than 0.5 m/s. 0 when the feet never touch the ground.
 pub fn foot_skating_ratio(skel: &Skeleton, j: &Joints) -> f64 {
@@ -102,6 +112,14 @@ mod tests {
         assert_eq!(foot_skating_ratio(&T2M, &slide), 1.0);
         let still: Joints = (0..10).map(|_| pose.clone()).collect();
         assert_eq!(foot_skating_ratio(&T2M, &still), 0.0);
+        assert_eq!(penetration(&T2M, &still), 0.0);
+        // Sunk 3 cm on half of the frames: toes at -2 cm there, 1 cm below on average.
+        let sunk: Joints = (0..10)
+            .map(|t| {
+                pose.iter().map(|p| [p[0], p[1] - if t < 5 { 0.03 } else { 0.0 }, p[2]]).collect()
+            })
+            .collect();
+        assert!((penetration(&T2M, &sunk) - 0.01).abs() < 1e-12, "{}", penetration(&T2M, &sunk));
         let m = measure(&T2M, &slide);
         assert!((m.max_speed - 1.0).abs() < 1e-9 && m.bone_length_std < 1e-12);
     }

@@ -1,8 +1,10 @@
-//! After sampling: meeting keyframes without a seam (warp), one rigid skeleton (rigid), and
-//! planted feet held still: contacts from the motion (contacts), stride warping (stride, pelvis),
-//! pinning (pin, footlock), steps out of a shuffle (steps), on one leg's machinery (leg).
+//! After sampling: meeting keyframes without a seam (warp), one rigid skeleton (rigid) on the
+//! floor it stood on (floor), and planted feet held still: contacts from the motion (contacts),
+//! stride warping (stride, pelvis), pinning (pin, footlock), steps out of a shuffle (steps), on
+//! one leg's machinery (leg).
 
 pub mod contacts;
+pub mod floor;
 pub mod footlock;
 pub(crate) mod leg;
 pub mod pelvis;

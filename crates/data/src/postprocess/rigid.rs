@@ -10,6 +10,7 @@ use crate::io::rig;
 use crate::motion::quat::{self, Vec3};
 use crate::motion::representation::{recover_from_ric, recover_root_rot_pos, Joints, Layout};
 use crate::motion::skeleton::Skeleton;
+use crate::postprocess::floor::{self, FloorReport};
 
 /// What making a motion rigid did.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
@@ -20,6 +21,8 @@ pub struct RigidReport {
     pub max_move_m: f64,
     /// Largest move of a joint on a held frame (a pose keyframe; metres).
     pub max_key_move_m: f64,
+    /// The body kept on the floor it stood on ([`floor::keep_on_floor`]).
+    pub floor: FloorReport,
 }
 
 /// The bone offsets every frame is refitted to: those of the held frames (the pose keyframes:
@@ -74,9 +77,10 @@ pub fn bone_length_std(skel: &Skeleton, joints: &Joints) -> f64 {
 
 /// Make de-normalised features `feats` [T, D] rigid in place: their joints refitted
 /// ([`rigid_joints`]), the root-relative positions and local velocities rewritten to match
-/// (rotations and contacts unchanged, the root untouched). `hold` marks pose keyframes: their
-/// rows stay as given (their bones are the ones every frame is refitted to), and how far they
-/// are from rigid is reported apart.
+/// (rotations and contacts unchanged, the root's place and heading too), then kept on the floor
+/// the motion stood on ([`floor::keep_on_floor`]: the body lifted, sunk feet raised). `hold`
+/// marks pose keyframes: their rows stay as given (their bones are the ones every frame is
+/// refitted to), and how far they are from rigid is reported apart.
 pub fn make_rigid(skel: &Skeleton, feats: &mut [f32], hold: &[bool]) -> RigidReport {
     let layout = Layout::of(skel);
     let d = layout.dim();
@@ -119,6 +123,7 @@ pub fn make_rigid(skel: &Skeleton, feats: &mut [f32], hold: &[bool]) -> RigidRep
             }
         }
     }
+    report.floor = floor::keep_on_floor(skel, feats, &joints, hold);
     report
 }
 
@@ -222,9 +227,105 @@ mod tests {
         assert!(r.bone_std_before_m > 0.005 && r.max_key_move_m == 0.0, "{r:?}");
         let out = rep::recover_from_ric_f32(&T2M, &feats2);
         assert!(bone_length_std(&T2M, &out) < 1e-5, "{}", bone_length_std(&T2M, &out));
-        // The root is untouched.
+        // The root keeps its place and heading; it only rises or sinks with the floor's lift.
         for f in 0..out.len() {
-            assert!(quat::norm(quat::sub(out[f][0], loose[f][0])) < 1e-5);
+            let d = quat::sub(out[f][0], loose[f][0]);
+            assert!(d[0].hypot(d[2]) < 1e-5 && d[1].abs() <= r.floor.lift_m.abs() + 1e-5);
         }
+    }
+
+    /// Joints of features `feats` (263 wide) moved by `shift(f, joint)`, written the way
+    /// `make_rigid` writes them (root height, root-relative positions).
+    fn moved(feats: &[f32], shift: impl Fn(usize, usize) -> Vec3) -> Vec<f32> {
+        let f64s: Vec<f64> = feats.iter().map(|&v| v as f64).collect();
+        let (rq, _) = rep::recover_root_rot_pos(&f64s, 263);
+        let mut out = feats.to_vec();
+        for (f, q) in rq.iter().enumerate() {
+            out[f * 263 + 3] += shift(f, 0)[1] as f32;
+            for j in 1..22 {
+                let r = quat::qrot(*q, shift(f, j));
+                for k in 0..3 {
+                    out[f * 263 + 4 + (j - 1) * 3 + k] += r[k] as f32;
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn a_network_body_refitted_to_the_keyed_bones_stays_on_the_floor() {
+        let Some(feats) = real_features() else {
+            return;
+        };
+        let real = rep::recover_from_ric_f32(&T2M, &feats);
+        let t = real.len();
+        // The network's own body: the real clip with the torso 5 cm lower on the hips (hips
+        // 5 cm nearer the pelvis), feet where they were; two keyed rows keep the real body.
+        let legs = [1, 2, 4, 5, 7, 8, 10, 11];
+        let mut hold = vec![false; t];
+        hold[40] = true;
+        hold[120] = true;
+        let mut net = moved(&feats, |f, j| {
+            [0.0, if hold[f] || legs.contains(&j) { 0.0 } else { -0.05 }, 0.0]
+        });
+        let lowest = |j: &Joints, f: usize| {
+            [7, 8, 10, 11].map(|k| j[f][k][1]).into_iter().fold(f64::INFINITY, f64::min)
+        };
+        // Refitted from the same pelvis alone, the real hips drop the feet 5 cm into the floor.
+        let loose = rep::recover_from_ric_f32(&T2M, &net);
+        let plain = rigid_joints(&T2M, &loose, &rest(&T2M, &loose, &hold));
+        let sunk = (0..t).filter(|&f| lowest(&plain, f) < lowest(&real, f) - 0.04).count();
+        assert!(sunk > t * 9 / 10, "{sunk} of {t} frames sunk");
+        let r = make_rigid(&T2M, &mut net, &hold);
+        let out = rep::recover_from_ric_f32(&T2M, &net);
+        // Away from the keys the body is lifted onto its feet; beside them (where the lift
+        // fades out) the knees bend, and no foot is under the floor anywhere.
+        let far = |f: usize| f.abs_diff(40).min(f.abs_diff(120)) >= floor::LIFT_FADE;
+        let worst = (0..t)
+            .filter(|&f| far(f))
+            .map(|f| (lowest(&out, f) - lowest(&real, f)).abs())
+            .fold(0.0, f64::max);
+        assert!(worst < 0.01, "feet off the real clip's floor by {worst} m; {r:?}");
+        let under = (0..t).map(|f| lowest(&real, f).min(0.0) - lowest(&out, f)).fold(0.0, f64::max);
+        assert!(under < 0.003, "a foot {under} m under the floor; {r:?}");
+        assert!((r.floor.lift_m - 0.05).abs() < 0.01, "{r:?}");
+        for f in [40, 120] {
+            assert_eq!(&net[f * 263..(f + 1) * 263], &feats[f * 263..(f + 1) * 263]);
+        }
+    }
+
+    #[test]
+    fn a_leg_folded_by_short_bones_bends_its_knee_instead_of_sinking() {
+        let Some(feats) = real_features() else {
+            return;
+        };
+        let real = rep::recover_from_ric_f32(&T2M, &feats);
+        let (hip, knee, ankle) = (2, 5, 8);
+        // Frames 60..68: the right knee drawn 70% of the way to the hip-ankle line, so the
+        // thigh and shin are shorter with hip and foot in place (as a network folds a leg).
+        let folded = |f: usize| (60..68).contains(&f);
+        let net = moved(&feats, |f, j| {
+            if !folded(f) || j != knee {
+                return [0.0; 3];
+            }
+            let (h, k, a) = (real[f][hip], real[f][knee], real[f][ankle]);
+            let u = quat::normalize(quat::sub(a, h));
+            let on_line = quat::add(h, quat::scale(u, quat::dot(quat::sub(k, h), u)));
+            quat::scale(quat::sub(on_line, k), 0.7)
+        });
+        let loose = rep::recover_from_ric_f32(&T2M, &net);
+        let plain = rigid_joints(&T2M, &loose, &rest(&T2M, &loose, &[]));
+        let sunk = (60..68).map(|f| loose[f][11][1] - plain[f][11][1]).fold(0.0, f64::max);
+        assert!(sunk > 0.03, "the plain refit sinks the folded foot {sunk} m");
+        let mut out = net.clone();
+        let r = make_rigid(&T2M, &mut out, &vec![false; real.len()]);
+        let out = rep::recover_from_ric_f32(&T2M, &out);
+        assert!(bone_length_std(&T2M, &out) < 1e-4, "{}", bone_length_std(&T2M, &out));
+        for f in 60..68 {
+            let floor = loose[f][ankle][1].min(loose[f][11][1]).min(0.0);
+            let low = out[f][ankle][1].min(out[f][11][1]);
+            assert!(low > floor - 0.003, "frame {f}: foot at {low}, floor {floor}; {r:?}");
+        }
+        assert!(r.floor.raised >= 8 && r.floor.lift_m.abs() < 0.01, "{r:?}");
     }
 }

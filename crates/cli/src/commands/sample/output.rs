@@ -128,6 +128,7 @@ fn write_sample(
         "k_err_root_relative_m": k_err_local(&T2M, f, &keys.values, &keyframes::posed_frames(&T2M, &keys.mask, &keys.frames), &keys.joints),
         "k_trans": k_trans(&j, &keys.frames, 2),
         "foot_skating": diffkfc_data::motion::plausibility::foot_skating_ratio(&T2M, &j),
+        "penetration_m": diffkfc_data::motion::plausibility::penetration(&T2M, &j),
         "gait": diffkfc_eval::gait::measure(&T2M, &j),
         "corrections": done.corrections,
         "foot_lock": fit.foot_lock.then_some(&done.feet),
@@ -217,6 +218,7 @@ fn results(
         "seconds": secs,
         "real_k_trans": keys.source.as_ref().and_then(|s| k_trans(s, &keys.frames, 2)),
         "real_foot_skating": keys.source.as_ref().map(|s| diffkfc_data::motion::plausibility::foot_skating_ratio(&T2M, s)),
+        "real_penetration_m": keys.source.as_ref().map(|s| diffkfc_data::motion::plausibility::penetration(&T2M, s)),
         "real_gait": keys.source.as_ref().map(|s| diffkfc_eval::gait::measure(&T2M, s)),
         "samples": samples,
     })
