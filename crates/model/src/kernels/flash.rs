@@ -13,11 +13,11 @@ use rayon::prelude::*;
 use super::attention_call::{AttnShape, Mask};
 use super::host::Out;
 use super::mha::{compact, Compact, HeadKeys};
-use super::simd::avx2;
+use super::simd::{avx2, avx512};
 use super::softmax::{self, Open};
 
 #[cfg(target_arch = "x86_64")]
-use super::tiles::Avx2;
+use super::tiles::{Avx2, Avx512};
 use super::tiles::{Lanes, Scalar, R, W};
 
 /// Whether this kernel serves heads of `dh` channels.
@@ -254,37 +254,47 @@ fn head_backward<const P: usize, L: Lanes>(
     }
 }
 
-/// The AVX2 + FMA build of a head function (its tiles inline into it with those features).
+/// The AVX2 + FMA and AVX-512 builds of a head function (its tiles inline into each with those
+/// features; its own loops, the softmax's exp among them, vectorise to the build's width).
 macro_rules! compiled_for {
-    ($generic:ident, $avx2:ident, ($($arg:ident: $ty:ty),*)) => {
+    ($generic:ident, $avx2:ident, $avx512:ident, ($($arg:ident: $ty:ty),*)) => {
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = "avx2,fma")]
         fn $avx2<const P: usize>($($arg: $ty),*) {
             $generic::<P, Avx2>($($arg),*)
+        }
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx512f,avx2,fma")]
+        fn $avx512<const P: usize>($($arg: $ty),*) {
+            $generic::<P, Avx512>($($arg),*)
         }
     };
 }
 
 /// Calls the build of a head function for this CPU and head width.
 macro_rules! dispatch {
-    ($wide:expr, $generic:ident, $avx2:ident, ($($a:expr),*)) => {
-        match (avx2(), $wide) {
-            // SAFETY: the CPU has the features the build was compiled for.
+    ($wide:expr, $generic:ident, $avx2:ident, $avx512:ident, ($($a:expr),*)) => {
+        match (avx512(), avx2(), $wide) {
+            // SAFETY (every arm): the CPU has the features the build was compiled for.
             #[cfg(target_arch = "x86_64")]
-            (true, false) => unsafe { $avx2::<16>($($a),*) },
+            (true, _, false) => unsafe { $avx512::<16>($($a),*) },
             #[cfg(target_arch = "x86_64")]
-            (true, true) => unsafe { $avx2::<32>($($a),*) },
-            (_, false) => $generic::<16, Scalar>($($a),*),
-            (_, true) => $generic::<32, Scalar>($($a),*),
+            (true, _, true) => unsafe { $avx512::<32>($($a),*) },
+            #[cfg(target_arch = "x86_64")]
+            (_, true, false) => unsafe { $avx2::<16>($($a),*) },
+            #[cfg(target_arch = "x86_64")]
+            (_, true, true) => unsafe { $avx2::<32>($($a),*) },
+            (_, _, false) => $generic::<16, Scalar>($($a),*),
+            (_, _, true) => $generic::<32, Scalar>($($a),*),
         }
     };
 }
 
 type Qkv<'a> = (&'a [f32], &'a [f32], &'a [f32]);
 
-compiled_for!(head_forward, head_forward_avx2,
+compiled_for!(head_forward, head_forward_avx2, head_forward_avx512,
     (c: &Call, bh: (usize, usize), dst: *mut f32, lse: &mut [f32], w: &mut Scratch));
-compiled_for!(head_backward, head_backward_avx2,
+compiled_for!(head_backward, head_backward_avx2, head_backward_avx512,
     (c: &Call, dout: &[f32], bh: (usize, usize), lse: &[f32], d: (Out, Out, Out), w: &mut Scratch));
 
 /// softmax(Q K^T / sqrt(dh) + mask) V per head -> ([B, Lq, d], log-sum-exp [B, H, Lq]).
@@ -305,7 +315,13 @@ pub fn forward(
         let d = dst;
         // SAFETY: head (b, h) writes only its own dh columns of sample b's rows.
         let at = unsafe { d.0.add(b * s.lq * s.d + h * s.dh()) };
-        dispatch!(wide, head_forward, head_forward_avx2, (&c, (b, h), at, lse, w));
+        dispatch!(
+            wide,
+            head_forward,
+            head_forward_avx2,
+            head_forward_avx512,
+            (&c, (b, h), at, lse, w)
+        );
     });
     (out, lse)
 }
@@ -327,7 +343,13 @@ pub fn backward(
     let wide = s.dh() > 16;
     lse.par_chunks(s.lq).enumerate().for_each_init(Scratch::default, |w, (bh, lse)| {
         let (b, h) = (bh / s.heads, bh % s.heads);
-        dispatch!(wide, head_backward, head_backward_avx2, (&c, dout, (b, h), lse, outs, w));
+        dispatch!(
+            wide,
+            head_backward,
+            head_backward_avx2,
+            head_backward_avx512,
+            (&c, dout, (b, h), lse, outs, w)
+        );
     });
     (dq, dk, dv)
 }

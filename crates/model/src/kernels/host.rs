@@ -6,7 +6,7 @@
 
 use rayon::prelude::*;
 
-use super::simd::{self, erf, exp_neg};
+use super::simd::{self, erf, erf_with, exp_neg};
 
 /// A strided read-only matrix: element (r, c) at `ptr + r * rs + c * cs`.
 #[derive(Clone, Copy)]
@@ -291,48 +291,57 @@ fn gelu_grad_rows(o: &mut [f32], x: &[f32], g: &[f32]) {
     let inv_sqrt_2pi = 0.5 * std::f32::consts::FRAC_2_SQRT_PI * std::f32::consts::FRAC_1_SQRT_2;
     let (x, g) = (&x[..o.len()], &g[..o.len()]);
     for i in 0..o.len() {
-        let cdf = 0.5 * (1.0 + erf(x[i] * std::f32::consts::FRAC_1_SQRT_2));
-        o[i] = g[i] * (cdf + x[i] * inv_sqrt_2pi * exp_neg(-0.5 * x[i] * x[i]));
+        // erf(x / sqrt 2) needs e^(-x^2 / 2), the density's own factor: one exp for both.
+        let gauss = exp_neg(-0.5 * x[i] * x[i]);
+        let cdf = 0.5 * (1.0 + erf_with(x[i] * std::f32::consts::FRAC_1_SQRT_2, gauss));
+        o[i] = g[i] * (cdf + x[i] * inv_sqrt_2pi * gauss);
     }
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn gelu_rows_avx2(c: &mut [f32]) {
-    gelu_rows(c)
+/// The builds of an elementwise pass: AVX-512 (16 lanes), AVX2 + FMA (8 lanes), plain.
+macro_rules! elementwise_builds {
+    ($name:ident, $generic:ident, $avx512:ident, $avx2:ident, ($($arg:ident: $ty:ty),*)) => {
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx512f,avx2,fma")]
+        fn $avx512($($arg: $ty),*) {
+            $generic($($arg),*)
+        }
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2,fma")]
+        fn $avx2($($arg: $ty),*) {
+            $generic($($arg),*)
+        }
+        fn $name($($arg: $ty),*) {
+            #[cfg(target_arch = "x86_64")]
+            if simd::avx512() {
+                // SAFETY: the CPU has the features the function was compiled for.
+                return unsafe { $avx512($($arg),*) };
+            }
+            #[cfg(target_arch = "x86_64")]
+            if simd::avx2() {
+                // SAFETY: as above.
+                return unsafe { $avx2($($arg),*) };
+            }
+            $generic($($arg),*)
+        }
+    };
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn gelu_grad_rows_avx2(o: &mut [f32], x: &[f32], g: &[f32]) {
-    gelu_grad_rows(o, x, g)
-}
+elementwise_builds!(gelu_chunk, gelu_rows, gelu_rows_avx512, gelu_rows_avx2, (c: &mut [f32]));
+elementwise_builds!(gelu_grad_chunk, gelu_grad_rows, gelu_grad_rows_avx512, gelu_grad_rows_avx2,
+    (o: &mut [f32], x: &[f32], g: &[f32]));
 
 /// GELU (exact form, x Phi(x)) in place.
 pub fn gelu_inplace(h: &mut [f32]) {
-    h.par_chunks_mut(1 << 14).for_each(|c| {
-        #[cfg(target_arch = "x86_64")]
-        if simd::avx2() {
-            // SAFETY: the CPU has the features the function was compiled for.
-            return unsafe { gelu_rows_avx2(c) };
-        }
-        gelu_rows(c)
-    });
+    h.par_chunks_mut(1 << 14).for_each(gelu_chunk);
 }
 
 /// d gelu(h) / dh * dy.
 pub fn gelu_backward(h: &[f32], dy: &[f32]) -> Vec<f32> {
     let mut dh = vec![0f32; h.len()];
-    dh.par_chunks_mut(1 << 14).zip(h.par_chunks(1 << 14).zip(dy.par_chunks(1 << 14))).for_each(
-        |(o, (x, g))| {
-            #[cfg(target_arch = "x86_64")]
-            if simd::avx2() {
-                // SAFETY: as in gelu_inplace.
-                return unsafe { gelu_grad_rows_avx2(o, x, g) };
-            }
-            gelu_grad_rows(o, x, g)
-        },
-    );
+    dh.par_chunks_mut(1 << 14)
+        .zip(h.par_chunks(1 << 14).zip(dy.par_chunks(1 << 14)))
+        .for_each(|(o, (x, g))| gelu_grad_chunk(o, x, g));
     dh
 }
 

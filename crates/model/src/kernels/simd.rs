@@ -1,6 +1,6 @@
 //! Math written to vectorise, for the kernels' elementwise passes: e^x for x <= 0 and erf as
 //! polynomials (libm's expf and erff are scalar calls that stop LLVM vectorising a loop), and
-//! whether the CPU runs the kernels' AVX2 + FMA builds.
+//! whether the CPU runs the kernels' AVX2 + FMA or AVX-512 builds.
 
 /// e^x for x <= 0; exactly 0 below -87 (where e^x leaves the normal floats), -inf included, so
 /// that blocked scores become probabilities of exactly 0 in the same pass.
@@ -31,8 +31,14 @@ pub(super) fn exp_neg(x: f32) -> f32 {
 
 /// erf(x) by Abramowitz & Stegun 7.1.26 (1.5e-7; within 3e-7 in f32).
 #[inline(always)]
-#[allow(clippy::excessive_precision)] // the published constants, as printed
 pub(super) fn erf(x: f32) -> f32 {
+    erf_with(x, exp_neg(-x * x))
+}
+
+/// erf(x) as [`erf`], given e^(-x^2) (`gauss`) where the caller has it already.
+#[inline(always)]
+#[allow(clippy::excessive_precision)] // the published constants, as printed
+pub(super) fn erf_with(x: f32, gauss: f32) -> f32 {
     let (p, a1, a2, a3, a4, a5) = (
         0.3275911f32,
         0.254829592f32,
@@ -41,9 +47,8 @@ pub(super) fn erf(x: f32) -> f32 {
         -1.453152027f32,
         1.061405429f32,
     );
-    let z = x.abs();
-    let t = 1.0 / (1.0 + p * z);
-    let y = 1.0 - ((((a5 * t + a4) * t + a3) * t + a2) * t + a1) * t * exp_neg(-z * z);
+    let t = 1.0 / (1.0 + p * x.abs());
+    let y = 1.0 - ((((a5 * t + a4) * t + a3) * t + a2) * t + a1) * t * gauss;
     y.copysign(x)
 }
 
@@ -53,6 +58,20 @@ pub(super) fn avx2() -> bool {
     *AVX2.get_or_init(|| {
         #[cfg(target_arch = "x86_64")]
         return std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma");
+        #[cfg(not(target_arch = "x86_64"))]
+        false
+    })
+}
+
+/// Whether this CPU runs the AVX-512 builds of the kernels (AVX-512F with AVX2 + FMA; checked
+/// once). `DIFFKFC_NO_AVX512=1` turns them off, to compare the two builds on one machine.
+pub(super) fn avx512() -> bool {
+    static AVX512: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *AVX512.get_or_init(|| {
+        #[cfg(target_arch = "x86_64")]
+        return avx2()
+            && std::is_x86_feature_detected!("avx512f")
+            && std::env::var_os("DIFFKFC_NO_AVX512").is_none_or(|v| v.is_empty() || v == "0");
         #[cfg(not(target_arch = "x86_64"))]
         false
     })

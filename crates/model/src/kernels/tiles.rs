@@ -1,7 +1,8 @@
 //! The register tiles of the flash attention kernel (`flash.rs`): a block's three products
 //! (scores, weighted values, the weights' outer products into dK and dV), as plain loops for any
-//! CPU and as AVX2 + FMA intrinsics. LLVM does not vectorise the plain loops' tiles (it unrolls
-//! them into scalar code), so the fast ones are written out.
+//! CPU, as AVX2 + FMA intrinsics and as AVX-512 intrinsics (16 lanes: a chunk of [`W`] keys, or
+//! a 16-wide head's row, is one register). LLVM does not vectorise the plain loops' tiles (it
+//! unrolls them into scalar code), so the fast ones are written out.
 
 /// Query rows per block.
 pub(super) const R: usize = 4;
@@ -199,39 +200,172 @@ mod avx2 {
     }
 }
 
+/// AVX-512 intrinsics (16 lanes), for CPUs that have them: half the instructions of [`Avx2`].
+#[cfg(target_arch = "x86_64")]
+pub(super) struct Avx512;
+
+#[cfg(target_arch = "x86_64")]
+impl Lanes for Avx512 {
+    #[inline(always)]
+    fn dots<const P: usize>(a: &[f32], bt: &[f32], n16: usize, scale: f32, out: &mut [f32]) {
+        assert!(a.len() >= R * P && bt.len() >= P * n16 && out.len() >= R * n16);
+        // SAFETY: the lengths checked above; called only from the AVX-512 builds.
+        unsafe { avx512::dots::<P>(a.as_ptr(), bt.as_ptr(), n16, scale, out.as_mut_ptr()) }
+    }
+
+    #[inline(always)]
+    fn mix<const P: usize>(w: &[f32], n16: usize, n: usize, m: &[f32], out: &mut [f32]) {
+        assert!(w.len() >= R * n16 && n <= n16 && m.len() >= n * P && out.len() >= R * P);
+        // SAFETY: as above.
+        unsafe { avx512::mix::<P>(w.as_ptr(), n16, n, m.as_ptr(), out.as_mut_ptr()) }
+    }
+
+    #[inline(always)]
+    fn spread<const P: usize>(w: &[f32], n16: usize, n: usize, x: &[f32], acc: &mut [f32]) {
+        assert!(w.len() >= R * n16 && n <= n16 && x.len() >= R * P && acc.len() >= n * P);
+        // SAFETY: as above.
+        unsafe { avx512::spread::<P>(w.as_ptr(), n16, n, x.as_ptr(), acc.as_mut_ptr()) }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx512 {
+    use std::arch::x86_64::*;
+
+    use super::{R, W};
+
+    /// P / 16 registers per row, P <= 32.
+    const MAX: usize = 2;
+
+    #[target_feature(enable = "avx512f")]
+    pub(super) unsafe fn dots<const P: usize>(
+        a: *const f32,
+        bt: *const f32,
+        n16: usize,
+        scale: f32,
+        out: *mut f32,
+    ) {
+        let sc = _mm512_set1_ps(scale);
+        for j0 in (0..n16).step_by(W) {
+            let mut acc = [_mm512_setzero_ps(); R];
+            for d in 0..P {
+                let b = _mm512_loadu_ps(bt.add(d * n16 + j0));
+                for (r, acc) in acc.iter_mut().enumerate() {
+                    *acc = _mm512_fmadd_ps(_mm512_set1_ps(*a.add(r * P + d)), b, *acc);
+                }
+            }
+            for (r, acc) in acc.iter().enumerate() {
+                _mm512_storeu_ps(out.add(r * n16 + j0), _mm512_mul_ps(*acc, sc));
+            }
+        }
+    }
+
+    #[target_feature(enable = "avx512f")]
+    pub(super) unsafe fn mix<const P: usize>(
+        w: *const f32,
+        n16: usize,
+        n: usize,
+        m: *const f32,
+        out: *mut f32,
+    ) {
+        let c = P / 16;
+        let mut acc = [[_mm512_setzero_ps(); MAX]; R];
+        for j in 0..n {
+            let mut row = [_mm512_setzero_ps(); MAX];
+            for (k, v) in row.iter_mut().enumerate().take(c) {
+                *v = _mm512_loadu_ps(m.add(j * P + k * 16));
+            }
+            for (r, acc) in acc.iter_mut().enumerate() {
+                let x = _mm512_set1_ps(*w.add(r * n16 + j));
+                for k in 0..c {
+                    acc[k] = _mm512_fmadd_ps(x, row[k], acc[k]);
+                }
+            }
+        }
+        for (r, acc) in acc.iter().enumerate() {
+            for (k, v) in acc.iter().enumerate().take(c) {
+                _mm512_storeu_ps(out.add(r * P + k * 16), *v);
+            }
+        }
+    }
+
+    #[target_feature(enable = "avx512f")]
+    pub(super) unsafe fn spread<const P: usize>(
+        w: *const f32,
+        n16: usize,
+        n: usize,
+        x: *const f32,
+        acc: *mut f32,
+    ) {
+        let c = P / 16;
+        let mut xs = [[_mm512_setzero_ps(); MAX]; R];
+        for (r, xr) in xs.iter_mut().enumerate() {
+            for (k, v) in xr.iter_mut().enumerate().take(c) {
+                *v = _mm512_loadu_ps(x.add(r * P + k * 16));
+            }
+        }
+        for j in 0..n {
+            let mut t = [_mm512_setzero_ps(); MAX];
+            for (k, v) in t.iter_mut().enumerate().take(c) {
+                *v = _mm512_loadu_ps(acc.add(j * P + k * 16));
+            }
+            for (r, xr) in xs.iter().enumerate() {
+                let cr = _mm512_set1_ps(*w.add(r * n16 + j));
+                for k in 0..c {
+                    t[k] = _mm512_fmadd_ps(cr, xr[k], t[k]);
+                }
+            }
+            for (k, v) in t.iter().enumerate().take(c) {
+                _mm512_storeu_ps(acc.add(j * P + k * 16), *v);
+            }
+        }
+    }
+}
+
 #[cfg(all(test, target_arch = "x86_64"))]
 mod tests {
     use super::*;
 
-    /// The AVX2 tiles compute what the plain loops compute (the kernel test above runs whichever
-    /// build the CPU picks; this one runs both).
+    /// The tiles of one build compute what the plain loops compute (the kernel test runs
+    /// whichever build the CPU picks; this one runs each the CPU has).
+    fn check<L: Lanes, const P: usize>(build: &str) {
+        let (n, n16) = (37, 48);
+        let v = |len: usize, k: usize| -> Vec<f32> {
+            (0..len).map(|i| ((i * k) % 97) as f32 / 48.0 - 1.0).collect()
+        };
+        let (a, bt, w, m) = (v(R * P, 3), v(P * n16, 5), v(R * n16, 7), v(n * P, 11));
+        let close = |x: &[f32], y: &[f32]| x.iter().zip(y).all(|(p, q)| (p - q).abs() < 1e-4);
+        let (mut o1, mut o2) = (vec![0f32; R * n16], vec![0f32; R * n16]);
+        Scalar::dots::<P>(&a, &bt, n16, 0.25, &mut o1);
+        L::dots::<P>(&a, &bt, n16, 0.25, &mut o2);
+        assert!(close(&o1, &o2), "{build} dots P={P}");
+        let (mut o1, mut o2) = (vec![0f32; R * P], vec![0f32; R * P]);
+        Scalar::mix::<P>(&w, n16, n, &m, &mut o1);
+        L::mix::<P>(&w, n16, n, &m, &mut o2);
+        assert!(close(&o1, &o2), "{build} mix P={P}");
+        let (mut o1, mut o2) = (m.clone(), m.clone());
+        Scalar::spread::<P>(&w, n16, n, &a, &mut o1);
+        L::spread::<P>(&w, n16, n, &a, &mut o2);
+        assert!(close(&o1, &o2), "{build} spread P={P}");
+    }
+
     #[test]
     fn avx2_tiles_match_the_plain_loops() {
         if !(std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")) {
             eprintln!("notice: no AVX2 + FMA here; the AVX2 tiles are not compared");
             return;
         }
-        fn check<const P: usize>() {
-            let (n, n16) = (37, 48);
-            let v = |len: usize, k: usize| -> Vec<f32> {
-                (0..len).map(|i| ((i * k) % 97) as f32 / 48.0 - 1.0).collect()
-            };
-            let (a, bt, w, m) = (v(R * P, 3), v(P * n16, 5), v(R * n16, 7), v(n * P, 11));
-            let close = |x: &[f32], y: &[f32]| x.iter().zip(y).all(|(p, q)| (p - q).abs() < 1e-4);
-            let (mut o1, mut o2) = (vec![0f32; R * n16], vec![0f32; R * n16]);
-            Scalar::dots::<P>(&a, &bt, n16, 0.25, &mut o1);
-            Avx2::dots::<P>(&a, &bt, n16, 0.25, &mut o2);
-            assert!(close(&o1, &o2), "dots P={P}");
-            let (mut o1, mut o2) = (vec![0f32; R * P], vec![0f32; R * P]);
-            Scalar::mix::<P>(&w, n16, n, &m, &mut o1);
-            Avx2::mix::<P>(&w, n16, n, &m, &mut o2);
-            assert!(close(&o1, &o2), "mix P={P}");
-            let (mut o1, mut o2) = (m.clone(), m.clone());
-            Scalar::spread::<P>(&w, n16, n, &a, &mut o1);
-            Avx2::spread::<P>(&w, n16, n, &a, &mut o2);
-            assert!(close(&o1, &o2), "spread P={P}");
+        check::<Avx2, 16>("avx2");
+        check::<Avx2, 32>("avx2");
+    }
+
+    #[test]
+    fn avx512_tiles_match_the_plain_loops() {
+        if !std::is_x86_feature_detected!("avx512f") {
+            eprintln!("notice: no AVX-512 here; the AVX-512 tiles are not compared");
+            return;
         }
-        check::<16>();
-        check::<32>();
+        check::<Avx512, 16>("avx512");
+        check::<Avx512, 32>("avx512");
     }
 }
