@@ -6,6 +6,7 @@
 use rayon::prelude::*;
 
 use super::host::sum_in_order;
+use super::simd::elementwise_builds;
 
 /// Shapes of one call: tokens [B, M, d] whose rows `skip`.. are the N = M - skip frames the
 /// convolution runs over; taps [K, d], K odd, tap k reading frame t + k - K/2.
@@ -38,19 +39,29 @@ pub fn temporal_forward(h: &[f32], w: &[f32], real: &[f32], s: &ConvShape) -> Ve
     let mut y = vec![0f32; s.batch * m * d];
     y.par_chunks_mut(m * d).enumerate().for_each(|(b, yb)| {
         let (hb, rb) = (&h[b * m * d..(b + 1) * m * d], &real[b * n..(b + 1) * n]);
-        for t in 0..n {
-            let out = &mut yb[(s.skip + t) * d..(s.skip + t + 1) * d];
-            for k in 0..s.kernel {
-                let Some(src) = s.source(t, k, rb) else { continue };
-                let x = &hb[(s.skip + src) * d..(s.skip + src + 1) * d];
-                for ((o, &wv), &xv) in out.iter_mut().zip(&w[k * d..(k + 1) * d]).zip(x) {
-                    *o += xv * wv;
-                }
-            }
-        }
+        sample_forward(yb, hb, rb, w, s);
     });
     y
 }
+
+/// One sample of [`temporal_forward`]: yb, hb [M, d], rb [N].
+#[inline(always)]
+fn sample_forward_rows(yb: &mut [f32], hb: &[f32], rb: &[f32], w: &[f32], s: &ConvShape) {
+    let d = s.d;
+    for t in 0..s.frames() {
+        let out = &mut yb[(s.skip + t) * d..(s.skip + t + 1) * d];
+        for k in 0..s.kernel {
+            let Some(src) = s.source(t, k, rb) else { continue };
+            let x = &hb[(s.skip + src) * d..(s.skip + src + 1) * d];
+            for ((o, &wv), &xv) in out.iter_mut().zip(&w[k * d..(k + 1) * d]).zip(x) {
+                *o += xv * wv;
+            }
+        }
+    }
+}
+
+elementwise_builds!(sample_forward, sample_forward_rows, sample_forward_avx512,
+    sample_forward_avx2, (yb: &mut [f32], hb: &[f32], rb: &[f32], w: &[f32], s: &ConvShape));
 
 /// Gradients (dh, dw) of [`temporal_forward`] for `dy` [B, M, d]. The taps' gradient is summed
 /// per sample, then over the samples in order: the same for any thread count.
@@ -68,22 +79,81 @@ pub fn temporal_backward(
         .enumerate()
         .map(|(b, dhb)| {
             let (hb, rb) = (&h[b * m * d..(b + 1) * m * d], &real[b * n..(b + 1) * n]);
-            let mut dw = vec![0f32; s.kernel * d];
-            for t in 0..n {
-                let g = &dy[(b * m + s.skip + t) * d..(b * m + s.skip + t + 1) * d];
-                for k in 0..s.kernel {
-                    let Some(src) = s.source(t, k, rb) else { continue };
-                    let row = (s.skip + src) * d..(s.skip + src + 1) * d;
-                    let (x, dx) = (&hb[row.clone()], &mut dhb[row]);
-                    let (wk, dwk) = (&w[k * d..(k + 1) * d], &mut dw[k * d..(k + 1) * d]);
-                    for c in 0..d {
-                        dx[c] += g[c] * wk[c];
-                        dwk[c] += g[c] * x[c];
-                    }
-                }
-            }
-            dw
+            sample_backward(dhb, hb, rb, &dy[b * m * d..(b + 1) * m * d], w, s)
         })
         .collect();
     (dh, sum_in_order(parts.iter().map(Vec::as_slice), s.kernel * d))
+}
+
+/// One sample of [`temporal_backward`]: dhb in place, and the sample's tap gradient [K, d].
+#[inline(always)]
+fn sample_backward_rows(
+    dhb: &mut [f32],
+    hb: &[f32],
+    rb: &[f32],
+    dyb: &[f32],
+    w: &[f32],
+    s: &ConvShape,
+) -> Vec<f32> {
+    let d = s.d;
+    let mut dw = vec![0f32; s.kernel * d];
+    for t in 0..s.frames() {
+        let g = &dyb[(s.skip + t) * d..(s.skip + t + 1) * d];
+        for k in 0..s.kernel {
+            let Some(src) = s.source(t, k, rb) else { continue };
+            let row = (s.skip + src) * d..(s.skip + src + 1) * d;
+            let (x, dx) = (&hb[row.clone()], &mut dhb[row]);
+            let (wk, dwk) = (&w[k * d..(k + 1) * d], &mut dw[k * d..(k + 1) * d]);
+            for c in 0..d {
+                dx[c] += g[c] * wk[c];
+                dwk[c] += g[c] * x[c];
+            }
+        }
+    }
+    dw
+}
+
+elementwise_builds!(sample_backward, sample_backward_rows, sample_backward_avx512,
+    sample_backward_avx2,
+    (dhb: &mut [f32], hb: &[f32], rb: &[f32], dyb: &[f32], w: &[f32], s: &ConvShape) -> Vec<f32>);
+
+#[cfg(all(test, target_arch = "x86_64"))]
+mod builds {
+    use super::*;
+
+    #[test]
+    fn wide_builds_give_the_plain_builds_bits() {
+        if !crate::kernels::simd::every_build_here() {
+            return;
+        }
+        let s = ConvShape { batch: 1, rows: 40, skip: 3, d: 24, kernel: 9 };
+        let v = |len: usize, k: usize| -> Vec<f32> {
+            (0..len).map(|i| ((i * k) % 101) as f32 / 25.0 - 2.0).collect()
+        };
+        let (h, w, g) = (v(40 * 24, 7), v(9 * 24, 3), v(40 * 24, 5));
+        let real: Vec<f32> = (0..37).map(|t| if t % 11 == 4 { 0.0 } else { 1.0 }).collect();
+        let run = |build: usize| {
+            let (mut y, mut dh) = (vec![0f32; 40 * 24], vec![0f32; 40 * 24]);
+            // SAFETY: the CPU has both feature sets (checked above).
+            let dw = unsafe {
+                match build {
+                    0 => {
+                        sample_forward_rows(&mut y, &h, &real, &w, &s);
+                        sample_backward_rows(&mut dh, &h, &real, &g, &w, &s)
+                    }
+                    1 => {
+                        sample_forward_avx2(&mut y, &h, &real, &w, &s);
+                        sample_backward_avx2(&mut dh, &h, &real, &g, &w, &s)
+                    }
+                    _ => {
+                        sample_forward_avx512(&mut y, &h, &real, &w, &s);
+                        sample_backward_avx512(&mut dh, &h, &real, &g, &w, &s)
+                    }
+                }
+            };
+            [y, dh, dw].map(|x| x.iter().map(|f| f.to_bits()).collect::<Vec<_>>())
+        };
+        assert!(run(1) == run(0), "AVX2 build differs");
+        assert!(run(2) == run(0), "AVX-512 build differs");
+    }
 }

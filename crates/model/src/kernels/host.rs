@@ -6,7 +6,7 @@
 
 use rayon::prelude::*;
 
-use super::simd::{self, erf, erf_with, exp_neg};
+use super::simd::{elementwise_builds, erf, erf_with, exp_neg};
 
 /// A strided read-only matrix: element (r, c) at `ptr + r * rs + c * cs`.
 #[derive(Clone, Copy)]
@@ -298,35 +298,6 @@ fn gelu_grad_rows(o: &mut [f32], x: &[f32], g: &[f32]) {
     }
 }
 
-/// The builds of an elementwise pass: AVX-512 (16 lanes), AVX2 + FMA (8 lanes), plain.
-macro_rules! elementwise_builds {
-    ($name:ident, $generic:ident, $avx512:ident, $avx2:ident, ($($arg:ident: $ty:ty),*)) => {
-        #[cfg(target_arch = "x86_64")]
-        #[target_feature(enable = "avx512f,avx2,fma")]
-        fn $avx512($($arg: $ty),*) {
-            $generic($($arg),*)
-        }
-        #[cfg(target_arch = "x86_64")]
-        #[target_feature(enable = "avx2,fma")]
-        fn $avx2($($arg: $ty),*) {
-            $generic($($arg),*)
-        }
-        fn $name($($arg: $ty),*) {
-            #[cfg(target_arch = "x86_64")]
-            if simd::avx512() {
-                // SAFETY: the CPU has the features the function was compiled for.
-                return unsafe { $avx512($($arg),*) };
-            }
-            #[cfg(target_arch = "x86_64")]
-            if simd::avx2() {
-                // SAFETY: as above.
-                return unsafe { $avx2($($arg),*) };
-            }
-            $generic($($arg),*)
-        }
-    };
-}
-
 elementwise_builds!(gelu_chunk, gelu_rows, gelu_rows_avx512, gelu_rows_avx2, (c: &mut [f32]));
 elementwise_builds!(gelu_grad_chunk, gelu_grad_rows, gelu_grad_rows_avx512, gelu_grad_rows_avx2,
     (o: &mut [f32], x: &[f32], g: &[f32]));
@@ -360,16 +331,25 @@ fn moments(x: &[f32], eps: f32) -> (f32, f32) {
 pub fn layer_norm_forward(x: &[f32], gamma: &[f32], beta: &[f32], eps: f32) -> Vec<f32> {
     let d = gamma.len();
     let mut y = vec![0f32; x.len()];
-    y.par_chunks_mut(d * LN_ROWS).zip(x.par_chunks(d * LN_ROWS)).for_each(|(yc, xc)| {
-        for (yr, xr) in yc.chunks_mut(d).zip(xc.chunks(d)) {
-            let (mean, rstd) = moments(xr, eps);
-            for j in 0..d {
-                yr[j] = (xr[j] - mean) * rstd * gamma[j] + beta[j];
-            }
-        }
-    });
+    y.par_chunks_mut(d * LN_ROWS)
+        .zip(x.par_chunks(d * LN_ROWS))
+        .for_each(|(yc, xc)| ln_chunk(yc, xc, gamma, beta, eps));
     y
 }
+
+#[inline(always)]
+fn ln_rows(yc: &mut [f32], xc: &[f32], gamma: &[f32], beta: &[f32], eps: f32) {
+    let d = gamma.len();
+    for (yr, xr) in yc.chunks_mut(d).zip(xc.chunks(d)) {
+        let (mean, rstd) = moments(xr, eps);
+        for j in 0..d {
+            yr[j] = (xr[j] - mean) * rstd * gamma[j] + beta[j];
+        }
+    }
+}
+
+elementwise_builds!(ln_chunk, ln_rows, ln_rows_avx512, ln_rows_avx2,
+    (yc: &mut [f32], xc: &[f32], gamma: &[f32], beta: &[f32], eps: f32));
 
 /// h + a (o m): a residual branch with its dropout mask, if any.
 pub fn residual(h: &[f32], a: &[f32], m: Option<&[f32]>) -> Vec<f32> {
@@ -378,9 +358,7 @@ pub fn residual(h: &[f32], a: &[f32], m: Option<&[f32]>) -> Vec<f32> {
         Some(m) => x
             .par_chunks_mut(1 << 14)
             .zip(a.par_chunks(1 << 14).zip(m.par_chunks(1 << 14)))
-            .for_each(|(x, (a, m))| {
-                x.iter_mut().zip(a.iter().zip(m)).for_each(|(x, (a, m))| *x += a * m);
-            }),
+            .for_each(|(x, (a, m))| add_masked(x, a, m)),
         None => x
             .par_chunks_mut(1 << 14)
             .zip(a.par_chunks(1 << 14))
@@ -388,6 +366,14 @@ pub fn residual(h: &[f32], a: &[f32], m: Option<&[f32]>) -> Vec<f32> {
     }
     x
 }
+
+#[inline(always)]
+fn add_masked_rows(x: &mut [f32], a: &[f32], m: &[f32]) {
+    x.iter_mut().zip(a.iter().zip(m)).for_each(|(x, (a, m))| *x += a * m);
+}
+
+elementwise_builds!(add_masked, add_masked_rows, add_masked_avx512, add_masked_avx2,
+    (x: &mut [f32], a: &[f32], m: &[f32]));
 
 /// Gradients (dx, dgamma, dbeta) of [`layer_norm_forward`] for `dy`.
 pub fn layer_norm_backward(
@@ -401,30 +387,105 @@ pub fn layer_norm_backward(
     let partial: Vec<(Vec<f32>, Vec<f32>)> = dx
         .par_chunks_mut(d * LN_ROWS)
         .zip(x.par_chunks(d * LN_ROWS).zip(dy.par_chunks(d * LN_ROWS)))
-        .map(|(dxc, (xc, gc))| {
-            let (mut dg, mut db) = (vec![0f32; d], vec![0f32; d]);
-            let mut g = vec![0f32; d];
-            for ((dxr, xr), gr) in dxc.chunks_mut(d).zip(xc.chunks(d)).zip(gc.chunks(d)) {
-                let (mean, rstd) = moments(xr, eps);
-                let (mut sum_g, mut sum_gx) = (0f32, 0f32);
-                for j in 0..d {
-                    let xhat = (xr[j] - mean) * rstd;
-                    dg[j] += gr[j] * xhat;
-                    db[j] += gr[j];
-                    g[j] = gr[j] * gamma[j];
-                    sum_g += g[j];
-                    sum_gx += g[j] * xhat;
-                }
-                let (mg, mgx) = (sum_g / d as f32, sum_gx / d as f32);
-                for j in 0..d {
-                    let xhat = (xr[j] - mean) * rstd;
-                    dxr[j] = rstd * (g[j] - mg - xhat * mgx);
-                }
-            }
-            (dg, db)
-        })
+        .map(|(dxc, (xc, gc))| ln_grad_chunk(dxc, xc, gc, gamma, eps))
         .collect();
     let dgamma = sum_in_order(partial.iter().map(|(g, _)| g.as_slice()), d);
     let dbeta = sum_in_order(partial.iter().map(|(_, b)| b.as_slice()), d);
     (dx, dgamma, dbeta)
+}
+
+/// One chunk of rows of [`layer_norm_backward`]: dx in place, and the chunk's (dgamma, dbeta).
+#[inline(always)]
+fn ln_grad_rows(
+    dxc: &mut [f32],
+    xc: &[f32],
+    gc: &[f32],
+    gamma: &[f32],
+    eps: f32,
+) -> (Vec<f32>, Vec<f32>) {
+    let d = gamma.len();
+    let (mut dg, mut db) = (vec![0f32; d], vec![0f32; d]);
+    let mut g = vec![0f32; d];
+    for ((dxr, xr), gr) in dxc.chunks_mut(d).zip(xc.chunks(d)).zip(gc.chunks(d)) {
+        let (mean, rstd) = moments(xr, eps);
+        let (mut sum_g, mut sum_gx) = (0f32, 0f32);
+        for j in 0..d {
+            let xhat = (xr[j] - mean) * rstd;
+            dg[j] += gr[j] * xhat;
+            db[j] += gr[j];
+            g[j] = gr[j] * gamma[j];
+            sum_g += g[j];
+            sum_gx += g[j] * xhat;
+        }
+        let (mg, mgx) = (sum_g / d as f32, sum_gx / d as f32);
+        for j in 0..d {
+            let xhat = (xr[j] - mean) * rstd;
+            dxr[j] = rstd * (g[j] - mg - xhat * mgx);
+        }
+    }
+    (dg, db)
+}
+
+elementwise_builds!(ln_grad_chunk, ln_grad_rows, ln_grad_rows_avx512, ln_grad_rows_avx2,
+    (dxc: &mut [f32], xc: &[f32], gc: &[f32], gamma: &[f32], eps: f32) -> (Vec<f32>, Vec<f32>));
+
+/// The AVX-512 and AVX2 builds give the same bits as the plain one (only the width differs).
+#[cfg(all(test, target_arch = "x86_64"))]
+mod builds {
+    use super::*;
+
+    fn values(len: usize, k: usize) -> Vec<f32> {
+        (0..len).map(|i| ((i * k) % 193) as f32 / 32.0 - 3.0).collect()
+    }
+
+    #[test]
+    fn wide_builds_give_the_plain_builds_bits() {
+        if !crate::kernels::simd::every_build_here() {
+            return;
+        }
+        let (x, g, m) = (values(3000, 7), values(3000, 11), values(3000, 13));
+        let (gamma, beta) = (values(120, 3), values(120, 5));
+        let mut outs: Vec<Vec<Vec<f32>>> = Vec::new();
+        for build in 0..3 {
+            let mut o = Vec::new();
+            let mut h = x.clone();
+            let mut dh = vec![0f32; 3000];
+            let mut y = vec![0f32; 3000];
+            let mut dx = vec![0f32; 3000];
+            let mut r = x.clone();
+            // SAFETY: the CPU has both feature sets (checked above).
+            let (dg, db) = unsafe {
+                match build {
+                    0 => {
+                        gelu_rows(&mut h);
+                        gelu_grad_rows(&mut dh, &x, &g);
+                        ln_rows(&mut y, &x, &gamma, &beta, 1e-5);
+                        add_masked_rows(&mut r, &g, &m);
+                        ln_grad_rows(&mut dx, &x, &g, &gamma, 1e-5)
+                    }
+                    1 => {
+                        gelu_rows_avx2(&mut h);
+                        gelu_grad_rows_avx2(&mut dh, &x, &g);
+                        ln_rows_avx2(&mut y, &x, &gamma, &beta, 1e-5);
+                        add_masked_avx2(&mut r, &g, &m);
+                        ln_grad_rows_avx2(&mut dx, &x, &g, &gamma, 1e-5)
+                    }
+                    _ => {
+                        gelu_rows_avx512(&mut h);
+                        gelu_grad_rows_avx512(&mut dh, &x, &g);
+                        ln_rows_avx512(&mut y, &x, &gamma, &beta, 1e-5);
+                        add_masked_avx512(&mut r, &g, &m);
+                        ln_grad_rows_avx512(&mut dx, &x, &g, &gamma, 1e-5)
+                    }
+                }
+            };
+            o.extend([h, dh, y, r, dx, dg, db]);
+            outs.push(o);
+        }
+        let bits = |v: &[Vec<f32>]| -> Vec<Vec<u32>> {
+            v.iter().map(|x| x.iter().map(|f| f.to_bits()).collect()).collect()
+        };
+        assert!(bits(&outs[1]) == bits(&outs[0]), "AVX2 build differs");
+        assert!(bits(&outs[2]) == bits(&outs[0]), "AVX-512 build differs");
+    }
 }

@@ -77,6 +77,53 @@ pub(super) fn avx512() -> bool {
     })
 }
 
+/// The builds of a pass written as plain loops: AVX-512 (16 lanes), AVX2 + FMA (8 lanes) and
+/// the baseline, and `$name` calling the one this CPU runs. Each element gets the same
+/// operations in every build (no reassociation, no contraction), so the results are the same
+/// bits; only the vector width differs.
+macro_rules! elementwise_builds {
+    ($name:ident, $generic:ident, $avx512:ident, $avx2:ident,
+        ($($arg:ident: $ty:ty),*) $(-> $ret:ty)?) => {
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx512f,avx2,fma")]
+        fn $avx512($($arg: $ty),*) $(-> $ret)? {
+            $generic($($arg),*)
+        }
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2,fma")]
+        fn $avx2($($arg: $ty),*) $(-> $ret)? {
+            $generic($($arg),*)
+        }
+        fn $name($($arg: $ty),*) $(-> $ret)? {
+            #[cfg(target_arch = "x86_64")]
+            if $crate::kernels::simd::avx512() {
+                // SAFETY: the CPU has the features the function was compiled for.
+                return unsafe { $avx512($($arg),*) };
+            }
+            #[cfg(target_arch = "x86_64")]
+            if $crate::kernels::simd::avx2() {
+                // SAFETY: as above.
+                return unsafe { $avx2($($arg),*) };
+            }
+            $generic($($arg),*)
+        }
+    };
+}
+
+pub(super) use elementwise_builds;
+
+/// Whether the tests can run every build here (AVX-512F, AVX2 and FMA); a notice where not.
+#[cfg(all(test, target_arch = "x86_64"))]
+pub(super) fn every_build_here() -> bool {
+    let all = std::is_x86_feature_detected!("avx512f")
+        && std::is_x86_feature_detected!("avx2")
+        && std::is_x86_feature_detected!("fma");
+    if !all {
+        eprintln!("notice: no AVX-512 + AVX2 + FMA here; the kernel builds are not compared");
+    }
+    all
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
