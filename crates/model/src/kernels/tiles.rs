@@ -78,29 +78,44 @@ impl Lanes for Scalar {
 #[cfg(target_arch = "x86_64")]
 pub(super) struct Avx2;
 
-#[cfg(target_arch = "x86_64")]
-impl Lanes for Avx2 {
-    #[inline(always)]
-    fn dots<const P: usize>(a: &[f32], bt: &[f32], n16: usize, scale: f32, out: &mut [f32]) {
-        assert!(a.len() >= R * P && bt.len() >= P * n16 && out.len() >= R * n16);
-        // SAFETY: the lengths checked above; called only from the AVX2 + FMA builds.
-        unsafe { avx2::dots::<P>(a.as_ptr(), bt.as_ptr(), n16, scale, out.as_mut_ptr()) }
-    }
+/// `Lanes` for an intrinsics build: each product checks its slices' lengths, then calls the
+/// build's unsafe tile of module `$m`.
+macro_rules! intrinsic_lanes {
+    ($ty:ident, $m:ident) => {
+        #[cfg(target_arch = "x86_64")]
+        impl Lanes for $ty {
+            #[inline(always)]
+            fn dots<const P: usize>(
+                a: &[f32],
+                bt: &[f32],
+                n16: usize,
+                scale: f32,
+                out: &mut [f32],
+            ) {
+                assert!(a.len() >= R * P && bt.len() >= P * n16 && out.len() >= R * n16);
+                // SAFETY: the lengths checked above; called only from the build's own head
+                // functions, on CPUs with its features.
+                unsafe { $m::dots::<P>(a.as_ptr(), bt.as_ptr(), n16, scale, out.as_mut_ptr()) }
+            }
 
-    #[inline(always)]
-    fn mix<const P: usize>(w: &[f32], n16: usize, n: usize, m: &[f32], out: &mut [f32]) {
-        assert!(w.len() >= R * n16 && n <= n16 && m.len() >= n * P && out.len() >= R * P);
-        // SAFETY: as above.
-        unsafe { avx2::mix::<P>(w.as_ptr(), n16, n, m.as_ptr(), out.as_mut_ptr()) }
-    }
+            #[inline(always)]
+            fn mix<const P: usize>(w: &[f32], n16: usize, n: usize, m: &[f32], out: &mut [f32]) {
+                assert!(w.len() >= R * n16 && n <= n16 && m.len() >= n * P && out.len() >= R * P);
+                // SAFETY: as above.
+                unsafe { $m::mix::<P>(w.as_ptr(), n16, n, m.as_ptr(), out.as_mut_ptr()) }
+            }
 
-    #[inline(always)]
-    fn spread<const P: usize>(w: &[f32], n16: usize, n: usize, x: &[f32], acc: &mut [f32]) {
-        assert!(w.len() >= R * n16 && n <= n16 && x.len() >= R * P && acc.len() >= n * P);
-        // SAFETY: as above.
-        unsafe { avx2::spread::<P>(w.as_ptr(), n16, n, x.as_ptr(), acc.as_mut_ptr()) }
-    }
+            #[inline(always)]
+            fn spread<const P: usize>(w: &[f32], n16: usize, n: usize, x: &[f32], acc: &mut [f32]) {
+                assert!(w.len() >= R * n16 && n <= n16 && x.len() >= R * P && acc.len() >= n * P);
+                // SAFETY: as above.
+                unsafe { $m::spread::<P>(w.as_ptr(), n16, n, x.as_ptr(), acc.as_mut_ptr()) }
+            }
+        }
+    };
 }
+
+intrinsic_lanes!(Avx2, avx2);
 
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
@@ -204,29 +219,7 @@ mod avx2 {
 #[cfg(target_arch = "x86_64")]
 pub(super) struct Avx512;
 
-#[cfg(target_arch = "x86_64")]
-impl Lanes for Avx512 {
-    #[inline(always)]
-    fn dots<const P: usize>(a: &[f32], bt: &[f32], n16: usize, scale: f32, out: &mut [f32]) {
-        assert!(a.len() >= R * P && bt.len() >= P * n16 && out.len() >= R * n16);
-        // SAFETY: the lengths checked above; called only from the AVX-512 builds.
-        unsafe { avx512::dots::<P>(a.as_ptr(), bt.as_ptr(), n16, scale, out.as_mut_ptr()) }
-    }
-
-    #[inline(always)]
-    fn mix<const P: usize>(w: &[f32], n16: usize, n: usize, m: &[f32], out: &mut [f32]) {
-        assert!(w.len() >= R * n16 && n <= n16 && m.len() >= n * P && out.len() >= R * P);
-        // SAFETY: as above.
-        unsafe { avx512::mix::<P>(w.as_ptr(), n16, n, m.as_ptr(), out.as_mut_ptr()) }
-    }
-
-    #[inline(always)]
-    fn spread<const P: usize>(w: &[f32], n16: usize, n: usize, x: &[f32], acc: &mut [f32]) {
-        assert!(w.len() >= R * n16 && n <= n16 && x.len() >= R * P && acc.len() >= n * P);
-        // SAFETY: as above.
-        unsafe { avx512::spread::<P>(w.as_ptr(), n16, n, x.as_ptr(), acc.as_mut_ptr()) }
-    }
-}
+intrinsic_lanes!(Avx512, avx512);
 
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
