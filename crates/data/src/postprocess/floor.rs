@@ -42,7 +42,7 @@ fn low(j: &[Vec3], leg: &Leg) -> f64 {
 
 /// Per frame, how far to lift the whole body refitted from `before` to `after`: the running
 /// median of how far its lower foot sank (negative where it rose), faded out towards held
-/// frames ([`key_weights`] over [`LIFT_FADE`] frames).
+/// frames (over [`LIFT_FADE`] frames, smoothly).
 pub fn lift(skel: &Skeleton, before: &Joints, after: &Joints, hold: &[bool]) -> Vec<f64> {
     let legs = legs(skel);
     let lowest = |j: &[Vec3]| legs.iter().map(|l| low(j, l)).fold(f64::INFINITY, f64::min);
