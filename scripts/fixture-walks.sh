@@ -3,7 +3,7 @@
 # a turn and back, then standing; 000021, through HumanML3D's own processing: a walk in a loop),
 # keyed at 5%, sampled by the network alone and by the default pipeline; root speed and stride
 # against the clip's own, foot skating, K-TranS and how far under the floor the body goes
-# (docs/long-run.md, "Real motion"). The fixtures carry no captions: the ones below are ours,
+# (docs/real-motion.md). The fixtures carry no captions: the ones below are ours,
 # the same for every model.
 #   scripts/fixture-walks.sh MODEL OUT [--fixtures DIR] [--samples N] [--seed S] [-- SAMPLE FLAGS...]
 set -euo pipefail
