@@ -17,6 +17,22 @@ fn synth_check_and_render() {
         &diffkfc(&["data", "synth", "--out", s(&out), "--clips", "3"]),
         &["already exists"],
     );
+    // The body is chosen by name, recorded in the manifest; an unknown one is refused.
+    let o = diffkfc(&[
+        "data",
+        "synth",
+        "--out",
+        s(&d.join("b")),
+        "--clips",
+        "3",
+        "--body",
+        "humanml3d",
+    ]);
+    assert!(o.status.success() && stdout(&o).contains("humanml3d body"), "{}", stderr(&o));
+    assert_one_line_error(
+        &diffkfc(&["data", "synth", "--out", s(&d.join("c")), "--body", "smpl"]),
+        &["--body", "'smpl'", "legacy, humanml3d"],
+    );
 
     // GIF: one frame per motion frame; keyframe frames use the highlight colour.
     let clip = out.join("new_joint_vecs/000000.npy");

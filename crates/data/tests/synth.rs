@@ -3,7 +3,7 @@
 
 use std::collections::{HashMap, HashSet};
 
-use diffkfc_data::dataset::synth::{self, actions::ACTIONS};
+use diffkfc_data::dataset::synth::{self, actions::ACTIONS, Body, SynthSpec};
 use diffkfc_data::motion::plausibility;
 use diffkfc_data::motion::representation as rep;
 use diffkfc_data::{io::npy, io::texts, T2M};
@@ -17,9 +17,9 @@ fn out_dir(name: &str) -> std::path::PathBuf {
 #[test]
 fn same_seed_same_bytes_any_thread_count() {
     let (a, b, c) = (out_dir("a"), out_dir("b"), out_dir("c"));
-    synth::write_dataset(&a, 40, 5, 1, &|_, _| {}).unwrap();
-    synth::write_dataset(&b, 40, 5, 3, &|_, _| {}).unwrap();
-    synth::write_dataset(&c, 40, 6, 2, &|_, _| {}).unwrap();
+    synth::write_dataset(&a, &SynthSpec::legacy(40, 5), 1, &|_, _| {}).unwrap();
+    synth::write_dataset(&b, &SynthSpec::legacy(40, 5), 3, &|_, _| {}).unwrap();
+    synth::write_dataset(&c, &SynthSpec::legacy(40, 6), 2, &|_, _| {}).unwrap();
     let files = |d: &std::path::Path| -> Vec<(String, Vec<u8>)> {
         let mut v = Vec::new();
         for sub in ["", "new_joint_vecs", "new_joints", "texts"] {
@@ -52,7 +52,7 @@ fn same_seed_same_bytes_any_thread_count() {
 fn every_clip_is_plausible_and_everything_is_covered() {
     let d = out_dir("cover");
     let n = 600;
-    synth::write_dataset(&d, n, 1, 2, &|_, _| {}).unwrap();
+    synth::write_dataset(&d, &SynthSpec::legacy(n, 1), 2, &|_, _| {}).unwrap();
     let manifest: serde_json::Value =
         serde_json::from_slice(&std::fs::read(d.join("manifest.json")).unwrap()).unwrap();
     let clips = manifest["clips"].as_array().unwrap();
@@ -111,7 +111,7 @@ fn walking_feet_alternate_on_the_ground() {
     use diffkfc_data::dataset::synth::{actions, body::Pose};
     let mut rng = diffkfc_data::rng::Rng::new(3);
     let seg = (actions::by_name("walk_forward").gen)(&mut rng, &Pose::standing(0.0, 0.0, 0.0), 120);
-    let joints: rep::Joints = synth::body::joints_seq(&seg.poses);
+    let joints: rep::Joints = synth::body::joints_seq(Body::Legacy, &seg.poses);
     let feats = rep::features_from_joints(&T2M, &joints, rep::FOOT_CONTACT_THRESHOLD).unwrap();
     // Contact channels 259 (l_ankle) and 261 (r_ankle) over the middle of the walk.
     let c = |f: usize, k: usize| feats[f * 263 + k] > 0.5;

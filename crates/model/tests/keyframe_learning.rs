@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
 use diffkfc_data::dataset::cache::PackedSplit;
+use diffkfc_data::dataset::synth::SynthSpec;
 use diffkfc_data::dataset::{Dataset, MAX_FRAMES};
 use diffkfc_data::keyframes;
 use diffkfc_data::motion::root_key::{self, ROOT_CHANNELS};
@@ -83,7 +84,13 @@ fn root_path_error(ds: &Dataset, gen: &[f32], gt: &[f32], len: usize) -> f64 {
 fn keyframes_reproduce_a_clip_far_better_than_text() {
     let steps = env_or("DIFFKFC_KFTEST_STEPS", 400);
     let root = root_dir();
-    diffkfc_data::dataset::synth::write_dataset(&root.join("data"), 24, 5, 2, &|_, _| {}).unwrap();
+    diffkfc_data::dataset::synth::write_dataset(
+        &root.join("data"),
+        &SynthSpec::legacy(24, 5),
+        2,
+        &|_, _| {},
+    )
+    .unwrap();
     let ds = Dataset::open(root.join("data")).unwrap();
     let train =
         PackedSplit::open(&ds, "train", &root.join("data/.diffkfc-cache"), |_, _| {}).unwrap();

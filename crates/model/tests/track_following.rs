@@ -13,6 +13,7 @@ use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
 use diffkfc_data::dataset::cache::PackedSplit;
+use diffkfc_data::dataset::synth::SynthSpec;
 use diffkfc_data::dataset::{denormalise, normalise, Dataset, MAX_FRAMES};
 use diffkfc_data::motion::representation::recover_from_ric;
 use diffkfc_data::motion::root_key::{self, ROOT_CHANNELS};
@@ -89,7 +90,13 @@ fn a_dense_root_track_is_followed_by_the_pelvis_and_the_feet() {
         Err(e) => return eprintln!("SKIPPED: {e}"),
     };
     let root = root_dir();
-    diffkfc_data::dataset::synth::write_dataset(&root.join("data"), 60, 77, 2, &|_, _| {}).unwrap();
+    diffkfc_data::dataset::synth::write_dataset(
+        &root.join("data"),
+        &SynthSpec::legacy(60, 77),
+        2,
+        &|_, _| {},
+    )
+    .unwrap();
     let ds = Dataset::open(root.join("data")).unwrap();
     let clips =
         PackedSplit::open(&ds, "train", &root.join("data/.diffkfc-cache"), |_, _| {}).unwrap();

@@ -367,7 +367,12 @@ fn loader_case(a: &BenchArgs) -> Result<Option<f64>> {
     let dir = match &a.data {
         Some(d) => d.clone(),
         None => {
-            diffkfc_data::dataset::synth::write_dataset(&tmp, 300, 0, 2, &|_, _| {})?;
+            diffkfc_data::dataset::synth::write_dataset(
+                &tmp,
+                &diffkfc_data::dataset::synth::SynthSpec::legacy(300, 0),
+                2,
+                &|_, _| {},
+            )?;
             tmp.clone()
         }
     };

@@ -10,6 +10,7 @@ use diffkfc_data::io::motion_file::{
 use diffkfc_data::motion::representation::{self as rep, FOOT_CONTACT_THRESHOLD};
 
 use crate::args::{refuse_overwriting_input, BvhInputArgs};
+use diffkfc_data::dataset::synth::{Body, SynthSpec};
 use diffkfc_data::{dataset::loader_bench, io::rig};
 use diffkfc_data::{io::npy, Skeleton};
 
@@ -148,9 +149,14 @@ struct SynthArgs {
     /// Number of clips.
     #[arg(long, default_value_t = 3000)]
     clips: usize,
-    /// Random seed: the same seed and clip count give the same bytes.
+    /// Random seed: the same seed, clip count and body give the same bytes.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Skeleton the motions are drawn on: `legacy` (the hand-set body the committed models were
+    /// trained on) or `humanml3d` (HumanML3D's bone directions: hips lower and closer, collars
+    /// up; what real keys have).
+    #[arg(long, default_value = "legacy")]
+    body: Body,
     /// Worker threads (default: all cores). The output does not depend on it.
     #[arg(long)]
     threads: Option<usize>,
@@ -279,17 +285,18 @@ fn synth(a: SynthArgs) -> Result<()> {
         .unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1));
     let bar = std::sync::Mutex::new(crate::progress::bar("synthesising"));
     let t0 = std::time::Instant::now();
-    let s =
-        diffkfc_data::dataset::synth::write_dataset(&a.out, a.clips, a.seed, threads, &|d, n| {
-            (bar.lock().unwrap())(d, n)
-        })?;
+    let spec = SynthSpec { clips: a.clips, seed: a.seed, body: a.body };
+    let s = diffkfc_data::dataset::synth::write_dataset(&a.out, &spec, threads, &|d, n| {
+        (bar.lock().unwrap())(d, n)
+    })?;
     println!(
-        "{}: {} clips, {} frames ({:.2} h at 20 fps), seed {}, in {:.1} s",
+        "{}: {} clips, {} frames ({:.2} h at 20 fps), seed {}, {} body, in {:.1} s",
         s.out.display(),
         s.clips,
         s.frames,
         s.frames as f64 / 20.0 / 3600.0,
         a.seed,
+        a.body.name(),
         t0.elapsed().as_secs_f64()
     );
     Ok(())

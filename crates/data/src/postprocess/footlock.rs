@@ -345,7 +345,7 @@ mod tests {
     fn walk() -> Vec<f32> {
         let mut clip = None;
         for i in 0..400 {
-            let (c, f) = crate::dataset::synth::clip(3, i);
+            let (c, f) = crate::dataset::synth::clip(crate::dataset::synth::Body::Legacy, 3, i);
             if c.meta.actions.len() == 1 && c.meta.actions[0].action == "walk_forward" {
                 clip = Some(f);
                 break;

@@ -83,11 +83,89 @@ pub fn standing_height() -> f64 {
     ANKLE_HEIGHT + 0.97 * (len(4) + len(7)) + hip_drop()
 }
 
+/// How far the hips hang below the pelvis in the legacy body: poses are drawn for it (see
+/// [`Body`]).
 fn hip_drop() -> f64 {
-    len(1) * HIP_DIR[1].abs()
+    Body::Legacy.hip_drop()
 }
 
-const HIP_DIR: Vec3 = [0.958, -0.287, 0.0];
+/// The skeleton's bone directions above the legs: left side, in the pelvis frame (left, up,
+/// forward) for the hip and in the chest frame for the collar and shoulder; the right side
+/// mirrors them. Poses are drawn for the hip line and the legs (pelvis heights are the legacy
+/// body's), and a body whose hips hang lower under the pelvis has its pelvis raised by the
+/// difference, so feet and legs are the same whichever body draws them.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Body {
+    /// The hand-set body of the sets the committed models were trained on: hips 3 cm below the
+    /// pelvis and 20 cm apart, collars nearly sideways.
+    #[default]
+    Legacy,
+    /// HumanML3D's: every clip is retargeted to one skeleton but keeps SMPL's bone directions,
+    /// measured as the mean over real clips 000021 and 012314 (hips 8.8 cm below the pelvis and
+    /// 12 cm apart, collars up and out).
+    #[serde(rename = "humanml3d")]
+    HumanMl3d,
+}
+
+impl Body {
+    pub const ALL: [Body; 2] = [Body::Legacy, Body::HumanMl3d];
+
+    /// Its name in files and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Body::Legacy => "legacy",
+            Body::HumanMl3d => "humanml3d",
+        }
+    }
+
+    /// Pelvis -> left hip.
+    fn hip(self) -> Vec3 {
+        match self {
+            Body::Legacy => [0.958, -0.287, 0.0],
+            Body::HumanMl3d => [0.553, -0.830, -0.072],
+        }
+    }
+
+    /// Chest (spine3) -> left collar.
+    fn collar(self) -> Vec3 {
+        match self {
+            Body::Legacy => [1.0, 0.3, -0.15],
+            Body::HumanMl3d => [0.55, 0.83, -0.03],
+        }
+    }
+
+    /// Left collar -> left shoulder.
+    fn shoulder(self) -> Vec3 {
+        match self {
+            Body::Legacy => [1.0, -0.3, -0.05],
+            Body::HumanMl3d => [1.0, -0.08, -0.03],
+        }
+    }
+
+    fn hip_drop(self) -> f64 {
+        len(1) * -self.hip()[1]
+    }
+
+    /// How much higher than the drawn pose's pelvis this body's pelvis sits (0 for the legacy
+    /// body, whose sets keep their bytes).
+    fn pelvis_lift(self) -> f64 {
+        self.hip_drop() - Body::Legacy.hip_drop()
+    }
+}
+
+impl std::str::FromStr for Body {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Body, String> {
+        Body::ALL.into_iter().find(|b| b.name() == s).ok_or_else(|| {
+            format!("unknown body '{s}' (known: {})", Body::ALL.map(Body::name).join(", "))
+        })
+    }
+}
+
+fn mirror(v: Vec3) -> Vec3 {
+    [-v[0], v[1], v[2]]
+}
 
 impl Pose {
     /// Standing still at `root_xz` facing `yaw`, feet under the hips.
@@ -155,20 +233,20 @@ fn yaw_rot(yaw: f64, v: Vec3) -> Vec3 {
     quat::qrot(quat::from_axis_angle([0.0, 1.0, 0.0], yaw), v)
 }
 
-/// The 22 joint positions of a pose.
-pub fn joints(p: &Pose) -> Vec<Vec3> {
-    joints_with(p, &mut [None, None])
+/// The 22 joint positions of a pose drawn by `body`.
+pub fn joints(body: Body, p: &Pose) -> Vec<Vec3> {
+    joints_with(body, p, &mut [None, None])
 }
 
 /// Joint positions of a pose sequence. Each elbow's bend direction is carried from frame to
 /// frame (and eased towards "forearm to the front"), so it never flips where the front is
 /// parallel to the upper arm.
-pub fn joints_seq(poses: &[Pose]) -> Vec<Vec<Vec3>> {
+pub fn joints_seq(body: Body, poses: &[Pose]) -> Vec<Vec<Vec3>> {
     let mut bend = [None, None];
-    poses.iter().map(|p| joints_with(p, &mut bend)).collect()
+    poses.iter().map(|p| joints_with(body, p, &mut bend)).collect()
 }
 
-fn joints_with(p: &Pose, bend: &mut [Option<Vec3>; 2]) -> Vec<Vec3> {
+fn joints_with(body: Body, p: &Pose, bend: &mut [Option<Vec3>; 2]) -> Vec<Vec3> {
     let mut j = vec![[0.0; 3]; 22];
     let yq = quat::from_axis_angle([0.0, 1.0, 0.0], p.yaw);
     // Spine segments carry growing shares of twist, bend and lean.
@@ -184,18 +262,19 @@ fn joints_with(p: &Pose, bend: &mut [Option<Vec3>; 2]) -> Vec<Vec3> {
             quat::add(j[parent], quat::scale(quat::qrot(q, quat::normalize(dir)), len(child)));
     };
     j[0] = p.root;
-    place(&mut j, 1, 0, yq, HIP_DIR);
-    place(&mut j, 2, 0, yq, [-HIP_DIR[0], HIP_DIR[1], 0.0]);
+    j[0][1] += body.pelvis_lift();
+    place(&mut j, 1, 0, yq, body.hip());
+    place(&mut j, 2, 0, yq, mirror(body.hip()));
     place(&mut j, 3, 0, q1, [0.0, 1.0, -0.08]);
     place(&mut j, 6, 3, q2, [0.0, 1.0, 0.0]);
     place(&mut j, 9, 6, q3, [0.0, 1.0, 0.05]);
     place(&mut j, 12, 9, q3, [0.0, 1.0, 0.1]);
     let qh = quat::qmul(q3, quat::from_axis_angle([1.0, 0.0, 0.0], p.head_pitch));
     place(&mut j, 15, 12, qh, [0.0, 0.85, 0.5]);
-    place(&mut j, 13, 9, q3, [1.0, 0.3, -0.15]);
-    place(&mut j, 14, 9, q3, [-1.0, 0.3, -0.15]);
-    place(&mut j, 16, 13, q3, [1.0, -0.3, -0.05]);
-    place(&mut j, 17, 14, q3, [-1.0, -0.3, -0.05]);
+    place(&mut j, 13, 9, q3, body.collar());
+    place(&mut j, 14, 9, q3, mirror(body.collar()));
+    place(&mut j, 16, 13, q3, body.shoulder());
+    place(&mut j, 17, 14, q3, mirror(body.shoulder()));
     // Arms in the chest frame: forward f, up u, outward o.
     let f = quat::qrot(q3, [0.0, 0.0, 1.0]);
     let u = quat::qrot(q3, [0.0, 1.0, 0.0]);
@@ -256,7 +335,7 @@ mod tests {
     #[test]
     fn standing_pose_has_target_bones_and_feet_on_the_ground() {
         let p = Pose::standing(0.3, -1.0, 0.7);
-        let j = joints(&p);
+        let j = joints(Body::Legacy, &p);
         let parents = T2M.parents();
         for (i, &par) in parents.iter().enumerate().skip(1) {
             let l = quat::norm(quat::sub(j[i], j[par as usize]));

@@ -18,6 +18,7 @@ use serde::Serialize;
 use serde_json::{json, Value};
 
 use self::actions::{Part, Segment, ACTIONS};
+pub use self::body::Body;
 use self::body::Pose;
 use crate::io::texts::Caption;
 use crate::motion::representation::{self as rep, Layout, FOOT_CONTACT_THRESHOLD};
@@ -180,10 +181,10 @@ fn end_pose(p: &Pose) -> Pose {
 /// Generate clip `index` of a dataset with `seed`: the first attempt whose features
 /// reproduce its motion (HumanML3D's smoothed facing direction cannot represent a body that
 /// ends facing opposite to its start within a few seconds; such draws are redrawn).
-pub fn clip(seed: u64, index: usize) -> (Clip, Vec<f32>) {
+pub fn clip(body: Body, seed: u64, index: usize) -> (Clip, Vec<f32>) {
     let mut last = None;
     for attempt in 0..16u64 {
-        let c = clip_attempt(seed, index, attempt);
+        let c = clip_attempt(body, seed, index, attempt);
         let feats = rep::features_from_joints(&T2M, &c.joints, FOOT_CONTACT_THRESHOLD)
             .expect("synthetic joints are valid");
         let rec = rep::recover_from_ric(&T2M, &feats.iter().map(|&v| v as f64).collect::<Vec<_>>());
@@ -207,7 +208,7 @@ fn representable(input: &rep::Joints, rec: &rep::Joints) -> bool {
     })
 }
 
-fn clip_attempt(seed: u64, index: usize, attempt: u64) -> Clip {
+fn clip_attempt(body: Body, seed: u64, index: usize, attempt: u64) -> Clip {
     let mut r = Rng::derive(seed, 7 + (attempt << 8), index as u64);
     // 3.14, not PI: the synthetic set's bytes are fixed by its seed, and PI would change them.
     #[allow(clippy::approx_constant)]
@@ -218,7 +219,7 @@ fn clip_attempt(seed: u64, index: usize, attempt: u64) -> Clip {
         Pattern::Sequence | Pattern::Ambiguous => sequence_or_ambiguous(&mut r, &start, pattern),
         Pattern::Simultaneous => simultaneous(&mut r, &start),
     };
-    finish(index, pattern, d.realisation, d.poses, d.spans, d.caps)
+    finish(body, index, pattern, d)
 }
 
 /// Most feature frames of a clip (+1 position frame -> at most 195 feature frames, < 196).
@@ -388,15 +389,9 @@ fn simultaneous(r: &mut Rng, start: &Pose) -> Draft {
     Draft { poses: seg.poses, spans, caps, realisation: None }
 }
 
-fn finish(
-    index: usize,
-    pattern: Pattern,
-    realisation: Option<&'static str>,
-    poses: Vec<Pose>,
-    actions: Vec<ActionSpan>,
-    captions: Vec<String>,
-) -> Clip {
-    let joints: rep::Joints = body::joints_seq(&poses);
+fn finish(body: Body, index: usize, pattern: Pattern, d: Draft) -> Clip {
+    let Draft { poses, spans: actions, caps: captions, realisation } = d;
+    let joints: rep::Joints = body::joints_seq(body, &poses);
     let frames = joints.len() - 1;
     Clip {
         joints,
@@ -428,23 +423,38 @@ pub struct SynthSummary {
     pub out: PathBuf,
 }
 
-/// Write a synthetic dataset of `n` clips to `out` (built in a temporary sibling directory and
+/// What a synthetic set is: the same spec gives the same bytes.
+#[derive(Clone, Copy, Debug)]
+pub struct SynthSpec {
+    pub clips: usize,
+    pub seed: u64,
+    pub body: Body,
+}
+
+impl SynthSpec {
+    /// `clips` clips of `seed` drawn by the legacy body.
+    pub fn legacy(clips: usize, seed: u64) -> SynthSpec {
+        SynthSpec { clips, seed, body: Body::Legacy }
+    }
+}
+
+/// Write the synthetic dataset `spec` to `out` (built in a temporary sibling directory and
 /// renamed at the end). `progress(done, total)`.
 pub fn write_dataset(
     out: &Path,
-    n: usize,
-    seed: u64,
+    spec: &SynthSpec,
     threads: usize,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<SynthSummary, DataError> {
+    let (n, seed) = (spec.clips, spec.seed);
     let tmp = staging_dir(out)?;
     let dim = T2M.feature_dim();
-    let Written { mut metas, sum, sq, frames } = write_clips(&tmp, n, seed, threads, progress)?;
+    let Written { mut metas, sum, sq, frames } = write_clips(&tmp, spec, threads, progress)?;
     write_texts_and_splits(&tmp, &mut metas)?;
     let (mean, std) = mean_std(&sum, &sq, frames);
     npy::write(tmp.join("Mean.npy"), &[dim], &mean)?;
     npy::write(tmp.join("Std.npy"), &[dim], &std)?;
-    let manifest = json!({"generator": "diffkfc data synth", "version": env!("CARGO_PKG_VERSION"), "seed": seed, "clips": metas});
+    let manifest = json!({"generator": "diffkfc data synth", "version": env!("CARGO_PKG_VERSION"), "seed": seed, "body": spec.body.name(), "clips": metas});
     crate::write_atomic(
         &tmp.join("manifest.json"),
         &serde_json::to_vec_pretty(&manifest).expect("json"),
@@ -497,16 +507,16 @@ struct Written {
 /// (seed, index), so the bytes do not depend on the thread count).
 fn write_clips(
     tmp: &Path,
-    n: usize,
-    seed: u64,
+    spec: &SynthSpec,
     threads: usize,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Written, DataError> {
     let dim = T2M.feature_dim();
+    let n = spec.clips;
     let done = std::sync::atomic::AtomicUsize::new(0);
     type Out = (ClipMeta, Vec<f64>, Vec<f64>, usize);
     let work = |i: usize| -> Result<Out, DataError> {
-        let (c, feats) = clip(seed, i);
+        let (c, feats) = clip(spec.body, spec.seed, i);
         let t = feats.len() / dim;
         let fdata: Vec<f64> = feats.iter().map(|&v| v as f64).collect();
         let rec = rep::recover_from_ric(&T2M, &fdata);
