@@ -11,8 +11,8 @@
 //! * **knees**: a foot still below both the floor and where it stood before the refit is raised
 //!   to the higher of the two by two-bone IK from the hip (the knee bends as the network bent it).
 
-use crate::motion::quat::Vec3;
-use crate::motion::representation::{recover_from_ric, recover_root_rot_pos, Joints, Layout};
+use crate::motion::quat::{Quat, Vec3};
+use crate::motion::representation::Joints;
 use crate::motion::skeleton::Skeleton;
 use crate::postprocess::leg::{apply_leg, leg_deltas, legs, Leg, Posed};
 use crate::postprocess::{key_weights, pelvis, window};
@@ -62,22 +62,31 @@ pub fn lift(skel: &Skeleton, before: &Joints, after: &Joints, hold: &[bool]) -> 
         .collect()
 }
 
-/// Keep de-normalised features `feats` [T, D], just refitted from the joints `before`, on the
-/// floor those stood on: the lift ([`lift`]), then each foot still sunk below both the floor
-/// (height 0) and its own height before raised by bending its knee. Held rows stay as given.
-pub fn keep_on_floor(
-    skel: &Skeleton,
-    feats: &mut [f32],
-    before: &Joints,
-    hold: &[bool],
-) -> FloorReport {
-    let d = Layout::of(skel).dim();
-    let after = recover_from_ric(skel, &feats.iter().map(|&v| v as f64).collect::<Vec<_>>());
-    let up = lift(skel, before, &after, hold);
-    pelvis::lower(skel, feats, &up.iter().map(|v| -v).collect::<Vec<_>>(), hold);
-    let f64s: Vec<f64> = feats.iter().map(|&v| v as f64).collect();
-    let joints = recover_from_ric(skel, &f64s);
-    let (rq, _) = recover_root_rot_pos(&f64s, d);
+/// What the rigid refit knew of the motion it just rewrote: the joints before and after (the
+/// features now hold `after` on free rows, `before` on held ones), the root rotations and the
+/// features before (their rotation channels, which neither the refit nor the lift changes).
+pub struct Refit<'a> {
+    pub before: &'a Joints,
+    pub after: &'a Joints,
+    pub root: &'a [Quat],
+    pub old: &'a [f64],
+}
+
+/// Keep de-normalised features `feats` [T, D], just refitted ([`Refit`]), on the floor the motion
+/// stood on before: the lift ([`lift`]), then each foot still sunk below both the floor (height
+/// 0) and its own height before raised by bending its knee. Held rows stay as given.
+pub fn keep_on_floor(skel: &Skeleton, feats: &mut [f32], r: &Refit, hold: &[bool]) -> FloorReport {
+    let after: Joints = r
+        .after
+        .iter()
+        .zip(r.before)
+        .zip(hold)
+        .map(|((a, b), &h)| if h { b.clone() } else { a.clone() })
+        .collect();
+    let up = lift(skel, r.before, &after, hold);
+    let down: Vec<f64> = up.iter().map(|v| -v).collect();
+    pelvis::lower(skel, feats, &down, hold);
+    let joints = pelvis::lowered(&after, &down);
     let unit = skel.metres_per_unit;
     let mut report = FloorReport {
         lift_m: up.iter().copied().fold(0.0, |m: f64, v| if v.abs() > m.abs() { v } else { m })
@@ -87,7 +96,7 @@ pub fn keep_on_floor(
     for leg in legs(skel) {
         let o: Vec<Vec3> = joints
             .iter()
-            .zip(before)
+            .zip(r.before)
             .map(|(j, b)| {
                 let floor = low(b, &leg).min(0.0);
                 let need = floor - low(j, &leg);
@@ -101,7 +110,7 @@ pub fn keep_on_floor(
             .zip(&moved)
             .filter(|(_, &m)| m)
             .fold(report.raise_m, |r, (v, _)| r.max(v[1] * unit));
-        let posed = Posed { joints: &joints, root: &rq, old: &f64s };
+        let posed = Posed { joints: &joints, root: r.root, old: r.old };
         apply_leg(skel, feats, &posed, leg, (&delta, &moved), hold);
     }
     report

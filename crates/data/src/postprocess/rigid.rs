@@ -123,7 +123,8 @@ pub fn make_rigid(skel: &Skeleton, feats: &mut [f32], hold: &[bool]) -> RigidRep
             }
         }
     }
-    report.floor = floor::keep_on_floor(skel, feats, &joints, hold);
+    let refit = floor::Refit { before: &joints, after: &fixed, root: &rq, old: &f64s };
+    report.floor = floor::keep_on_floor(skel, feats, &refit, hold);
     report
 }
 
