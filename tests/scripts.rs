@@ -19,6 +19,7 @@ const SCRIPTS: &[(&str, usize, &str)] = &[
     ("keyframe-fit-table", 4, "RUN"),
     ("reference-tables", 4, "MODEL"),
     ("fixture-walks", 2, "MODEL"),
+    ("adoption-table", 4, "MODEL"),
 ];
 
 fn script(name: &str) -> PathBuf {
