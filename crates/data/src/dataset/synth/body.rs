@@ -94,8 +94,7 @@ fn hip_drop() -> f64 {
 /// mirrors them. Poses are drawn for the hip line and the legs (pelvis heights are the legacy
 /// body's), and a body whose hips hang lower under the pelvis has its pelvis raised by the
 /// difference, so feet and legs are the same whichever body draws them.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Body {
     /// The hand-set body of the sets the committed models were trained on: hips 3 cm below the
     /// pelvis and 20 cm apart, collars nearly sideways.
@@ -104,7 +103,6 @@ pub enum Body {
     /// HumanML3D's: every clip is retargeted to one skeleton but keeps SMPL's bone directions,
     /// measured as the mean over real clips 000021 and 012314 (hips 8.8 cm below the pelvis and
     /// 12 cm apart, collars up and out).
-    #[serde(rename = "humanml3d")]
     HumanMl3d,
 }
 
