@@ -9,7 +9,12 @@ fn synth_check_and_render() {
     let out = d.join("synth");
     let o = diffkfc(&["data", "synth", "--out", s(&out), "--clips", "30", "--seed", "4"]);
     assert!(o.status.success(), "{}", stderr(&o));
-    assert!(stdout(&o).contains("30 clips"), "{}", stdout(&o));
+    // HumanML3D's body unless asked otherwise.
+    assert!(
+        stdout(&o).contains("30 clips") && stdout(&o).contains("humanml3d body"),
+        "{}",
+        stdout(&o)
+    );
     let o = diffkfc(&["data", "check", s(&out)]);
     assert!(o.status.success(), "{}", stdout(&o));
     // Refuses to overwrite.
@@ -18,17 +23,9 @@ fn synth_check_and_render() {
         &["already exists"],
     );
     // The body is chosen by name, recorded in the manifest; an unknown one is refused.
-    let o = diffkfc(&[
-        "data",
-        "synth",
-        "--out",
-        s(&d.join("b")),
-        "--clips",
-        "3",
-        "--body",
-        "humanml3d",
-    ]);
-    assert!(o.status.success() && stdout(&o).contains("humanml3d body"), "{}", stderr(&o));
+    let o =
+        diffkfc(&["data", "synth", "--out", s(&d.join("b")), "--clips", "3", "--body", "legacy"]);
+    assert!(o.status.success() && stdout(&o).contains("legacy body"), "{}", stderr(&o));
     assert_one_line_error(
         &diffkfc(&["data", "synth", "--out", s(&d.join("c")), "--body", "smpl"]),
         &["--body", "'smpl'", "legacy, humanml3d"],

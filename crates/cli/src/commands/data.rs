@@ -152,10 +152,10 @@ struct SynthArgs {
     /// Random seed: the same seed, clip count and body give the same bytes.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Skeleton the motions are drawn on: `legacy` (the hand-set body the committed models were
-    /// trained on) or `humanml3d` (HumanML3D's bone directions: hips lower and closer, collars
-    /// up; what real keys have).
-    #[arg(long, default_value = "legacy")]
+    /// Skeleton the motions are drawn on: `humanml3d` (HumanML3D's bone directions: hips lower
+    /// and closer, collars up; what real keys have, and the reference model's set) or `legacy`
+    /// (the hand-set body of `models/tiny-synth`'s set and the sets before).
+    #[arg(long, default_value = "humanml3d")]
     body: Body,
     /// Worker threads (default: all cores). The output does not depend on it.
     #[arg(long)]

@@ -96,13 +96,14 @@ fn hip_drop() -> f64 {
 /// difference, so feet and legs are the same whichever body draws them.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Body {
-    /// The hand-set body of the sets the committed models were trained on: hips 3 cm below the
-    /// pelvis and 20 cm apart, collars nearly sideways.
-    #[default]
+    /// The hand-set body of the sets `models/tiny-synth` and the reference model's first thirteen
+    /// stages were trained on: hips 3 cm below the pelvis and 20 cm apart, collars nearly
+    /// sideways.
     Legacy,
     /// HumanML3D's: every clip is retargeted to one skeleton but keeps SMPL's bone directions,
     /// measured as the mean over real clips 000021 and 012314 (hips 8.8 cm below the pelvis and
-    /// 12 cm apart, collars up and out).
+    /// 12 cm apart, collars up and out). The default: what real keys have.
+    #[default]
     HumanMl3d,
 }
 
