@@ -81,7 +81,12 @@ fn sample_outputs_errors_and_determinism() {
     );
     assert!(s0["track"]["raw_distance_m"].as_f64().unwrap().is_finite(), "{s0}");
     assert!(s0["bone_length_std_m"].as_f64().unwrap() < 1e-3, "{s0}");
-    assert!(s0["bvh_error_m"]["max"].as_f64().unwrap() < 1e-3, "{s0}");
+    // Keyed rows stay as given, so the BVH departs from the motion only where a key pose is
+    // itself not rigid (the synthetic body's spine base moves against its hips by up to ~1 mm),
+    // and by no more than that.
+    let key_move = s0["rigid"]["max_key_move_m"].as_f64().unwrap();
+    assert!(s0["bvh_error_m"]["max"].as_f64().unwrap() <= key_move + 1e-5, "{s0}");
+    assert!(s0["bvh_error_m"]["mean"].as_f64().unwrap() < 2e-4, "{s0}");
     assert!(s0["foot_lock"]["spans"].is_array(), "{s0}");
     let page = std::fs::read_to_string(out.join("index.html")).unwrap();
     assert!(page.contains("\"root_path\":[") && page.contains("\"planted\":"));
