@@ -85,6 +85,7 @@ fn sample_outputs_errors_and_determinism() {
     // itself not rigid (the synthetic body's spine base moves against its hips by up to ~1 mm),
     // and by no more than that.
     let key_move = s0["rigid"]["max_key_move_m"].as_f64().unwrap();
+    assert!(key_move < 2e-3, "the key poses are rigid to ~1 mm: {s0}");
     assert!(s0["bvh_error_m"]["max"].as_f64().unwrap() <= key_move + 1e-5, "{s0}");
     assert!(s0["bvh_error_m"]["mean"].as_f64().unwrap() < 2e-4, "{s0}");
     assert!(s0["foot_lock"]["spans"].is_array(), "{s0}");
