@@ -347,3 +347,35 @@ fn body_part_keys_observe_one_half_of_the_body_and_keep_the_batch() {
     assert!(seen_lower && seen_upper, "both halves drawn");
     std::fs::remove_dir_all(root).unwrap();
 }
+
+/// `max_observed_sigma` leaves elements beyond it unobserved by keys and tracks (HumanML3D's
+/// spin frames) and changes nothing else: the same motions, keyed frames, places and captions.
+#[test]
+fn outlying_elements_stay_unobserved_and_keep_the_batch() {
+    let Some((root, _)) = small_dataset("outliers") else {
+        return;
+    };
+    let ds = Dataset::open(&root).unwrap();
+    let split = PackedSplit::open(&ds, "train", &root.join(".cache"), |_, _| {}).unwrap();
+    let all = KeyframeConfig { drop_prob: 0.0, dense_root_prob: 0.5, ..Default::default() };
+    // Low enough that this tiny set's keys observe some elements beyond it.
+    let limit = 1.5;
+    let capped = KeyframeConfig { max_observed_sigma: Some(limit), ..all.clone() };
+    let (mut cleared, mut kept) = (0, 0);
+    for b in 0..8 {
+        let a = Loader::new(&ds, &split, 4, 7, all.clone()).batch(0, b);
+        let c = Loader::new(&ds, &split, 4, 7, capped.clone()).batch(0, b);
+        assert_eq!(
+            (&a.x0, &a.valid, &a.root, &a.root_mask, &a.captions),
+            (&c.x0, &c.valid, &c.root, &c.root_mask, &c.captions)
+        );
+        for ((&ma, &mc), &x) in a.kf_mask.iter().zip(&c.kf_mask).zip(&a.x0) {
+            let beyond = x.abs() > limit as f32;
+            assert_eq!(mc, if beyond { 0.0 } else { ma }, "x {x}");
+            cleared += usize::from(ma == 1.0 && beyond);
+            kept += usize::from(mc == 1.0);
+        }
+    }
+    assert!(cleared > 0 && kept > cleared, "{cleared} cleared, {kept} kept");
+    std::fs::remove_dir_all(root).unwrap();
+}

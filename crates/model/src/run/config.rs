@@ -330,6 +330,9 @@ impl RunConfig {
                 return bad(key, &v, "must be in [0, 1]");
             }
         }
+        if let Some(v) = k.max_observed_sigma.filter(|v| !(v.is_finite() && *v > 0.0)) {
+            return bad("keyframes.max_observed_sigma", &v, "must be a finite number > 0");
+        }
         if let Some(q) = t.text_drop_prob_unkeyed.filter(|_| t.text_drop_prob == 0.0) {
             // Text guidance of keyed samples needs the keyed text-free branch too.
             return bad("training.text_drop_prob_unkeyed", &q, "needs training.text_drop_prob > 0");
@@ -434,6 +437,7 @@ mod tests {
             ),
             (r#""keyframes": {"rate": 2}"#, "keyframes.rate: 2"),
             (r#""keyframes": {"part_prob": -0.1}"#, "keyframes.part_prob: -0.1"),
+            (r#""keyframes": {"max_observed_sigma": 0}"#, "keyframes.max_observed_sigma: 0"),
             (r#""training": {"rollout_prob": 2}"#, "training.rollout_prob: 2"),
             (r#""training": {"rollout_prob": 0.5, "rollout_gap": 0}"#, "training.rollout_gap: 0"),
             (
@@ -503,9 +507,13 @@ mod tests {
         assert_eq!((old.keyframes.part_prob, old.training.rollout_prob), (0.0, 0.0));
         assert_eq!(old.training.rollout_steps, 1);
         assert_eq!(old.training.text_drop_prob_unkeyed, None);
-        assert!(!old.to_json().contains("text_drop_prob_unkeyed"), "old configs write as before");
+        assert_eq!(old.keyframes.max_observed_sigma, None);
+        for key in ["text_drop_prob_unkeyed", "max_observed_sigma"] {
+            assert!(!old.to_json().contains(key), "old configs write as before: {key}");
+        }
         let c = RunConfig::parse(
-            r#"{"model": {"preset": "tiny", "patch_frames": 4}, "keyframes": {"part_prob": 0.3},
+            r#"{"model": {"preset": "tiny", "patch_frames": 4},
+                "keyframes": {"part_prob": 0.3, "max_observed_sigma": 30},
                 "training": {"root_loss_weight": 8, "contact_loss_weight": 4, "min_snr_gamma": 5,
                              "rollout_prob": 0.5, "rollout_gap": 50, "rollout_steps": 2,
                              "text_drop_prob": 0.1, "text_drop_prob_unkeyed": 0.5}}"#,
@@ -514,7 +522,10 @@ mod tests {
         let again = RunConfig::parse(&c.to_json()).unwrap();
         assert_eq!(c, again);
         assert_eq!((again.model.patch_frames, again.training.root_loss_weight), (4, 8.0));
-        assert_eq!(again.keyframes.part_prob, 0.3);
+        assert_eq!(
+            (again.keyframes.part_prob, again.keyframes.max_observed_sigma),
+            (0.3, Some(30.0))
+        );
         let t = &again.training;
         assert_eq!((t.rollout_prob, t.rollout_gap, t.rollout_steps), (0.5, 50, 2));
         assert_eq!(t.text_drop_prob_unkeyed, Some(0.5));

@@ -71,7 +71,7 @@ impl RunDir {
             }
             let changed = training_changes(&old, cfg);
             if !changed.is_empty() {
-                return Err(ModelError::Refused(format!("--resume: {} trained with other training settings than --config ({}); an exact resume keeps them: pass the run's own config, or start a new run from it with --init {}", stored.display(), changed.join(", "), self.path.display())));
+                return Err(ModelError::Refused(format!("--resume: {} trained with other training or keyframe settings than --config ({}); an exact resume keeps them: pass the run's own config, or start a new run from it with --init {}", stored.display(), changed.join(", "), self.path.display())));
             }
         }
         let path = self.path.join("Mean.npy");
@@ -142,21 +142,30 @@ impl RunDir {
 /// The `training` fields of `cfg` that differ from `old`'s, `max_steps` aside (a resume may
 /// stop later).
 fn training_changes(old: &RunConfig, cfg: &RunConfig) -> Vec<String> {
-    let as_map = |c: &RunConfig| {
+    // The keyframe schedule draws the batches, so an exact resume keeps it as well.
+    let sections = |c: &RunConfig| {
         let mut t = c.training.clone();
         t.max_steps = 0;
-        serde_json::to_value(t).unwrap_or_default()
+        [
+            ("training", serde_json::to_value(t).unwrap_or_default()),
+            ("keyframes", serde_json::to_value(&c.keyframes).unwrap_or_default()),
+        ]
     };
-    let (a, b) = (as_map(old), as_map(cfg));
-    let (Some(a), Some(b)) = (a.as_object(), b.as_object()) else {
-        return vec![];
-    };
-    a.iter()
-        .filter(|(k, v)| b.get(*k) != Some(v))
-        .map(|(k, v)| {
-            format!("training.{k} {v} -> {}", b.get(k).unwrap_or(&serde_json::Value::Null))
-        })
-        .collect()
+    let mut changes = vec![];
+    for ((name, a), (_, b)) in sections(old).into_iter().zip(sections(cfg)) {
+        let (Some(a), Some(b)) = (a.as_object(), b.as_object()) else {
+            continue;
+        };
+        let keys = a.keys().chain(b.keys().filter(|k| !a.contains_key(*k)));
+        let null = serde_json::Value::Null;
+        for k in keys {
+            let (va, vb) = (a.get(k).unwrap_or(&null), b.get(k).unwrap_or(&null));
+            if va != vb {
+                changes.push(format!("{name}.{k} {va} -> {vb}"));
+            }
+        }
+    }
+    changes
 }
 
 fn loss_svg(metrics: &[Metric]) -> String {
@@ -213,4 +222,28 @@ fn loss_svg(metrics: &[Metric]) -> String {
     }
     s += &format!("<text x='{}' y='20' text-anchor='end' fill='#157'>train (moving average)</text><text x='{}' y='36' text-anchor='end' fill='#d60'>validation</text></svg>", w - m, w - m);
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A resume compares the keyframe schedule as well as the recipe, including options that
+    /// one config leaves unset; the step budget may change.
+    #[test]
+    fn training_changes_name_recipe_and_keyframe_differences() {
+        let old = RunConfig::parse(r#"{"model": "tiny"}"#).unwrap();
+        let mut cfg = old.clone();
+        cfg.training.max_steps += 100;
+        assert!(training_changes(&old, &cfg).is_empty());
+        cfg.keyframes.max_observed_sigma = Some(30.0);
+        cfg.keyframes.rate = 0.1;
+        let changes = training_changes(&old, &cfg);
+        assert_eq!(changes.len(), 2, "{changes:?}");
+        assert!(changes.contains(&"keyframes.rate 0.05 -> 0.1".to_string()), "{changes:?}");
+        assert!(
+            changes.contains(&"keyframes.max_observed_sigma null -> 30.0".to_string()),
+            "{changes:?}"
+        );
+    }
 }
