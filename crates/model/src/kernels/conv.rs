@@ -3,9 +3,7 @@
 //! Burn ops take a slice, a concatenation, a product and a sum of the whole sequence per tap
 //! (and their backward as many), every one of them on a single thread.
 
-use rayon::prelude::*;
-
-use super::host::sum_in_order;
+use super::host::{par_built, sum_in_order};
 use super::simd::elementwise_builds;
 
 /// Shapes of one call: tokens [B, M, d] whose rows `skip`.. are the N = M - skip frames the
@@ -36,12 +34,11 @@ impl ConvShape {
 /// the first `skip` rows of every sample are 0. h [B, M, d], w [K, d] -> [B, M, d].
 pub fn temporal_forward(h: &[f32], w: &[f32], real: &[f32], s: &ConvShape) -> Vec<f32> {
     let (m, n, d) = (s.rows, s.frames(), s.d);
-    let mut y = vec![0f32; s.batch * m * d];
-    y.par_chunks_mut(m * d).enumerate().for_each(|(b, yb)| {
+    par_built(s.batch * m * d, m * d, |b, yb| {
         let (hb, rb) = (&h[b * m * d..(b + 1) * m * d], &real[b * n..(b + 1) * n]);
         sample_forward(yb, hb, rb, w, s);
-    });
-    y
+    })
+    .0
 }
 
 /// One sample of [`temporal_forward`]: yb, hb [M, d], rb [N].
@@ -73,15 +70,10 @@ pub fn temporal_backward(
     s: &ConvShape,
 ) -> (Vec<f32>, Vec<f32>) {
     let (m, n, d) = (s.rows, s.frames(), s.d);
-    let mut dh = vec![0f32; s.batch * m * d];
-    let parts: Vec<Vec<f32>> = dh
-        .par_chunks_mut(m * d)
-        .enumerate()
-        .map(|(b, dhb)| {
-            let (hb, rb) = (&h[b * m * d..(b + 1) * m * d], &real[b * n..(b + 1) * n]);
-            sample_backward(dhb, hb, rb, &dy[b * m * d..(b + 1) * m * d], w, s)
-        })
-        .collect();
+    let (dh, parts) = par_built(s.batch * m * d, m * d, |b, dhb| {
+        let (hb, rb) = (&h[b * m * d..(b + 1) * m * d], &real[b * n..(b + 1) * n]);
+        sample_backward(dhb, hb, rb, &dy[b * m * d..(b + 1) * m * d], w, s)
+    });
     (dh, sum_in_order(parts.iter().map(Vec::as_slice), s.kernel * d))
 }
 

@@ -263,8 +263,7 @@ impl<C: CheckpointStrategy> FusedOps for Autodiff<Flex, C> {
         let tracked = |[x, w, b]: [FlexTensor; 3]| {
             // The pre-activation is kept for the backward pass.
             let h = host::linear_forward(&slice(&x), &slice(&w), &slice(&b));
-            let mut y = h.clone();
-            host::gelu_inplace(&mut y);
+            let y = host::gelu(&h);
             let out: Shape = [x.layout().shape()[0], w.layout().shape()[1]].into();
             (tensor(y, out.clone()), (x, w, tensor(h, out)))
         };

@@ -5,6 +5,8 @@
 
 use rayon::prelude::*;
 
+use super::host::par_built;
+
 /// Frames per parallel work item (fixed, so that sums are added in the same order for any
 /// thread count).
 const FRAMES: usize = 64;
@@ -70,8 +72,7 @@ pub fn masked_mse_backward(
     counts: [f32; 2],
 ) -> Vec<f32> {
     let (ws, wk) = (2.0 * g[0] / counts[0], 2.0 * g[1] / counts[1]);
-    let mut dp = vec![0f32; pred.len()];
-    dp.par_chunks_mut(d * FRAMES).enumerate().for_each(|(i, out)| {
+    let (dp, _) = par_built(pred.len(), d * FRAMES, |i, out| {
         for (f, row) in out.chunks_exact_mut(d).enumerate() {
             let r = i * FRAMES + f;
             let v = valid[r];

@@ -8,9 +8,9 @@
 
 use std::cell::Cell;
 
+use crate::kernels::host::par_built;
 use burn::prelude::*;
 use diffkfc_data::rng::Rng;
-use rayon::prelude::*;
 
 /// This thread's stream: seed, calls so far, and the shard (first sample, samples).
 #[derive(Clone, Copy)]
@@ -44,8 +44,7 @@ fn mask(n: usize, prob: f64, key: u64, offset: usize) -> Vec<f32> {
     let keep = 1.0 - prob;
     let threshold = (keep * u64::MAX as f64) as u64;
     let scale = (1.0 / keep) as f32;
-    let mut m = vec![0f32; n];
-    m.par_chunks_mut(1 << 16).enumerate().for_each(|(c, chunk)| {
+    let (m, _) = par_built(n, 1 << 16, |c, chunk| {
         for (i, v) in chunk.iter_mut().enumerate() {
             let h = Rng::hash(key ^ (offset + (c << 16) + i) as u64);
             *v = if h < threshold { scale } else { 0.0 };
