@@ -63,17 +63,13 @@ impl Default for KeyframeConfig {
 }
 
 /// Clears `mask` where the normalised feature `x0` lies further than `limit` from 0 (both
-/// [frames, D], `x0` possibly shorter than `mask`: padding is never observed). Returns the
-/// number of elements cleared.
-pub fn unobserve_outliers(mask: &mut [f32], x0: &[f32], limit: f32) -> usize {
-    let mut cleared = 0;
+/// [frames, D], `x0` possibly shorter than `mask`: padding is never observed).
+pub fn unobserve_outliers(mask: &mut [f32], x0: &[f32], limit: f32) {
     for (m, &x) in mask.iter_mut().zip(x0) {
-        if *m != 0.0 && x.abs() > limit {
+        if x.abs() > limit {
             *m = 0.0;
-            cleared += 1;
         }
     }
-    cleared
 }
 
 /// A batch in flat row-major buffers, ready to become tensors.

@@ -139,8 +139,8 @@ impl RunDir {
     }
 }
 
-/// The `training` fields of `cfg` that differ from `old`'s, `max_steps` aside (a resume may
-/// stop later).
+/// The `training` and `keyframes` fields of `cfg` that differ from `old`'s, `max_steps` aside
+/// (a resume may stop later).
 fn training_changes(old: &RunConfig, cfg: &RunConfig) -> Vec<String> {
     // The keyframe schedule draws the batches, so an exact resume keeps it as well.
     let sections = |c: &RunConfig| {
