@@ -117,6 +117,7 @@ panel = {
     "machine": {"cpu": machine.get("cpu"), "flags": " ".join(k for k in ("avx2", "fma", "avx512f") if machine.get(k)),
                 "threads": machine.get("threads"), "matmul_peak_gflops": machine.get("matmul_peak_gflops")},
     "step_ms": train["ms"], "samples_per_s": batch / (train["ms"] / 1000), "fraction_of_peak": train.get("fraction_of_peak"),
+    "fraction_of_adjacent_peak": train.get("fraction_of_adjacent_peak"),
     "val_loss": val[-1] if val else None,
     "text_fid": row("eval-text", "fid"), "text_r_top3": row("eval-text", "r_top3"),
     "real_fid": real("eval-text", "fid"), "real_r_top3": real("eval-text", "r_top3"),
@@ -133,9 +134,9 @@ lines = [
     f"## {config}: {steps} steps at batch {batch}",
     f"machine: {panel['machine']['cpu']} ({panel['machine']['flags']}), {panel['machine']['threads']} threads, matmul peak {f(panel['machine']['matmul_peak_gflops'], 0)} GFLOP/s",
     "",
-    "| step (ms) | samples/s | of peak | val loss | text FID | R top-3 | keyed raw FID | speed ratio (min) | stride ratio | planted raw / default / source | skating raw / default / source |",
+    "| step (ms) | samples/s | of peak (of the peaks beside the steps) | val loss | text FID | R top-3 | keyed raw FID | speed ratio (min) | stride ratio | planted raw / default / source | skating raw / default / source |",
     "|---|---|---|---|---|---|---|---|---|---|---|",
-    f"| {f(panel['step_ms'], 0)} | {f(panel['samples_per_s'], 1)} | {f(panel['fraction_of_peak'], 2)} | {f(panel['val_loss'])} | {f(panel['text_fid'])} | {f(panel['text_r_top3'])} | {f(panel['keyed_raw_fid'])} | "
+    f"| {f(panel['step_ms'], 0)} | {f(panel['samples_per_s'], 1)} | {f(panel['fraction_of_peak'], 2)} ({f(panel['fraction_of_adjacent_peak'], 2)}) | {f(panel['val_loss'])} | {f(panel['text_fid'])} | {f(panel['text_r_top3'])} | {f(panel['keyed_raw_fid'])} | "
     f"{f(panel['walks_speed_ratio'], 2)} ({f(panel['walks_speed_ratio_min'], 2)}) | {f(panel['walks_stride_ratio'], 2)} | "
     f"{f(panel['walks_planted_raw'], 2)} / {f(panel['walks_planted_default'], 2)} / {f(panel['walks_planted_source'], 2)} | "
     f"{f(panel['walks_skate_raw'])} / {f(panel['walks_skate_default'])} / {f(panel['walks_skate_source'])} |",

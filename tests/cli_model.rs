@@ -56,6 +56,11 @@ fn bench_suite_smoke() {
     );
     let lines = &lines[1..];
     assert!(lines[0]["fraction_of_peak"].as_f64().unwrap() > 0.0);
+    // Each timed step paired with a peak reading right after it (one step with --quick).
+    let peaks = lines[0]["adjacent_peaks_gflops"].as_array().unwrap();
+    assert_eq!(peaks.len(), lines[0]["runs_ms"].as_array().unwrap().len(), "{}", lines[0]);
+    assert!(peaks.iter().all(|p| p.as_f64().unwrap() > 0.0), "{}", lines[0]);
+    assert!(lines[0]["fraction_of_adjacent_peak"].as_f64().unwrap() > 0.0);
     for v in &lines[..4] {
         assert!(v["ms"].as_f64().unwrap() > 0.0 && v["gflops"].as_f64().unwrap() > 0.0, "{v}");
         // CPU seconds per wall second over the timed runs: measured, and at most every thread

@@ -9,7 +9,7 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use burn::prelude::Device;
 use clap::Args;
-use diffkfc_model::bench::{Sampling, TrainStep};
+use diffkfc_model::bench::{matmul_peak, Sampling, TrainStep};
 use diffkfc_model::run::config::RunConfig;
 use diffkfc_model::training::memory::device_memory;
 use diffkfc_model::DiffKfcConfig;
@@ -86,25 +86,47 @@ fn model_config(spec: &str) -> Result<DiffKfcConfig> {
     bail!("--config: '{spec}' is neither a preset (paper, small, mid, tiny, torch-tiny) nor a file")
 }
 
-/// Median wall time in ms of `runs` calls of `f` after one warm-up call.
-/// Median wall time (ms) of `runs` timed calls after one warm-up, every run's time, and the
-/// process's CPU utilisation over the timed calls (CPU seconds / wall seconds: 2.0 keeps two
-/// cores busy), where the platform reports CPU time.
-fn time_ms<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, Vec<f64>, Option<f64>) {
+/// A case's timing: the median wall time (ms) of its timed calls, every call's, and the
+/// process's CPU utilisation over them (CPU seconds / wall seconds: 2.0 keeps two cores busy),
+/// where the platform reports CPU time.
+type Timing = (f64, Vec<f64>, Option<f64>);
+
+/// Times `runs` calls of `f` after one warm-up call.
+fn time_ms<T>(runs: usize, f: impl FnMut() -> T) -> Timing {
+    time_ms_probed(runs, f, || None).0
+}
+
+/// [`time_ms`], with `probe` read after each timed call (outside the timing and the CPU
+/// utilisation): its readings in run order.
+fn time_ms_probed<T>(
+    runs: usize,
+    mut f: impl FnMut() -> T,
+    mut probe: impl FnMut() -> Option<f64>,
+) -> (Timing, Vec<f64>) {
     std::hint::black_box(f());
-    let (cpu0, wall0) = (cpu_seconds(), Instant::now());
-    let mut ms: Vec<f64> = (0..runs.max(1))
-        .map(|_| {
-            let t0 = Instant::now();
-            std::hint::black_box(f());
-            t0.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
-    let wall = wall0.elapsed().as_secs_f64();
-    let util = cpu0.zip(cpu_seconds()).map(|(a, b)| (b - a) / wall.max(1e-9));
-    let runs = ms.clone();
-    ms.sort_by(f64::total_cmp);
-    (ms[ms.len() / 2], runs, util)
+    let (mut cpu, mut wall, mut ms, mut readings) = (Some(0.0), 0.0, Vec::new(), Vec::new());
+    for _ in 0..runs.max(1) {
+        let (c0, t0) = (cpu_seconds(), Instant::now());
+        std::hint::black_box(f());
+        let dt = t0.elapsed().as_secs_f64();
+        cpu = cpu.zip(c0.zip(cpu_seconds())).map(|(s, (a, b))| s + b - a);
+        wall += dt;
+        ms.push(dt * 1e3);
+        readings.extend(probe());
+    }
+    let util = cpu.map(|c| c / f64::max(wall, 1e-9));
+    ((median(&ms), ms, util), readings)
+}
+
+/// The median of `v` (the mean of the middle two for an even count; NaN when empty).
+fn median(v: &[f64]) -> f64 {
+    let mut v = v.to_vec();
+    v.sort_by(f64::total_cmp);
+    match v.len() {
+        0 => f64::NAN,
+        n if n % 2 == 1 => v[n / 2],
+        n => (v[n / 2 - 1] + v[n / 2]) / 2.0,
+    }
 }
 
 /// CPU time (user + system, seconds) this process has used, where the platform reports it.
@@ -124,12 +146,7 @@ fn cpu_seconds() -> Option<f64> {
 /// This run's measured matrix-product peak (GFLOP/s), for each line's fraction of it.
 static PEAK: std::sync::OnceLock<f64> = std::sync::OnceLock::new();
 
-fn line(
-    case: &str,
-    (ms, runs, util): (f64, Vec<f64>, Option<f64>),
-    gflop: f64,
-    extra: Value,
-) -> Value {
+fn line(case: &str, (ms, runs, util): Timing, gflop: f64, extra: Value) -> Value {
     let rate = gflop / (ms / 1e3);
     let mut v = json!({"case": case, "impl": "diffkfc", "ms": ms, "runs_ms": runs, "gflop": gflop, "gflops": rate, "fraction_of_peak": rate / PEAK.get().copied().unwrap_or(f64::NAN), "cpu_utilisation": util});
     if let (Some(o), Value::Object(e)) = (v.as_object_mut(), extra) {
@@ -253,12 +270,7 @@ pub fn run(a: BenchArgs) -> Result<()> {
                 continue;
             }
             v.sort_by(f64::total_cmp);
-            let median = if v.len() % 2 == 1 {
-                v[v.len() / 2]
-            } else {
-                (v[v.len() / 2 - 1] + v[v.len() / 2]) / 2.0
-            };
-            line[k] = json!({"median": median, "min": v[0], "max": v[v.len() - 1]});
+            line[k] = json!({"median": median(&v), "min": v[0], "max": v[v.len() - 1]});
         }
         emit(line);
     }
@@ -300,14 +312,23 @@ fn model_cases(
     };
     if cases.contains(&"train") {
         let mut w = TrainStep::new(cfg, b, n, device);
-        let t = time_ms(runs, || w.step());
+        // On the CPU each step is paired with a peak reading taken right after it: other
+        // tenants slow both alike, so the pairs' ratio drifts less than one reading's.
+        let cpu = !crate::device::is_gpu(&a.device);
+        let probe_n = if a.quick { 256 } else { 2048 };
+        let (t, peaks) = time_ms_probed(runs, || w.step(), || cpu.then(|| matmul_peak(probe_n, 2)));
         ours.insert("train_step", t.0);
+        let gflop = w.flops(cfg) / 1e9;
+        let paired: Vec<f64> =
+            t.1.iter().zip(&peaks).map(|(ms, peak)| gflop / (ms / 1e3) / peak).collect();
         let [f, bw, up] = w.phases.map(|s| s * 1e3);
         out(
             "train_step",
             t,
-            w.flops(cfg) / 1e9,
-            json!({"batch": b, "last_step_phases_ms": {"forward": f, "backward": bw, "host_update": up}, "common": common}),
+            gflop,
+            json!({"batch": b, "last_step_phases_ms": {"forward": f, "backward": bw, "host_update": up},
+                "adjacent_peaks_gflops": peaks, "fraction_of_adjacent_peak": cpu.then(|| median(&paired)),
+                "common": common}),
         );
     }
     let ddim = with_ddim && cases.contains(&"ddim");
