@@ -118,7 +118,7 @@ fn fused_layer_norm_matches_burn_with_gradients() {
 }
 
 #[test]
-fn fused_linear_and_linear_gelu_match_burn_with_gradients() {
+fn fused_linear_and_linear_gelu_match_burn_with_dropout_and_gradients() {
     let ad = Device::flex().autodiff();
     // Narrow layers (products split by row blocks of 512 here): one block, and three with a
     // partial last one (the weight gradient summed over blocks); a wide layer (gemm's own split).
@@ -127,13 +127,20 @@ fn fused_linear_and_linear_gelu_match_burn_with_gradients() {
         let lin = burn::nn::LinearConfig::new(n_in, n_out).init(&ad);
         let x = Tensor::<3>::random([1, rows, n_in], Distribution::Normal(0.0, 1.0), &ad);
         let w = Tensor::<3>::random([1, rows, n_out], Distribution::Normal(0.0, 1.0), &ad);
-        let run = |fused: bool, act: bool| {
+        // GELU with dropout: the fused op applies the mask inside (forward and backward), the
+        // reference multiplies Burn's GELU by `Dropout::forward`'s mask of the same stream.
+        let drop = diffkfc_model::network::dropout::Dropout::new(0.3);
+        let run = |fused: bool, act: usize| {
+            diffkfc_model::network::dropout::seed(5);
             let x = x.clone().detach().require_grad();
+            let gelu = |y| burn::tensor::activation::gelu(y);
             let y = match (fused, act) {
-                (true, false) => kernels::linear(&lin, x.clone()),
-                (true, true) => kernels::linear_gelu(&lin, x.clone()),
-                (false, false) => lin.forward(x.clone()),
-                (false, true) => burn::tensor::activation::gelu(lin.forward(x.clone())),
+                (true, 0) => kernels::linear(&lin, x.clone()),
+                (true, 1) => kernels::linear_gelu(&lin, x.clone()),
+                (true, _) => kernels::linear_gelu_dropout(&lin, x.clone(), &drop),
+                (false, 0) => lin.forward(x.clone()),
+                (false, 1) => gelu(lin.forward(x.clone())),
+                (false, _) => drop.forward(gelu(lin.forward(x.clone()))),
             };
             let grads = (y.clone() * w.clone()).sum().backward();
             let b = lin.bias.as_ref().unwrap().val();
@@ -144,11 +151,17 @@ fn fused_linear_and_linear_gelu_match_burn_with_gradients() {
                 host(b.grad(&grads).unwrap()),
             ]
         };
-        for act in [false, true] {
+        for act in 0..3 {
             let (f, c) = (run(true, act), run(false, act));
             for (what, (a, b)) in ["output", "dx", "dw", "db"].iter().zip(f.iter().zip(&c)) {
                 let e = max_err(a, b);
-                assert!(e < 1e-4, "{rows}x{n_in}x{n_out} gelu {act} {what}: max error {e}");
+                assert!(e < 1e-4, "{rows}x{n_in}x{n_out} activation {act} {what}: max error {e}");
+            }
+            if act == 2 {
+                // The mask dropped about 30% of the outputs, in both.
+                let zeros = f[0].iter().filter(|v| **v == 0.0).count() as f64 / f[0].len() as f64;
+                assert!((zeros - 0.3).abs() < 0.05, "{zeros}");
+                assert!(f[0].iter().zip(&c[0]).all(|(a, b)| (*a == 0.0) == (*b == 0.0)));
             }
         }
     }

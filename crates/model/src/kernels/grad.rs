@@ -130,13 +130,14 @@ impl Backward<Flex, 3> for LinearBackward {
 struct LinearGeluBackward;
 
 impl Backward<Flex, 3> for LinearGeluBackward {
-    /// (x, w, pre-activation)
-    type State = (FlexTensor, FlexTensor, FlexTensor);
+    /// (x, w, pre-activation, dropout mask)
+    type State = (FlexTensor, FlexTensor, FlexTensor, DropMask);
 
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
         let dy = grads.consume::<Flex>(&ops.node);
-        let (x, w, h) = ops.state;
-        let dh = host::gelu_backward(&slice(&h), &slice(&dy));
+        let (x, w, h, drop) = ops.state;
+        let m = drop.0.as_deref().map(Vec::as_slice);
+        let dh = host::gelu_backward(&slice(&h), &slice(&dy), m);
         linear_grads(grads, ops.parents.map(|p| p.map(|n| n.id)), &x, &w, &dh);
     }
 }
@@ -259,16 +260,18 @@ impl<C: CheckpointStrategy> FusedOps for Autodiff<Flex, C> {
         x: FloatTensor<Self>,
         w: FloatTensor<Self>,
         b: FloatTensor<Self>,
+        drop: DropMask,
     ) -> FloatTensor<Self> {
+        let plain = drop.clone(); // an Arc'd mask: cheap
         let tracked = |[x, w, b]: [FlexTensor; 3]| {
             // The pre-activation is kept for the backward pass.
             let h = host::linear_forward(&slice(&x), &slice(&w), &slice(&b));
-            let y = host::gelu(&h);
+            let y = host::gelu(&h, drop.0.as_deref().map(Vec::as_slice));
             let out: Shape = [x.layout().shape()[0], w.layout().shape()[1]].into();
-            (tensor(y, out.clone()), (x, w, tensor(h, out)))
+            (tensor(y, out.clone()), (x, w, tensor(h, out), drop))
         };
         record::<_, C, 3>(LinearGeluBackward, [x, w, b], tracked, |[x, w, b]| {
-            Flex::fused_linear_gelu(x, w, b)
+            Flex::fused_linear_gelu(x, w, b, plain)
         })
     }
 

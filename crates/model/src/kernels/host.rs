@@ -333,27 +333,49 @@ elementwise_builds!(gelu_chunk, gelu_rows, gelu_rows_avx512, gelu_rows_avx2, (c:
 elementwise_builds!(gelu_grad_chunk, gelu_grad_rows, gelu_grad_rows_avx512, gelu_grad_rows_avx2,
     (o: &mut [f32], x: &[f32], g: &[f32]));
 
-/// GELU (exact form, x Phi(x)) in place.
-pub fn gelu_inplace(h: &mut [f32]) {
-    h.par_chunks_mut(1 << 14).for_each(gelu_chunk);
+const GELU_CHUNK: usize = 1 << 14;
+
+/// Each element of `o` times its dropout mask value (scale folded in; None: no dropout).
+fn apply_mask(o: &mut [f32], m: Option<&[f32]>) {
+    if let Some(m) = m {
+        o.iter_mut().zip(m).for_each(|(v, m)| *v *= m);
+    }
 }
 
-/// GELU (exact form) of `h` into a new vector, `h` kept (the backward pass reads it).
-pub fn gelu(h: &[f32]) -> Vec<f32> {
-    const CHUNK: usize = 1 << 14;
-    par_built(h.len(), CHUNK, |c, o| {
-        o.copy_from_slice(chunk_of(h, CHUNK, c, o.len()));
-        gelu_chunk(o)
+/// GELU (exact form, x Phi(x)) in place, then the dropout mask `m` (None: no dropout).
+pub fn gelu_inplace(h: &mut [f32], m: Option<&[f32]>) {
+    h.par_chunks_mut(GELU_CHUNK).enumerate().for_each(|(c, o)| {
+        gelu_chunk(o);
+        apply_mask(o, m.map(|m| chunk_of(m, GELU_CHUNK, c, o.len())));
+    });
+}
+
+/// GELU (exact form) of `h` times the dropout mask `m` into a new vector, `h` kept (the
+/// backward pass reads it).
+pub fn gelu(h: &[f32], m: Option<&[f32]>) -> Vec<f32> {
+    par_built(h.len(), GELU_CHUNK, |c, o| {
+        let n = o.len();
+        o.copy_from_slice(chunk_of(h, GELU_CHUNK, c, n));
+        gelu_chunk(o);
+        apply_mask(o, m.map(|m| chunk_of(m, GELU_CHUNK, c, n)));
     })
     .0
 }
 
-/// d gelu(h) / dh * dy.
-pub fn gelu_backward(h: &[f32], dy: &[f32]) -> Vec<f32> {
-    const CHUNK: usize = 1 << 14;
-    par_built(h.len(), CHUNK, |c, o| {
+/// d gelu(h) / dh * (dy * m): the gradient through the dropout mask `m` (None: none) and GELU,
+/// in that order, as separate ops would round it.
+pub fn gelu_backward(h: &[f32], dy: &[f32], m: Option<&[f32]>) -> Vec<f32> {
+    par_built(h.len(), GELU_CHUNK, |c, o| {
         let n = o.len();
-        gelu_grad_chunk(o, chunk_of(h, CHUNK, c, n), chunk_of(dy, CHUNK, c, n))
+        let (h, dy) = (chunk_of(h, GELU_CHUNK, c, n), chunk_of(dy, GELU_CHUNK, c, n));
+        match m {
+            Some(m) => {
+                let mut g = dy.to_vec();
+                apply_mask(&mut g, Some(chunk_of(m, GELU_CHUNK, c, n)));
+                gelu_grad_chunk(o, h, &g)
+            }
+            None => gelu_grad_chunk(o, h, dy),
+        }
     })
     .0
 }
@@ -553,7 +575,7 @@ mod tests {
         let want: Vec<f32> = h.iter().zip(&a).zip(&m).map(|((h, a), m)| h + a * m).collect();
         assert_eq!(residual(&h, &a, Some(&m)), want);
         let mut g = h.clone();
-        gelu_inplace(&mut g);
-        assert_eq!(gelu(&h), g);
+        gelu_inplace(&mut g, None);
+        assert_eq!(gelu(&h, None), g);
     }
 }

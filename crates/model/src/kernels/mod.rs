@@ -93,11 +93,12 @@ pub trait FusedOps: Backend {
         w: FloatTensor<Self>,
         b: FloatTensor<Self>,
     ) -> FloatTensor<Self>;
-    /// gelu(x `[rows, in]` . w `[in, out]` + b `[out]`) -> `[rows, out]`.
+    /// gelu(x `[rows, in]` . w `[in, out]` + b `[out]`) o mask -> `[rows, out]`.
     fn fused_linear_gelu(
         x: FloatTensor<Self>,
         w: FloatTensor<Self>,
         b: FloatTensor<Self>,
+        drop: DropMask,
     ) -> FloatTensor<Self>;
     /// q [B, Lq, d], k and v [B, Lk, d] -> [B, Lq, d] (heads split along d).
     fn fused_attention(
@@ -187,9 +188,14 @@ impl FusedOps for Flex {
         tensor(y, [rows, out].into())
     }
 
-    fn fused_linear_gelu(x: FlexTensor, w: FlexTensor, b: FlexTensor) -> FlexTensor {
+    fn fused_linear_gelu(
+        x: FlexTensor,
+        w: FlexTensor,
+        b: FlexTensor,
+        drop: DropMask,
+    ) -> FlexTensor {
         let mut h = host::linear_forward(&slice(&x), &slice(&w), &slice(&b));
-        host::gelu_inplace(&mut h);
+        host::gelu_inplace(&mut h, drop.0.as_deref().map(Vec::as_slice));
         let (rows, out) = (x.layout().shape()[0], b.layout().shape()[0]);
         tensor(h, [rows, out].into())
     }
@@ -285,31 +291,48 @@ pub fn residual_layer_norm(
 
 /// `lin` applied to x [.., in] -> [.., out].
 pub fn linear<const D: usize>(lin: &Linear, x: Tensor<D>) -> Tensor<D> {
-    linear_with(lin, x, false)
+    linear_with(lin, x, None)
 }
 
 /// gelu(`lin`(x)) for x [.., in] -> [.., out] (one pass on flex).
 pub fn linear_gelu<const D: usize>(lin: &Linear, x: Tensor<D>) -> Tensor<D> {
-    linear_with(lin, x, true)
+    linear_with(lin, x, Some(&Dropout::new(0.0)))
 }
 
-fn linear_with<const D: usize>(lin: &Linear, x: Tensor<D>, gelu: bool) -> Tensor<D> {
+/// drop(gelu(`lin`(x))) for x [.., in] -> [.., out] (one pass on flex, the dropout mask
+/// applied inside the op, forward and backward).
+pub fn linear_gelu_dropout<const D: usize>(
+    lin: &Linear,
+    x: Tensor<D>,
+    drop: &Dropout,
+) -> Tensor<D> {
+    linear_with(lin, x, Some(drop))
+}
+
+/// `lin`(x), then with `gelu` GELU and that dropout.
+fn linear_with<const D: usize>(lin: &Linear, x: Tensor<D>, gelu: Option<&Dropout>) -> Tensor<D> {
     let Some(bias) = lin.bias.as_ref().filter(|_| fused(&x.device())) else {
         let y = lin.forward(x);
-        return if gelu { burn::tensor::activation::gelu(y) } else { y };
+        return match gelu {
+            Some(drop) => drop.forward(burn::tensor::activation::gelu(y)),
+            None => y,
+        };
     };
     let mut shape = x.dims();
     let [n_in, n_out] = lin.weight.dims();
     let rows = x.shape().num_elements() / n_in;
+    let device = x.device();
     let (x, w, b) = (
         x.reshape([rows, n_in]).into_dispatch(),
         lin.weight.val().into_dispatch(),
         bias.val().into_dispatch(),
     );
-    let y = if gelu {
-        <Dispatch as FusedOps>::fused_linear_gelu(x, w, b)
-    } else {
-        <Dispatch as FusedOps>::fused_linear(x, w, b)
+    let y = match gelu {
+        Some(drop) => {
+            let mask = DropMask(drop.host_mask_of(rows * n_out, &device).map(Arc::new));
+            <Dispatch as FusedOps>::fused_linear_gelu(x, w, b, mask)
+        }
+        None => <Dispatch as FusedOps>::fused_linear(x, w, b),
     };
     shape[D - 1] = n_out;
     Tensor::<2>::from_dispatch(y).reshape(shape)

@@ -6,7 +6,7 @@
 use burn::nn::{LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::prelude::*;
 
-use crate::kernels::{linear, linear_gelu, residual_layer_norm, Mask};
+use crate::kernels::{linear, linear_gelu_dropout, residual_layer_norm, Mask};
 use crate::network::attention::Attention;
 use crate::network::dropout::Dropout;
 use crate::network::temporal::{RealFrames, TemporalConv};
@@ -71,7 +71,7 @@ impl DecoderLayer {
         let h = residual_layer_norm(&self.ln1, h, a, &self.drop);
         let c = self.cross_attn.forward_kv(h.clone(), enc_kv, enc_pad);
         let h = residual_layer_norm(&self.ln2, h, c, &self.drop);
-        let f = linear(&self.ff2, self.drop.forward(linear_gelu(&self.ff1, h.clone())));
+        let f = linear(&self.ff2, linear_gelu_dropout(&self.ff1, h.clone(), &self.drop));
         residual_layer_norm(&self.ln3, h, f, &self.drop)
     }
 }

@@ -75,13 +75,18 @@ impl Dropout {
     /// The mask `forward` would apply to `x` (None: dropout is off), for kernels that apply it
     /// themselves; it takes the next mask of the stream, as `forward` does.
     pub fn host_mask<const D: usize>(&self, x: &Tensor<D>) -> Option<Vec<f32>> {
-        if self.prob <= 0.0 || !x.device().is_autodiff() {
+        self.host_mask_of(x.shape().num_elements(), &x.device())
+    }
+
+    /// [`Dropout::host_mask`] for a tensor of `n` elements on `device` that is not built yet
+    /// (a fused op's output).
+    pub fn host_mask_of(&self, n: usize, device: &Device) -> Option<Vec<f32>> {
+        if self.prob <= 0.0 || !device.is_autodiff() {
             return None;
         }
         let s = STREAM.get();
         STREAM.set(Stream { calls: s.calls + 1, ..s });
         let key = Rng::hash(s.seed ^ Rng::hash(s.calls.wrapping_add(1)));
-        let n = x.shape().num_elements();
         let offset = n.checked_div(s.samples).map_or(0, |per| s.first * per);
         Some(mask(n, self.prob, key, offset))
     }
