@@ -97,7 +97,7 @@ impl Backward<Flex, 4> for ResidualLayerNormBackward {
     fn backward(self, ops: Ops<Self::State, 4>, grads: &mut Gradients, _: &mut Checkpointer) {
         let dy = grads.consume::<Flex>(&ops.node);
         let (h, a, gamma, drop) = ops.state;
-        let m = drop.0.as_deref().map(Vec::as_slice);
+        let m = drop.values();
         let x = host::residual(&slice(&h), &slice(&a), m);
         let (dx, dgamma, dbeta) =
             host::layer_norm_backward(&x, &slice(&gamma), &slice(&dy), LN_EPS);
@@ -136,7 +136,7 @@ impl Backward<Flex, 3> for LinearGeluBackward {
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
         let dy = grads.consume::<Flex>(&ops.node);
         let (x, w, h, drop) = ops.state;
-        let m = drop.0.as_deref().map(Vec::as_slice);
+        let m = drop.values();
         let dh = host::gelu_backward(&slice(&h), &slice(&dy), m);
         linear_grads(grads, ops.parents.map(|p| p.map(|n| n.id)), &x, &w, &dh);
     }
@@ -266,7 +266,7 @@ impl<C: CheckpointStrategy> FusedOps for Autodiff<Flex, C> {
         let tracked = |[x, w, b]: [FlexTensor; 3]| {
             // The pre-activation is kept for the backward pass.
             let h = host::linear_forward(&slice(&x), &slice(&w), &slice(&b));
-            let y = host::gelu(&h, drop.0.as_deref().map(Vec::as_slice));
+            let y = host::gelu(&h, drop.values());
             let out: Shape = [x.layout().shape()[0], w.layout().shape()[1]].into();
             (tensor(y, out.clone()), (x, w, tensor(h, out), drop))
         };

@@ -56,6 +56,13 @@ pub const LN_EPS: f32 = 1e-5;
 #[derive(Clone, Debug)]
 pub struct DropMask(pub Option<Arc<Vec<f32>>>);
 
+impl DropMask {
+    /// The mask's values (None: no dropout).
+    pub fn values(&self) -> Option<&[f32]> {
+        self.0.as_deref().map(Vec::as_slice)
+    }
+}
+
 /// Arguments of a temporal convolution that are not tensors: the token rows before the frames,
 /// and which frames are real ([B, N]: 1 real, 0 padding).
 #[derive(Clone, Debug)]
@@ -177,7 +184,7 @@ impl FusedOps for Flex {
         beta: FlexTensor,
         drop: DropMask,
     ) -> FlexTensor {
-        let x = host::residual(&slice(&h), &slice(&a), drop.0.as_deref().map(Vec::as_slice));
+        let x = host::residual(&slice(&h), &slice(&a), drop.values());
         let y = host::layer_norm_forward(&x, &slice(&gamma), &slice(&beta), LN_EPS);
         tensor(y, h.layout().shape().clone())
     }
@@ -195,7 +202,7 @@ impl FusedOps for Flex {
         drop: DropMask,
     ) -> FlexTensor {
         let mut h = host::linear_forward(&slice(&x), &slice(&w), &slice(&b));
-        host::gelu_inplace(&mut h, drop.0.as_deref().map(Vec::as_slice));
+        host::gelu_inplace(&mut h, drop.values());
         let (rows, out) = (x.layout().shape()[0], b.layout().shape()[0]);
         tensor(h, [rows, out].into())
     }
