@@ -144,6 +144,9 @@ fn evaluate_tiny_checkpoint(
     assert_eq!(real["metrics"]["fid"]["replications"].as_array().unwrap().len(), 2);
     // A 2-step model is far from the real motions the evaluator embeds; real test items are not.
     assert!(metric(kfc, "fid") > metric(real, "fid"), "{kfc} {real}");
+    // FID's mean term is a non-negative part of it (the covariance term is the rest).
+    let mean_term = metric(kfc, "fid_mean_term");
+    assert!((0.0..=metric(kfc, "fid") + 1e-9).contains(&mean_term), "{kfc}");
     assert!(metric(real, "r_top3") > 3.0 / 32.0, "{real}");
     // The default fit (warp, with root keyframes) meets the keyframes exactly: root-relative
     // and global, for both methods.

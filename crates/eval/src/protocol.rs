@@ -332,8 +332,10 @@ impl Protocol<'_> {
         v: &mut Values,
     ) {
         let ([r1, r2, r3], mm) = r_precision(texts, motions, R_BATCH);
+        let (fid_mean, fid_cov) = reference.fid_terms_to(motions);
         let pairs = [
-            ("fid", reference.fid_to(motions)),
+            ("fid", fid_mean + fid_cov),
+            ("fid_mean_term", fid_mean),
             ("r_top1", r1),
             ("r_top2", r2),
             ("r_top3", r3),

@@ -67,6 +67,13 @@ impl Gaussian {
     /// |mu1 - mu2|^2 + tr(S1 + S2 - 2 (S1^1/2 S2 S1^1/2)^1/2), the symmetric form of
     /// tr((S1 S2)^1/2) (equal, but with a real symmetric square root).
     pub fn fid_to(&self, x: &[Vec<f64>]) -> f64 {
+        let (mean_term, cov_term) = self.fid_terms_to(x);
+        mean_term + cov_term
+    }
+
+    /// The two terms of `fid_to`: |mu1 - mu2|^2 (where the sets sit) and the trace term (how
+    /// they spread), so a report can tell a shifted set from a narrowed or widened one.
+    pub fn fid_terms_to(&self, x: &[Vec<f64>]) -> (f64, f64) {
         let d = self.mean.len();
         let (m2, s2) = mean_cov(x);
         let (s1, r1) = (&self.cov, &self.sqrt_cov);
@@ -76,7 +83,7 @@ impl Gaussian {
         let covmean = sqrtm_psd(&sym, d);
         let tr =
             (0..d).map(|i| s1[i * d + i] + s2[i * d + i] - 2.0 * covmean[i * d + i]).sum::<f64>();
-        self.mean.iter().zip(&m2).map(|(x, y)| (x - y).powi(2)).sum::<f64>() + tr
+        (self.mean.iter().zip(&m2).map(|(x, y)| (x - y).powi(2)).sum::<f64>(), tr)
     }
 }
 
@@ -173,6 +180,13 @@ mod tests {
         let want = 4.0 * 0.25 + 4.0 * (2.0f64 - 1.0).powi(2);
         let got = fid(&a, &b);
         assert!((got - want).abs() < 0.25, "{got} vs {want}");
+        // The terms: the mean shift alone (4 x 0.5^2) and the spread alone (4 x (2 - 1)^2).
+        let (mean_term, cov_term) = Gaussian::fit(&a).fid_terms_to(&b);
+        assert!(
+            (mean_term - 1.0).abs() < 0.2 && (cov_term - 4.0).abs() < 0.25,
+            "{mean_term} {cov_term}"
+        );
+        assert!((mean_term + cov_term - got).abs() < 1e-9);
     }
 
     #[test]
