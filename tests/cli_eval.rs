@@ -147,6 +147,30 @@ fn evaluate_tiny_checkpoint(
     // FID's mean term is a non-negative part of it (the covariance term is the rest).
     let mean_term = metric(kfc, "fid_mean_term");
     assert!((0.0..=metric(kfc, "fid") + 1e-9).contains(&mean_term), "{kfc}");
+    // Each item's clip and caption per replication, and each motion's text rank (0..=31)
+    // in the same order, for the real and the generated rows.
+    let items = r["meta"]["items"].as_array().unwrap();
+    assert_eq!(items.len(), 2);
+    assert!(items.iter().all(|rep| rep.as_array().unwrap().len() == 32), "{items:?}");
+    assert!(items[0][0]["caption"].as_str().is_some_and(|c| !c.is_empty()), "{items:?}");
+    for row in [real, kfc] {
+        let ranks = row["per_item"]["text_rank"].as_array().unwrap();
+        assert_eq!(ranks.len(), 2);
+        for rep in ranks {
+            let rep = rep.as_array().unwrap();
+            assert_eq!(rep.len(), 32);
+            assert!(rep.iter().all(|x| x.as_f64().is_some_and(|x| (0.0..32.0).contains(&x))));
+        }
+    }
+    // R-precision top-3 is the share of ranks under 3.
+    let ranks: Vec<f64> = kfc["per_item"]["text_rank"][0]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    let top3 = ranks.iter().filter(|&&x| x < 3.0).count() as f64 / 32.0;
+    assert_eq!(top3, kfc["metrics"]["r_top3"]["replications"][0].as_f64().unwrap(), "{kfc}");
     assert!(metric(real, "r_top3") > 3.0 / 32.0, "{real}");
     // The default fit (warp, with root keyframes) meets the keyframes exactly: root-relative
     // and global, for both methods.

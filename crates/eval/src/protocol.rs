@@ -26,7 +26,7 @@ use crate::evaluator::{eval_length, TextMotionEvaluator};
 use crate::gait;
 use crate::keyframe_metrics::{displacement_error, k_err_global, k_err_local, k_trans};
 pub use crate::rows::{Rows, Setting};
-use crate::text_motion::{diversity, finite, multimodality, r_precision, Gaussian};
+use crate::text_motion::{diversity, finite, multimodality, r_precision, text_ranks, Gaussian};
 
 /// Generations per text and pairs per text of MultiModality; pairs of Diversity; R-precision
 /// batch; K-TranS half window.
@@ -80,6 +80,10 @@ pub struct RowResult {
 /// The measures kept per item as well as on average.
 pub const PER_ITEM: [&str; 1] = ["foot_skate"];
 
+/// Per-item key of each motion's text rank (`text_motion::text_ranks`): which captions a
+/// model fails, read beside `Protocol::captions`.
+pub const TEXT_RANK: &str = "text_rank";
+
 pub struct Protocol<'a> {
     /// The model, its schedule and the normalisation it was trained with.
     pub gen: Generator<'a>,
@@ -117,22 +121,41 @@ fn mean(xs: &[f64]) -> Option<f64> {
 }
 
 impl Protocol<'_> {
-    fn items(&self, rep: usize) -> Vec<Item<'_>> {
+    /// A replication's draw: each item's index in the split and the caption it is given.
+    fn draw(&self, rep: usize) -> Vec<(usize, String)> {
         let mut order: Vec<usize> = (0..self.split.items.len()).collect();
         Rng::derive(self.opts.seed, 1, rep as u64).shuffle(&mut order);
         order.truncate(self.opts.num_items);
-        let d = self.ds.dim();
         order
-            .iter()
+            .into_iter()
             .enumerate()
-            .map(|(pos, &i)| {
-                let spec = &self.split.items[i];
-                let len = eval_length(spec.len);
-                let feats = &self.split.item_frames(i)[..len * d];
+            .map(|(pos, i)| {
                 let caption = Rng::derive(self.opts.seed, 2 + (rep as u64) * 16, pos as u64)
-                    .pick(&spec.captions)
+                    .pick(&self.split.items[i].captions)
                     .clone();
+                (i, caption)
+            })
+            .collect()
+    }
+
+    fn items(&self, rep: usize) -> Vec<Item<'_>> {
+        let d = self.ds.dim();
+        self.draw(rep)
+            .into_iter()
+            .map(|(i, caption)| {
+                let len = eval_length(self.split.items[i].len);
+                let feats = &self.split.item_frames(i)[..len * d];
                 Item { len, caption, feats, joints: joints_of(self.ds, feats) }
+            })
+            .collect()
+    }
+
+    /// Per replication, each item's clip name and caption, in the order of the per-item values.
+    pub fn captions(&self) -> Vec<Vec<(String, String)>> {
+        (0..self.opts.replications)
+            .map(|rep| {
+                let items = self.draw(rep).into_iter();
+                items.map(|(i, c)| (self.split.items[i].clip.clone(), c)).collect()
             })
             .collect()
     }
@@ -322,7 +345,8 @@ impl Protocol<'_> {
         out
     }
 
-    /// Text-motion metrics of motions paired with the replication's caption embeddings.
+    /// Text-motion metrics of motions paired with the replication's caption embeddings; returns
+    /// each item's text rank (`text_ranks`; NaN outside R-precision's full batches).
     fn text_motion(
         &self,
         reference: &Gaussian,
@@ -330,7 +354,7 @@ impl Protocol<'_> {
         motions: &[Vec<f64>],
         seed: u64,
         v: &mut Values,
-    ) {
+    ) -> Vec<f64> {
         let ([r1, r2, r3], mm) = r_precision(texts, motions, R_BATCH);
         let (fid_mean, fid_cov) = reference.fid_terms_to(motions);
         let pairs = [
@@ -345,6 +369,10 @@ impl Protocol<'_> {
         for (k, x) in pairs {
             v.entry(k).or_default().push(x);
         }
+        text_ranks(texts, motions, R_BATCH)
+            .into_iter()
+            .map(|r| r.map_or(f64::NAN, |r| r as f64))
+            .collect()
     }
 
     /// Run every setting for every replication. `reference`: evaluator statistics of the real
@@ -406,7 +434,7 @@ impl Protocol<'_> {
             "the real motions' embeddings",
         )?;
         let mut shared = Values::new();
-        self.text_motion(reference, texts, &real_m, rep_seed, &mut shared);
+        let ranks = self.text_motion(reference, texts, &real_m, rep_seed, &mut shared);
         let skel = self.ds.skeleton;
         let per: Vec<_> = items.iter().map(|it| motion_measures(skel, &it.joints)).collect();
         for k in 0..per.first().map_or(0, |m| m.len()) {
@@ -418,6 +446,7 @@ impl Protocol<'_> {
             for (k, x) in &shared {
                 row.values.entry(k).or_default().extend(x);
             }
+            row.per_item.entry(TEXT_RANK).or_default().push(ranks.clone());
             let keys = self.keys(rep, items, row.rate);
             let kt: Vec<f64> = items
                 .iter()
@@ -487,7 +516,8 @@ impl Protocol<'_> {
         let first: Vec<&[f32]> = gens.iter().map(|g| g[0].as_slice()).collect();
         let motions =
             finite(self.evaluator.embed_motions(&first), "the generated motions' embeddings")?;
-        self.text_motion(reference, texts, &motions, rep_seed, &mut row.values);
+        let ranks = self.text_motion(reference, texts, &motions, rep_seed, &mut row.values);
+        row.per_item.entry(TEXT_RANK).or_default().push(ranks);
         if self.opts.multimodality > 0 {
             let m = self.opts.multimodality.min(items.len());
             let groups = self.generate(

@@ -30,7 +30,8 @@ pub const COLUMNS: [(&str, &str); 16] = [
 /// The definitions printed with every report (the paper gives the keyframe metrics in words).
 pub const DEFINITIONS: &str = "\
 - FID, R-Precision (batches of 32), MM-Dist, Diversity (300 pairs), MultiModality (30 generations per text, 10 pairs): Guo et al. 2022 on the evaluator's 512-d embeddings; FID against the real test motions.
-- FID's mean term (results.json only, `fid_mean_term`): |mu_generated - mu_real|^2, the part of FID from where the two sets sit; the rest of FID is the covariance term (how they spread).
+- Text rank (report.json only, `per_item.text_rank`, in the order of `meta.items`' clips and captions): per motion, how many of its R-precision batch's other texts lie nearer than its own (0 is best; top-3 counts ranks 0-2).
+- FID's mean term (report.json only, `fid_mean_term`): |mu_generated - mu_real|^2, the part of FID from where the two sets sit; the rest of FID is the covariance term (how they spread).
 - ADE: per item, the smallest over the samples of the mean L2 joint error (global positions, metres) against the ground truth on non-keyframe frames.
 - K-Err: mean L2 joint error at keyframe frames between the given keyframe and the generated pose (global; root-rel.: joint heights/RIC positions in the facing-normalised root frame).
 - K-TranS: mean |x[j+1] - 2x[j] + x[j-1]| (metres per frame^2) over frames within 2 of a keyframe, averaged over joints and keyframes; the real motion gives the reference (closer is better).

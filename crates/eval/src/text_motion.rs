@@ -96,24 +96,37 @@ pub fn fid(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
 /// consecutive batches of 32 (a final partial batch is dropped, as in T2M), each motion ranks the
 /// batch's 32 texts by distance; top-k counts the true text within the k nearest.
 pub fn r_precision(texts: &[Vec<f64>], motions: &[Vec<f64>], batch: usize) -> ([f64; 3], f64) {
+    let ranks = text_ranks(texts, motions, batch);
     let (mut hits, mut n, mut mm) = ([0usize; 3], 0usize, 0.0);
-    for start in (0..texts.len() / batch).map(|b| b * batch) {
-        for i in start..start + batch {
-            let d_true = dist(&motions[i], &texts[i]);
-            mm += d_true;
-            let closer = (start..start + batch)
-                .filter(|&j| j != i && dist(&motions[i], &texts[j]) < d_true)
-                .count();
-            for (k, h) in hits.iter_mut().enumerate() {
-                if closer <= k {
-                    *h += 1;
-                }
+    for (i, rank) in ranks.iter().enumerate() {
+        let Some(closer) = *rank else { continue };
+        mm += dist(&motions[i], &texts[i]);
+        for (k, h) in hits.iter_mut().enumerate() {
+            if closer <= k {
+                *h += 1;
             }
-            n += 1;
         }
+        n += 1;
     }
     let n = n.max(1) as f64;
     ([hits[0] as f64 / n, hits[1] as f64 / n, hits[2] as f64 / n], mm / n)
+}
+
+/// Per motion, how many of its batch's other texts lie closer to it than its own (0: its own
+/// text is the nearest; R-precision's batches); `None` for the final partial batch.
+pub fn text_ranks(texts: &[Vec<f64>], motions: &[Vec<f64>], batch: usize) -> Vec<Option<usize>> {
+    let full = texts.len() / batch * batch;
+    (0..texts.len())
+        .map(|i| {
+            (i < full).then(|| {
+                let start = i / batch * batch;
+                let d_true = dist(&motions[i], &texts[i]);
+                (start..start + batch)
+                    .filter(|&j| j != i && dist(&motions[i], &texts[j]) < d_true)
+                    .count()
+            })
+        })
+        .collect()
 }
 
 /// Mean distance between `pairs` random pairs of distinct rows.
@@ -218,6 +231,15 @@ mod tests {
             .collect();
         let (r, mm) = r_precision(&texts, &motions, 32);
         assert_eq!((r, mm), ([1.0; 3], 2.0));
+        // Ranks: motion 0 moved onto text 2 has texts 1, 2 and 3 closer than its own; the 33rd
+        // item is outside a full batch.
+        let mut moved = motions.clone();
+        moved[0] = texts[2].clone();
+        let mut texts33 = texts.clone();
+        texts33.push(vec![0.0, 0.0]);
+        moved.push(vec![0.0, 0.0]);
+        let ranks = text_ranks(&texts33, &moved, 32);
+        assert_eq!((ranks[0], ranks[1], ranks[32]), (Some(3), Some(0), None));
         let (m, ci) = mean_ci(&[1.0, 1.0, 1.0]);
         assert_eq!((m, ci), (1.0, 0.0));
     }

@@ -359,10 +359,17 @@ fn evaluate(mut a: RunArgs) -> Result<()> {
     );
     let t0 = std::time::Instant::now();
     let rows = p.run(&settings, &reference, &mut || pb.inc(1))?;
+    let captions = p.captions();
     pb.finish_and_clear();
     let secs = t0.elapsed().as_secs_f64();
-    let run =
-        Ran { run_dir: &run_dir, step, eval_dir: &eval_dir, evaluator: ev.name(), data: &data };
+    let run = Ran {
+        run_dir: &run_dir,
+        step,
+        eval_dir: &eval_dir,
+        evaluator: ev.name(),
+        data: &data,
+        captions: &captions,
+    };
     write_report(&a, &run, &rows, &settings, num_items, real.len(), secs)
 }
 
@@ -373,6 +380,8 @@ struct Ran<'a> {
     eval_dir: &'a std::path::Path,
     evaluator: String,
     data: &'a std::path::Path,
+    /// Per replication, each item's clip and caption (the order of report.json's per-item values).
+    captions: &'a [Vec<(String, String)>],
 }
 
 /// report.json (every replication's value and the settings) and report.md (the tables under a
@@ -393,6 +402,7 @@ fn write_report(
         "samples_for_ade": a.samples_for_ade, "sampler": format!("{sampler:?}"), "kf_guidance": a.kf_guidance, "text_guidance": a.text_guidance.unwrap_or(1.0), "place_guidance": a.place_guidance,
         "keyframe_strategy": a.keyframe_strategy, "keyframe_fit": fit.keyframes, "foot_lock": fit.foot_lock, "foot_lock_reach_m": fit.lock_reach, "root_keys": !a.no_root_keys, "multimodality_texts": if a.multimodality { a.mm_texts } else { 0 },
         "seed": a.seed, "seconds": secs, "reference_motions": reference_motions,
+        "items": run.captions.iter().map(|rep| rep.iter().map(|(clip, text)| serde_json::json!({"clip": clip, "caption": text})).collect::<Vec<_>>()).collect::<Vec<_>>(),
     });
     let header = format!(
         "Checkpoint `{}` (step {step}), evaluator: {}, split `{}` of `{}`: {} replication(s) x {num_items} items, {sampler:?}, keyframe guidance {}, text guidance {}, {} keyframes, ADE over {} sample(s), keyframe fit {:?}, foot lock {}, root keyframes {}; {:.0} s.",
