@@ -26,7 +26,7 @@ use crate::evaluator::{eval_length, TextMotionEvaluator};
 use crate::gait;
 use crate::keyframe_metrics::{displacement_error, k_err_global, k_err_local, k_trans};
 pub use crate::rows::{Rows, Setting};
-use crate::text_motion::{diversity, finite, multimodality, r_precision, text_ranks, Gaussian};
+use crate::text_motion::{diversity, finite, multimodality, r_precision_of, text_ranks, Gaussian};
 
 /// Generations per text and pairs per text of MultiModality; pairs of Diversity; R-precision
 /// batch; K-TranS half window.
@@ -355,7 +355,8 @@ impl Protocol<'_> {
         seed: u64,
         v: &mut Values,
     ) -> Vec<f64> {
-        let ([r1, r2, r3], mm) = r_precision(texts, motions, R_BATCH);
+        let ranks = text_ranks(texts, motions, R_BATCH);
+        let ([r1, r2, r3], mm) = r_precision_of(&ranks, texts, motions);
         let (fid_mean, fid_cov) = reference.fid_terms_to(motions);
         let pairs = [
             ("fid", fid_mean + fid_cov),
@@ -369,10 +370,7 @@ impl Protocol<'_> {
         for (k, x) in pairs {
             v.entry(k).or_default().push(x);
         }
-        text_ranks(texts, motions, R_BATCH)
-            .into_iter()
-            .map(|r| r.map_or(f64::NAN, |r| r as f64))
-            .collect()
+        ranks.into_iter().map(|r| r.map_or(f64::NAN, |r| r as f64)).collect()
     }
 
     /// Run every setting for every replication. `reference`: evaluator statistics of the real

@@ -96,7 +96,15 @@ pub fn fid(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
 /// consecutive batches of 32 (a final partial batch is dropped, as in T2M), each motion ranks the
 /// batch's 32 texts by distance; top-k counts the true text within the k nearest.
 pub fn r_precision(texts: &[Vec<f64>], motions: &[Vec<f64>], batch: usize) -> ([f64; 3], f64) {
-    let ranks = text_ranks(texts, motions, batch);
+    r_precision_of(&text_ranks(texts, motions, batch), texts, motions)
+}
+
+/// `r_precision` from ranks already taken with `text_ranks` (same texts and motions).
+pub fn r_precision_of(
+    ranks: &[Option<usize>],
+    texts: &[Vec<f64>],
+    motions: &[Vec<f64>],
+) -> ([f64; 3], f64) {
     let (mut hits, mut n, mut mm) = ([0usize; 3], 0usize, 0.0);
     for (i, rank) in ranks.iter().enumerate() {
         let Some(closer) = *rank else { continue };
