@@ -15,6 +15,9 @@ import re
 import sys
 
 
+STRUCTURES = ("single", "simultaneous", "sequence")
+
+
 def structure(caption):
     if re.search(r"\b(then|before|after|first)\b", caption):
         return "sequence"
@@ -23,19 +26,31 @@ def structure(caption):
     return "single"
 
 
+def fail(msg):
+    """One line on stderr and exit status 2, as the other analysis scripts do."""
+    print(msg, file=sys.stderr)
+    sys.exit(2)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.error = lambda msg: fail(f"usage: scripts/text-ranks.py REPORT.json [--list N]: {msg}")
     ap.add_argument("report")
-    ap.add_argument("--list", type=int, default=0)
+    ap.add_argument("--list", type=int, default=0, metavar="N")
     a = ap.parse_args()
     try:
         with open(a.report) as f:
             report = json.load(f)
-        items = report["meta"]["items"]
-    except (OSError, ValueError, KeyError) as e:
-        sys.exit(f"{a.report}: not a diffkfc eval report with per-item captions ({e})")
-    print("| row | " + " | ".join(f"{k}: items, top-3 misses" for k in ("single", "simultaneous", "sequence")) + " |")
-    print("|---|---|---|---|")
+        first = table(report)
+    except (OSError, ValueError, KeyError, TypeError, IndexError) as e:
+        fail(f"{a.report}: not a diffkfc eval report with per-item captions ({type(e).__name__}: {e})")
+    for caption, n in first.most_common(a.list):
+        print(f"{n}  {caption}")
+
+
+def table(report):
+    items = report["meta"]["items"]
+    rows = []
     first = None
     for row in report["rows"]:
         ranks = row["per_item"].get("text_rank")
@@ -52,12 +67,15 @@ def main():
                 c[1] += rank >= 3
                 missed[it["caption"]] += rank >= 3
         name = f"{row['name']} @ {row['keyframe_rate'] * 100:g}%"
-        cells = [f"{c[0]}, {c[1] / max(c[0], 1):.3f}" for c in (counts[k] for k in ("single", "simultaneous", "sequence"))]
-        print(f"| {name} | " + " | ".join(cells) + " |")
+        cells = [f"{c[0]}, {c[1] / max(c[0], 1):.3f}" for c in (counts[k] for k in STRUCTURES)]
+        rows.append(f"| {name} | " + " | ".join(cells) + " |")
         if first is None and not row["real"]:
             first = missed
-    for caption, n in (first or collections.Counter()).most_common(a.list):
-        print(f"{n}  {caption}")
+    # Printed only once the whole report has been read, so a bad one prints nothing but its error.
+    print("| row | " + " | ".join(f"{k}: items, top-3 misses" for k in STRUCTURES) + " |")
+    print("|---|---|---|---|")
+    print("\n".join(rows))
+    return first or collections.Counter()
 
 
 if __name__ == "__main__":

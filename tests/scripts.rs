@@ -280,3 +280,50 @@ fn stances_match_hand_made_footprints() {
     let o = run(&[s(&source), s(&dir.join("absent.npy"))]);
     assert_one_line_error(&o, &["absent.npy", "No such file"]);
 }
+
+/// `text-ranks.py` groups top-3 misses (rank 3 or more; null ranks skipped) by caption
+/// structure from a hand-made report, and names a bad report or argument in one line.
+#[test]
+fn text_ranks_group_misses_by_caption_structure() {
+    if diffkfc_data::testing::fixtures::python(&["json"], "", &[]).is_none() {
+        return;
+    }
+    let dir = scratch("scripts-text-ranks");
+    let report = serde_json::json!({
+        "meta": {"items": [[
+            {"clip": "000001", "caption": "a person walks forward."},
+            {"clip": "000002", "caption": "a man walks while waving."},
+            {"clip": "000003", "caption": "a person jumps, then sits down."},
+        ]]},
+        "rows": [
+            {"name": "Real motion", "real": true, "keyframe_rate": 0.0,
+             "per_item": {"text_rank": [[0.0, 0.0, 2.0]]}},
+            {"name": "DiffKFC", "real": false, "keyframe_rate": 0.05,
+             "per_item": {"text_rank": [[0.0, 5.0, null]]}},
+        ],
+    });
+    let good = dir.join("report.json");
+    std::fs::write(&good, report.to_string()).unwrap();
+    let py = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scripts/text-ranks.py");
+    let run = |args: &[&str]| Command::new("python3").arg(&py).args(args).output().unwrap();
+    let o = run(&[s(&good), "--list", "1"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(
+        stdout(&o),
+        "| row | single: items, top-3 misses | simultaneous: items, top-3 misses | sequence: items, top-3 misses |\n\
+         |---|---|---|---|\n\
+         | Real motion @ 0% | 1, 0.000 | 1, 0.000 | 1, 0.000 |\n\
+         | DiffKFC @ 5% | 1, 0.000 | 1, 1.000 | 0, 0.000 |\n\
+         1  a man walks while waving.\n"
+    );
+    let o = run(&[]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_one_line_error(&o, &["usage: scripts/text-ranks.py", "report"]);
+    assert_one_line_error(&run(&[s(&good), "--list", "a"]), &["--list", "'a'"]);
+    let bad = dir.join("bad.json");
+    std::fs::write(&bad, r#"{"meta": {}}"#).unwrap();
+    let o = run(&[s(&bad)]);
+    assert_eq!((o.status.code(), stdout(&o).as_str()), (Some(2), ""));
+    assert_one_line_error(&o, &["bad.json", "not a diffkfc eval report", "items"]);
+    assert_one_line_error(&run(&[s(&dir.join("absent.json"))]), &["absent.json", "No such file"]);
+}
