@@ -6,6 +6,8 @@ use common::*;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
 
+use diffkfc_model::run::checkpoint::Checkpoint;
+
 const CFG: &str = r#"{"model": {"preset": "tiny", "dec_layers": 1, "dma_sizes": [2, 0]},
   "training": {"batch_size": 4, "max_steps": 6, "checkpoint_every": 2, "keep_checkpoints": 2,
                "val_every": 3, "val_batches": 1, "log_every": 1}}"#;
@@ -309,6 +311,62 @@ fn train_resume_and_outputs() {
     assert!(stdout(&o).contains("time budget reached"), "{}", stdout(&o));
     let last = *steps(&run2).last().unwrap();
     assert!(run2.join(format!("ckpt-{last:08}.safetensors")).exists());
+}
+
+/// A model grown with word states by `--init` and trained on them alone (`training.trainable`):
+/// the word tensors are named as initialised, every other weight stays the source's bit for
+/// bit, the word attention moves, and the grown model samples (its text input with words).
+#[test]
+fn word_states_grown_trained_alone_and_sampled() {
+    if !have_text_encoder() {
+        return;
+    }
+    let (d, data) = setup("train-words");
+    let (run, o) = train_variant(&d, &data, "base", "\"temporal_kernel\": 3", &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let cfg = d.join("words.json");
+    let grown_cfg = CFG
+        .replace(
+            "\"preset\": \"tiny\"",
+            "\"preset\": \"tiny\", \"temporal_kernel\": 3, \"text_words\": 8",
+        )
+        .replace(r#""training": {"#, r#""training": {"trainable": ["word"], "lr": 0.01, "#);
+    std::fs::write(&cfg, grown_cfg).unwrap();
+    let words = d.join("words");
+    let mut args = vec!["train", "--config", s(&cfg), "--data", s(&data), "--out", s(&words)];
+    args.extend(["--max-steps", "2", "--init", s(&run)]);
+    let o = diffkfc(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let said = stderr(&o);
+    assert!(
+        said.contains("layers.0.words.output.weight") && said.contains("word_in.proj"),
+        "{said}"
+    );
+    let latest = |dir: &Path| Checkpoint::latest(dir).unwrap().unwrap();
+    let (base, grown) = (latest(&run), latest(&words));
+    let source = base.ema.as_ref().unwrap_or(&base.model);
+    for (i, n) in grown.names.iter().enumerate() {
+        match base.names.iter().position(|b| b == n) {
+            Some(j) => assert!(grown.model[i] == source[j], "{n} moved"),
+            None => assert!(n.contains("word"), "{n}"),
+        }
+    }
+    let out_w = grown.names.iter().position(|n| n == "layers.0.words.output.weight").unwrap();
+    assert!(grown.model[out_w].iter().any(|&v| v != 0.0), "the word attention did not train");
+    let keys = write_keys(&d, "keys.json", r#"{"frame": 30, "root": [0.5, 0.9, 2.0]}"#);
+    let out = d.join("words-sample");
+    let o = sample_keyed(&words, &keys, &out, &["--steps", "2"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_finite_sample(&out);
+    // A pattern naming no parameter is refused before any step.
+    std::fs::write(
+        &cfg,
+        CFG.replace(r#""training": {"#, r#""training": {"trainable": ["wrod"], "#),
+    )
+    .unwrap();
+    let o =
+        diffkfc(&["train", "--config", s(&cfg), "--data", s(&data), "--out", s(&d.join("bad"))]);
+    assert_one_line_error(&o, &["training.trainable", "wrod"]);
 }
 
 #[test]

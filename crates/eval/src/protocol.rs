@@ -89,6 +89,7 @@ pub struct Protocol<'a> {
     pub gen: Generator<'a>,
     pub ds: &'a Dataset,
     pub split: &'a PackedSplit,
+    /// The model's text inputs (with its `model.text_words` word states).
     pub text: &'a EmbeddingCache,
     pub evaluator: &'a dyn TextMotionEvaluator,
     pub opts: Options,

@@ -69,3 +69,37 @@ fn missing_weights_say_how_to_fetch() {
         .to_string();
     assert!(e.contains("scripts/fetch-text-encoder.sh") && e.contains("model.safetensors"), "{e}");
 }
+
+/// The word-state input: the pooled embedding first (as `embed` gives it), then one unit row per
+/// token up to the word count, zero rows after; a text's rows do not depend on its batch.
+#[test]
+fn word_states_follow_the_pooled_embedding() {
+    let Some(enc) = encoder() else { return };
+    let texts = ["a person walks forward, then sits down.", "jumps"];
+    let (h, w) = (enc.dim(), 12);
+    let pooled = enc.embed(&texts).unwrap();
+    let full = enc.embed_words(&texts, w).unwrap();
+    for (i, t) in texts.iter().enumerate() {
+        assert_eq!(full[i].len(), h * (1 + w));
+        assert_eq!(full[i][..h], pooled[i][..], "{t}");
+        let tokens = enc.token_ids(t).unwrap().len();
+        for (r, row) in full[i][h..].chunks(h).enumerate() {
+            let norm = row.iter().map(|v| v * v).sum::<f32>().sqrt();
+            let want = if r < tokens.min(w) { 1.0 } else { 0.0 };
+            assert!((norm - want).abs() < 1e-5, "{t}: word {r} has norm {norm}");
+        }
+    }
+    let alone = enc.embed_words(&texts[1..], w).unwrap();
+    let e = alone[0].iter().zip(&full[1]).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+    assert!(e < 1e-5, "batch padding changes a text's word states by {e}");
+    // The two orders of a sequence differ in their word states far more than when pooled.
+    let swapped =
+        ["a person sits down, then walks forward.", "a person walks forward, then sits down."];
+    let s = enc.embed_words(&swapped, w).unwrap();
+    let cos = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f32>();
+    let pooled_cos = cos(&s[0][..h], &s[1][..h]);
+    let word_cos = (1..=4).map(|k| cos(&s[0][k * h..(k + 1) * h], &s[1][k * h..(k + 1) * h]));
+    let worst = word_cos.fold(1.0f32, f32::min);
+    eprintln!("swapped order: pooled cosine {pooled_cos:.3}, lowest of words 1-4 {worst:.3}");
+    assert!(worst < pooled_cos - 0.1, "pooled {pooled_cos}, words {worst}");
+}

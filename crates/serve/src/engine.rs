@@ -67,8 +67,12 @@ impl Engine {
         if let Some(e) = self.embeddings.get(text) {
             return Ok(e.clone());
         }
-        let e =
-            self.enc.embed(&[text]).map_err(|e| ApiError::invalid(format!("text: {e}")))?.remove(0);
+        let words = self.loaded.cfg.model.text_words;
+        let e = self
+            .enc
+            .embed_words(&[text], words)
+            .map_err(|e| ApiError::invalid(format!("text: {e}")))?
+            .remove(0);
         if self.embeddings.len() >= EMBEDDING_CACHE {
             self.embeddings.clear();
         }

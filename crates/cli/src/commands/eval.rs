@@ -328,7 +328,12 @@ fn evaluate(mut a: RunArgs) -> Result<()> {
     let split =
         PackedSplit::open(&ds, &a.split, &default_cache_dir(&ds), crate::progress::bar("caching"))?;
     let num_items = check_split(&a, &split, cfg.model.max_frames)?;
-    let text = embed_captions(&ds, &[&split], crate::progress::bar("embedding"))?;
+    // The evaluator reads pooled embeddings; a model with word states reads its own input.
+    let text = embed_captions(&ds, &[&split], 0, crate::progress::bar("embedding"))?;
+    let words = cfg.model.text_words;
+    let model_text = (words > 0)
+        .then(|| embed_captions(&ds, &[&split], words, crate::progress::bar("embedding words")))
+        .transpose()?;
     let ev = load_evaluator(&eval_dir, &ds, &a.split, &text, &device)?;
     let (_, real) = embed_split(ev.as_ref(), &ds, &split)?;
     let reference = Gaussian::fit(&real);
@@ -338,7 +343,7 @@ fn evaluate(mut a: RunArgs) -> Result<()> {
         gen: loaded.generator(ds.skeleton),
         ds: &ds,
         split: &split,
-        text: &text,
+        text: model_text.as_ref().unwrap_or(&text),
         evaluator: ev.as_ref(),
         opts,
     };

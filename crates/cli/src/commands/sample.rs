@@ -363,7 +363,8 @@ impl Generator {
     }
 
     fn embed(&self, text: &str, flag: &str) -> Result<Vec<f32>> {
-        Ok(self.enc.embed(&[text]).context(flag.to_string())?.remove(0))
+        let words = self.loaded.cfg.model.text_words;
+        Ok(self.enc.embed_words(&[text], words).context(flag.to_string())?.remove(0))
     }
 
     /// A request for `b` motions of `n` frames of the text `emb`; item i observes `keys[i]`

@@ -274,12 +274,13 @@ impl TrainingData {
         }
         let mut splits = vec![&train];
         splits.extend(val.as_ref());
-        let text = embed_captions(&ds, &splits, crate::progress::bar("embedding"))?;
-        if text.dim != cfg.model.text_dim {
+        let words = cfg.model.text_words;
+        let text = embed_captions(&ds, &splits, words, crate::progress::bar("embedding"))?;
+        if text.dim != cfg.model.text_width() {
             bail!(
                 "model.text_dim is {} but the text encoder gives {}",
                 cfg.model.text_dim,
-                text.dim
+                text.dim / (1 + words)
             );
         }
         Ok(TrainingData { ds, train, val, text })

@@ -79,7 +79,7 @@ fn open_data(
             test.items.len()
         );
     }
-    let text = embed_captions(&ds, &[&train, &test], crate::progress::bar("embedding"))?;
+    let text = embed_captions(&ds, &[&train, &test], 0, crate::progress::bar("embedding"))?;
     Ok((ds, train, test, text))
 }
 

@@ -63,10 +63,15 @@ pub fn forward_planned(
             + linear(q, d, f)
             + linear(q, f, d)
     };
+    // Word tokens (`text_words`): their projection and each layer's keys and values.
+    let w = c.text_words;
     let encoder = linear(b, c.text_dim, d)
+        + linear(b * w, c.text_dim, d)
+        + c.dec_layers as f64 * linear(b * w, d, 2 * d)
         + linear(b * n, 2 * (c.feat_dim + c.root_channels), d)
         + work.iter().map(block).sum::<f64>()
         + c.dec_layers as f64 * linear(b * le, d, 2 * d);
+    let word_attention = if w > 0 { 2.0 * linear(b * ld, d, d) + attend(b, ld, w, d) } else { 0.0 };
     let layer = linear(b * ld, d, 3 * d)
         + attend(b, ld, ld, d)
         + linear(b * ld, d, d)
@@ -74,7 +79,8 @@ pub fn forward_planned(
         + attend(b, ld, le, d)
         + linear(b * ld, d, d)
         + linear(b * ld, d, f)
-        + linear(b * ld, f, d);
+        + linear(b * ld, f, d)
+        + word_attention;
     // The extensions' per-frame projections added to the decoder's frame tokens.
     let path_in = if c.root_path { linear(b * nd, p * PATH_CHANNELS, d) } else { 0.0 };
     let key_in =

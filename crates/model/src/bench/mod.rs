@@ -31,8 +31,8 @@ pub fn request(cfg: &DiffKfcConfig, batch: usize, frames: usize, seed: u64) -> R
             }
         }
     }
-    let text = (0..batch * cfg.text_dim).map(|_| 0.05 * r.normal() as f32).collect();
-    Request { kf, mask, ..Request::text_only(n, d, text, cfg.text_dim, vec![n; batch]) }
+    let text = (0..batch * cfg.text_width()).map(|_| 0.05 * r.normal() as f32).collect();
+    Request { kf, mask, ..Request::text_only(n, d, text, cfg.text_width(), vec![n; batch]) }
 }
 
 /// The encoder blocks' work for `cond` (see `flops::forward_planned`).

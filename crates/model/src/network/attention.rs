@@ -30,6 +30,17 @@ impl Attention {
         }
     }
 
+    /// An attention whose output projection starts at zero: a branch added to a trained model
+    /// that computes nothing until training moves it.
+    pub fn zero_output(d: usize, heads: usize, device: &Device) -> Self {
+        Attention {
+            output: LinearConfig::new(d, d)
+                .with_initializer(burn::nn::Initializer::Zeros)
+                .init(device),
+            ..Attention::new(d, heads, device)
+        }
+    }
+
     /// `q_in` [B, Lq, d] attends to `kv_in` [B, Lk, d] under `mask` -> [B, Lq, d]. Every query
     /// must see at least one key.
     pub fn forward(&self, q_in: Tensor<3>, kv_in: Tensor<3>, mask: Mask) -> Tensor<3> {

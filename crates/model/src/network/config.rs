@@ -61,9 +61,21 @@ pub struct DiffKfcConfig {
     /// made before it).
     #[config(default = 1)]
     pub patch_frames: usize,
+    /// Word states of the text encoder the decoder also attends to, beside the pooled sentence
+    /// embedding (our extension, `crate::network::words`): the text input is then
+    /// `text_dim * (1 + text_words)` wide (`TextEncoder::embed_words`), and longer captions keep
+    /// their first `text_words` tokens. 0 = the pooled embedding alone (the paper, and
+    /// checkpoints made before it).
+    #[config(default = 0)]
+    pub text_words: usize,
 }
 
 impl DiffKfcConfig {
+    /// Values of one text input: the pooled embedding and `text_words` word states.
+    pub fn text_width(&self) -> usize {
+        self.text_dim * (1 + self.text_words)
+    }
+
     /// The velocity statistics of an absolute-root model; None for a velocity-root model.
     /// Panics on an absolute-root config without them (`RunConfig::bind_dataset` sets them).
     pub fn absolute(&self) -> Option<VelocityStats> {

@@ -1,7 +1,9 @@
 //! The denoising decoder: L layers of self-attention over [y_t, y_c, frame tokens],
 //! cross-attention to the keyframe encoder's output (keys masked to valid tokens), and a
 //! feed-forward block; post-norm residuals as in MDM. With `model.temporal_kernel` > 0 a
-//! depthwise convolution over the frames joins the self-attention's residual ([`TemporalConv`]).
+//! depthwise convolution over the frames joins the self-attention's residual ([`TemporalConv`]);
+//! with `model.text_words` > 0 an attention to the text's word states follows the
+//! cross-attention (`crate::network::words`).
 
 use burn::nn::{LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::prelude::*;
@@ -23,16 +25,22 @@ pub struct DecoderLayer {
     drop: Dropout,
     /// Last, so that layers without it visit their parameters as before (old checkpoints).
     temporal: Option<TemporalConv>,
+    /// Attention to the word tokens, zero output at first (after `temporal`, for the same reason).
+    words: Option<Attention>,
 }
 
+/// A decoder layer's word keys and values ([B, W, d] each) and the word padding.
+pub type WordKeys<'a> = (&'a (Tensor<3>, Tensor<3>), &'a Mask);
+
 impl DecoderLayer {
-    /// `temporal_kernel` 0: no temporal convolution (the paper).
+    /// `temporal_kernel` 0: no temporal convolution (the paper); `words`: attend to word tokens.
     pub fn new(
         d: usize,
         heads: usize,
         ffn: usize,
         dropout: f64,
         temporal_kernel: usize,
+        words: bool,
         device: &Device,
     ) -> Self {
         DecoderLayer {
@@ -45,7 +53,13 @@ impl DecoderLayer {
             ln3: LayerNormConfig::new(d).init(device),
             drop: Dropout::new(dropout),
             temporal: (temporal_kernel > 0).then(|| TemporalConv::new(temporal_kernel, d, device)),
+            words: words.then(|| Attention::zero_output(d, heads, device)),
         }
+    }
+
+    /// The word attention's keys and values of the word tokens [B, W, d] (None without one).
+    pub fn word_kv(&self, tokens: Tensor<3>) -> Option<(Tensor<3>, Tensor<3>)> {
+        self.words.as_ref().map(|a| a.keys_values(tokens))
     }
 
     /// The cross-attention keys and values of the encoder output (fixed across denoising steps).
@@ -55,7 +69,7 @@ impl DecoderLayer {
 
     /// `h` [B, 2+N, d] with `self_pad` (key padding of the decoder sequence); `enc_kv` from
     /// [`cross_kv`] with `enc_pad` (encoder tokens that are not valid keys); `real`: which
-    /// frames are real -> [B, 2+N, d].
+    /// frames are real; `words`: this layer's word keys (models with word tokens) -> [B, 2+N, d].
     pub fn forward(
         &self,
         h: Tensor<3>,
@@ -63,6 +77,7 @@ impl DecoderLayer {
         enc_kv: &(Tensor<3>, Tensor<3>),
         enc_pad: Mask,
         real: &RealFrames,
+        words: Option<WordKeys>,
     ) -> Tensor<3> {
         let mut a = self.self_attn.forward(h.clone(), h.clone(), self_pad);
         if let Some(conv) = &self.temporal {
@@ -70,7 +85,11 @@ impl DecoderLayer {
         }
         let h = residual_layer_norm(&self.ln1, h, a, &self.drop);
         let c = self.cross_attn.forward_kv(h.clone(), enc_kv, enc_pad);
-        let h = residual_layer_norm(&self.ln2, h, c, &self.drop);
+        let mut h = residual_layer_norm(&self.ln2, h, c, &self.drop);
+        // A plain residual: with its zero output the branch leaves the layer as it was.
+        if let (Some(att), Some((kv, pad))) = (&self.words, words) {
+            h = h.clone() + self.drop.forward(att.forward_kv(h, kv, pad.clone()));
+        }
         let f = linear(&self.ff2, linear_gelu_dropout(&self.ff1, h.clone(), &self.drop));
         residual_layer_norm(&self.ln3, h, f, &self.drop)
     }

@@ -14,6 +14,7 @@ use crate::network::decoder::DecoderLayer;
 use crate::network::keyframe_encoder::{DmaPlan, KeyframeEncoder};
 use crate::network::sinusoidal::{positions, TimestepEmbed};
 use crate::network::temporal::RealFrames;
+use crate::network::words::{self, WordInput, WordMemory};
 
 /// The encoder's output for a condition, reused across denoising steps.
 #[derive(Clone, Debug)]
@@ -42,6 +43,8 @@ pub struct Encoded {
     /// [B, N, 1] 1 on real frames, 0 on padding: a patched decoder zeroes x_t's padding frames,
     /// which would otherwise share a token with real ones (models with `patch_frames` > 1).
     pub frame_real: Option<Tensor<3>>,
+    /// The text's word tokens as each decoder layer attends to them (models with `text_words`).
+    pub words: Option<WordMemory>,
 }
 
 impl Encoded {
@@ -58,6 +61,7 @@ impl Encoded {
             path: self.path.map(Tensor::detach),
             key: self.key.map(Tensor::detach),
             frame_real: self.frame_real.map(Tensor::detach),
+            words: self.words.map(WordMemory::detach),
             ..self
         }
     }
@@ -83,6 +87,12 @@ pub struct Denoiser {
     key_in: Option<Linear>,
     /// Frames per decoder token (`DiffKfcConfig::patch_frames`). No parameters.
     patch: usize,
+    /// The word states' projection (models with `text_words`; last, like `path_in`).
+    word_in: Option<WordInput>,
+    /// Width of the pooled text embedding and word states per text (`text_dim`, `text_words`).
+    /// No parameters.
+    text_dim: usize,
+    text_words: usize,
 }
 
 impl DiffKfcConfig {
@@ -110,6 +120,7 @@ impl DiffKfcConfig {
                         self.ffn,
                         self.dropout,
                         self.temporal_kernel,
+                        self.text_words > 0,
                         device,
                     )
                 })
@@ -130,6 +141,9 @@ impl DiffKfcConfig {
                     .init(device)
             }),
             patch: p,
+            word_in: (self.text_words > 0).then(|| WordInput::new(self.text_dim, d, device)),
+            text_dim: self.text_dim,
+            text_words: self.text_words,
         }
     }
 }
@@ -141,7 +155,13 @@ impl Denoiser {
         let device = c.kf.device();
         let [b, n, _] = c.kf.dims();
         let (p, np) = (self.patch, n.div_ceil(self.patch));
-        let text_tok = linear(&self.text_in, c.text.clone()).unsqueeze_dim::<3>(1);
+        let (pooled, word_states) = words::split(c.text.clone(), self.text_dim, self.text_words);
+        let text_tok = linear(&self.text_in, pooled).unsqueeze_dim::<3>(1);
+        let words = self.word_in.as_ref().zip(word_states).map(|(wi, states)| {
+            let tokens = wi.forward(states);
+            let kv = self.layers.iter().filter_map(|l| l.word_kv(tokens.clone())).collect();
+            WordMemory::new(kv, &c.text, self.text_dim)
+        });
         let plan = DmaPlan::new(&c.kf_frames, &c.real, b, n, &self.dma_sizes);
         let frame_pos = positions(n, self.d_model, &device);
         let pos = if p == 1 { frame_pos.clone() } else { positions(np, self.d_model, &device) };
@@ -170,6 +190,7 @@ impl Denoiser {
         let cross_kv = self.layers.iter().map(|l| l.cross_kv(tokens.clone())).collect();
         let path = self.path_in.as_ref().map(|l| linear(l, masked(c.path.clone())));
         Encoded {
+            words,
             path,
             key,
             frame_real,
@@ -202,8 +223,9 @@ impl Denoiser {
         }
         let y_t = self.time.forward(t, &device);
         let mut h = Tensor::cat(vec![y_t, e.text_tok.clone(), frames], 1);
-        for (layer, kv) in self.layers.iter().zip(&e.cross_kv) {
-            h = layer.forward(h, e.self_pad.clone(), kv, e.key_pad.clone(), &e.real);
+        for (i, (layer, kv)) in self.layers.iter().zip(&e.cross_kv).enumerate() {
+            let w = e.words.as_ref().map(|m| (&m.kv[i], &m.pad));
+            h = layer.forward(h, e.self_pad.clone(), kv, e.key_pad.clone(), &e.real, w);
         }
         let d = self.d_model;
         let y = linear(&self.out, h.slice([0..b, 2..np + 2, 0..d]));
@@ -236,7 +258,8 @@ impl Denoiser {
             + self.time.num_params()
             + self.out.num_params()
             + self.path_in.as_ref().map_or(0, |l| l.num_params())
-            + self.key_in.as_ref().map_or(0, |l| l.num_params());
+            + self.key_in.as_ref().map_or(0, |l| l.num_params())
+            + self.word_in.as_ref().map_or(0, |l| l.num_params());
         vec![
             ("keyframe encoder (DMA)", enc),
             ("decoder layers", dec),

@@ -1,6 +1,7 @@
 //! The DiffKFC network: the denoiser (text and timestep conditioning, transformer decoder
 //! layers with an optional temporal convolution), the Dilated Mask Attention keyframe encoder,
-//! attention, sinusoidal encodings, dropout, its config and its parameters as host vectors.
+//! attention, sinusoidal encodings, dropout, word-level text conditioning, its config and its
+//! parameters as host vectors.
 
 pub mod attention;
 pub mod condition;
@@ -12,3 +13,4 @@ pub mod keyframe_encoder;
 pub mod params;
 pub(crate) mod sinusoidal;
 pub(crate) mod temporal;
+pub mod words;

@@ -106,6 +106,11 @@ pub struct TrainingConfig {
     /// DDIM steps of a rolled-out sample, from t + steps * `rollout_gap` down to t (1: one step;
     /// each further step is one more forward pass of the network, without gradients).
     pub rollout_steps: usize,
+    /// Substrings of the parameter names training may change (`["word"]`: only the word
+    /// conditioning a model grown with `model.text_words` added); the rest keep the weights
+    /// `--init` gave them. Empty = every parameter (the paper).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub trainable: Vec<String>,
 }
 
 impl TrainingConfig {
@@ -151,6 +156,7 @@ impl Default for TrainingConfig {
             rollout_prob: 0.0,
             rollout_gap: 100,
             rollout_steps: 1,
+            trainable: Vec::new(),
         }
     }
 }
@@ -501,22 +507,24 @@ mod tests {
     #[test]
     fn new_options_default_to_the_old_behaviour() {
         let old = RunConfig::parse(r#"{"model": "tiny", "training": {"lr": 0.001}}"#).unwrap();
-        assert_eq!(old.model.patch_frames, 1);
+        assert_eq!((old.model.patch_frames, old.model.text_words), (1, 0));
+        assert!(old.training.trainable.is_empty());
         let t = &old.training;
         assert_eq!((t.root_loss_weight, t.contact_loss_weight, t.min_snr_gamma), (1.0, 1.0, 0.0));
         assert_eq!((old.keyframes.part_prob, old.training.rollout_prob), (0.0, 0.0));
         assert_eq!(old.training.rollout_steps, 1);
         assert_eq!(old.training.text_drop_prob_unkeyed, None);
         assert_eq!(old.keyframes.max_observed_sigma, None);
-        for key in ["text_drop_prob_unkeyed", "max_observed_sigma"] {
+        for key in ["text_drop_prob_unkeyed", "max_observed_sigma", "trainable"] {
             assert!(!old.to_json().contains(key), "old configs write as before: {key}");
         }
         let c = RunConfig::parse(
-            r#"{"model": {"preset": "tiny", "patch_frames": 4},
+            r#"{"model": {"preset": "tiny", "patch_frames": 4, "text_words": 32},
                 "keyframes": {"part_prob": 0.3, "max_observed_sigma": 30},
                 "training": {"root_loss_weight": 8, "contact_loss_weight": 4, "min_snr_gamma": 5,
                              "rollout_prob": 0.5, "rollout_gap": 50, "rollout_steps": 2,
-                             "text_drop_prob": 0.1, "text_drop_prob_unkeyed": 0.5}}"#,
+                             "text_drop_prob": 0.1, "text_drop_prob_unkeyed": 0.5,
+                             "trainable": ["word"]}}"#,
         )
         .unwrap();
         let again = RunConfig::parse(&c.to_json()).unwrap();
@@ -529,5 +537,6 @@ mod tests {
         let t = &again.training;
         assert_eq!((t.rollout_prob, t.rollout_gap, t.rollout_steps), (0.5, 50, 2));
         assert_eq!(t.text_drop_prob_unkeyed, Some(0.5));
+        assert_eq!((again.model.text_words, &t.trainable), (32, &vec!["word".to_string()]));
     }
 }

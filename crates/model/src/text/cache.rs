@@ -1,5 +1,6 @@
 //! Caption embeddings computed once per dataset and stored as safetensors (one tensor per
-//! caption, named by the caption), so training never runs the text encoder per step.
+//! caption, named by the caption), so training never runs the text encoder per step. A model
+//! that reads word states (`model.text_words`) has its own file beside the pooled one.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -9,6 +10,7 @@ use safetensors::tensor::{Dtype, TensorView};
 use super::{TextEncoder, TextError};
 
 pub struct EmbeddingCache {
+    /// Values per caption: the encoder's width times 1 + word states.
     pub dim: usize,
     pub map: HashMap<String, Vec<f32>>,
 }
@@ -18,14 +20,17 @@ impl EmbeddingCache {
         self.map.get(caption).map(|v| v.as_slice())
     }
 
-    /// Load `path` if it holds all `captions` from the same encoder; otherwise embed the missing
-    /// ones (in chunks, calling `progress(done, total)`) and rewrite the file atomically.
+    /// Load `path` if it holds all `captions` from the same encoder and word count; otherwise
+    /// embed the missing ones (`TextEncoder::embed_words` with `words`, in chunks, calling
+    /// `progress(done, total)`) and rewrite the file atomically.
     pub fn build(
         path: &Path,
         encoder: &dyn TextEncoder,
+        words: usize,
         captions: &[String],
         mut progress: impl FnMut(usize, usize),
     ) -> Result<EmbeddingCache, TextError> {
+        let name = cache_name(encoder.name(), words);
         let bad = |msg: String| TextError::Bad { path: path.to_path_buf(), msg };
         let mut map = HashMap::new();
         if let Ok(bytes) = std::fs::read(path) {
@@ -34,7 +39,7 @@ impl EmbeddingCache {
                     .metadata()
                     .as_ref()
                     .and_then(|m| m.get("encoder"))
-                    .map(|e| e == encoder.name())
+                    .map(|e| *e == name)
                     .unwrap_or(false);
                 if same {
                     let st = safetensors::SafeTensors::deserialize(&bytes)
@@ -58,7 +63,7 @@ impl EmbeddingCache {
             for (k, chunk) in missing.chunks(64).enumerate() {
                 progress(k * 64, missing.len());
                 let texts: Vec<&str> = chunk.iter().map(|s| s.as_str()).collect();
-                for (c, e) in chunk.iter().zip(encoder.embed(&texts)?) {
+                for (c, e) in chunk.iter().zip(encoder.embed_words(&texts, words)?) {
                     map.insert((*c).clone(), e);
                 }
             }
@@ -73,19 +78,31 @@ impl EmbeddingCache {
                     (k.as_str(), TensorView::new(Dtype::F32, vec![b.len() / 4], b).expect("view"))
                 })
                 .collect();
-            let meta = HashMap::from([("encoder".to_string(), encoder.name().to_string())]);
+            let meta = HashMap::from([("encoder".to_string(), name)]);
             let out = safetensors::serialize(views, Some(meta)).map_err(|e| bad(e.to_string()))?;
             diffkfc_data::write_atomic(path, &out).map_err(|e| bad(e.to_string()))?;
         }
-        Ok(EmbeddingCache { dim: encoder.dim(), map })
+        Ok(EmbeddingCache { dim: encoder.dim() * (1 + words), map })
     }
 }
 
-/// The caption embeddings of a dataset's splits with the default text encoder, cached next to
-/// the dataset's packed splits (`text-<encoder>.safetensors`).
+/// What a cache file records as its encoder: the encoder's name, and the word count where
+/// word states follow the pooled embedding.
+fn cache_name(encoder: &str, words: usize) -> String {
+    if words == 0 {
+        encoder.to_string()
+    } else {
+        format!("{encoder}+words{words}")
+    }
+}
+
+/// The caption embeddings of a dataset's splits with the default text encoder, with `words`
+/// word states each (0: the pooled embedding alone, what the evaluator reads), cached next to
+/// the dataset's packed splits (`text-<encoder>[+words<W>].safetensors`).
 pub fn embed_captions(
     ds: &diffkfc_data::dataset::Dataset,
     splits: &[&diffkfc_data::dataset::cache::PackedSplit],
+    words: usize,
     progress: impl FnMut(usize, usize),
 ) -> Result<EmbeddingCache, TextError> {
     let encoder =
@@ -93,6 +110,6 @@ pub fn embed_captions(
     let captions: Vec<String> =
         splits.iter().flat_map(|s| s.items.iter().flat_map(|i| i.captions.clone())).collect();
     let path = diffkfc_data::dataset::cache::default_cache_dir(ds)
-        .join(format!("text-{}.safetensors", encoder.name()));
-    EmbeddingCache::build(&path, &encoder, &captions, progress)
+        .join(format!("text-{}.safetensors", cache_name(encoder.name(), words)));
+    EmbeddingCache::build(&path, &encoder, words, &captions, progress)
 }

@@ -1,5 +1,6 @@
 //! all-MiniLM-L6-v2 (sentence-transformers): BERT, mean pooling over the attention mask
-//! (`[CLS]` and `[SEP]` included), L2 normalisation.
+//! (`[CLS]` and `[SEP]` included), L2 normalisation; on request also the per-token states
+//! before pooling (`TextEncoder::embed_words`).
 
 use std::path::{Path, PathBuf};
 
@@ -65,6 +66,10 @@ impl TextEncoder for MiniLm {
     }
 
     fn embed(&self, texts: &[&str]) -> Result<Vec<Vec<f32>>, TextError> {
+        self.embed_words(texts, 0)
+    }
+
+    fn embed_words(&self, texts: &[&str], words: usize) -> Result<Vec<Vec<f32>>, TextError> {
         if texts.iter().any(|t| t.trim().is_empty()) {
             return Err(TextError::Empty);
         }
@@ -81,13 +86,34 @@ impl TextEncoder for MiniLm {
         let mask: Vec<f32> =
             encs.iter().flat_map(|e| e.get_attention_mask().iter().map(|&m| m as f32)).collect();
         let ids = Tensor::<1, Int>::from_ints(ids.as_slice(), &self.device).reshape([b, l]);
-        let mask = Tensor::<1>::from_floats(mask.as_slice(), &self.device).reshape([b, l]);
-        let h = self.bert.forward(ids, mask.clone());
-        let m3 = mask.clone().unsqueeze_dim::<3>(2);
-        let pooled =
-            (h * m3).sum_dim(1).reshape([b, self.hidden]) / mask.sum_dim(1).reshape([b, 1]);
-        let norm = pooled.clone().powf_scalar(2.0).sum_dim(1).sqrt().clamp_min(1e-12);
-        let out: Vec<f32> = (pooled / norm).into_data().try_to_vec::<f32>().expect("f32 data");
-        Ok(out.chunks(self.hidden).map(|c| c.to_vec()).collect())
+        let mask_t = Tensor::<1>::from_floats(mask.as_slice(), &self.device).reshape([b, l]);
+        let h = self.bert.forward(ids, mask_t.clone());
+        let m3 = mask_t.clone().unsqueeze_dim::<3>(2);
+        let pooled = (h.clone() * m3).sum_dim(1).reshape([b, self.hidden])
+            / mask_t.sum_dim(1).reshape([b, 1]);
+        let pooled = host(l2_normalise(pooled));
+        let states = (words > 0).then(|| host(l2_normalise(h.reshape([b * l, self.hidden]))));
+        let hd = self.hidden;
+        Ok((0..b)
+            .map(|i| {
+                let mut out = pooled[i * hd..(i + 1) * hd].to_vec();
+                if let Some(s) = &states {
+                    let n = (0..l).filter(|&t| mask[i * l + t] > 0.0).count().min(words);
+                    out.extend_from_slice(&s[i * l * hd..(i * l + n) * hd]);
+                    out.resize(hd * (1 + words), 0.0);
+                }
+                out
+            })
+            .collect())
     }
+}
+
+/// Rows of `x` [R, H] scaled to unit length.
+fn l2_normalise(x: Tensor<2>) -> Tensor<2> {
+    let norm = x.clone().powf_scalar(2.0).sum_dim(1).sqrt().clamp_min(1e-12);
+    x / norm
+}
+
+fn host(x: Tensor<2>) -> Vec<f32> {
+    x.into_data().try_to_vec::<f32>().expect("f32 data")
 }

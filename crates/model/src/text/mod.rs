@@ -28,6 +28,11 @@ pub trait TextEncoder {
     fn token_ids(&self, text: &str) -> Result<Vec<u32>, TextError>;
     /// L2-normalised embeddings, one per text.
     fn embed(&self, texts: &[&str]) -> Result<Vec<Vec<f32>>, TextError>;
+    /// Per text, the embedding of [`embed`](TextEncoder::embed) followed by the encoder's
+    /// last hidden states of its first `words` tokens (`[CLS]` and `[SEP]` included), each
+    /// L2-normalised, and zero rows past the text's tokens: `dim() * (1 + words)` values (the
+    /// layout of `words::TextInput`). `words` 0 is `embed`.
+    fn embed_words(&self, texts: &[&str], words: usize) -> Result<Vec<Vec<f32>>, TextError>;
 }
 
 /// The text encoder directory: `$DIFFKFC_TEXT_ENCODER`, else `$DIFFKFC_HOME/text-encoder`,

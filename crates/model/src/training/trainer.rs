@@ -36,6 +36,7 @@ use crate::training::parallel::{shard_objective, Combine, Shares};
 use crate::training::rollout;
 pub use crate::training::run_files::StepRecord;
 use crate::training::run_files::{non_finite, RunFiles};
+use crate::training::warm_start::frozen;
 use crate::training::weighting;
 use crate::Denoiser;
 
@@ -309,6 +310,12 @@ impl Trainer<'_> {
                 dp.devices().len()
             )));
         }
+        if self.parallel.is_some() && !tc.trainable.is_empty() {
+            return Err(ModelError::Config(
+                "training.trainable: a data-parallel run trains every parameter; leave it empty"
+                    .into(),
+            ));
+        }
         std::fs::create_dir_all(&self.run_dir).map_err(ModelError::io(&self.run_dir))?;
         let device = self.device.clone().autodiff();
         device.seed(tc.seed);
@@ -442,7 +449,8 @@ impl Trainer<'_> {
                     v: ck.adam_v,
                 };
                 let (model, optim) = Optimiser::restore(model, snap, self.optimiser);
-                return Ok((model, optim, start));
+                let frozen = frozen(&model, &self.cfg.training.trainable)?;
+                return Ok((model, optim.with_frozen(frozen), start));
             }
         }
         if let Some(path) = &self.init {
@@ -451,7 +459,8 @@ impl Trainer<'_> {
             model = w.model;
             on_event(Event::WarmStart { fresh: w.fresh, widened: w.widened });
         }
-        let optim = Optimiser::new(&model, self.optimiser, keep_ema);
+        let frozen = frozen(&model, &self.cfg.training.trainable)?;
+        let optim = Optimiser::new(&model, self.optimiser, keep_ema).with_frozen(frozen);
         Ok((model, optim, 0))
     }
 

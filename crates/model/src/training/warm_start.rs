@@ -126,6 +126,22 @@ pub fn warm_start(model: Denoiser, ck: &Checkpoint, path: &Path) -> Result<WarmS
     Ok(WarmStart { model: params::load(model, &vals), fresh, widened })
 }
 
+/// Per parameter of `model` (visit order), whether training holds it fixed: every parameter
+/// whose name contains none of `trainable` (`training.trainable`; empty: none is held). A
+/// pattern that names no parameter is an error, not a run that trains nothing.
+pub fn frozen(model: &Denoiser, trainable: &[String]) -> Result<Vec<bool>> {
+    let names = params::names(model);
+    if trainable.is_empty() {
+        return Ok(vec![false; names.len()]);
+    }
+    if let Some(p) = trainable.iter().find(|p| !names.iter().any(|n| n.contains(p.as_str()))) {
+        return Err(ModelError::Config(format!(
+            "training.trainable: '{p}' names no parameter of this model"
+        )));
+    }
+    Ok(names.iter().map(|n| !trainable.iter().any(|p| n.contains(p.as_str()))).collect())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -181,6 +197,85 @@ mod tests {
             .expect("shape mismatch")
             .to_string();
         assert!(err.contains("ck") && err.contains("shape"), "{err}");
+    }
+
+    /// `request()` with word states: the pooled 0.1 embedding, then `words[i]` word rows of
+    /// value `v` for motion i (zero rows after them).
+    fn with_words(words: [usize; 2], w: usize, v: f32) -> Request {
+        let mut req = request();
+        req.text = (0..2)
+            .flat_map(|i| {
+                let mut t = vec![0.1; 384];
+                t.extend((0..w * 384).map(|k| {
+                    if k / 384 < words[i] {
+                        v + k as f32 * 1e-4
+                    } else {
+                        0.0
+                    }
+                }));
+                t
+            })
+            .collect();
+        req.text_dim = 384 * (1 + w);
+        req
+    }
+
+    #[test]
+    fn word_tokens_start_silent_and_then_read_the_words() {
+        let dev = Device::flex();
+        let base = DiffKfcConfig::tiny().with_temporal_kernel(3).with_key_input(true);
+        let old = base.init(&dev);
+        let x = Tensor::<3>::random([2, 30, 263], burn::tensor::Distribution::Default, &dev);
+        let want = params::host(old.forward(x.clone(), &[10, 500], &request().condition(&dev)));
+        let cfg = base.clone().with_text_words(4);
+        let w = warm_start(cfg.init(&dev), &checkpoint_of(&old, true), Path::new("ck")).unwrap();
+        assert!(!w.fresh.is_empty() && w.fresh.iter().all(|n| n.contains("word")), "{:?}", w.fresh);
+        let run = |m: &Denoiser, r: &Request| {
+            params::host(m.forward(x.clone(), &[10, 500], &r.condition(&dev)))
+        };
+        let got = run(&w.model, &with_words([3, 1], 4, 0.2));
+        assert_eq!(got, want, "the zero-output word attention changes nothing");
+        // Output projections moved: the words now reach the output, padding slots do not.
+        let names = params::names(&w.model);
+        let vals: Vec<Vec<f32>> = params::values(&w.model)
+            .into_iter()
+            .zip(&names)
+            .map(
+                |((_, v), n)| {
+                    if n.contains("words.output.weight") {
+                        vec![0.05; v.len()]
+                    } else {
+                        v
+                    }
+                },
+            )
+            .collect();
+        let m1 = params::load(w.model, &vals);
+        let a = run(&m1, &with_words([3, 1], 4, 0.2));
+        let b = run(&m1, &with_words([3, 1], 4, -0.3));
+        let n = 30 * 263;
+        assert!(a[..n].iter().zip(&b[..n]).any(|(a, b)| (a - b).abs() > 1e-3), "other words");
+        let c = run(&m1, &with_words([2, 1], 4, 0.2));
+        assert!(a[..n].iter().zip(&c[..n]).any(|(a, b)| (a - b).abs() > 1e-3), "one word fewer");
+        assert_eq!(a[n..], c[n..], "the other motion's words are unchanged");
+        // Dropped text (all zero) still attends to slot 0: finite.
+        assert!(run(&m1, &with_words([0, 0], 4, 0.0)).iter().all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn trainable_patterns_hold_the_rest_fixed() {
+        let m = DiffKfcConfig::tiny().with_text_words(4).init(&Device::flex());
+        let names = params::names(&m);
+        let all = frozen(&m, &[]).unwrap();
+        assert!(all.len() == names.len() && all.iter().all(|f| !f));
+        let words = frozen(&m, &["word".to_string()]).unwrap();
+        for (n, f) in names.iter().zip(&words) {
+            assert_eq!(*f, !n.contains("word"), "{n}");
+        }
+        // Two layers' attention (4 linears, weight and bias each) and the projection.
+        assert_eq!(words.iter().filter(|f| !**f).count(), 2 * 8 + 2);
+        let e = frozen(&m, &["wrod".to_string()]).err().unwrap().to_string();
+        assert!(e.contains("training.trainable") && e.contains("wrod"), "{e}");
     }
 
     #[test]

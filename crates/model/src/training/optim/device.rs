@@ -118,17 +118,21 @@ impl ModuleMapper for Update<'_> {
 pub(super) fn descend<M: Module>(
     model: M,
     grads: GradientsParams,
+    frozen: &[bool],
     state: &mut DeviceState,
     t: u64,
     (beta1, beta2, eps): (f64, f64, f64),
     clip: f64,
     lr: f64,
 ) -> (M, f64) {
-    let g = {
+    let mut g = {
         let mut fg = FlatGrads { grads: &grads, out: Vec::new() };
         model.visit(&mut fg);
         fg.out
     };
+    for (g, _) in g.iter_mut().zip(frozen).filter(|(_, &f)| f) {
+        *g = g.zeros_like();
+    }
     drop(grads);
     // Per-parameter sums of squares in one read; added in f64 on the host like the host path.
     let sums = Tensor::cat(g.iter().map(|g| g.clone().square().sum()).collect(), 0);

@@ -105,6 +105,7 @@ pub fn ema_update(ema: &mut [Vec<f32>], params: &[Vec<f32>], decay: f64) {
 pub(super) fn descend<M: burn::module::Module>(
     model: M,
     grads: burn::optim::GradientsParams,
+    frozen: &[bool],
     vals: &mut [Vec<f32>],
     adam: &mut Adam,
     clip: f64,
@@ -112,6 +113,9 @@ pub(super) fn descend<M: burn::module::Module>(
 ) -> (M, f64) {
     let mut g = crate::network::params::grads(&model, &grads);
     drop(grads);
+    for (g, _) in g.iter_mut().zip(frozen).filter(|(_, &f)| f) {
+        g.fill(0.0);
+    }
     let norm = clip_grad_norm(&mut g, clip);
     adam.update(vals, &g, lr);
     (crate::network::params::load(model, vals), norm)

@@ -77,6 +77,9 @@ enum State {
 /// Adam, clipping and the EMA for one model, its state at its [`StateLocation`].
 pub struct Optimiser {
     state: State,
+    /// Per parameter (visit order): true where training leaves it as it is
+    /// (`training.trainable`); empty = every parameter trains.
+    frozen: Vec<bool>,
 }
 
 impl Optimiser {
@@ -123,7 +126,13 @@ impl Optimiser {
                 }
             }
         };
-        Optimiser { state }
+        Optimiser { state, frozen: Vec::new() }
+    }
+
+    /// The optimiser with the parameters marked in `frozen` (visit order) held fixed: their
+    /// gradients count as zero, so Adam's moments stay zero and its update is exactly zero.
+    pub fn with_frozen(self, frozen: Vec<bool>) -> Optimiser {
+        Optimiser { frozen, ..self }
     }
 
     pub fn home(&self) -> StateLocation {
@@ -172,10 +181,12 @@ impl Optimiser {
         lr: f64,
     ) -> (M, f64) {
         match &mut self.state {
-            State::Host { vals, adam, .. } => host::descend(model, grads, vals, adam, clip, lr),
+            State::Host { vals, adam, .. } => {
+                host::descend(model, grads, &self.frozen, vals, adam, clip, lr)
+            }
             State::Device { adam, step, state } => {
                 *step += 1;
-                device::descend(model, grads, state, *step, *adam, clip, lr)
+                device::descend(model, grads, &self.frozen, state, *step, *adam, clip, lr)
             }
         }
     }
