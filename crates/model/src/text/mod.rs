@@ -31,7 +31,7 @@ pub trait TextEncoder {
     /// Per text, the embedding of [`embed`](TextEncoder::embed) followed by the encoder's
     /// last hidden states of its first `words` tokens (`[CLS]` and `[SEP]` included), each
     /// L2-normalised, and zero rows past the text's tokens: `dim() * (1 + words)` values (the
-    /// layout of `words::TextInput`). `words` 0 is `embed`.
+    /// layout `network::words::split` reads). `words` 0 is `embed`.
     fn embed_words(&self, texts: &[&str], words: usize) -> Result<Vec<Vec<f32>>, TextError>;
 }
 

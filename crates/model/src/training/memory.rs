@@ -36,7 +36,12 @@ pub fn fixed_bytes(cfg: &RunConfig) -> f64 {
     let layers = (m.dec_layers + m.dma_sizes.len()) as f64;
     let d = m.d_model as f64;
     let params = layers * (4.0 * d * d + 2.0 * d * m.ffn as f64)
-        + 2.0 * d * (m.feat_dim + m.text_dim) as f64;
+        + 2.0 * d * (m.feat_dim + m.text_dim) as f64
+        + if m.text_words > 0 {
+            m.dec_layers as f64 * 4.0 * d * d + d * m.text_dim as f64
+        } else {
+            0.0
+        };
     BASE_BYTES + 5.0 * params * 4.0
 }
 
