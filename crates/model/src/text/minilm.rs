@@ -8,6 +8,7 @@ use burn::prelude::*;
 
 use super::bert::{Bert, BertConfig};
 use super::{TextEncoder, TextError};
+use crate::network::params::host;
 
 pub struct MiniLm {
     tokenizer: tokenizers::Tokenizer,
@@ -65,10 +66,6 @@ impl TextEncoder for MiniLm {
         Ok(enc.get_ids().to_vec())
     }
 
-    fn embed(&self, texts: &[&str]) -> Result<Vec<Vec<f32>>, TextError> {
-        self.embed_words(texts, 0)
-    }
-
     fn embed_words(&self, texts: &[&str], words: usize) -> Result<Vec<Vec<f32>>, TextError> {
         if texts.iter().any(|t| t.trim().is_empty()) {
             return Err(TextError::Empty);
@@ -112,8 +109,4 @@ impl TextEncoder for MiniLm {
 fn l2_normalise(x: Tensor<2>) -> Tensor<2> {
     let norm = x.clone().powf_scalar(2.0).sum_dim(1).sqrt().clamp_min(1e-12);
     x / norm
-}
-
-fn host(x: Tensor<2>) -> Vec<f32> {
-    x.into_data().try_to_vec::<f32>().expect("f32 data")
 }

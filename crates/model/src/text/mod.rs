@@ -27,7 +27,9 @@ pub trait TextEncoder {
     /// Token ids as the encoder sees them (special tokens included).
     fn token_ids(&self, text: &str) -> Result<Vec<u32>, TextError>;
     /// L2-normalised embeddings, one per text.
-    fn embed(&self, texts: &[&str]) -> Result<Vec<Vec<f32>>, TextError>;
+    fn embed(&self, texts: &[&str]) -> Result<Vec<Vec<f32>>, TextError> {
+        self.embed_words(texts, 0)
+    }
     /// Per text, the embedding of [`embed`](TextEncoder::embed) followed by the encoder's
     /// last hidden states of its first `words` tokens (`[CLS]` and `[SEP]` included), each
     /// L2-normalised, and zero rows past the text's tokens: `dim() * (1 + words)` values (the
