@@ -429,6 +429,8 @@ impl Trainer<'_> {
     ) -> Result<(Denoiser, Optimiser, usize)> {
         let keep_ema = self.cfg.training.ema_decay > 0.0;
         let mut model = self.cfg.model.init(device);
+        // By name, so the same for any weights the model gets below.
+        let frozen = frozen(&model, &self.cfg.training.trainable)?;
         if resume {
             if let Some(ck) = Checkpoint::latest(&self.run_dir) {
                 let mut ck = ck?;
@@ -449,7 +451,6 @@ impl Trainer<'_> {
                     v: ck.adam_v,
                 };
                 let (model, optim) = Optimiser::restore(model, snap, self.optimiser);
-                let frozen = frozen(&model, &self.cfg.training.trainable)?;
                 return Ok((model, optim.with_frozen(frozen), start));
             }
         }
@@ -459,7 +460,6 @@ impl Trainer<'_> {
             model = w.model;
             on_event(Event::WarmStart { fresh: w.fresh, widened: w.widened });
         }
-        let frozen = frozen(&model, &self.cfg.training.trainable)?;
         let optim = Optimiser::new(&model, self.optimiser, keep_ema).with_frozen(frozen);
         Ok((model, optim, 0))
     }
