@@ -215,8 +215,16 @@ fn warp_root(feats: &mut [f32], d: usize, keys: &[RootKey], corr: &mut [Correcti
     let heading_of =
         |t: &[RootKey], f: usize| t[f].heading.expect("a trajectory has every heading");
     let traj = root_trajectory(feats, d);
+    // Each correction is taken within half a turn of the one before (the first of zero, frame
+    // 0's): a heading is only known modulo a turn, and corrections wrapped one by one would
+    // make the body spin the long way round between two keys whose corrections straddle 180°.
+    let mut before = 0.0;
     let heading_anchors: Vec<(usize, f64)> = (0..len)
-        .filter_map(|f| keys[f].heading.map(|h| (f, wrap(h - heading_of(&traj, f)))))
+        .filter_map(|f| {
+            let h = keys[f].heading?;
+            before += wrap(h - heading_of(&traj, f) - before);
+            Some((f, before))
+        })
         .collect();
     let dh = displacement(len, &heading_anchors, Ends::Hold);
     for f in 0..len - 1 {
@@ -247,7 +255,7 @@ fn warp_root(feats: &mut [f32], d: usize, keys: &[RootKey], corr: &mut [Correcti
     }
     for c in corr.iter_mut() {
         if let Some(&(_, r)) = heading_anchors.iter().find(|a| a.0 == c.frame) {
-            c.heading_deg = Some(r.to_degrees());
+            c.heading_deg = Some(wrap(r).to_degrees());
         }
         if let Some(&(_, [x, z])) = place_anchors.iter().find(|a| a.0 == c.frame) {
             c.place_m = Some((x * x + z * z).sqrt());
@@ -372,6 +380,38 @@ mod tests {
             let (a, b) = (traj[f - 1].place.unwrap(), traj[f].place.unwrap());
             assert!(((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt() < 0.2, "step at {f}");
         }
+    }
+
+    /// Two keys whose heading corrections straddle 180° (179° and -179° against a motion that
+    /// does not turn): the warp turns the 2° between them, not the 358° the other way round.
+    #[test]
+    fn corrections_across_half_a_turn_take_the_short_way() {
+        let len = 60;
+        let mut x = motion(len, 5);
+        let traj = root_trajectory(&x, D);
+        let turned = |f: usize, deg: f64| RootKey {
+            place: None,
+            heading: Some(traj[f].heading.unwrap() + deg.to_radians()),
+        };
+        let mut root = vec![RootKey::default(); len];
+        root[30] = turned(30, 179.0);
+        root[34] = turned(34, -179.0);
+        let mask = vec![0f32; len * D];
+        let features = x.clone();
+        let corr =
+            warp(&layout(), &mut x, &Targets { features: &features, mask: &mask, root: &root }, 20);
+        let turn: f64 = (30..34).map(|f| (x[f * D] - features[f * D]) as f64 * -2.0).sum();
+        assert!((turn.to_degrees() - 2.0).abs() < 1e-3, "turned {} degrees", turn.to_degrees());
+        let after = root_trajectory(&x, D);
+        for f in [30, 34] {
+            let h = root[f].heading.unwrap();
+            assert!(wrap(after[f].heading.unwrap() - h).abs() < 1e-5, "frame {f} heading");
+        }
+        let reported: Vec<f64> = corr.iter().filter_map(|c| c.heading_deg).collect();
+        assert!(
+            (reported[0] - 179.0).abs() < 1e-3 && (reported[1] + 179.0).abs() < 1e-3,
+            "{reported:?}"
+        );
     }
 
     #[test]
