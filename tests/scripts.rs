@@ -98,6 +98,7 @@ fn bad_sample_counts_and_seeds_are_named_before_anything_runs() {
         ("raw-walks", "--seed", "-1"),
         ("fixture-walks", "--samples", "2.5"),
         ("fixture-walks", "--seed", "x"),
+        ("fixture-walks", "--key-sets", "0"),
         ("text-only-root", "--seed", ""),
         ("timeline-table", "--samples", "00"),
     ];
@@ -138,8 +139,9 @@ fn text_only_root_runs_against_the_binary() {
     assert_eq!(samples.count(), 2, "one sample per clip under {}", out.display());
 }
 
-/// `fixture-walks.sh` samples the two real fixture clips with the tiny reference model and
-/// tabulates each against the clip's own gait; a fixtures folder without them is named.
+/// `fixture-walks.sh` samples the two real fixture clips with the tiny reference model on two key
+/// sets and tabulates the mean over both against the clip's own gait; a fixtures folder without
+/// them is named.
 #[test]
 fn fixture_walks_runs_against_the_binary() {
     let Some(fixtures) = diffkfc_data::testing::fixtures::dir() else {
@@ -158,19 +160,37 @@ fn fixture_walks_runs_against_the_binary() {
         return;
     }
     let out = dir.join("out");
-    let args = [s(&model), s(&out), "--fixtures", s(&fixtures), "--samples", "1"];
+    let args =
+        [s(&model), s(&out), "--fixtures", s(&fixtures), "--samples", "1", "--key-sets", "2"];
     let o = run_script("fixture-walks", &[&args[..], &["--", "--steps", "2"]].concat(), bin);
     assert!(o.status.success(), "{}", stderr(&o));
     let table = stdout(&o);
     assert_eq!(table.matches("| 012314 |").count(), 2, "{table}");
     assert_eq!(table.matches("| 000021 |").count(), 2, "{table}");
-    assert!(!table.contains("nan"), "{table}");
+    assert!(!table.contains("nan") && table.contains(" ± "), "{table}");
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("fixture-walks.json")).unwrap())
             .unwrap();
-    assert_eq!(json["rows"].as_array().unwrap().len(), 4);
+    let rows = json["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 4);
+    // Each row is the mean over both key sets' samples, read back from the samples' own results.
+    for row in rows {
+        let (clip, mode) = (row["clip"].as_str().unwrap(), row["mode"].as_str().unwrap());
+        let skating: Vec<f64> = [3, 4]
+            .iter()
+            .map(|seed| {
+                let r = out.join(format!("{clip}-{mode}-seed{seed}")).join("results.json");
+                let r: serde_json::Value =
+                    serde_json::from_str(&std::fs::read_to_string(r).unwrap()).unwrap();
+                r["samples"][0]["foot_skating"].as_f64().unwrap()
+            })
+            .collect();
+        assert_eq!(row["samples"].as_u64(), Some(2), "{row}");
+        let mean = (skating[0] + skating[1]) / 2.0;
+        assert!((row["foot_skating"].as_f64().unwrap() - mean).abs() < 1e-9, "{row} vs {mean}");
+    }
     // The clips' own skating is the real motion's, whatever the model.
-    assert!((json["rows"][0]["real_foot_skating"].as_f64().unwrap() - 0.129).abs() < 0.001);
+    assert!((rows[0]["real_foot_skating"].as_f64().unwrap() - 0.129).abs() < 0.001);
 }
 
 /// `feet-walks.sh --samples 2` on the tiny reference model: every walk's row, and the planted
