@@ -11,13 +11,13 @@ use std::path::Path;
 /// The reference model the README's quick start uses.
 const MODEL: &str = "models/mid-synth";
 /// What the committed model measured on these walks with the default sampler (DDIM-20: speed
-/// 0.96x the sources' on average, the slowest 0.92x, stride 0.98x; the targets are
+/// 0.95x the sources' on average, the slowest 0.91x, stride 0.97x; the targets are
 /// 0.85x, 0.7x on each and 0.85x), less a margin of 0.04 for floating-point differences
 /// between machines: a regression below them is a network that shuffles again (the tiny
 /// network: 0.50x, 0.18x, 0.53x; docs/long-run.md).
-const MIN_MEAN_SPEED_RATIO: f64 = 0.92;
-const MIN_EACH_SPEED_RATIO: f64 = 0.88;
-const MIN_MEAN_STRIDE_RATIO: f64 = 0.94;
+const MIN_MEAN_SPEED_RATIO: f64 = 0.91;
+const MIN_EACH_SPEED_RATIO: f64 = 0.87;
+const MIN_MEAN_STRIDE_RATIO: f64 = 0.93;
 
 fn ratio(r: &serde_json::Value, key: &str) -> f64 {
     let g = r["samples"][0]["gait"][key].as_f64().unwrap();
