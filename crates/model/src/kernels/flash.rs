@@ -421,8 +421,14 @@ mod timing {
     #[test]
     #[ignore]
     fn per_head_against_flash() {
-        let (b, heads, l, dh) = (32, 4, 197, 16);
-        let s = AttnShape { batch: b, lq: l, lk: l, heads, d: heads * dh };
+        for dh in [16, 32] {
+            let (b, heads, l) = (32, 4, 197);
+            time_shape(AttnShape { batch: b, lq: l, lk: l, heads, d: heads * dh });
+        }
+    }
+
+    fn time_shape(s: AttnShape) {
+        let (b, l) = (s.batch, s.lk);
         let x: Vec<f32> =
             (0..b * l * s.d).map(|i| ((i * 7919) % 1013) as f32 / 506.0 - 1.0).collect();
         // Key padding as the decoder's self-attention has it (a shorter motion's last frames).
@@ -438,15 +444,24 @@ mod timing {
             v.sort_by(f64::total_cmp);
             v[3]
         };
+        // The products' FLOPs as the step's count has them: 2 in the forward, 4 in the backward.
+        let gflop = 4.0 * (b * s.lq * s.lk * s.d) as f64 / 1e9;
+        let peak = crate::bench::matmul_peak(1024, 5);
         for mask in [Mask::None, Mask::Keys(std::sync::Arc::new(pad))] {
             let (_, lse) = forward(&x, &x, &x, &s, &mask);
             let name = if matches!(mask, Mask::None) { "no mask" } else { "key padding" };
-            eprintln!(
-                "{name}: forward: per head {:.1} ms, flash {:.1} ms; backward: per head {:.1} ms, flash {:.1} ms",
-                t(&|| drop(attention_forward(&x, &x, &x, &s, &mask))),
+            let (fw, bw) = (
                 t(&|| drop(forward(&x, &x, &x, &s, &mask))),
-                t(&|| drop(attention_backward(&x, &x, &x, &x, &s, &mask))),
                 t(&|| drop(backward((&x, &x, &x), &x, &lse, &s, &mask))),
+            );
+            eprintln!(
+                "dh {} {name}: forward: per head {:.1} ms, flash {fw:.1} ms ({:.2} of peak {peak:.0}); \
+                 backward: per head {:.1} ms, flash {bw:.1} ms ({:.2})",
+                s.dh(),
+                t(&|| drop(attention_forward(&x, &x, &x, &s, &mask))),
+                gflop / fw * 1e3 / peak,
+                t(&|| drop(attention_backward(&x, &x, &x, &x, &s, &mask))),
+                2.0 * gflop / bw * 1e3 / peak,
             );
         }
     }
