@@ -108,6 +108,12 @@ pub(crate) struct FitArgs {
     /// BVH reproduces the motion the page shows; generated bones otherwise stretch.
     #[arg(long)]
     no_rigid: bool,
+    /// Keep the network's in-betweens whatever its poses at the keys. By default, after the
+    /// keyframe fit, each frame is pulled towards the keys' linear interpolation as far as the
+    /// network missed the keys it was given (whole-pose keys with places and headings only), so
+    /// motion unlike the training set falls back on the keys (docs/inbetween.md).
+    #[arg(long)]
+    no_balance: bool,
 }
 
 impl FitArgs {
@@ -123,6 +129,7 @@ impl FitArgs {
             },
             lock_reach: self.foot_lock_reach,
             rigid: !self.no_rigid,
+            balance: !self.no_balance,
         }
     }
 

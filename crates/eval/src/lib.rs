@@ -10,6 +10,7 @@
 pub mod error;
 pub mod evaluator;
 pub mod gait;
+pub mod inbetween;
 pub mod keyframe_metrics;
 pub(crate) mod linalg;
 pub mod protocol;

@@ -156,12 +156,18 @@ enum EvalCommand {
         after_help = "Example:\n  diffkfc eval train-evaluator --data work/synth --out work/evaluator --max-steps 2000"
     )]
     TrainEvaluator(crate::commands::train_evaluator::TrainEvaluatorArgs),
+    /// The in-betweening benchmark: keys every G seconds (and at 5%) from each clip of a
+    /// HumanML3D-format folder, one sample per clip by the network alone and by the pipeline,
+    /// scored beside linear interpolation of the same keys and the clip's own realism.
+    #[command(after_help = crate::commands::inbetween::AFTER_HELP)]
+    Inbetween(crate::commands::inbetween::InbetweenArgs),
 }
 
 pub fn run(a: EvalArgs) -> Result<()> {
     match a.command {
         None => evaluate(a.run),
         Some(EvalCommand::TrainEvaluator(t)) => crate::commands::train_evaluator::run(t),
+        Some(EvalCommand::Inbetween(b)) => crate::commands::inbetween::run(b),
     }
 }
 

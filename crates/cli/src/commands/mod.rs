@@ -1,6 +1,7 @@
 pub mod bench;
 pub mod data;
 pub mod eval;
+pub mod inbetween;
 pub mod model;
 pub mod page;
 pub mod render;

@@ -15,7 +15,7 @@ pub mod stride;
 pub mod warp;
 
 /// 3x² - 2x³ of x clamped to [0, 1]: a fade with zero slope at both ends.
-pub(crate) fn smoothstep(x: f64) -> f64 {
+pub fn smoothstep(x: f64) -> f64 {
     let x = x.clamp(0.0, 1.0);
     x * x * (3.0 - 2.0 * x)
 }

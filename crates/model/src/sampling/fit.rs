@@ -11,6 +11,7 @@ use diffkfc_data::postprocess::stride::{self, StrideReport};
 use diffkfc_data::postprocess::warp::{self, Correction};
 use diffkfc_data::Skeleton;
 
+use crate::sampling::balance;
 use crate::sampling::sampler::Request;
 
 /// Frames over which a pose correction fades out past a key when the next key is further away
@@ -84,6 +85,9 @@ pub struct Fit {
     /// Refit every frame to one skeleton before the foot lock (`diffkfc_data::postprocess::rigid`), so the
     /// BVH export reproduces the motion.
     pub rigid: bool,
+    /// After a warp or track fit, pull each frame towards the keys' interpolation as far as the
+    /// network missed the keys (`sampling::balance`), where the keys allow an interpolation.
+    pub balance: bool,
 }
 
 impl Default for Fit {
@@ -94,6 +98,7 @@ impl Default for Fit {
             feet: Feet::default(),
             lock_reach: footlock::MAX_SHIFT_M,
             rigid: true,
+            balance: true,
         }
     }
 }
@@ -163,7 +168,7 @@ pub fn fit_sample(
     fit: Fit,
 ) -> Fitted {
     let layout = Layout::of(skel);
-    let (mut features, corrections) = fit_keys(x, req, i, mean, std, &layout, fit.keyframes);
+    let (mut features, corrections) = fit_keys(x, req, i, mean, std, &layout, fit);
     let mut hold = vec![false; req.lengths[i]];
     req.key_frames(i).into_iter().for_each(|f| hold[f] = true);
     let rigid = fit.rigid.then(|| rigid::make_rigid(skel, &mut features, &hold));
@@ -244,7 +249,7 @@ fn fit_keys(
     mean: &[f32],
     std: &[f32],
     layout: &Layout,
-    fit: KeyframeFit,
+    fit: Fit,
 ) -> (Vec<f32>, Vec<Correction>) {
     let (n, d, r) = (req.frames, req.dim, ROOT_CHANNELS);
     let len = req.lengths[i];
@@ -254,7 +259,7 @@ fn fit_keys(
     let mask = span(&req.mask, d);
     let mut target = span(&req.kf, d);
     denormalise(&mut target, mean, std);
-    match fit {
+    match fit.keyframes {
         KeyframeFit::None => (out, Vec::new()),
         KeyframeFit::Paste => {
             let mut corr: Vec<Correction> = Vec::new();
@@ -279,12 +284,25 @@ fn fit_keys(
             let root: Vec<RootKey> = (0..len)
                 .map(|f| RootKey::from_channels(&rv[f * r..(f + 1) * r], &rm[f * r..(f + 1) * r]))
                 .collect();
-            let corr = warp::warp(
-                layout,
-                &mut out,
-                &warp::Targets { features: &target, mask: &mask, root: &root },
-                FALLOFF,
-            );
+            let targets = warp::Targets { features: &target, mask: &mask, root: &root };
+            let raw = out.clone();
+            let corr = warp::warp(layout, &mut out, &targets, FALLOFF);
+            if let (true, Some(interp)) = (fit.balance, &req.interpolation) {
+                let mut interpolation = span(interp, d);
+                denormalise(&mut interpolation, mean, std);
+                let keys = req.key_frames(i);
+                let mut w = balance::weights(layout, &raw, &target, &keys, len);
+                if let Some(unaided) = &req.unaided {
+                    let mut first = span(unaided, d);
+                    denormalise(&mut first, mean, std);
+                    let w1 = balance::weights(layout, &first, &target, &keys, len);
+                    w.iter_mut().zip(w1).for_each(|(a, b)| *a = a.min(b));
+                }
+                balance::pull_towards(layout, &mut out, &interpolation, &w);
+                // The blend of two motions through the keys meets them only approximately
+                // (the root integrates its blended velocities): warp again.
+                warp::warp(layout, &mut out, &targets, FALLOFF);
+            }
             (out, corr)
         }
     }

@@ -10,6 +10,7 @@ use diffkfc_data::Skeleton;
 
 use crate::diffusion::Schedule;
 use crate::sampling::fit::{fit_sample, Fit, Fitted, KeyframeFit, TrackReport};
+use crate::sampling::interpolation;
 use crate::sampling::sampler::{self, Options, Request};
 use crate::Denoiser;
 
@@ -60,7 +61,22 @@ impl Generator<'_> {
                 req.root_mask[at..at + ROOT_CHANNELS].copy_from_slice(&m);
             }
         }
+        req.interpolation = self.interpolation(frames, items);
         req
+    }
+
+    /// The keys' interpolation of every item, padded to `frames` (`sampling::interpolation`),
+    /// when every item's keys allow one.
+    fn interpolation(&self, frames: usize, items: &[KeyedItem]) -> Option<Vec<f32>> {
+        let d = self.mean.len();
+        let mut out = vec![0.0; items.len() * frames * d];
+        for (r, it) in items.iter().enumerate() {
+            let a = interpolation::interpolated_keys(
+                self.skel, it.values, it.mask, it.root, it.length, self.mean, self.std,
+            )?;
+            out[r * frames * d..r * frames * d + a.len()].copy_from_slice(&a);
+        }
+        Some(out)
     }
 
     /// Sample every motion of `req` and finish it with `fit`; `progress(done, total)` after
@@ -102,7 +118,13 @@ impl Generator<'_> {
             &x2,
             Fit { keyframes: KeyframeFit::None, foot_lock: false, rigid: false, ..fit },
         );
-        let mut out = finish_all(&x2, Fit { keyframes: KeyframeFit::Warp, ..fit });
+        let judged = Request { unaided: Some(x), ..req.clone() };
+        let mut out: Vec<Fitted> = (0..req.batch)
+            .map(|i| {
+                let fit = Fit { keyframes: KeyframeFit::Warp, ..fit };
+                fit_sample(&x2, &judged, i, self.mean, self.std, self.skel, fit)
+            })
+            .collect();
         for ((o, s), r) in out.iter_mut().zip(&stage1).zip(&raw) {
             let (path, raw_path) =
                 (root_positions(&s.features, req.dim), root_positions(&r.features, req.dim));

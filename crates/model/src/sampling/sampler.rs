@@ -104,6 +104,13 @@ pub struct Request {
     pub root: Vec<f32>,
     pub root_mask: Vec<f32>,
     pub lengths: Vec<usize>,
+    /// [B, N, D] the keys' linear interpolation (normalised), where every motion's keys allow
+    /// one (`sampling::interpolation`): what the fit's balance falls back on.
+    pub interpolation: Option<Vec<f32>>,
+    /// [B, N, D] the network's own sample of this request before a root track was imposed
+    /// (the track fit's first stage, normalised): where it missed the keys also counts against
+    /// trusting the network (`sampling::balance`).
+    pub unaided: Option<Vec<f32>>,
 }
 
 impl Request {
@@ -128,6 +135,8 @@ impl Request {
             root: vec![0.0; b * frames * r],
             root_mask: vec![0.0; b * frames * r],
             lengths,
+            interpolation: None,
+            unaided: None,
         }
     }
 

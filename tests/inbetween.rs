@@ -1,0 +1,169 @@
+//! `diffkfc eval inbetween`, the in-betweening benchmark, end to end: bad input, the report's
+//! shape on a tiny model, and the committed reference model on the two real clips of the shared
+//! fixtures keyed every second, against linear interpolation of the same keys.
+
+mod common;
+
+use common::*;
+use std::path::{Path, PathBuf};
+
+const MODEL: &str = "models/mid-synth";
+
+fn repo(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").join(rel)
+}
+
+#[test]
+fn bad_gaps_and_counts_are_one_line_errors() {
+    let dir = scratch("inbetween-bad");
+    let model = repo("models/tiny-synth");
+    for (gaps, needle) in
+        [("0", "'0'"), ("-1", "'-1'"), ("5%x", "'5%x'"), ("0%", "'0%'"), (",", "lists no gap")]
+    {
+        let flag = format!("--gaps={gaps}");
+        let o = diffkfc(&[
+            "eval",
+            "inbetween",
+            "--checkpoint",
+            s(&model),
+            "--data",
+            s(&dir),
+            &flag,
+            "--out",
+            s(&dir.join("o")),
+        ]);
+        assert_one_line_error(&o, &["--gaps", needle]);
+    }
+    let o = diffkfc(&[
+        "eval",
+        "inbetween",
+        "--checkpoint",
+        s(&model),
+        "--data",
+        s(&dir.join("none")),
+        "--out",
+        s(&dir.join("o")),
+    ]);
+    assert_one_line_error(&o, &["none"]);
+    assert!(!dir.join("o").exists(), "a refused run wrote its --out");
+}
+
+/// A dataset folder of the two fixture clips (HumanML3D's real motion), captioned by us.
+fn fixture_clips(dir: &Path) -> Option<PathBuf> {
+    let clips = [
+        (
+            "012314",
+            "humanml3d/new_joint_vecs/012314.npy",
+            "a person walks forward, turns around and walks back.",
+        ),
+        ("000021", "humanml3d/000021_features_reference.npy", "a person walks in a circle."),
+    ];
+    let data = dir.join("real");
+    for sub in ["new_joint_vecs", "texts"] {
+        std::fs::create_dir_all(data.join(sub)).unwrap();
+    }
+    for (id, rel, caption) in clips {
+        let src = diffkfc_data::testing::fixtures::require(rel)?;
+        std::fs::copy(src, data.join("new_joint_vecs").join(format!("{id}.npy"))).unwrap();
+        let tokens: Vec<String> = caption
+            .trim_end_matches('.')
+            .split_whitespace()
+            .map(|w| format!("{}/OTHER", w.trim_end_matches(',')))
+            .collect();
+        std::fs::write(
+            data.join("texts").join(format!("{id}.txt")),
+            format!("{caption}#{}#0.0#0.0\n", tokens.join(" ")),
+        )
+        .unwrap();
+    }
+    for stat in ["Mean.npy", "Std.npy"] {
+        std::fs::copy(repo(MODEL).join(stat), data.join(stat)).unwrap();
+    }
+    std::fs::write(data.join("test.txt"), "012314\n000021\n").unwrap();
+    Some(data)
+}
+
+fn run(model: &Path, data: &Path, out: &Path, gaps: &str) -> serde_json::Value {
+    let o = diffkfc(&[
+        "eval",
+        "inbetween",
+        "--checkpoint",
+        s(model),
+        "--data",
+        s(data),
+        "--gaps",
+        gaps,
+        "--out",
+        s(out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("| 1 s"), "{}", stdout(&o));
+    serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap()
+}
+
+#[test]
+fn the_report_has_every_method_at_every_gap() {
+    if !have_text_encoder() {
+        return;
+    }
+    let dir = scratch("inbetween-tiny");
+    let Some(data) = fixture_clips(&dir) else { return };
+    let r = run(&repo("models/tiny-synth"), &data, &dir.join("out"), "1,5%");
+    let summary = r["summary"].as_array().unwrap();
+    assert_eq!(summary.len(), 2);
+    for g in summary {
+        let methods: Vec<&str> =
+            g["methods"].as_array().unwrap().iter().map(|m| m[0].as_str().unwrap()).collect();
+        assert_eq!(methods, ["clip", "interpolation", "network", "pipeline"]);
+        for m in g["methods"].as_array().unwrap() {
+            for (k, v) in m[1].as_object().unwrap() {
+                assert!(v.as_f64().is_some_and(f64::is_finite), "{k}: {v}");
+            }
+        }
+    }
+    // The pipeline meets every keyed place; interpolation passes through the keys.
+    for c in r["clips"].as_array().unwrap() {
+        for g in c["gaps"].as_array().unwrap() {
+            assert!(g["pipeline"]["key_place_m"].as_f64().unwrap() < 0.01, "{g}");
+            assert_eq!(g["interpolation"]["key_place_m"].as_f64().unwrap(), 0.0);
+        }
+    }
+    assert_eq!(r["clips"][0]["gaps"][0]["keys"].as_array().unwrap().first().unwrap(), 0);
+}
+
+/// What the committed model measured here (keys every second, seeds 11 and 12): its pipeline's
+/// joint error is 1.13x interpolation's on 012314 and 0.79x on 000021 (root-relative 1.11x and
+/// 0.95x), 0.96x over the two. The guards leave 0.04-0.05 for differences between machines; the
+/// issue's target (below interpolation on both clips) is not met on 012314 (docs/inbetween.md).
+const MAX_MEAN_RATIO: f64 = 1.0;
+const MAX_EACH_RATIO: f64 = 1.18;
+
+#[test]
+fn the_reference_model_keyed_every_second_against_interpolation_on_real_clips() {
+    if !have_text_encoder() {
+        return;
+    }
+    let dir = scratch("inbetween-real");
+    let Some(data) = fixture_clips(&dir) else { return };
+    let r = run(&repo(MODEL), &data, &dir.join("out"), "1");
+    let mut global = Vec::new();
+    for c in r["clips"].as_array().unwrap() {
+        let g = &c["gaps"][0];
+        let ratio =
+            |k: &str| g["pipeline"][k].as_f64().unwrap() / g["interpolation"][k].as_f64().unwrap();
+        eprintln!(
+            "{}: pipeline / interpolation {:.3} (root-relative {:.3})",
+            c["id"],
+            ratio("error_m"),
+            ratio("error_local_m")
+        );
+        assert!(
+            ratio("error_m") <= MAX_EACH_RATIO && ratio("error_local_m") <= MAX_EACH_RATIO,
+            "{}: {g}",
+            c["id"]
+        );
+        global.push(ratio("error_m"));
+    }
+    let mean = global.iter().sum::<f64>() / global.len() as f64;
+    assert!(mean <= MAX_MEAN_RATIO, "mean ratio {mean}");
+}
