@@ -16,34 +16,26 @@ fn repo(rel: &str) -> PathBuf {
 #[test]
 fn bad_gaps_and_counts_are_one_line_errors() {
     let dir = scratch("inbetween-bad");
-    let model = repo("models/tiny-synth");
-    for (gaps, needle) in
-        [("0", "'0'"), ("-1", "'-1'"), ("5%x", "'5%x'"), ("0%", "'0%'"), (",", "lists no gap")]
-    {
-        let flag = format!("--gaps={gaps}");
-        let o = diffkfc(&[
+    let (model, out) = (repo("models/tiny-synth"), dir.join("o"));
+    let bench = |data: &Path, extra: &str| {
+        diffkfc(&[
             "eval",
             "inbetween",
             "--checkpoint",
             s(&model),
             "--data",
-            s(&dir),
-            &flag,
+            s(data),
+            extra,
             "--out",
-            s(&dir.join("o")),
-        ]);
-        assert_one_line_error(&o, &["--gaps", needle]);
+            s(&out),
+        ])
+    };
+    for (gaps, needle) in
+        [("0", "'0'"), ("-1", "'-1'"), ("5%x", "'5%x'"), ("0%", "'0%'"), (",", "lists no gap")]
+    {
+        assert_one_line_error(&bench(&dir, &format!("--gaps={gaps}")), &["--gaps", needle]);
     }
-    let o = diffkfc(&[
-        "eval",
-        "inbetween",
-        "--checkpoint",
-        s(&model),
-        "--data",
-        s(&dir.join("none")),
-        "--out",
-        s(&dir.join("o")),
-    ]);
+    let o = bench(&dir.join("none"), "--seed=1");
     assert_one_line_error(&o, &["none"]);
     assert!(!dir.join("o").exists(), "a refused run wrote its --out");
 }
@@ -83,6 +75,17 @@ fn fixture_clips(dir: &Path) -> Option<PathBuf> {
     Some(data)
 }
 
+/// The benchmark's report.json of `model` on the fixture clips at `gaps` (None: skipped for
+/// want of the text encoder or the fixtures).
+fn report_on_fixture_clips(name: &str, model: &str, gaps: &str) -> Option<serde_json::Value> {
+    if !have_text_encoder() {
+        return None;
+    }
+    let dir = scratch(name);
+    let data = fixture_clips(&dir)?;
+    Some(run(&repo(model), &data, &dir.join("out"), gaps))
+}
+
 fn run(model: &Path, data: &Path, out: &Path, gaps: &str) -> serde_json::Value {
     let o = diffkfc(&[
         "eval",
@@ -103,12 +106,9 @@ fn run(model: &Path, data: &Path, out: &Path, gaps: &str) -> serde_json::Value {
 
 #[test]
 fn the_report_has_every_method_at_every_gap() {
-    if !have_text_encoder() {
+    let Some(r) = report_on_fixture_clips("inbetween-tiny", "models/tiny-synth", "1,5%") else {
         return;
-    }
-    let dir = scratch("inbetween-tiny");
-    let Some(data) = fixture_clips(&dir) else { return };
-    let r = run(&repo("models/tiny-synth"), &data, &dir.join("out"), "1,5%");
+    };
     let summary = r["summary"].as_array().unwrap();
     assert_eq!(summary.len(), 2);
     for g in summary {
@@ -140,12 +140,7 @@ const MAX_EACH_RATIO: f64 = 1.18;
 
 #[test]
 fn the_reference_model_keyed_every_second_against_interpolation_on_real_clips() {
-    if !have_text_encoder() {
-        return;
-    }
-    let dir = scratch("inbetween-real");
-    let Some(data) = fixture_clips(&dir) else { return };
-    let r = run(&repo(MODEL), &data, &dir.join("out"), "1");
+    let Some(r) = report_on_fixture_clips("inbetween-real", MODEL, "1") else { return };
     let mut global = Vec::new();
     for c in r["clips"].as_array().unwrap() {
         let g = &c["gaps"][0];

@@ -438,15 +438,20 @@ fn write_report(
     if owned {
         Output::Report.mark(&a.out)?;
     }
+    write_report_files(&a.out, &report::to_json(rows, meta), &md)
+}
+
+/// `report.json` and `report.md` in `out` (written atomically), the table on stdout.
+pub(crate) fn write_report_files(out: &Path, json: &serde_json::Value, md: &str) -> Result<()> {
     diffkfc_data::write_atomic(
-        &a.out.join("report.json"),
-        serde_json::to_string_pretty(&report::to_json(rows, meta))?.as_bytes(),
+        &out.join("report.json"),
+        serde_json::to_string_pretty(json)?.as_bytes(),
     )?;
-    diffkfc_data::write_atomic(&a.out.join("report.md"), md.as_bytes())?;
+    diffkfc_data::write_atomic(&out.join("report.md"), md.as_bytes())?;
     println!(
         "{md}\nwrote {} and {}",
-        a.out.join("report.json").display(),
-        a.out.join("report.md").display()
+        out.join("report.json").display(),
+        out.join("report.md").display()
     );
     Ok(())
 }

@@ -222,15 +222,5 @@ fn write_report(
         "keyframe_fit": format!("{:?}", fit.keyframes), "foot_lock": fit.foot_lock, "feet": format!("{:?}", fit.feet),
         "short_clips_left_out": short, "summary": summary, "clips": results,
     });
-    diffkfc_data::write_atomic(
-        &a.out.join("report.json"),
-        serde_json::to_string_pretty(&json)?.as_bytes(),
-    )?;
-    diffkfc_data::write_atomic(&a.out.join("report.md"), md.as_bytes())?;
-    println!(
-        "{md}\nwrote {} and {}",
-        a.out.join("report.json").display(),
-        a.out.join("report.md").display()
-    );
-    Ok(())
+    crate::commands::eval::write_report_files(&a.out, &json, &md)
 }

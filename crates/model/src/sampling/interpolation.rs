@@ -135,12 +135,17 @@ mod tests {
     use diffkfc_data::motion::root_key::root_trajectory;
     use diffkfc_data::testing::fixtures;
 
+    /// The fixture clip 012314's features (None: fixtures absent, the test skips).
+    fn clip() -> Option<Vec<f32>> {
+        let path = fixtures::require("humanml3d/new_joint_vecs/012314.npy")?;
+        Some(diffkfc_data::io::npy::read_f32(path).unwrap().data)
+    }
+
     /// Keyed on every frame of a real clip, the interpolation is the clip itself (HumanML3D's
     /// processing of its own joints).
     #[test]
     fn keyed_on_every_frame_the_interpolation_is_the_clip() {
-        let Some(path) = fixtures::require("humanml3d/new_joint_vecs/012314.npy") else { return };
-        let feats = diffkfc_data::io::npy::read_f32(path).unwrap().data;
+        let Some(feats) = clip() else { return };
         let skel = &diffkfc_data::T2M;
         let d = skel.feature_dim();
         let len = 60;
@@ -159,8 +164,7 @@ mod tests {
     /// Keyed every second, the interpolation passes through the keyed places.
     #[test]
     fn sparse_keys_the_interpolation_meets_the_keyed_places() {
-        let Some(path) = fixtures::require("humanml3d/new_joint_vecs/012314.npy") else { return };
-        let x = diffkfc_data::io::npy::read_f32(path).unwrap().data;
+        let Some(x) = clip() else { return };
         let skel = &diffkfc_data::T2M;
         let d = skel.feature_dim();
         let len = x.len() / d;
