@@ -62,7 +62,7 @@ pub struct InbetweenArgs {
     #[arg(long, default_value_t = 11)]
     seed: u64,
     /// Also write every clip's motions (clip, interpolation, network, pipeline joints per gap)
-    /// under <out>/motions, for `diffkfc render`.
+    /// under `<out>/motions`, for `diffkfc render`.
     #[arg(long)]
     save_motions: bool,
     #[arg(long, default_value = "out/inbetween")]
