@@ -304,7 +304,7 @@ pub fn lock_feet(
     let detected = match source {
         ContactSource::Network => None,
         ContactSource::Motion => Some(contacts::detect(skel, &joints, &contacts::THRESHOLDS)),
-        ContactSource::Gait => Some(steps::stances_with_keys(skel, &joints, feats, hold)),
+        ContactSource::Gait => Some(steps::stances(skel, &joints, &contacts::THRESHOLDS)),
     };
     let lift_weights = key_weights(hold, pin::BLEND);
     for (li, leg) in legs(skel).into_iter().enumerate() {

@@ -78,41 +78,6 @@ pub fn stances(skel: &Skeleton, j: &Joints, th: &Thresholds) -> [Vec<bool>; 2] {
     out
 }
 
-/// [`stances`], and the stances the keys assert: at a held (keyed) frame whose toe contact
-/// label (the key's, from the performer's foot) says it stands and whose toe is low, the toe
-/// stands, and so on the frames either side for as long as it stays low and within
-/// [`SLIP_M`] of its place at the key. A walk keyed from motion capture thus keeps its feet
-/// down where the performer's were, though the motion between keys glides.
-pub fn stances_with_keys(
-    skel: &Skeleton,
-    j: &Joints,
-    feats: &[f32],
-    hold: &[bool],
-) -> [Vec<bool>; 2] {
-    let mut out = stances(skel, j, &THRESHOLDS);
-    let low = contacts::low(skel, j, &THRESHOLDS);
-    let layout = Layout::of(skel);
-    let (d, labels) = (layout.dim(), layout.contacts().start);
-    let t = j.len().min(hold.len()).min(feats.len() / d);
-    let slip = SLIP_M / skel.metres_per_unit;
-    // The toes' labels: [l_ankle, l_foot, r_ankle, r_foot].
-    for (side, (toe, label)) in
-        [(skel.feet_left[1], 1), (skel.feet_right[1], 3)].into_iter().enumerate()
-    {
-        let keyed = |k: usize| hold[k] && low[side][k] && feats[k * d + labels + label] > 0.5;
-        for k in (0..t).filter(|&k| keyed(k)) {
-            let near = |f: usize| {
-                let (a, b) = (j[f][toe], j[k][toe]);
-                low[side][f] && (a[0] - b[0]).hypot(a[2] - b[2]) < slip
-            };
-            let start = (0..k).rev().take_while(|&f| near(f)).last().unwrap_or(k);
-            let end = (k + 1..t).take_while(|&f| near(f)).last().unwrap_or(k);
-            out[side][start..=end].fill(true);
-        }
-    }
-    out
-}
-
 /// Lower the pelvis of de-normalised features [T, D] where holding the stances still would
 /// take a leg past its reach (`pelvis::drop`, spread and faded towards held frames, capped at
 /// [`MAX_DROP_M`]), the feet kept where they were by bending the knees; returns the largest drop (m).
@@ -122,7 +87,7 @@ pub fn lower_for_stances(skel: &Skeleton, feats: &mut [f32], hold: &[bool], max_
     let old: Vec<f64> = feats.iter().map(|&v| v as f64).collect();
     let j = recover_from_ric(skel, &old);
     let (rq, _) = recover_root_rot_pos(&old, Layout::of(skel).dim());
-    let found = stances_with_keys(skel, &j, feats, hold);
+    let found = stances(skel, &j, &THRESHOLDS);
     let legs = legs(skel);
     let full = |_: usize, _: Vec3| 1.0;
     let offsets: Vec<Vec<Vec3>> = legs
@@ -343,31 +308,6 @@ mod tests {
             &THRESHOLDS,
         );
         assert!((0..10).chain(30..40).all(|f| up[0][f]) && (10..30).all(|f| !up[0][f]));
-    }
-
-    #[test]
-    fn a_keyed_planted_toe_stands_while_it_stays_near_its_keyed_place() {
-        // The left toe glides at 0.4 m/s (2 cm a frame) under a still pelvis: no stance of the gait.
-        let j = motion(0.0, |f| [0.1, 0.0, 0.02 * f as f64]);
-        let plain = stances(&T2M, &j, &THRESHOLDS);
-        assert!(plain[0].iter().all(|&c| !c), "{:?}", plain[0]);
-        let layout = Layout::of(&T2M);
-        let d = layout.dim();
-        let mut feats = vec![0.0f32; 40 * d];
-        let mut hold = vec![false; 40];
-        hold[20] = true;
-        // Keyed but not labelled planted: nothing changes.
-        assert_eq!(stances_with_keys(&T2M, &j, &feats, &hold), plain);
-        // Labelled planted (the left toe's label): frames 18..=22 stay within 5 cm of frame 20.
-        feats[20 * d + layout.contacts().start + 1] = 1.0;
-        let keyed = stances_with_keys(&T2M, &j, &feats, &hold);
-        let on: Vec<usize> = (0..40).filter(|&f| keyed[0][f]).collect();
-        assert_eq!(on, (18..=22).collect::<Vec<_>>());
-        assert_eq!(keyed[1], plain[1]);
-        // A labelled key whose toe is off the floor (30 cm up on frames 15..=25) is not a stance.
-        let up =
-            motion(0.0, |f| [0.1, if (15..=25).contains(&f) { 0.3 } else { 0.0 }, 0.02 * f as f64]);
-        assert!(stances_with_keys(&T2M, &up, &feats, &hold)[0].iter().all(|&c| !c));
     }
 
     #[test]

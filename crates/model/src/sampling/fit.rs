@@ -287,13 +287,6 @@ fn fit_keys(
             let targets = warp::Targets { features: &target, mask: &mask, root: &root };
             let raw = out.clone();
             let corr = warp::warp(layout, &mut out, &targets, FALLOFF);
-            // A keyed frame's pose is the key's: so are its foot contact labels (what the
-            // foot post-process reads as the keys' stances).
-            for c in (0..len).flat_map(|f| (layout.contacts()).map(move |c| f * d + c)) {
-                if mask[c] > 0.0 {
-                    out[c] = target[c];
-                }
-            }
             if let (true, Some(interp)) = (fit.balance, &req.interpolation) {
                 let mut interpolation = span(interp, d);
                 denormalise(&mut interpolation, mean, std);
