@@ -28,8 +28,14 @@ fn pose_error(layout: &Layout, raw: &[f32], key: &[f32]) -> f64 {
     sum / (joints + 1) as f64
 }
 
+/// Frames over which the weight returns to the network's past the first and last keys.
+pub const EDGE: usize = 10;
+
 /// Per frame, the weight of the network's motion against the interpolation: at each key
-/// exp(-(error / TRUST_M)^2), blended smoothly between keys and held past the ends.
+/// exp(-(error / TRUST_M)^2), blended smoothly between keys. Before the first key and after the
+/// last the interpolation only holds a key (no in-between to lean on), so the weight returns
+/// to 1 over [`EDGE`] frames there: a timeline window keyed on its first frames keeps the
+/// network's motion after them.
 pub fn weights(
     layout: &Layout,
     raw: &[f32],
@@ -46,11 +52,17 @@ pub fn weights(
             (f, (-(e / TRUST_M).powi(2)).exp())
         })
         .collect();
-    let Some(&(first, c0)) = at.first() else { return vec![1.0; len] };
+    let (Some(&(first, c0)), Some(&(last, cn))) = (at.first(), at.last()) else {
+        return vec![1.0; len];
+    };
+    let edge = |c: f64, dist: usize| c + (1.0 - c) * smoothstep(dist as f64 / EDGE as f64);
     (0..len)
         .map(|f| {
-            if f <= first {
-                return c0;
+            if f < first {
+                return edge(c0, first - f);
+            }
+            if f > last {
+                return edge(cn, f - last);
             }
             let i = at.partition_point(|&(k, _)| k <= f) - 1;
             match at.get(i + 1) {
@@ -97,6 +109,11 @@ mod tests {
         let expect = (-(0.3 * 21.0 / 22.0 / TRUST_M).powi(2)).exp();
         assert!((w[20] - expect).abs() < 1e-6, "{} {expect}", w[20]);
         assert!(w[10] < w[5] && w[5] < w[0], "{w:?}");
+        // Past the last key the weight returns to the network's: keys 0 and 20 read at 0 and 10.
+        let mut early = target.clone();
+        early[10 * d..11 * d].copy_from_slice(&raw[20 * d..21 * d]);
+        let w_past = weights(&layout, &early, &target, &[0, 10], len);
+        assert!(w_past[10] < 0.5 && w_past[20] == 1.0 && w_past[15] > w_past[10], "{w_past:?}");
         let mut out = vec![1.0f32; len * d];
         pull_towards(&layout, &mut out, &vec![0.0; len * d], &w);
         assert!((out[0] - 1.0).abs() < 1e-6 && (out[20 * d] as f64 - expect).abs() < 1e-6);
