@@ -287,18 +287,8 @@ fn fit_keys(
             let targets = warp::Targets { features: &target, mask: &mask, root: &root };
             let raw = out.clone();
             let corr = warp::warp(layout, &mut out, &targets, FALLOFF);
-            if let (true, Some(interp)) = (fit.balance, &req.interpolation) {
-                let mut interpolation = span(interp, d);
-                denormalise(&mut interpolation, mean, std);
-                let keys = req.key_frames(i);
-                let mut w = balance::weights(layout, &raw, &target, &keys, len);
-                if let Some(unaided) = &req.unaided {
-                    let mut first = span(unaided, d);
-                    denormalise(&mut first, mean, std);
-                    let w1 = balance::weights(layout, &first, &target, &keys, len);
-                    w.iter_mut().zip(w1).for_each(|(a, b)| *a = a.min(b));
-                }
-                balance::pull_towards(layout, &mut out, &interpolation, &w);
+            let sampled = Sampled { raw: &raw, req, i, mean, std };
+            if fit.balance && lean_on_keys(layout, &mut out, &target, sampled) {
                 // The blend of two motions through the keys meets them only approximately
                 // (the root integrates its blended velocities): warp again.
                 warp::warp(layout, &mut out, &targets, FALLOFF);
@@ -306,4 +296,35 @@ fn fit_keys(
             (out, corr)
         }
     }
+}
+
+/// Sample `i` of a request as the fit reads it: its de-normalised raw output `[len, D]` and the
+/// normalisation that reads the request's own arrays.
+struct Sampled<'a> {
+    raw: &'a [f32],
+    req: &'a Request,
+    i: usize,
+    mean: &'a [f32],
+    std: &'a [f32],
+}
+
+/// `balance` on sample `s`: `out` pulled towards the keys' interpolation as far as the network
+/// (and, with the track fit, its first unaided sample) missed the keys `target`. False where
+/// the keys allow no interpolation (nothing changed).
+fn lean_on_keys(layout: &Layout, out: &mut [f32], target: &[f32], s: Sampled) -> bool {
+    let Some(interp) = &s.req.interpolation else { return false };
+    let (n, d, len) = (s.req.frames, s.req.dim, s.req.lengths[s.i]);
+    let read = |v: &[f32]| {
+        let mut x = v[s.i * n * d..(s.i * n + len) * d].to_vec();
+        denormalise(&mut x, s.mean, s.std);
+        x
+    };
+    let keys = s.req.key_frames(s.i);
+    let mut w = balance::weights(layout, s.raw, target, &keys, len);
+    if let Some(unaided) = &s.req.unaided {
+        let w1 = balance::weights(layout, &read(unaided), target, &keys, len);
+        w.iter_mut().zip(w1).for_each(|(a, b)| *a = a.min(b));
+    }
+    balance::pull_towards(layout, out, &read(interp), &w);
+    true
 }
