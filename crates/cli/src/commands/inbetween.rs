@@ -7,8 +7,8 @@ use anyhow::{bail, Context, Result};
 use burn::prelude::Device;
 use clap::Args;
 use diffkfc_data::dataset::{read_captions, Dataset};
-use diffkfc_data::io::npy;
 use diffkfc_data::io::ownership::{self, Output};
+use diffkfc_data::io::{motion_file, npy};
 use diffkfc_data::motion::representation::{joints_to_f32, Joints};
 use diffkfc_eval::inbetween::{interpolate, table, Bench, Clip, ClipScores, Gap};
 use diffkfc_model::run::load::InferenceModel;
@@ -22,7 +22,7 @@ use crate::args::{FitArgs, SamplerArg};
 pub const AFTER_HELP: &str = "\
 Examples:
   diffkfc eval inbetween --checkpoint models/mid-synth --data work/synth --clips 64 --out work/inbetween-synth
-  scripts/devset.sh work/devset && diffkfc eval inbetween --checkpoint models/mid-synth --data work/devset --out work/inbetween-dev
+  python3 scripts/devset.py work/devset && diffkfc eval inbetween --checkpoint models/mid-synth --data work/devset --out work/inbetween-dev
 
 Each clip (its first 196 frames at most) is keyed at every --gaps entry: a key every G seconds
 from frame 0 and the last frame, or N% of the frames evenly spaced with both ends (keys observe
@@ -40,7 +40,7 @@ pub struct InbetweenArgs {
     /// Model or run directory (EMA weights when present).
     #[arg(long)]
     checkpoint: PathBuf,
-    /// Dataset root (HumanML3D layout; `scripts/devset.sh` makes the real dev set).
+    /// Dataset root (HumanML3D layout; `scripts/devset.py` makes the real dev set).
     #[arg(long)]
     data: PathBuf,
     /// Split whose clips are keyed.
@@ -94,11 +94,7 @@ fn read_clips(ds: &Dataset, a: &InbetweenArgs, max_frames: usize) -> Result<(Vec
     let (mut clips, mut short) = (Vec::new(), 0);
     for id in ids.into_iter().take(a.clips) {
         let path = ds.motion_path(&id);
-        let arr = npy::read_f32(&path).with_context(|| format!("--data: {}", path.display()))?;
-        let feats = arr.data;
-        if feats.len() % d != 0 || feats.iter().any(|v| !v.is_finite()) {
-            bail!("--data: {} is not a finite ({d}-wide) feature array", path.display());
-        }
+        let feats = motion_file::load_features(&path, ds.skeleton, 1).context("--data")?.data;
         let frames = (feats.len() / d).min(max_frames);
         if frames < min {
             short += 1;

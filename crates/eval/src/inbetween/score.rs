@@ -4,12 +4,13 @@
 //! (foot skating, planted share, K-TranS) that interpolation gives up.
 
 use diffkfc_data::motion::plausibility::foot_skating_ratio;
+use diffkfc_data::motion::quat;
 use diffkfc_data::motion::representation::Joints;
 use diffkfc_data::motion::skeleton::Skeleton;
 use serde::Serialize;
 
 use crate::gait::planted_share;
-use crate::keyframe_metrics::k_trans;
+use crate::keyframe_metrics::{k_err_global, k_trans};
 
 /// Half window of K-TranS (the paper's setting).
 pub const K_TRANS_WINDOW: usize = 2;
@@ -32,23 +33,14 @@ pub struct Scores {
 pub fn score(skel: &Skeleton, motion: &Joints, truth: &Joints, keys: &[usize]) -> Scores {
     let t = motion.len().min(truth.len());
     let between: Vec<usize> = (0..t).filter(|f| !keys.contains(f)).collect();
-    let dist = |a: [f64; 3], b: [f64; 3]| {
-        ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+    let joints: Vec<usize> = (0..skel.num_joints()).collect();
+    let global = k_err_global(motion, truth, &between, &joints).unwrap_or(0.0);
+    // Root-relative: each frame's joints minus its pelvis, the pelvis itself left out.
+    let relative = |j: &Joints| -> Joints {
+        j.iter().map(|p| p.iter().map(|&q| quat::sub(q, p[0])).collect()).collect()
     };
-    let (mut global, mut local, mut n_g, mut n_l) = (0.0, 0.0, 0usize, 0usize);
-    for &f in &between {
-        let (m, r) = (&motion[f], &truth[f]);
-        for (j, (&a, &b)) in m.iter().zip(r).enumerate() {
-            global += dist(a, b);
-            n_g += 1;
-            if j > 0 {
-                let rel =
-                    |p: [f64; 3], root: [f64; 3]| [p[0] - root[0], p[1] - root[1], p[2] - root[2]];
-                local += dist(rel(a, m[0]), rel(b, r[0]));
-                n_l += 1;
-            }
-        }
-    }
+    let local =
+        k_err_global(&relative(motion), &relative(truth), &between, &joints[1..]).unwrap_or(0.0);
     let keyed: Vec<usize> = keys.iter().copied().filter(|&f| f < t).collect();
     let place: f64 = keyed
         .iter()
@@ -56,8 +48,8 @@ pub fn score(skel: &Skeleton, motion: &Joints, truth: &Joints, keys: &[usize]) -
         .sum();
     let unit = skel.metres_per_unit;
     Scores {
-        error_m: global / n_g.max(1) as f64 * unit,
-        error_local_m: local / n_l.max(1) as f64 * unit,
+        error_m: global * unit,
+        error_local_m: local * unit,
         key_place_m: place / keyed.len().max(1) as f64 * unit,
         foot_skating: foot_skating_ratio(skel, motion),
         planted_share: planted_share(skel, motion),

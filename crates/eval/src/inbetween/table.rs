@@ -3,10 +3,14 @@
 
 use serde::Serialize;
 
-use super::{ClipScores, Scores};
+use super::{ClipScores, GapScores, Scores};
 
 /// The methods in the order the table lists them.
 pub const METHODS: [&str; 4] = ["clip", "interpolation", "network", "pipeline"];
+
+/// Each of [`METHODS`]' scores in a clip's gap.
+const SCORES_OF: [fn(&GapScores) -> Scores; 4] =
+    [|s| s.clip, |s| s.interpolation, |s| s.network, |s| s.pipeline];
 
 /// One gap's mean scores over the clips, per method (in [`METHODS`] order).
 #[derive(Clone, Debug, Serialize)]
@@ -43,18 +47,16 @@ pub fn summarise(clips: &[ClipScores]) -> Vec<GapSummary> {
     (0..first.gaps.len())
         .map(|g| {
             let at: Vec<_> = clips.iter().map(|c| &c.gaps[g]).collect();
-            let pick =
-                |f: fn(&super::GapScores) -> Scores| at.iter().map(|s| f(s)).collect::<Vec<_>>();
+            let pick = |f: fn(&GapScores) -> Scores| at.iter().map(|s| f(s)).collect::<Vec<_>>();
             GapSummary {
                 gap: first.gaps[g].gap.clone(),
                 clips: at.len(),
                 mean_keys: at.iter().map(|s| s.keys.len() as f64).sum::<f64>() / at.len() as f64,
-                methods: vec![
-                    ("clip".into(), mean(&pick(|s| s.clip))),
-                    ("interpolation".into(), mean(&pick(|s| s.interpolation))),
-                    ("network".into(), mean(&pick(|s| s.network))),
-                    ("pipeline".into(), mean(&pick(|s| s.pipeline))),
-                ],
+                methods: METHODS
+                    .iter()
+                    .zip(SCORES_OF)
+                    .map(|(&name, of)| (name.to_string(), mean(&pick(of))))
+                    .collect(),
             }
         })
         .collect()
