@@ -394,6 +394,102 @@ fn sigkill_then_resume() {
     assert_eq!(st, (1..=12).collect::<Vec<u64>>());
 }
 
+/// A run killed before its first checkpoint: `--resume` starts it at step 0, from the `--init`
+/// it was started with, and says so.
+#[test]
+fn resume_before_the_first_checkpoint_starts_the_run() {
+    if !have_text_encoder() {
+        return;
+    }
+    let (d, data) = setup("restart");
+    let cfg = d.join("cfg.json");
+    let base = d.join("base");
+    let o = diffkfc(&["train", "--config", s(&cfg), "--data", s(&data), "--out", s(&base)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    std::fs::write(&cfg, CFG.replace("\"checkpoint_every\": 2", "\"checkpoint_every\": 100000"))
+        .unwrap();
+    let run = d.join("run");
+    let mut child = spawn_train(&cfg, &data, &run, &["--init", s(&base)], Stdio::null());
+    let t0 = std::time::Instant::now();
+    while steps_or_none(&run).is_none_or(|s| s.is_empty()) && t0.elapsed().as_secs() < 120 {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    child.kill().unwrap(); // SIGKILL, before any checkpoint
+    child.wait().unwrap();
+    assert!(Checkpoint::list(&run).is_empty());
+    let o = resume_to(&cfg, &data, &run, 3);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let err = stderr(&o);
+    assert!(err.contains("holds no checkpoint yet; starting it at step 0 from --init"), "{err}");
+    assert!(err.contains("base"), "{err}");
+    assert_eq!(steps(&run), vec![1, 2, 3]);
+    // A folder that is not a run is still refused.
+    let mine = d.join("mine");
+    std::fs::create_dir_all(&mine).unwrap();
+    std::fs::write(mine.join("notes.txt"), "mine").unwrap();
+    assert_one_line_error(&resume_to(&cfg, &data, &mine, 3), &["--resume", "not a diffkfc run"]);
+}
+
+/// `train --recipe`: the sets drawn, each stage from the one before, the model exported; run
+/// again, nothing is redone; a bad recipe is one line naming the stage.
+#[test]
+fn a_recipe_trains_its_stages_and_exports_the_model() {
+    if !have_text_encoder() {
+        return;
+    }
+    let d = scratch("recipe");
+    let recipe = d.join("r.json");
+    let base = CFG.replace("\"max_steps\": 6", "\"max_steps\": 3");
+    let text = format!(
+        r#"{{"model": "t", "data": {{"s": {{"body": "legacy", "clips": 20, "seed": 9}}}},
+          "stages": [{{"name": "one", "data": "s", "config": {base}}},
+                     {{"name": "two", "data": "s", "stop_at": 2,
+                       "config": {{"training": {{"lr": 1e-4}}}}}}]}}"#
+    );
+    std::fs::write(&recipe, &text).unwrap();
+    let out = d.join("out");
+    let o = diffkfc(&["train", "--recipe", s(&recipe), "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(steps(&out.join("01-one")), vec![1, 2, 3]);
+    assert_eq!(steps(&out.join("02-two")), vec![1, 2]);
+    let init = std::fs::read_to_string(out.join("02-two/init-from.txt")).unwrap();
+    assert!(init.ends_with("01-one"), "{init}");
+    let stored: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("02-two/config.json")).unwrap())
+            .unwrap();
+    assert_eq!(stored["training"]["lr"], 1e-4);
+    assert!(
+        out.join("model/model.safetensors").exists() && out.join("data-s/manifest.json").exists()
+    );
+    let again = diffkfc(&["train", "--recipe", s(&recipe), "--out", s(&out)]);
+    assert!(again.status.success(), "{}", stderr(&again));
+    assert!(stderr(&again).contains("stage 02-two: done (step 2)"), "{}", stderr(&again));
+    std::fs::write(&recipe, text.replace("1e-4", "-1")).unwrap();
+    assert_one_line_error(
+        &diffkfc(&["train", "--recipe", s(&recipe), "--out", s(&d.join("o2"))]),
+        &["--recipe", "stages[1] (two): training.lr"],
+    );
+}
+
+/// The shipped recipes parse, and their last stage is the shipped model's config.
+#[test]
+fn shipped_recipes_end_in_the_shipped_models() {
+    use diffkfc_model::run::{config::RunConfig, recipe::Recipe};
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    for model in ["mid-synth", "tiny-synth"] {
+        let text =
+            std::fs::read_to_string(root.join(format!("configs/{model}.recipe.json"))).unwrap();
+        let r = Recipe::parse(&text).unwrap();
+        assert_eq!(r.model, model);
+        let last = r.stages().unwrap().pop().unwrap();
+        let ours = RunConfig::parse(&last.config.to_string()).unwrap();
+        let shipped = RunConfig::load(&root.join(format!("models/{model}/config.json"))).unwrap();
+        assert_eq!(ours.model, shipped.model, "{model}");
+        assert_eq!(ours.training, shipped.training, "{model}");
+        assert_eq!(ours.keyframes, shipped.keyframes, "{model}");
+    }
+}
+
 #[test]
 fn bad_train_arguments() {
     let d = scratch("trainbad");

@@ -1,6 +1,7 @@
 //! Helpers shared by the end-to-end tests: run the binary, scratch directories.
 #![allow(dead_code)]
 
+use std::io::BufRead;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -106,4 +107,19 @@ pub fn chromium() -> Option<PathBuf> {
         eprintln!("SKIPPED: chromium is not on PATH; the 3D page is not checked in a browser");
     }
     found
+}
+
+/// The first line of `r` containing `marker`, within 60 s (the rest is drained, so a child
+/// writing to the pipe never blocks).
+pub fn line_with(r: impl std::io::Read + Send + 'static, marker: &'static str) -> String {
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for l in std::io::BufReader::new(r).lines().map_while(Result::ok) {
+            if l.contains(marker) {
+                let _ = tx.send(l);
+            }
+        }
+    });
+    rx.recv_timeout(std::time::Duration::from_secs(60))
+        .unwrap_or_else(|_| panic!("no line with {marker}"))
 }

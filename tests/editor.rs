@@ -7,7 +7,6 @@
 //! the old pose back, and the key is dragged along the timeline to another frame.
 
 mod common;
-use std::io::{BufRead, BufReader};
 use std::net::TcpStream;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -24,19 +23,6 @@ impl Drop for Proc {
         let _ = self.0.kill();
         let _ = self.0.wait();
     }
-}
-
-/// The first line of `r` containing `marker`, within 60 s.
-fn line_with(r: impl std::io::Read + Send + 'static, marker: &'static str) -> String {
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        for l in BufReader::new(r).lines().map_while(Result::ok) {
-            if l.contains(marker) {
-                let _ = tx.send(l);
-            }
-        }
-    });
-    rx.recv_timeout(Duration::from_secs(60)).unwrap_or_else(|_| panic!("no line with {marker}"))
 }
 
 /// One page of Chromium over the DevTools protocol.

@@ -4,6 +4,7 @@ pub mod eval;
 pub mod inbetween;
 pub mod model;
 pub mod page;
+pub mod recipe;
 pub mod render;
 pub mod sample;
 pub mod serve;

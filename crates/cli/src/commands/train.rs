@@ -1,12 +1,13 @@
 //! `diffkfc train`: diffusion training with keyframe masking, checkpoints and exact resume.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use diffkfc_data::dataset::cache::{default_cache_dir, PackedSplit};
 use diffkfc_data::dataset::Dataset;
+use diffkfc_model::run::checkpoint::Checkpoint;
 use diffkfc_model::run::config::RunConfig;
 use diffkfc_model::run::dir::RunDir;
 use diffkfc_model::run::lock::{Claim, RunLock};
@@ -18,49 +19,54 @@ use indicatif::{ProgressBar, ProgressStyle};
 #[derive(Args)]
 pub struct TrainArgs {
     /// Run config (configs/tiny.json, small.json, paper-humanml3d.json, paper-kit.json).
-    #[arg(long)]
-    config: PathBuf,
+    #[arg(long, required_unless_present = "recipe")]
+    pub(crate) config: Option<PathBuf>,
+    /// Train a model's whole recipe instead (configs/mid-synth.recipe.json): its synthetic
+    /// sets, then every stage from the one before, into --out (default runs/`<model>`); run
+    /// again, it continues where it stopped. Ends with the model exported to `<out>/model`.
+    #[arg(long, conflicts_with_all = ["config", "resume", "init", "max_steps", "seed", "data"])]
+    pub(crate) recipe: Option<PathBuf>,
     /// Dataset root (overrides data.dir of the config).
     #[arg(long)]
-    data: Option<PathBuf>,
+    pub(crate) data: Option<PathBuf>,
     /// Run directory (default: runs/`<config name>`).
     #[arg(long)]
-    out: Option<PathBuf>,
+    pub(crate) out: Option<PathBuf>,
     /// Continue from the run directory's latest checkpoint.
     #[arg(long, conflicts_with = "init")]
-    resume: bool,
+    pub(crate) resume: bool,
     /// Write a new run into a non-empty directory that is not a run (only the run's own file
     /// names are written).
     #[arg(long)]
-    force: bool,
+    pub(crate) force: bool,
     /// Start a new run from these weights (a run or model directory, or a checkpoint file):
     /// every parameter it has with the same name and shape is taken, the model's others
     /// (an extension the source lacks, such as model.root_path) start as initialised.
     #[arg(long, value_name = "CHECKPOINT")]
-    init: Option<PathBuf>,
+    pub(crate) init: Option<PathBuf>,
     /// Stop at this step (default: training.max_steps of the config).
     #[arg(long)]
-    max_steps: Option<usize>,
+    pub(crate) max_steps: Option<usize>,
     /// Stop cleanly (with a checkpoint) after this long: 90s, 10m, 2h.
     #[arg(long, value_parser = parse_duration)]
-    time_budget: Option<Duration>,
+    pub(crate) time_budget: Option<Duration>,
     /// Compute device: flex (the CPU default), or ndarray, wgpu, cuda in builds with that
     /// cargo feature.
     #[arg(long, default_value = "flex", value_name = "flex|ndarray|wgpu|cuda")]
-    device: String,
+    pub(crate) device: String,
     /// Train data-parallel on these devices (cuda:0,cuda:1,...): a replica of the model on
     /// each, a shard of every batch each, gradients summed by Burn's all-reduce (CUDA only in
     /// Burn 0.22). Checkpoints and resume are those of a one-device run.
     #[arg(long, conflicts_with = "device", value_name = "cuda:0,cuda:1,...")]
-    devices: Option<String>,
+    pub(crate) devices: Option<String>,
     /// Where Adam's moments and the EMA live: host (one fused pass over host vectors: the
     /// default for flex and ndarray) or device (tensor operations on the device, weights never
     /// leave it: the default for wgpu and cuda). Checkpoints are the same either way.
     #[arg(long, value_name = "host|device")]
-    optimiser_state: Option<StateLocation>,
+    pub(crate) optimiser_state: Option<StateLocation>,
     /// Overrides training.seed.
     #[arg(long)]
-    seed: Option<u64>,
+    pub(crate) seed: Option<u64>,
 }
 
 /// `--time-budget`: humantime's durations (90s, 10m, 1h30m, 2h) or a bare number of seconds.
@@ -99,9 +105,12 @@ fn check_memory(cfg: &RunConfig, device: &str) -> Result<()> {
 }
 
 pub fn run(a: TrainArgs) -> Result<()> {
-    let (mut cfg, data, max_steps) = resolve_config(&a)?;
+    let Some(config) = a.config.clone() else {
+        return super::recipe::run(a);
+    };
+    let (mut cfg, data, max_steps) = resolve_config(&a, &config)?;
     let run = RunDir::new(a.out.clone().unwrap_or_else(|| {
-        let stem = a.config.file_stem().map(|s| s.to_string_lossy().into_owned());
+        let stem = config.file_stem().map(|s| s.to_string_lossy().into_owned());
         PathBuf::from("runs").join(stem.unwrap_or_else(|| "run".into()))
     }));
     let claim = if a.resume { Claim::Resume } else { Claim::New { force: a.force } };
@@ -121,7 +130,11 @@ pub fn run(a: TrainArgs) -> Result<()> {
     if a.resume {
         run.check_resumable(&cfg, &d.ds.mean)?;
     }
+    let init = init_weights(&a, &run);
     run.prepare(&cfg, &d.ds.mean, &d.ds.std)?;
+    if !a.resume {
+        run.record_init(init.as_deref())?;
+    }
 
     let signal = crate::signals::StopSignal::install()?;
     let started = Instant::now();
@@ -137,12 +150,12 @@ pub fn run(a: TrainArgs) -> Result<()> {
         optimiser: a.optimiser_state.unwrap_or_else(|| StateLocation::for_device(&device)),
         device,
         run_dir: run.path.clone(),
-        init: a.init.clone(),
+        init: init.clone(),
         parallel,
     };
     let mut first: Option<(usize, f64)> = None;
     let outcome = trainer.run(a.resume, max_steps, &stop, &mut |e| {
-        show_event(&pb, e, &mut first, a.init.as_deref())
+        show_event(&pb, e, &mut first, init.as_deref())
     })?;
     pb.finish_and_clear();
     run.write_loss_plot()?;
@@ -164,6 +177,22 @@ pub fn run(a: TrainArgs) -> Result<()> {
         std::process::exit(code);
     }
     Ok(())
+}
+
+/// The weights the run starts from: `--init`, or, resuming a run killed before its first
+/// checkpoint (which starts it again at step 0, as the user meant), the `--init` it was started
+/// with.
+fn init_weights(a: &TrainArgs, run: &RunDir) -> Option<PathBuf> {
+    if !(a.resume && Checkpoint::list(&run.path).is_empty()) {
+        return a.init.clone();
+    }
+    let init = run.recorded_init();
+    let from = init.as_ref().map_or(String::new(), |p| format!(" from --init {}", p.display()));
+    eprintln!(
+        "--resume: {} holds no checkpoint yet; starting it at step 0{from}",
+        run.path.display()
+    );
+    init
 }
 
 fn progress_bar(max_steps: usize) -> ProgressBar {
@@ -216,8 +245,8 @@ fn show_event(
 }
 
 /// The config with the flags applied, the dataset it trains on and the step it stops at.
-fn resolve_config(a: &TrainArgs) -> Result<(RunConfig, PathBuf, usize)> {
-    let mut cfg = RunConfig::load(&a.config)?;
+fn resolve_config(a: &TrainArgs, config: &Path) -> Result<(RunConfig, PathBuf, usize)> {
+    let mut cfg = RunConfig::load(config)?;
     if let Some(s) = a.seed {
         cfg.training.seed = s;
     }

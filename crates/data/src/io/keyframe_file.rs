@@ -66,6 +66,7 @@ impl KeySpec {
             (Some(pose), _) => {
                 crate::motion::magnitude::check_joints(skel, &vec![pose.clone()])
                     .map_err(|e| bad(e.to_string()))?;
+                crate::motion::representation::check_pose(skel, pose).map_err(bad)?;
                 let (vals, obs) = pose::pose_features(skel, pose).map_err(|e| bad(e.to_string()))?;
                 if vals.iter().zip(&obs).any(|(v, &o)| o && !v.is_finite()) {
                     return Err(bad("the pose gives non-finite features (joints too far apart or coinciding)".into()));
@@ -73,7 +74,11 @@ impl KeySpec {
                 (vals, obs)
             }
             (None, Some(fe)) if fe.len() != d => return Err(bad(format!("{} features, expected {d}", fe.len()))),
-            (None, Some(fe)) => (fe.iter().map(|&x| x as f32).collect(), vec![true; d]),
+            (None, Some(fe)) => {
+                let pose = &crate::motion::representation::recover_from_ric(skel, fe)[0];
+                crate::motion::representation::check_pose(skel, pose).map_err(bad)?;
+                (fe.iter().map(|&x| x as f32).collect(), vec![true; d])
+            }
             (None, None) if self.root.is_some() || self.heading.is_some() => (vec![0.0; d], vec![false; d]),
             (None, None) => return Err(bad(format!("needs \"joints\" ({} x [x,y,z]), \"features\" ({d} numbers), \"root\" or \"heading\"", skel.num_joints()))),
         })

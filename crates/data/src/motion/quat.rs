@@ -30,9 +30,19 @@ pub fn norm(a: Vec3) -> f64 {
     dot(a, a).sqrt()
 }
 
+/// `a` at unit length; a zero (or non-finite) vector has no direction and stays zero, so a
+/// collapsed bone yields no NaN downstream.
 pub fn normalize(a: Vec3) -> Vec3 {
-    scale(a, 1.0 / norm(a))
+    let n = norm(a);
+    if n > TINY && n.is_finite() {
+        scale(a, 1.0 / n)
+    } else {
+        [0.0; 3]
+    }
 }
+
+/// Below this length a vector (or quaternion) is taken as having no direction.
+const TINY: f64 = 1e-12;
 
 /// Hamilton product q * r.
 pub fn qmul(q: Quat, r: Quat) -> Quat {
@@ -51,8 +61,12 @@ pub fn qinv(q: Quat) -> Quat {
     [q[0], -q[1], -q[2], -q[3]]
 }
 
+/// `q` at unit length; a zero quaternion (no rotation can be told) becomes the identity.
 pub fn qnormalize(q: Quat) -> Quat {
     let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+    if !(n > TINY && n.is_finite()) {
+        return IDENTITY;
+    }
     [q[0] / n, q[1] / n, q[2] / n, q[3] / n]
 }
 
@@ -64,8 +78,12 @@ pub fn qrot(q: Quat, v: Vec3) -> Vec3 {
     add(v, scale(add(scale(uv, q[0]), uuv), 2.0))
 }
 
-/// The shortest-arc rotation taking direction v0 onto direction v1.
+/// The shortest-arc rotation taking direction v0 onto direction v1; the identity where either
+/// is a zero vector (no direction to turn from or to).
 pub fn qbetween(v0: Vec3, v1: Vec3) -> Quat {
+    if !(norm(v0) > TINY && norm(v1) > TINY) {
+        return IDENTITY;
+    }
     let v = cross(v0, v1);
     let w = (dot(v0, v0) * dot(v1, v1)).sqrt() + dot(v0, v1);
     let q = [w, v[0], v[1], v[2]];
@@ -103,10 +121,14 @@ pub fn to_cont6d(q: Quat) -> [f64; 6] {
     [m[0][0], m[1][0], m[2][0], m[0][1], m[1][1], m[2][1]]
 }
 
-/// Rotation matrix (row-major) from a 6D representation by Gram-Schmidt.
+/// Rotation matrix (row-major) from a 6D representation by Gram-Schmidt; the identity where the
+/// two columns span no plane (zero or parallel), which has no rotation to tell.
 pub fn cont6d_to_matrix(c: [f64; 6]) -> [[f64; 3]; 3] {
     let x = normalize([c[0], c[1], c[2]]);
     let z = normalize(cross(x, [c[3], c[4], c[5]]));
+    if z == [0.0; 3] {
+        return [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    }
     let y = cross(z, x);
     [[x[0], y[0], z[0]], [x[1], y[1], z[1]], [x[2], y[2], z[2]]]
 }
@@ -189,5 +211,20 @@ mod tests {
             let v = [0.1, 0.7, -0.4];
             assert!(close(&qrot(q, v), &qrot(r, v), 1e-12));
         }
+    }
+
+    #[test]
+    fn directionless_inputs_give_the_identity_not_nan() {
+        // A collapsed bone (zero vector), a zero quaternion, a zero or rank-one 6D rotation.
+        assert_eq!(normalize([0.0; 3]), [0.0; 3]);
+        assert_eq!(normalize([f64::NAN, 0.0, 0.0]), [0.0; 3]);
+        assert_eq!(qnormalize([0.0; 4]), IDENTITY);
+        assert_eq!(qbetween([0.0; 3], [0.0, 1.0, 0.0]), IDENTITY);
+        assert_eq!(qbetween([0.0, 1.0, 0.0], [0.0; 3]), IDENTITY);
+        assert_eq!(from_matrix(cont6d_to_matrix([0.0; 6])), IDENTITY);
+        assert_eq!(from_matrix(cont6d_to_matrix([1.0, 0.0, 0.0, 2.0, 0.0, 0.0])), IDENTITY);
+        // Real directions are untouched: opposite vectors still give a half turn.
+        let q = qbetween([0.0, 1.0, 0.0], [0.0, -1.0, 0.0]);
+        assert!(close(&qrot(q, [0.0, 1.0, 0.0]), &[0.0, -1.0, 0.0], 1e-12));
     }
 }

@@ -416,25 +416,30 @@ pub fn validate_joints(skel: &Skeleton, joints: &Joints) -> Result<(), DataError
     if let Some(f) = joints.iter().position(|f| f.iter().flatten().any(|v| !v.is_finite())) {
         return Err(DataError::Invalid(format!("frame {f} contains NaN or infinite values")));
     }
-    // Rotations are undefined for a bone of zero length or a body whose facing cannot be told
-    // (hips and shoulders giving no horizontal left-right direction).
     for (f, frame) in joints.iter().enumerate() {
-        for chain in skel.kinematic_chain {
-            for w in chain.windows(2) {
-                if quat::norm(quat::sub(frame[w[1]], frame[w[0]])) < 1e-6 {
-                    return Err(DataError::Invalid(format!(
-                        "frame {f}: joints {} and {} coincide (a bone of zero length)",
-                        skel.joint_names[w[0]], skel.joint_names[w[1]]
-                    )));
-                }
+        check_pose(skel, frame).map_err(|m| DataError::Invalid(format!("frame {f}: {m}")))?;
+    }
+    Ok(())
+}
+
+/// A pose rotations can be told from: no bone of zero length and a body whose facing can be
+/// told (hips and shoulders giving a horizontal left-right direction).
+pub fn check_pose(skel: &Skeleton, frame: &[Vec3]) -> Result<(), String> {
+    for chain in skel.kinematic_chain {
+        for w in chain.windows(2) {
+            if quat::norm(quat::sub(frame[w[1]], frame[w[0]])) < 1e-6 {
+                return Err(format!(
+                    "joints {} and {} coincide (a bone of zero length)",
+                    skel.joint_names[w[0]], skel.joint_names[w[1]]
+                ));
             }
         }
-        let [r_hip, l_hip, r_sho, l_sho] = skel.face_joints;
-        let across =
-            quat::add(quat::sub(frame[r_hip], frame[l_hip]), quat::sub(frame[r_sho], frame[l_sho]));
-        if across[0].hypot(across[2]) < 1e-6 {
-            return Err(DataError::Invalid(format!("frame {f}: hips and shoulders give no left-right direction on the ground, so the facing is undefined")));
-        }
+    }
+    let [r_hip, l_hip, r_sho, l_sho] = skel.face_joints;
+    let across =
+        quat::add(quat::sub(frame[r_hip], frame[l_hip]), quat::sub(frame[r_sho], frame[l_sho]));
+    if across[0].hypot(across[2]) < 1e-6 {
+        return Err("hips and shoulders give no left-right direction on the ground, so the facing is undefined".into());
     }
     Ok(())
 }

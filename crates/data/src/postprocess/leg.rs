@@ -53,8 +53,13 @@ pub(crate) fn two_bone(h: Vec3, k0: Vec3, a0: Vec3, a: Vec3) -> (Vec3, Vec3) {
     if dist < 1e-9 || l1 < 1e-9 || l2 < 1e-9 {
         return (k0, a0);
     }
+    // Reachable distances; bones too short to tell apart leave no room (the leg stays).
+    let (lo, hi) = ((l1 - l2).abs() + 1e-6, (l1 + l2) * (1.0 - 1e-6));
+    if lo > hi || !(lo + hi).is_finite() {
+        return (k0, a0);
+    }
     let u = quat::scale(ha, 1.0 / dist);
-    let d = dist.clamp((l1 - l2).abs() + 1e-6, (l1 + l2) * (1.0 - 1e-6));
+    let d = dist.clamp(lo, hi);
     let a = quat::add(h, quat::scale(u, d));
     let along = (l1 * l1 - l2 * l2 + d * d) / (2.0 * d);
     let up = (l1 * l1 - along * along).max(0.0).sqrt();
@@ -181,5 +186,28 @@ fn relocal(
         for k in 0..6 {
             row[rot(jt) + k] = c6[k] as f32;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn two_bone_reaches_and_leaves_degenerate_legs_as_they_are() {
+        // A straight leg of two 0.4 m bones bends its knee forward to reach 0.6 m.
+        let (h, k0, a0) = ([0.0, 1.0, 0.0], [0.0, 0.6, 0.01], [0.0, 0.2, 0.0]);
+        let (k, a) = two_bone(h, k0, a0, [0.0, 0.4, 0.0]);
+        assert!((quat::norm(quat::sub(k, h)) - 0.4).abs() < 1e-3);
+        assert!((quat::norm(quat::sub(a, k)) - quat::norm(quat::sub(a0, k0))).abs() < 1e-3);
+        assert!(k[2] > 0.01 && (a[1] - 0.4).abs() < 1e-9);
+        // Bones of 1e-8 m (a collapsed body) have no reachable distance: unchanged, not NaN.
+        let tiny = |v: f64| [0.0, v, 0.0];
+        assert_eq!(
+            two_bone(tiny(3e-8), tiny(2e-8), tiny(1e-8), tiny(0.5)),
+            (tiny(2e-8), tiny(1e-8))
+        );
+        let nan = [f64::NAN; 3];
+        assert_eq!(two_bone(h, nan, a0, a0).1, a0);
     }
 }

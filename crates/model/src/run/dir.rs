@@ -1,7 +1,8 @@
 //! A training run's directory and its files: `config.json`, `Mean.npy`/`Std.npy` (the
 //! normalisation the model was trained with), `ckpt-*.safetensors`, `metrics.jsonl` (one line
 //! per step, with validation losses) and `loss.svg` (its plot: training loss light, moving
-//! average dark, validation points, log-scaled y).
+//! average dark, validation points, log-scaled y) and, for a warm start, `init-from.txt` (the
+//! `--init` weights' path).
 
 use std::path::{Path, PathBuf};
 
@@ -32,6 +33,9 @@ pub fn parse_metrics(text: &str) -> Vec<(Metric, &str)> {
         })
         .collect()
 }
+
+/// Where a run records the `--init` weights it started from.
+const INIT_FILE: &str = "init-from.txt";
 
 #[derive(Clone, Debug)]
 pub struct RunDir {
@@ -95,6 +99,26 @@ impl RunDir {
             diffkfc_data::io::npy::write(self.path.join(name), &[v.len()], v)?;
         }
         Ok(())
+    }
+
+    /// The weights a run was started from (`train --init`), recorded so that resuming a run
+    /// killed before its first checkpoint starts it as it was started.
+    pub fn record_init(&self, init: Option<&Path>) -> Result<()> {
+        let path = self.path.join(INIT_FILE);
+        match init {
+            Some(p) => {
+                let p = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+                diffkfc_data::write_atomic(&path, p.to_string_lossy().as_bytes())?;
+            }
+            None if path.exists() => std::fs::remove_file(&path).map_err(ModelError::io(&path))?,
+            None => {}
+        }
+        Ok(())
+    }
+
+    /// The weights recorded by [`RunDir::record_init`], if any.
+    pub fn recorded_init(&self) -> Option<PathBuf> {
+        std::fs::read_to_string(self.path.join(INIT_FILE)).ok().map(PathBuf::from)
     }
 
     /// Mean/Std the model was trained with: the run's own copy, or the dataset's the config names.

@@ -92,10 +92,12 @@ fn check_claim(dir: &Path, claim: Claim) -> Result<()> {
     diffkfc_data::io::ownership::refuse_other_kind(dir, MARKER, force, "--out")?;
     let has_checkpoints = !Checkpoint::list(dir).is_empty();
     match claim {
+        // A run killed before its first checkpoint: resuming it means starting it.
+        Claim::Resume if !has_checkpoints && dir.join(MARKER).exists() => Ok(()),
         Claim::Resume if !has_checkpoints => refuse(format!(
             "--resume: {} {}; drop --resume to start a new run there",
             dir.display(),
-            if dir.exists() { "holds no checkpoint to resume" } else { "does not exist" }
+            if dir.exists() { "is not a diffkfc run" } else { "does not exist" }
         )),
         Claim::Resume => Ok(()),
         Claim::New { .. } if has_checkpoints => refuse(format!("--out: {} already holds checkpoints; pass --resume to continue it or choose another --out", dir.display())),
@@ -137,6 +139,8 @@ mod tests {
         assert!(second.contains("being written by another training"), "{second}");
         drop(first);
         RunLock::claim(&d, Claim::New { force: false }).unwrap();
+        // Killed before its first checkpoint: still a run, so resuming it is allowed.
+        RunLock::claim(&d, Claim::Resume).unwrap();
     }
 
     #[test]

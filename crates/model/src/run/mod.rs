@@ -6,3 +6,4 @@ pub mod config;
 pub mod dir;
 pub mod load;
 pub mod lock;
+pub mod recipe;
