@@ -78,7 +78,7 @@ pub(crate) struct FitArgs {
     /// and the root re-integrated to the keyed places and headings: exact, no seam), paste
     /// (observed features written into the key frames alone: the pose jumps there), none (the
     /// network's output as it is).
-    #[arg(long, default_value = "track", value_name = "track|warp|paste|none")]
+    #[arg(long, default_value_t = Fit::default().keyframes, value_name = "track|warp|paste|none")]
     keyframe_fit: KeyframeFit,
     /// Same as --keyframe-fit none (kept for older scripts).
     #[arg(long, hide = true)]
@@ -96,7 +96,7 @@ pub(crate) struct FitArgs {
     /// pinned), warp (contacts from the motion: a toe or ankle low and slow; strides scaled so
     /// the stance foot stands still under the root's speed, then pinned) or pin (contacts from
     /// the motion, pinned only). docs/feet.md compares them.
-    #[arg(long, value_enum, default_value = "steps")]
+    #[arg(long, value_enum, default_value_t = FeetArg::of(Fit::default().feet))]
     feet: FeetArg,
     /// Largest move of a planted foot the lock makes, in metres; a contact span whose foot
     /// slides further is left as it is (a dragged foot), as is one whose leg cannot reach the
@@ -121,12 +121,7 @@ impl FitArgs {
         Fit {
             keyframes: if self.no_snap { KeyframeFit::None } else { self.keyframe_fit },
             foot_lock: !self.no_foot_lock,
-            feet: match self.feet {
-                FeetArg::Warp => Feet::Warp,
-                FeetArg::Pin => Feet::Pin,
-                FeetArg::Network => Feet::Network,
-                FeetArg::Steps => Feet::Steps,
-            },
+            feet: self.feet.feet(),
             lock_reach: self.foot_lock_reach,
             rigid: !self.no_rigid,
             balance: !self.no_balance,
@@ -142,6 +137,9 @@ impl FitArgs {
         Ok(())
     }
 }
+
+/// Most motions `eval` generates at once, and most pairs in an evaluator's training batch.
+pub(crate) const MAX_GENERATION_BATCH: usize = 1024;
 
 /// Largest keyframe and transition guidance accepted: far beyond any useful value, small
 /// enough that the sampler stays finite.
@@ -184,6 +182,24 @@ pub(crate) enum FeetArg {
     Pin,
     Network,
     Steps,
+}
+
+impl FeetArg {
+    const ALL: [FeetArg; 4] = [FeetArg::Warp, FeetArg::Pin, FeetArg::Network, FeetArg::Steps];
+
+    fn feet(self) -> Feet {
+        match self {
+            FeetArg::Warp => Feet::Warp,
+            FeetArg::Pin => Feet::Pin,
+            FeetArg::Network => Feet::Network,
+            FeetArg::Steps => Feet::Steps,
+        }
+    }
+
+    /// The flag value of the library's `feet` (the default comes from `Fit::default()`).
+    fn of(feet: Feet) -> FeetArg {
+        FeetArg::ALL.into_iter().find(|f| f.feet() == feet).unwrap_or(FeetArg::Steps)
+    }
 }
 
 /// How the transition-guidance gradient is taken (`sample` and `eval`).

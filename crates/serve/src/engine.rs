@@ -1,32 +1,27 @@
-//! The loaded model behind the API: prompt embeddings (cached), the shared generation pipeline
-//! (`diffkfc_model::sampling::pipeline`, the same as `sample`), and the motion in the editor's
+//! The loaded model behind the API: the generation session `sample` also uses
+//! (`diffkfc_model::sampling::session`: cached prompt embeddings, the pipeline, the divergence
+//! check), the request's defaults (the library's), and the motion in the editor's
 //! world frame (keys are given in the world; the representation starts every motion at the
 //! origin facing +Z, so a keyed first frame places the whole motion).
-
-use std::collections::HashMap;
 
 use burn::prelude::Device;
 use diffkfc_data::io::keyframe_file::{self, KeyframeSet, KeyframeSpec};
 use diffkfc_data::motion::representation::Joints;
 use diffkfc_data::motion::root_key::{self, RootKey};
 use diffkfc_data::{render, T2M};
-use diffkfc_model::run::load::InferenceModel;
+use diffkfc_model::error::ModelError;
 use diffkfc_model::sampling::fit::{Fit, Fitted};
+use diffkfc_model::sampling::guidance;
 use diffkfc_model::sampling::pipeline::KeyedItem;
 use diffkfc_model::sampling::sampler::{Options, DEFAULT_SAMPLER, DEFAULT_STEPS};
-use diffkfc_model::text::{self, minilm::MiniLm, TextEncoder};
+use diffkfc_model::sampling::session::Session;
 
 use crate::api::{Limits, SampleRequest};
 use crate::error::{ApiError, ServeError};
 
-/// Prompts whose embeddings are kept (an editing session types a handful).
-const EMBEDDING_CACHE: usize = 256;
-
-/// The model, its text encoder and the request bounds it implies.
+/// The loaded session (model and text encoder) and the request bounds it implies.
 pub struct Engine {
-    loaded: InferenceModel,
-    enc: MiniLm,
-    embeddings: HashMap<String, Vec<f32>>,
+    session: Session,
     pub limits: Limits,
 }
 
@@ -48,36 +43,19 @@ pub struct Generated {
 
 impl Engine {
     /// The model at `checkpoint` (a run or model folder, or a checkpoint file) on `device`, and
-    /// the cached text encoder.
+    /// the text encoder.
     pub fn load(checkpoint: &std::path::Path, device: &Device) -> Result<Engine, ServeError> {
-        let loaded = InferenceModel::load(checkpoint, device)
-            .map_err(|e| ServeError::Load(format!("--checkpoint {}: {e}", checkpoint.display())))?;
-        let enc = MiniLm::load(&text::default_dir(), &Device::flex())
-            .map_err(|e| ServeError::Load(format!("text encoder: {e}")))?;
-        let limits = Limits::for_model(loaded.cfg.model.max_frames, loaded.schedule.steps);
-        Ok(Engine { loaded, enc, embeddings: HashMap::new(), limits })
+        let session = Session::load(checkpoint, device, &T2M).map_err(|e| match e {
+            ModelError::Text(e) => ServeError::Load(format!("text encoder: {e}")),
+            e => ServeError::Load(format!("--checkpoint {}: {e}", checkpoint.display())),
+        })?;
+        let limits = Limits::for_model(session.max_frames(), session.loaded.schedule.steps);
+        Ok(Engine { session, limits })
     }
 
     /// The checkpoint's training step.
     pub fn step(&self) -> usize {
-        self.loaded.step
-    }
-
-    fn embed(&mut self, text: &str) -> Result<Vec<f32>, ApiError> {
-        if let Some(e) = self.embeddings.get(text) {
-            return Ok(e.clone());
-        }
-        let words = self.loaded.cfg.model.text_words;
-        let e = self
-            .enc
-            .embed_words(&[text], words)
-            .map_err(|e| ApiError::invalid(format!("text: {e}")))?
-            .remove(0);
-        if self.embeddings.len() >= EMBEDDING_CACHE {
-            self.embeddings.clear();
-        }
-        self.embeddings.insert(text.to_string(), e.clone());
-        Ok(e)
+        self.session.step()
     }
 
     /// Generate the motion `r` asks for: checked, sampled and fitted as `sample` does, then
@@ -89,28 +67,26 @@ impl Engine {
             .keyframes
             .resolve(&T2M, Some(length), None, self.limits.max_frames)
             .map_err(|e| ApiError::invalid(format!("keyframes: {e}")))?;
-        let text_guidance = diffkfc_model::sampling::guidance::text_guidance(
-            "text_guidance",
-            r.text_guidance,
-            &self.loaded.cfg,
-        )
-        .map_err(|e| ApiError::invalid(e.to_string()))?;
-        let text = self.embed(&r.text)?;
+        let cfg = &self.session.loaded.cfg;
+        let text_guidance = guidance::text_guidance("text_guidance", r.text_guidance, cfg)
+            .map_err(|e| ApiError::invalid(e.to_string()))?;
+        let text =
+            self.session.embed(&r.text).map_err(|e| ApiError::invalid(format!("text: {e}")))?;
         let t0 = std::time::Instant::now();
+        let defaults = Options::default();
         let opts = Options {
             sampler: DEFAULT_SAMPLER.with_steps(r.steps.unwrap_or(DEFAULT_STEPS)),
-            kf_guidance: r.kf_guidance.unwrap_or(1.0),
+            kf_guidance: r.kf_guidance.unwrap_or(defaults.kf_guidance),
             text_guidance,
-            transition: r.transition_guidance.unwrap_or(Options::default().transition),
+            transition: r.transition_guidance.unwrap_or(defaults.transition),
             seed: r.seed,
-            ..Options::default()
+            ..defaults
         };
         let fit = Fit {
             keyframes: r.fit.unwrap_or_default(),
-            foot_lock: r.foot_lock.unwrap_or(true),
+            foot_lock: r.foot_lock.unwrap_or(Fit::default().foot_lock),
             ..Fit::default()
         };
-        let gen = self.loaded.generator(&T2M);
         let item = KeyedItem {
             text: &text,
             length,
@@ -118,14 +94,17 @@ impl Engine {
             mask: &keys.mask,
             root: &keys.root,
         };
-        let req = gen.request(length, &[item]);
-        let fitted = gen.generate(&req, &opts, fit, |_, _| {}).remove(0);
+        let req = self.session.request(length, &[item]);
+        let fitted = self
+            .session
+            .generate(&req, &opts, fit, |_, _| {})
+            .map_err(|e| {
+                ApiError::invalid(format!("{e}; lower kf_guidance or transition_guidance"))
+            })?
+            .remove(0);
         let generate_ms = t0.elapsed().as_secs_f64() * 1e3;
-        let local = render::drawable_joints(&T2M, &fitted.features).map_err(|e| {
-            ApiError::invalid(format!(
-                "the sample diverged ({e}); lower kf_guidance or transition_guidance"
-            ))
-        })?;
+        let local = render::drawable_joints(&T2M, &fitted.features)
+            .map_err(|e| ApiError::invalid(format!("the sample diverged ({e})")))?;
         let origin = origin_of(&r.keyframes);
         let joints = in_world(&local, origin);
         let traj = root_key::root_trajectory(&fitted.features, T2M.feature_dim())

@@ -21,7 +21,7 @@ use diffkfc_model::sampling::sampler;
 use diffkfc_model::text::cache::embed_captions;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::args::{FitArgs, KeyframeMode, SamplerArg, TgModeArg};
+use crate::args::{FitArgs, KeyframeMode, SamplerArg, TgModeArg, MAX_GENERATION_BATCH};
 
 pub const AFTER_HELP: &str = "\
 Examples:
@@ -85,7 +85,7 @@ struct RunArgs {
     #[arg(long, default_value_t = 0.0)]
     place_guidance: f64,
     /// Keyframe guidance scale s (1 = the keyframe branch alone; the paper: 2.5).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = sampler::DEFAULT_KF_GUIDANCE)]
     kf_guidance: f64,
     /// Text guidance scale s (MDM's classifier-free guidance over the text): X(no text) +
     /// s (X(text) - X(no text)); 1 = off. Default: 2.5 for a model trained with text drop
@@ -174,7 +174,6 @@ pub fn run(a: EvalArgs) -> Result<()> {
 /// Bounds of eval's counts: a mistyped count refuses at once rather than running for days or
 /// failing to allocate.
 const MAX_REPLICATIONS: usize = 100;
-pub(crate) const MAX_GENERATION_BATCH: usize = 1024;
 
 /// Bounds of `train-evaluator`'s flags, checked before any work.
 fn parse_rate(v: f64, flag: &str) -> Result<f64> {

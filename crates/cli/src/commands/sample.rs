@@ -3,7 +3,6 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use burn::prelude::*;
 use clap::Args;
 use diffkfc_data::keyframes::{self, Strategy};
 use diffkfc_data::motion::root_key::{self, RootKey};
@@ -11,13 +10,12 @@ use diffkfc_data::render::viewer::{self, escape, ViewMotion};
 use diffkfc_data::rng::Rng;
 use diffkfc_data::{io::npy, motion::representation as rep, render, T2M};
 use diffkfc_eval::keyframe_metrics::{k_err_global, k_err_local, k_trans};
-use diffkfc_model::run::load::InferenceModel;
 use diffkfc_model::sampling::fit::{Fit, Fitted};
 use diffkfc_model::sampling::guidance;
 use diffkfc_model::sampling::pipeline::KeyedItem;
 use diffkfc_model::sampling::place::PlaceGuidance;
 use diffkfc_model::sampling::sampler::{self, Options, Request};
-use diffkfc_model::text::{self, minilm::MiniLm, TextEncoder};
+use diffkfc_model::sampling::session::Session;
 use serde_json::json;
 
 use crate::args::{BvhInputArgs, FitArgs, KeyframeMode, SamplerArg, TgModeArg};
@@ -105,7 +103,7 @@ pub struct SampleArgs {
     steps: usize,
     /// Keyframe guidance scale s: X(C, none) + s (X(C, kf) - X(C, none)); 1 = the keyframe
     /// branch alone (the default: measured better than the paper's 2.5 with DDIM-50, see README).
-    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = sampler::DEFAULT_KF_GUIDANCE, allow_negative_numbers = true)]
     kf_guidance: f64,
     /// Text guidance scale s (MDM's classifier-free guidance over the text): X(no text) +
     /// s (X(text) - X(no text)); 1 = off. Default: 2.5 for a model trained with text drop
@@ -123,10 +121,10 @@ pub struct SampleArgs {
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     place_guidance: f64,
     /// Half window l of transition guidance (frames on each side of a keyframe).
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, default_value_t = sampler::DEFAULT_TG_WINDOW)]
     tg_window: usize,
     /// Number of DCT bases m kept by transition guidance.
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = sampler::DEFAULT_TG_BASES)]
     tg_bases: usize,
     /// How the transition-guidance gradient is taken.
     #[arg(long, value_enum, default_value = "x0")]
@@ -240,7 +238,7 @@ fn run_one(a: SampleArgs) -> Result<()> {
     }
     check_flags(&a)?;
     let keys = request_keys(&a)?;
-    let gen = Generator::load(&a)?;
+    let gen = Job::load(&a)?;
     let emb = gen.embed(&a.text, "--text")?;
     let req =
         gen.request(&emb, keys.length, a.num_samples, &[(&keys.values, &keys.mask, &keys.root)]);
@@ -252,7 +250,7 @@ fn run_one(a: SampleArgs) -> Result<()> {
 fn text_only_motion(a: &SampleArgs) -> Result<Vec<f32>> {
     check_flags(a)?;
     let keys = request_keys(a)?;
-    let gen = Generator::load(a)?;
+    let gen = Job::load(a)?;
     let req = gen.request(
         &gen.embed(&a.text, "--text")?,
         keys.length,
@@ -304,21 +302,21 @@ fn request_keys(a: &SampleArgs) -> Result<Keys> {
     Ok(keys)
 }
 
-/// The model and the settings one `sample` command generates with.
-pub(super) struct Generator {
-    loaded: InferenceModel,
-    enc: MiniLm,
+/// One `sample` command's generation: the loaded session and the settings it generates with.
+pub(super) struct Job {
+    session: Session,
     opts: Options,
     fit: Fit,
     checkpoint: std::path::PathBuf,
 }
 
-impl Generator {
-    fn load(a: &SampleArgs) -> Result<Generator> {
+impl Job {
+    fn load(a: &SampleArgs) -> Result<Job> {
         let device = crate::device::parse(&a.device)?;
         // Exact transition guidance differentiates through the denoiser.
         let device = a.tg_mode.device(device);
-        let loaded = InferenceModel::load(&a.checkpoint, &device)?;
+        let session = Session::load(&a.checkpoint, &device, &T2M)?;
+        let loaded = &session.loaded;
         if a.steps > loaded.schedule.steps {
             bail!(
                 "--steps: {} is more than the checkpoint's {} diffusion steps",
@@ -343,28 +341,26 @@ impl Generator {
             place,
             impose_track: false,
         };
-        let enc = MiniLm::load(&text::default_dir(), &Device::flex())?;
-        Ok(Generator { loaded, enc, opts, fit: a.fit.fit(), checkpoint: a.checkpoint.clone() })
+        Ok(Job { session, opts, fit: a.fit.fit(), checkpoint: a.checkpoint.clone() })
     }
 
     /// The checkpoint's step.
     fn step(&self) -> usize {
-        self.loaded.step
+        self.session.step()
     }
 
     /// Longest motion the checkpoint's model was built for (`model.max_frames`).
     fn max_frames(&self) -> usize {
-        self.loaded.cfg.model.max_frames
+        self.session.max_frames()
     }
 
     /// The library's generator of the loaded model.
     fn pipeline(&self) -> diffkfc_model::sampling::pipeline::Generator<'_> {
-        self.loaded.generator(&T2M)
+        self.session.generator()
     }
 
     fn embed(&self, text: &str, flag: &str) -> Result<Vec<f32>> {
-        let words = self.loaded.cfg.model.text_words;
-        Ok(self.enc.embed_words(&[text], words).context(flag.to_string())?.remove(0))
+        self.session.embed(text).context(flag.to_string())
     }
 
     /// A request for `b` motions of `n` frames of the text `emb`; item i observes `keys[i]`
@@ -382,7 +378,7 @@ impl Generator {
                 KeyedItem { text: emb, length: n, values, mask, root }
             })
             .collect();
-        self.pipeline().request(n, &items)
+        self.session.request(n, &items)
     }
 
     /// Sample, fit and check every motion of `req`; also the seconds the sampler took. A
@@ -392,14 +388,14 @@ impl Generator {
             bail!("--length: {} frames, but {} was built for at most {} (model.max_frames); ask for fewer frames or use --timeline for longer motions", req.frames, self.checkpoint.display(), self.max_frames());
         }
         let t0 = std::time::Instant::now();
-        let fitted =
-            self.pipeline().generate(req, &self.opts, self.fit, crate::progress::bar("denoising"));
-        let secs = t0.elapsed().as_secs_f64();
-        for (i, f) in fitted.iter().map(|s| &s.features).enumerate() {
-            if let Err(e) = render::drawable_joints(&T2M, f) {
-                bail!("sample {i} diverged ({e}); lower --kf-guidance ({}) or --transition-guidance ({})", a.kf_guidance, a.transition_guidance);
-            }
-        }
-        Ok((fitted, secs))
+        let bar = crate::progress::bar("denoising");
+        let fitted = self.session.generate(req, &self.opts, self.fit, bar).map_err(|e| {
+            anyhow::anyhow!(
+                "{e}; lower --kf-guidance ({}) or --transition-guidance ({})",
+                a.kf_guidance,
+                a.transition_guidance
+            )
+        })?;
+        Ok((fitted, t0.elapsed().as_secs_f64()))
     }
 }

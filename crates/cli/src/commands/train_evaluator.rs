@@ -13,7 +13,7 @@ use diffkfc_eval::train_evaluator::{EvaluatorReport, EvaluatorTraining};
 use diffkfc_model::text::cache::{embed_captions, EmbeddingCache};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::commands::eval::MAX_GENERATION_BATCH;
+use crate::args::MAX_GENERATION_BATCH;
 
 #[derive(Args)]
 pub struct TrainEvaluatorArgs {

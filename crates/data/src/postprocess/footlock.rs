@@ -11,6 +11,7 @@ use crate::motion::representation::{recover_from_ric, recover_root_rot_pos, Join
 use crate::motion::skeleton::Skeleton;
 use crate::postprocess::contacts;
 use crate::postprocess::leg::{apply_leg, leg_deltas, legs, Leg, Posed};
+pub use crate::postprocess::pin::Outcome;
 use crate::postprocess::pin::{self, fade_beside, moves_to};
 use crate::postprocess::{key_weights, steps};
 use std::ops::RangeInclusive;
@@ -102,20 +103,6 @@ pub enum ContactSource {
     /// The motion's gait: a toe low and slow, or low and slower than the pelvis; the swing
     /// between held stances lifted off the floor where it would skate (`steps`).
     Gait,
-}
-
-/// What became of one planted span.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Outcome {
-    Locked,
-    /// Held as far as the leg reaches (`pin`'s reach fall-off weakened the hold).
-    Faded,
-    Dragged,
-    OutOfReach,
-    /// Left as it was: holding it would move the toe faster on the ground, where the hold
-    /// fades in and out, than its slide did (more foot skating, not less).
-    Worse,
 }
 
 /// One planted span of one foot: frames `start..=end` whose toe the motion labels in contact.

@@ -6,8 +6,21 @@
 
 use crate::motion::quat::{self, Vec3};
 use crate::postprocess::contacts::spans;
-use crate::postprocess::footlock::Outcome;
 use crate::postprocess::smoothstep;
+
+/// What became of one planted span.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Outcome {
+    Locked,
+    /// Held as far as the leg reaches (`pin`'s reach fall-off weakened the hold).
+    Faded,
+    Dragged,
+    OutOfReach,
+    /// Left as it was: holding it would move the toe faster on the ground, where the hold
+    /// fades in and out, than its slide did (more foot skating, not less).
+    Worse,
+}
 
 /// Up to this fraction of the leg's length a target is held fully ...
 pub const REACH_FULL: f64 = 0.97;

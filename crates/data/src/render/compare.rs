@@ -95,9 +95,9 @@ impl Folder {
                 s["gait"]["root_speed_mps"].as_f64(),
                 r["real_gait"]["root_speed_mps"].as_f64(),
             ),
-            ("largest place correction (m)", place, None),
+            ("place correction (m)", place, None),
             ("stride warp factor", s["stride"]["mean_factor"].as_f64(), None),
-            ("share of toe frames lifted", lifted, None),
+            ("toe frames lifted", lifted, None),
             ("pelvis drop (m)", drop, None),
         ]
     }
@@ -123,47 +123,79 @@ fn pair(s: Option<f64>, r: Option<f64>, has_source: bool) -> String {
     }
 }
 
-/// The numbers of every folder as a plain-text table (aligned columns; a source's value in
-/// brackets after the sample's).
+/// Widest line the terminal table prints (a standard terminal shows 100 characters).
+pub const TABLE_WIDTH: usize = 100;
+
+/// The numbers of every folder as plain text for the terminal: a line per folder with its
+/// prompt and keyframes, then a table with a row per number and a column per folder (a
+/// source's value in brackets after the sample's); folders that do not fit in
+/// [`TABLE_WIDTH`] characters go on into a second table below. The page shows them all.
 pub fn text_table(folders: &[Folder]) -> String {
     let numbers: Vec<_> = folders.iter().map(Folder::numbers).collect();
     let Some(first) = numbers.first() else { return String::new() };
-    // A column shows a source's value where any folder has one.
-    let has_source: Vec<bool> =
-        (0..first.len()).map(|c| numbers.iter().any(|n| n[c].2.is_some())).collect();
-    let mut head = vec!["folder".to_string(), "prompt".into(), "keyframes".into()];
-    head.extend(first.iter().zip(&has_source).map(|((c, _, _), &h)| {
-        if h {
-            format!("{c} (source)")
+    let clip = |s: String| -> String {
+        if s.chars().count() <= TABLE_WIDTH {
+            s
         } else {
-            c.to_string()
+            s.chars().take(TABLE_WIDTH - 3).collect::<String>() + "..."
         }
-    }));
-    let mut rows = vec![head];
-    for (f, n) in folders.iter().zip(&numbers) {
-        let mut row = vec![
-            f.label.clone(),
-            f.results["text"].as_str().unwrap_or("").to_string(),
-            f.keyframes(),
-        ];
-        row.extend(n.iter().zip(&has_source).map(|((_, s, r), &h)| pair(*s, *r, h)));
-        rows.push(row);
-    }
-    let widths: Vec<usize> = (0..rows[0].len())
-        .map(|c| rows.iter().map(|r| r[c].chars().count()).max().unwrap_or(0))
-        .collect();
-    rows.iter()
-        .map(|r| {
-            r.iter()
-                .zip(&widths)
-                .map(|(v, w)| format!("{v:<w$}"))
-                .collect::<Vec<_>>()
-                .join(" | ")
-                .trim_end()
-                .to_string()
+    };
+    let mut out: Vec<String> = folders
+        .iter()
+        .map(|f| {
+            let text = f.results["text"].as_str().unwrap_or("");
+            clip(format!("{}: \"{text}\", keys {}", f.label, f.keyframes()))
         })
-        .collect::<Vec<_>>()
-        .join("\n")
+        .collect();
+    let labels: Vec<String> = first
+        .iter()
+        .enumerate()
+        .map(|(c, (name, ..))| {
+            let sourced = numbers.iter().any(|n| n[c].2.is_some());
+            if sourced {
+                format!("{name} (source)")
+            } else {
+                name.to_string()
+            }
+        })
+        .collect();
+    let label_w = labels.iter().map(|l| l.chars().count()).max().unwrap_or(0);
+    let cells: Vec<Vec<String>> = numbers
+        .iter()
+        .map(|n| {
+            n.iter()
+                .zip(&labels)
+                .map(|((_, s, r), l)| pair(*s, *r, l.ends_with("(source)")))
+                .collect()
+        })
+        .collect();
+    let col_w: Vec<usize> = folders
+        .iter()
+        .zip(&cells)
+        .map(|(f, c)| c.iter().chain([&f.label]).map(|v| v.chars().count()).max().unwrap_or(0))
+        .collect();
+    let mut start = 0;
+    while start < folders.len() {
+        let mut end = start + 1;
+        let mut width = label_w + 3 + col_w[start];
+        while end < folders.len() && width + 3 + col_w[end] <= TABLE_WIDTH {
+            width += 3 + col_w[end];
+            end += 1;
+        }
+        let row = |first: &str, vals: Vec<&str>| -> String {
+            let mut line = format!("{first:<label_w$}");
+            for (v, w) in vals.iter().zip(&col_w[start..end]) {
+                line += &format!(" | {v:<w$}");
+            }
+            line.trim_end().to_string()
+        };
+        out.push(row("", folders[start..end].iter().map(|f| f.label.as_str()).collect()));
+        for (r, l) in labels.iter().enumerate() {
+            out.push(row(l, cells[start..end].iter().map(|c| c[r].as_str()).collect()));
+        }
+        start = end;
+    }
+    out.join("\n")
 }
 
 /// `to` as a path relative to the folder `from` (both made absolute first), with `/` separators.
@@ -305,11 +337,20 @@ mod tests {
     fn table_and_page_show_every_folder_with_its_source() {
         let fs = [folder("1-keys", "models/a"), folder("2-demo", "runs/b")];
         let t = text_table(&fs);
-        assert_eq!(t.lines().count(), 3, "{t}");
+        // A line per folder, the heading row, a row per number.
+        assert_eq!(t.lines().count(), 2 + 1 + fs[0].numbers().len(), "{t}");
+        assert!(t.lines().all(|l| l.chars().count() <= TABLE_WIDTH), "{t}");
         assert!(t.contains("foot skating (source)") && t.contains("0.200 (0.040)"), "{t}");
         assert!(t.contains("0, 20") && t.contains("0.250"), "{t}");
+        // Seven folders do not fit in one table: the rest go on below, every line still short.
+        let many: Vec<Folder> =
+            (0..7).map(|i| folder(&format!("{i}-body-part-edit"), "m")).collect();
+        let t7 = text_table(&many);
+        assert!(t7.lines().all(|l| l.chars().count() <= TABLE_WIDTH), "{t7}");
+        assert!(t7.lines().filter(|l| l.starts_with("K-Err (m)")).count() >= 2, "{t7}");
+        assert!(t7.contains("6-body-part-edit"), "{t7}");
         // Steps' lifted toe frames as a share of both toes' frames (24 of 2 x 40), its drop.
-        assert!(t.contains("share of toe frames lifted") && t.contains("0.300"), "{t}");
+        assert!(t.contains("toe frames lifted") && t.contains("0.300"), "{t}");
         assert!(t.contains("pelvis drop (m)") && t.contains("0.045"), "{t}");
         assert!(!t.contains('<') || t.contains("<walks>"), "plain text, no HTML: {t}");
         let parts = PageParts {

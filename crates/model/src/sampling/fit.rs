@@ -36,15 +36,33 @@ pub enum KeyframeFit {
     None,
 }
 
+impl KeyframeFit {
+    const ALL: [KeyframeFit; 4] =
+        [KeyframeFit::Track, KeyframeFit::Warp, KeyframeFit::Paste, KeyframeFit::None];
+
+    /// The name flags and requests use.
+    pub fn name(self) -> &'static str {
+        match self {
+            KeyframeFit::Track => "track",
+            KeyframeFit::Warp => "warp",
+            KeyframeFit::Paste => "paste",
+            KeyframeFit::None => "none",
+        }
+    }
+}
+
+impl std::fmt::Display for KeyframeFit {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 impl std::str::FromStr for KeyframeFit {
     type Err = diffkfc_data::UnknownChoice;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "track" => Ok(KeyframeFit::Track),
-            "warp" => Ok(KeyframeFit::Warp),
-            "paste" => Ok(KeyframeFit::Paste),
-            "none" => Ok(KeyframeFit::None),
-            _ => Err(diffkfc_data::UnknownChoice {
+        match KeyframeFit::ALL.into_iter().find(|k| k.name() == s) {
+            Some(k) => Ok(k),
+            None => Err(diffkfc_data::UnknownChoice {
                 what: "keyframe fit",
                 given: s.into(),
                 choices: "track, warp, paste, none",

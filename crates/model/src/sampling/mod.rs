@@ -10,5 +10,6 @@ pub mod parts;
 pub mod pipeline;
 pub mod place;
 pub mod sampler;
+pub mod session;
 pub mod timeline;
 pub(crate) mod transition;

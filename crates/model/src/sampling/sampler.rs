@@ -32,6 +32,13 @@ pub const DEFAULT_SAMPLER: Sampler = Sampler::Ddim(DEFAULT_STEPS);
 /// while r = 10 lowers K-TranS by 5% at equal FID (docs/reference-model.md).
 pub const DEFAULT_TRANSITION: f64 = 10.0;
 
+/// Keyframe guidance scale s (1: the keyframe branch alone).
+pub const DEFAULT_KF_GUIDANCE: f64 = 1.0;
+
+/// Transition guidance's half window (frames each side of a key) and its DCT bases.
+pub const DEFAULT_TG_WINDOW: usize = 2;
+pub const DEFAULT_TG_BASES: usize = 3;
+
 /// How the transition-guidance gradient is taken.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum TgMode {
@@ -72,11 +79,11 @@ impl Default for Options {
         // cost FID, ADE and R-precision (docs/reference-model.md).
         Options {
             sampler: DEFAULT_SAMPLER,
-            kf_guidance: 1.0,
+            kf_guidance: DEFAULT_KF_GUIDANCE,
             text_guidance: 1.0,
             transition: DEFAULT_TRANSITION,
-            window: 2,
-            dct_bases: 3,
+            window: DEFAULT_TG_WINDOW,
+            dct_bases: DEFAULT_TG_BASES,
             seed: 0,
             tg_mode: TgMode::X0,
             inpaint: false,

@@ -18,7 +18,7 @@ pub(super) struct Outputs<'a> {
 
 /// Every file of a `sample` folder, written as one set: per-sample features, joints, GIF, BVH;
 /// the source; results.json and the 3D page.
-pub(super) fn write_outputs(a: &SampleArgs, gen: &Generator, out: Outputs) -> Result<()> {
+pub(super) fn write_outputs(a: &SampleArgs, gen: &Job, out: Outputs) -> Result<()> {
     let keys = out.keys;
     let (b, n) = (out.fitted.len(), keys.length);
     let set = OutputSet::begin(&a.out, MARKER, is_output, a.force, "--out")?;
@@ -48,27 +48,31 @@ pub(super) fn write_outputs(a: &SampleArgs, gen: &Generator, out: Outputs) -> Re
     )?;
     let kept = match set.commit()? {
         Committed::Replaced { kept } if !kept.is_empty() => {
-            format!(" (replaced the earlier outputs; kept {})", kept.join(", "))
+            Some(format!("replaced the earlier outputs; kept {}", kept.join(", ")))
         }
-        Committed::Replaced { .. } => " (replaced the earlier outputs)".into(),
-        Committed::Merged => " (written beside the folder's other files: --force)".into(),
-        Committed::Created => String::new(),
+        Committed::Replaced { .. } => Some("replaced the earlier outputs".into()),
+        Committed::Merged => Some("written beside the folder's other files (--force)".into()),
+        Committed::Created => None,
     };
     println!(
-        "{}: {b} sample(s) of {n} frames in {:.1} s ({:?}); see results.json and index.html{kept}",
+        "{}: {b} sample(s) of {n} frames in {:.1} s ({:?}); results.json, index.html",
         a.out.display(),
         out.secs,
         gen.opts.sampler
     );
+    if let Some(k) = kept {
+        println!("  ({k})");
+    }
     for (i, s) in report["samples"].as_array().unwrap().iter().enumerate() {
         println!(
-            "  sample_{i:02}: {}, K-TranS {}, foot skating {}{}{}",
+            "  sample_{i:02}: {}, K-TranS {}, foot skating {}",
             k_err_text(s),
             fmt(&s["k_trans"]),
-            fmt(&s["foot_skating"]),
-            fit_note(s, gen.fit),
-            lock_note(s)
+            fmt(&s["foot_skating"])
         );
+        for note in [fit_note(s, gen.fit), lock_note(s)].into_iter().flatten() {
+            println!("    {note}");
+        }
     }
     Ok(())
 }
@@ -187,7 +191,7 @@ fn sample_view(
 /// results.json: the run's inputs and settings, and every sample's entry.
 fn results(
     a: &SampleArgs,
-    gen: &Generator,
+    gen: &Job,
     keys: &Keys,
     secs: f64,
     samples: Vec<serde_json::Value>,
@@ -224,8 +228,8 @@ fn results(
     })
 }
 
-/// "; largest track correction: pose ..., place ... m, heading ... deg" of a sample entry.
-fn fit_note(s: &serde_json::Value, fit: Fit) -> String {
+/// "track fit: largest correction pose ..., place ... m, heading ... deg" of a sample entry.
+fn fit_note(s: &serde_json::Value, fit: Fit) -> Option<String> {
     let most = |k: &str| {
         s["corrections"]
             .as_array()
@@ -236,26 +240,24 @@ fn fit_note(s: &serde_json::Value, fit: Fit) -> String {
             .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))))
     };
     match (most("pose"), most("place_m"), most("heading_deg")) {
-        (None, None, None) => String::new(),
-        (p, m, h) => format!(
-            "; largest {:?} correction: pose {}, place {} m, heading {} deg",
+        (None, None, None) => None,
+        (p, m, h) => Some(format!(
+            "{} fit: largest correction pose {}, place {} m, heading {} deg",
             fit.keyframes,
             p.map_or("-".into(), |v| format!("{v:.3}")),
             m.map_or("-".into(), |v| format!("{v:.3}")),
             h.map_or("-".into(), |v| format!("{v:.1}"))
-        ),
+        )),
     }
 }
 
-/// "; foot lock moved N frame(s) (...)" of a sample entry.
-fn lock_note(s: &serde_json::Value) -> String {
-    match s["foot_lock"]["frames"].as_u64() {
-        Some(frames) => format!(
-            "; foot lock moved {frames} frame(s) (left {} dragged span(s), {} out of the leg's reach, {} that holding would make skate more)",
-            s["foot_lock"]["dragged"], s["foot_lock"]["out_of_reach"], s["foot_lock"]["worse"]
-        ),
-        None => String::new(),
-    }
+/// "foot lock: N frames moved; ..." of a sample entry.
+fn lock_note(s: &serde_json::Value) -> Option<String> {
+    let frames = s["foot_lock"]["frames"].as_u64()?;
+    Some(format!(
+        "foot lock: {frames} frames moved; spans left: {} dragged, {} out of reach, {} worse held",
+        s["foot_lock"]["dragged"], s["foot_lock"]["out_of_reach"], s["foot_lock"]["worse"]
+    ))
 }
 
 /// The folder's page: the 3D view of the source and every sample, the settings above it.

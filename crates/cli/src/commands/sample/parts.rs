@@ -22,7 +22,7 @@ pub(super) fn run(a: SampleArgs) -> Result<()> {
         bail!("--part-guidance: {} must be a number from 0 to {MAX_GUIDANCE}", a.part_guidance);
     }
     let keys = request_keys(&a)?;
-    let mut gen = Generator::load(&a)?;
+    let mut gen = Job::load(&a)?;
     let (n, b) = (keys.length, a.num_samples);
     let req = gen.request(
         &gen.embed(&lower, "--text-lower")?,

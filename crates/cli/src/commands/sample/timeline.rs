@@ -73,7 +73,7 @@ pub(super) fn run(a: SampleArgs, spec_arg: &str) -> Result<()> {
             root: vec![RootKey::default(); total],
         },
     };
-    let gen = Generator::load(&a)?;
+    let gen = Job::load(&a)?;
     let window = gen.max_frames().min(diffkfc_data::dataset::MAX_FRAMES);
     if window <= 2 * OVERLAP {
         bail!("--timeline: {} was built for motions of at most {window} frames (model.max_frames); a timeline needs windows longer than {}", a.checkpoint.display(), 2 * OVERLAP);
