@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Quality per CPU-hour: train CONFIG from scratch for a fixed budget, then print one panel of
-# the numbers that tell a network that walks from one that shuffles (docs/design-study.md).
+# the numbers that tell a network that walks from one that shuffles (docs/reference-model.md).
 #   scripts/design-panel.sh CONFIG OUT (--steps N | --budget 45m) [--data DIR] [--evaluator DIR]
 #                           [--items 256] [--threads 2]
 # --budget turns minutes into steps with this design's training step time, measured by

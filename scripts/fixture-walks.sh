@@ -3,9 +3,9 @@
 # a turn and back, then standing; 000021, through HumanML3D's own processing: a walk in a loop),
 # keyed at 5%, sampled by the network alone and by the default pipeline; root speed and stride
 # against the clip's own, foot skating, K-TranS and how far under the floor the body goes
-# (docs/real-motion.md). The fixtures carry no captions: the ones below are ours,
+# (docs/reference-model.md). The fixtures carry no captions: the ones below are ours,
 # the same for every model. Each of K key sets (seeds S .. S+K-1: the seed draws the keys and
-# the noise) gets N samples; one key set alone swings a clip's skating by half (docs/real-motion.md),
+# the noise) gets N samples; one key set alone swings a clip's skating by half (docs/reference-model.md),
 # so the table is the mean over all K x N samples with its standard error.
 #   scripts/fixture-walks.sh MODEL OUT [--fixtures DIR] [--samples N] [--seed S] [--key-sets K] [-- SAMPLE FLAGS...]
 set -euo pipefail

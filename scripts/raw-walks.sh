@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The raw network on the design panel's six keyed walks (docs/design-study.md), with several
+# The raw network on the design panel's six keyed walks (scripts/design-panel.sh), with several
 # samples per walk: one sample per walk (the panel's, seed 2) moves by up to 0.3 of speed ratio
 # from seed to seed on the slowest walk, too much to tell two checkpoints apart.
 #   scripts/raw-walks.sh MODEL OUT [--data DIR] [--samples 4] [--seed 2] [-- SAMPLE FLAGS...]

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Where a sample's feet stand against its source's footprints (README's quick-start walk,
-docs/long-run.md). A stance is a run of planted frames of one toe: within 5 cm of the motion's
+docs/feet.md). A stance is a run of planted frames of one toe: within 5 cm of the motion's
 floor (its lowest toe height) and slower than 0.15 m/s horizontally, as the eval crate's
 planted share counts them. Each of the sample's stances is placed at its toe's mean floor
 position and compared with the nearest stance of the same toe in the source. Needs numpy.

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# How a model's root moves from text alone (docs/long-run.md, "The sixth stage"): the first N
+# How a model's root moves from text alone (docs/reference-model.md): the first N
 # test clips, each sampled from its first caption with no keys (`--keyframe-rate 0`, the source
 # only sets the length), against the clip itself. The evaluator's FID says how far the
 # text-only samples are from real motion, not where; these two root numbers say where.

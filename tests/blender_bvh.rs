@@ -4,51 +4,10 @@
 //! DIFFKFC_REQUIRE_BLENDER=1 (set by .ci/run, which installs it) makes that a failure.
 
 mod common;
-use std::collections::HashMap;
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::path::Path;
 
 use common::*;
 use diffkfc_data::{io::npy, io::rig::T2M_NAMES, testing::fixtures};
-
-fn blender() -> Option<PathBuf> {
-    let found = std::env::var_os("PATH")
-        .and_then(|p| std::env::split_paths(&p).map(|d| d.join("blender")).find(|b| b.is_file()));
-    if found.is_none() {
-        if std::env::var("DIFFKFC_REQUIRE_BLENDER").is_ok_and(|v| v == "1") {
-            panic!("blender is not on PATH (apt-get install blender)");
-        }
-        eprintln!("SKIPPED: blender is not on PATH; the BVH export is not checked against Blender");
-    }
-    found
-}
-
-type Frames = HashMap<String, HashMap<String, [f64; 3]>>;
-
-/// Pose-bone heads (metres, Y up) of `bvh` at `frames`, as Blender imports it.
-fn blender_positions(blender: &Path, bvh: &Path, frames: &[usize], dir: &Path) -> Frames {
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scripts/blender_positions.py");
-    let out = dir.join(format!("{}.json", bvh.file_stem().unwrap().to_str().unwrap()));
-    let list: Vec<String> = frames.iter().map(|f| f.to_string()).collect();
-    let o = Command::new(blender)
-        .args([
-            "-b",
-            "--factory-startup",
-            "--python",
-            s(&script),
-            "--",
-            s(bvh),
-            &list.join(","),
-            s(&out),
-        ])
-        .output()
-        .expect("run blender");
-    assert!(o.status.success() && out.exists(), "blender failed: {}{}", stdout(&o), stderr(&o));
-    let v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
-    eprintln!("Blender {}", v["blender"]);
-    serde_json::from_value(v["frames"].clone()).unwrap()
-}
 
 fn joints(path: &Path) -> Vec<[f64; 3]> {
     npy::read_f64(path).unwrap().data.chunks(3).map(|c| [c[0], c[1], c[2]]).collect()

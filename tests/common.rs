@@ -123,3 +123,45 @@ pub fn line_with(r: impl std::io::Read + Send + 'static, marker: &'static str) -
     rx.recv_timeout(std::time::Duration::from_secs(60))
         .unwrap_or_else(|_| panic!("no line with {marker}"))
 }
+
+/// Debian's `blender` on PATH, or None after a notice (a failure with
+/// DIFFKFC_REQUIRE_BLENDER=1, which .ci/run sets).
+pub fn blender() -> Option<PathBuf> {
+    let found = std::env::var_os("PATH")
+        .and_then(|p| std::env::split_paths(&p).map(|d| d.join("blender")).find(|b| b.is_file()));
+    if found.is_none() {
+        if std::env::var("DIFFKFC_REQUIRE_BLENDER").is_ok_and(|v| v == "1") {
+            panic!("blender is not on PATH (apt-get install blender)");
+        }
+        eprintln!("SKIPPED: blender is not on PATH; the Blender checks are skipped");
+    }
+    found
+}
+
+pub type Frames = std::collections::HashMap<String, std::collections::HashMap<String, [f64; 3]>>;
+
+/// Pose-bone heads (metres, Y up) of a BVH or `.glb` at `frames` (0-based), as Blender
+/// imports it (scripts/blender_positions.py).
+pub fn blender_positions(blender: &Path, bvh: &Path, frames: &[usize], dir: &Path) -> Frames {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scripts/blender_positions.py");
+    let out = dir.join(format!("{}.json", bvh.file_stem().unwrap().to_str().unwrap()));
+    let list: Vec<String> = frames.iter().map(|f| f.to_string()).collect();
+    let o = std::process::Command::new(blender)
+        .args([
+            "-b",
+            "--factory-startup",
+            "--python",
+            s(&script),
+            "--",
+            s(bvh),
+            &list.join(","),
+            s(&out),
+        ])
+        .output()
+        .expect("run blender");
+    assert!(o.status.success() && out.exists(), "blender failed: {}{}", stdout(&o), stderr(&o));
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    eprintln!("Blender {}", v["blender"]);
+    serde_json::from_value(v["frames"].clone()).unwrap()
+}

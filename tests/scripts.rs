@@ -15,11 +15,8 @@ const SCRIPTS: &[(&str, usize, &str)] = &[
     ("raw-walks", 2, "MODEL"),
     ("text-only-root", 2, "MODEL"),
     ("timeline-table", 2, "MODEL"),
-    ("track-walks", 3, "MODEL"),
-    ("keyframe-fit-table", 4, "RUN"),
     ("reference-tables", 4, "MODEL"),
     ("fixture-walks", 2, "MODEL"),
-    ("adoption-table", 4, "MODEL"),
 ];
 
 fn script(name: &str) -> PathBuf {

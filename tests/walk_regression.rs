@@ -1,7 +1,7 @@
 //! The committed reference model walks by itself: the raw network (no fit, no foot post-process,
 //! no rigid refit) given 5% keys of six forward walks of the synthetic test split moves its root
 //! and swings its legs like the sources (issue "A network that walks"; the panel's walks in
-//! docs/design-study.md, with the same clips, keys and seed).
+//! scripts/design-panel.sh, with the same clips, keys and seed).
 
 mod common;
 
@@ -14,7 +14,7 @@ const MODEL: &str = "models/mid-synth";
 /// 0.95x the sources' on average, the slowest 0.91x, stride 0.97x; the issue's targets are
 /// 0.85x, 0.7x on each and 0.85x), less a margin of 0.04 for floating-point differences
 /// between machines: a regression below them is a network that shuffles again (the tiny
-/// network: 0.50x, 0.18x, 0.53x; docs/long-run.md).
+/// network: 0.50x, 0.18x, 0.53x).
 const MIN_MEAN_SPEED_RATIO: f64 = 0.91;
 const MIN_EACH_SPEED_RATIO: f64 = 0.87;
 const MIN_MEAN_STRIDE_RATIO: f64 = 0.93;

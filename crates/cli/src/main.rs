@@ -50,6 +50,10 @@ enum Command {
     /// The keyframe editor in the browser: pose keys, drag them in time and space, type a
     /// prompt and see the motion between them regenerate at once.
     Serve(commands::serve::ServeArgs),
+    /// The Blender add-on as a zip to install: a sidebar panel that sends the active
+    /// armature's keyed poses and a prompt to `diffkfc serve` and writes the motion back.
+    #[command(after_help = "Example:\n  diffkfc blender-addon -o diffkfc_blender.zip")]
+    BlenderAddon(commands::blender_addon::BlenderAddonArgs),
     /// Evaluate a checkpoint: FID, R-precision, Diversity, ADE, K-Err, K-TranS (Tables 2 and 4);
     /// `eval train-evaluator` trains the text-motion evaluator first.
     #[command(after_help = commands::eval::AFTER_HELP)]
@@ -130,6 +134,7 @@ fn main() {
         Command::Sample(args) => commands::sample::run(args),
         Command::Keyframes(args) => commands::sample::suggest::run(args),
         Command::Serve(args) => commands::serve::run(args),
+        Command::BlenderAddon(args) => commands::blender_addon::run(args),
         Command::Eval(args) => commands::eval::run(args),
         Command::TextEmbed(args) => commands::model::text_embed(args),
     };

@@ -6,7 +6,7 @@
 //!
 //! The goal is 0.2 m/s; the reference model does not reach it (0.53 m/s here, the clips' own
 //! 0.04): it labels nearly every frame of a walk as planted and its legs glide rather than step
-//! at the track's speed (docs/track-fit.md). The bound below is the level the committed model
+//! at the track's speed. The bound below is the level the committed model
 //! holds, so a model or sampler change that makes the legs follow the track less fails.
 
 use std::path::{Path, PathBuf};

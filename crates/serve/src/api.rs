@@ -3,7 +3,7 @@
 
 use diffkfc_data::io::keyframe_file::KeyframeSpec;
 use diffkfc_data::keyframes::Strategy;
-use diffkfc_model::sampling::fit::KeyframeFit;
+use diffkfc_model::sampling::fit::{Feet, KeyframeFit};
 use serde::{Deserialize, Serialize};
 
 use crate::error::ApiError;
@@ -70,6 +70,8 @@ pub struct SampleRequest {
     pub fit: Option<KeyframeFit>,
     /// Hold planted feet (default on).
     pub foot_lock: Option<bool>,
+    /// How planted feet are found and held: steps (default), warp, pin or network.
+    pub feet: Option<Feet>,
 }
 
 impl SampleRequest {
@@ -139,6 +141,8 @@ pub enum ExportFormat {
     Features,
     /// Joint positions (T, 22, 3) `.npy`, world space.
     Joints,
+    /// glTF 2.0 binary of the world-space motion (our rig as a skin, a simple body).
+    Glb,
 }
 
 /// `?format=` of `/api/export`.

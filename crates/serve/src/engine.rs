@@ -85,6 +85,7 @@ impl Engine {
         let fit = Fit {
             keyframes: r.fit.unwrap_or_default(),
             foot_lock: r.foot_lock.unwrap_or(Fit::default().foot_lock),
+            feet: r.feet.unwrap_or_default(),
             ..Fit::default()
         };
         let item = KeyedItem {

@@ -11,7 +11,7 @@ use axum::http::{header, StatusCode, Uri};
 use axum::response::{Html, IntoResponse, Response};
 use axum::Json;
 use diffkfc_data::io::keyframe_file::{self, KeySpec, KeyframeSpec};
-use diffkfc_data::io::{motion_file, npy, rig};
+use diffkfc_data::io::{gltf, motion_file, npy, rig};
 use diffkfc_data::motion::{representation as rep, root_key};
 use diffkfc_data::rng::Rng;
 use diffkfc_data::{keyframes, T2M};
@@ -95,7 +95,7 @@ pub async fn export(
 ) -> Result<Response, ApiError> {
     let format: ExportFormat = query_value(&q, "format")
         .and_then(|f| serde_json::from_value(Value::String(f)).ok())
-        .ok_or_else(|| ApiError::bad_request("?format=: must be bvh, features or joints"))?;
+        .ok_or_else(|| ApiError::bad_request("?format=: must be bvh, glb, features or joints"))?;
     let req: SampleRequest = parse(&body)?;
     let (bytes, _) = generated(&s, req, move |g, _| {
         Ok(match format {
@@ -104,6 +104,8 @@ pub async fn export(
             ExportFormat::Joints => {
                 npy::encode(&[g.length(), T2M.num_joints(), 3], &rep::joints_to_f32(&g.joints))
             }
+            ExportFormat::Glb => gltf::to_glb(&T2M, &g.joints, "motion")
+                .map_err(|e| ApiError::invalid(format!("glb: {e}")))?,
         })
     })
     .await?;
@@ -111,6 +113,7 @@ pub async fn export(
         ExportFormat::Bvh => ("motion.bvh", "text/plain"),
         ExportFormat::Features => ("motion_features.npy", "application/octet-stream"),
         ExportFormat::Joints => ("motion_joints.npy", "application/octet-stream"),
+        ExportFormat::Glb => ("motion.glb", "model/gltf-binary"),
     };
     let disposition = format!("attachment; filename=\"{name}\"");
     Ok((

@@ -4,7 +4,7 @@
 //!
 //! - `GET /`: the page. `GET /api/status`: queue and bounds.
 //! - `POST /api/sample` (JSON [`api::SampleRequest`]): the motion, per-key errors, metrics.
-//! - `POST /api/export?format=bvh|features|joints`: the same request, as a file.
+//! - `POST /api/export?format=bvh|glb|features|joints`: the same request, as a file.
 //! - `POST /api/suggest` ([`api::SuggestRequest`]): keyframes picked from the generated motion.
 //! - `POST /api/import?name=walk.bvh` (the file's bytes): a motion to take keys from.
 //!

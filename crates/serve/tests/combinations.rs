@@ -1,18 +1,19 @@
 //! The editor's API fields crossed pairwise (an all-pairs cover) against the reference model:
 //! every combination of endpoint, keys (none, pose, place, pose and place), body parts, fit,
-//! foot lock and keyframe guidance answers 200 with finite numbers, never a 5xx or a panic.
+//! foot lock, feet and keyframe guidance answers 200 with finite numbers, never a 5xx or a panic.
 
 mod common;
 use common::*;
 use diffkfc_data::testing::pairwise::all_pairs;
 use serde_json::{json, Value};
 
-const FACTORS: [(&str, &[&str]); 6] = [
-    ("endpoint", &["sample", "export-bvh", "export-features", "export-joints"]),
+const FACTORS: [(&str, &[&str]); 7] = [
+    ("endpoint", &["sample", "export-bvh", "export-glb", "export-features", "export-joints"]),
     ("keys", &["none", "pose", "place", "pose+place"]),
     ("joints", &["all", "lower_body"]),
     ("fit", &["track", "warp", "paste", "none"]),
     ("foot_lock", &["true", "false"]),
+    ("feet", &["steps", "warp", "pin", "network"]),
     ("kf_guidance", &["1", "2.5"]),
 ];
 
@@ -47,6 +48,11 @@ fn keys_of(suggested: &Value, level: &str, joints: &str) -> Value {
 
 /// An exported file has 60 frames of finite numbers (a BVH's motion lines, an .npy's values).
 fn export_is_finite(path: &str, body: &[u8]) -> bool {
+    if path.ends_with("glb") {
+        // A GLB of 60 frames: the header's magic and length, the animation's time accessor.
+        let len = body.get(8..12).map(|b| u32::from_le_bytes(b.try_into().unwrap()) as usize);
+        return body.starts_with(b"glTF") && len == Some(body.len()) && body.len() > 60 * 22 * 16;
+    }
     if path.ends_with("bvh") {
         let text = String::from_utf8_lossy(body);
         let frames = text.lines().find_map(|l| l.strip_prefix("Frames:")).map(str::trim);
@@ -87,6 +93,7 @@ fn api_fields_crossed_pairwise() {
             "steps": 2,
             "fit": level("fit"),
             "foot_lock": level("foot_lock") == "true",
+            "feet": level("feet"),
             "kf_guidance": level("kf_guidance").parse::<f64>().unwrap(),
         });
         let path = match level("endpoint") {

@@ -30,7 +30,7 @@ Examples:
 #[derive(Args)]
 pub struct BenchArgs {
     /// Model: a preset (paper, small, mid, tiny; torch-tiny is the PyTorch reference's own
-    /// small network) or a run config file.
+    /// small network), a run config file, or a run or model directory (models/mid-synth).
     #[arg(long, default_value = "paper")]
     config: String,
     /// Comma-separated cases: train, call, call-cached, ddim, loader.
@@ -80,10 +80,13 @@ fn model_config(spec: &str) -> Result<DiffKfcConfig> {
     if let Some(c) = DiffKfcConfig::preset(spec) {
         return Ok(c);
     }
-    if std::path::Path::new(spec).exists() {
-        return Ok(RunConfig::load(std::path::Path::new(spec))?.model);
+    let path = std::path::Path::new(spec);
+    // A run or model directory stands for the network it holds.
+    let file = if path.is_dir() { path.join("config.json") } else { path.to_path_buf() };
+    if file.is_file() {
+        return Ok(RunConfig::load(&file)?.model);
     }
-    bail!("--config: '{spec}' is neither a preset (paper, small, mid, tiny, torch-tiny) nor a file")
+    bail!("--config: '{spec}' is neither a preset (paper, small, mid, tiny, torch-tiny), a config file nor a run or model directory")
 }
 
 /// A case's timing: the median wall time (ms) of its timed calls, every call's, and the

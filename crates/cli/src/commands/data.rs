@@ -57,6 +57,12 @@ enum DataCommand {
         after_help = "Examples:\n  diffkfc data bvh new_joints/012314.npy -o 012314.bvh\n  diffkfc data bvh mixamo_walk.bvh -o walk.bvh"
     )]
     Bvh(BvhArgs),
+    /// Any motion to glTF 2.0 binary (.glb): our rig as a skin with one animation (metres, Y
+    /// up) and a simple body, for Blender, game engines and web viewers.
+    #[command(
+        after_help = "Examples:\n  diffkfc data gltf out/walk/sample_00_joints.npy -o walk.glb\n  diffkfc data gltf mixamo_walk.bvh -o walk.glb"
+    )]
+    Gltf(BvhArgs),
     /// Ids of a synthetic set's clips (its manifest.json) by split, actions, pattern and
     /// length, one per line in the manifest's order; exits non-zero when none matches.
     #[command(
@@ -206,8 +212,8 @@ struct JointsArgs {
 struct BvhArgs {
     /// A motion: features (T,263), joints (T,22,3) .npy, or a BVH of any common rig.
     input: PathBuf,
-    /// Output BVH: T-pose rig with the common joint names (Hips, LeftUpLeg, ...), Y up,
-    /// centimetres, the skeleton's frame rate.
+    /// Output file: for `bvh` a T-pose rig with the common joint names (Hips, LeftUpLeg, ...),
+    /// Y up, centimetres; for `gltf` the same rig in metres; the skeleton's frame rate.
     #[arg(short, long)]
     output: PathBuf,
     #[arg(long, value_enum, default_value = "t2m")]
@@ -221,6 +227,7 @@ pub fn run(args: DataArgs) -> Result<()> {
         DataCommand::Features(a) => features(a),
         DataCommand::Joints(a) => joints(a),
         DataCommand::Bvh(a) => bvh(a),
+        DataCommand::Gltf(a) => gltf(a),
         DataCommand::Check(a) => check(a),
         DataCommand::Synth(a) => synth(a),
         DataCommand::BenchLoader(a) => bench_loader(a),
@@ -390,6 +397,21 @@ fn bvh(a: BvhArgs) -> Result<()> {
         skel.fps,
         mean * 1e3,
         max * 1e3
+    );
+    Ok(())
+}
+
+fn gltf(a: BvhArgs) -> Result<()> {
+    refuse_overwriting_input(&[&a.input], &a.output)?;
+    let skel = a.skeleton.skeleton();
+    let joints = load_motion(&a.input, skel, &a.bvh.options()?)?;
+    diffkfc_data::io::gltf::write(&a.output, skel, &joints)?;
+    println!(
+        "{}: {} frames at {} fps, {} joints",
+        a.output.display(),
+        joints.len(),
+        skel.fps,
+        skel.num_joints()
     );
     Ok(())
 }

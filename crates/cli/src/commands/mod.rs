@@ -1,4 +1,5 @@
 pub mod bench;
+pub mod blender_addon;
 pub mod data;
 pub mod eval;
 pub mod inbetween;

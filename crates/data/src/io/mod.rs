@@ -3,6 +3,7 @@
 
 pub(crate) mod atomic;
 pub mod bvh;
+pub mod gltf;
 pub mod keyframe_file;
 pub mod motion_file;
 pub mod npy;

@@ -270,13 +270,49 @@ pub(crate) fn topological(parents: &[i64]) -> Vec<usize> {
     order
 }
 
-/// The motion as a BVH rig (T-pose rest, common names, Y up, centimetres, the skeleton's rate).
-pub fn export(skel: &Skeleton, joints: &Joints) -> Bvh {
+/// A motion posed on its rig: the rig's joint names and parents, the rest offsets (T-pose
+/// directions, the motion's own bone lengths; skeleton units), and per frame the root's place
+/// and every joint's rotation relative to its parent (the root's to the world). The BVH and
+/// glTF exports both write this.
+pub struct PosedRig {
+    pub names: Vec<&'static str>,
+    pub parents: Vec<i64>,
+    pub rest: Vec<Vec3>,
+    /// T-pose direction of the bone ending at each joint (where a leaf's end site points).
+    pub tpose: Vec<Vec3>,
+    pub root: Vec<Vec3>,
+    pub local: Vec<Vec<Quat>>,
+}
+
+/// Fit `joints` to the skeleton's rig ([`PosedRig`]).
+pub fn pose(skel: &Skeleton, joints: &Joints) -> PosedRig {
     let rig = rig(skel);
     let parents = skel.parents();
     let kids: Vec<Vec<usize>> = (0..skel.num_joints()).map(|j| children(&parents, j)).collect();
     let rest = rest_offsets(skel, &rig, joints);
-    let order = topological(&parents);
+    let local = joints
+        .iter()
+        .map(|pose| {
+            let g = global_rotations(&parents, &kids, &rest, pose);
+            (0..g.len())
+                .map(|j| match parents[j] {
+                    p if p < 0 => g[j],
+                    p => quat::qmul(quat::qinv(g[p as usize]), g[j]),
+                })
+                .collect()
+        })
+        .collect();
+    let root = joints.iter().map(|f| f[0]).collect();
+    PosedRig { names: rig.names, parents, rest, tpose: rig.tpose, root, local }
+}
+
+/// The motion as a BVH rig (T-pose rest, common names, Y up, centimetres, the skeleton's rate).
+pub fn export(skel: &Skeleton, joints: &Joints) -> Bvh {
+    let posed = pose(skel, joints);
+    let parents = &posed.parents;
+    let kids: Vec<Vec<usize>> = (0..skel.num_joints()).map(|j| children(parents, j)).collect();
+    let rest = &posed.rest;
+    let order = topological(parents);
     // BVH joints in depth-first order, so that the file lists each subtree in one block.
     let mut dfs = Vec::new();
     fn visit(j: usize, kids: &[Vec<usize>], out: &mut Vec<usize>) {
@@ -311,10 +347,10 @@ pub fn export(skel: &Skeleton, joints: &Joints) -> Bvh {
             };
             let end_site = kids[j].is_empty().then(|| {
                 let len = (0.5 * quat::norm(rest[j])).max(0.03 / skel.metres_per_unit);
-                quat::scale(quat::normalize(rig.tpose[j]), len * k)
+                quat::scale(quat::normalize(posed.tpose[j]), len * k)
             });
             BvhJoint {
-                name: rig.names[j].to_string(),
+                name: posed.names[j].to_string(),
                 parent: (!root).then(|| slot[parents[j] as usize]),
                 offset: quat::scale(rest[j], k),
                 channels,
@@ -323,17 +359,17 @@ pub fn export(skel: &Skeleton, joints: &Joints) -> Bvh {
         })
         .collect();
     let mut prev: Vec<Option<[f64; 3]>> = vec![None; skel.num_joints()];
-    let frames = joints
+    let frames = posed
+        .local
         .iter()
-        .map(|pose| {
-            let g = global_rotations(&parents, &kids, &rest, pose);
+        .zip(&posed.root)
+        .map(|(local, root)| {
             let mut row = Vec::with_capacity(3 + 3 * dfs.len());
             for &j in &dfs {
-                let base = if parents[j] < 0 { quat::IDENTITY } else { g[parents[j] as usize] };
                 if parents[j] < 0 {
-                    row.extend(pose[j].iter().map(|v| v * k));
+                    row.extend(root.iter().map(|v| v * k));
                 }
-                let e = bvh::zyx_degrees(quat::qmul(quat::qinv(base), g[j]), prev[j]);
+                let e = bvh::zyx_degrees(local[j], prev[j]);
                 prev[j] = Some(e);
                 row.extend(e);
             }

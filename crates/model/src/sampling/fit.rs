@@ -72,7 +72,7 @@ impl std::str::FromStr for KeyframeFit {
 }
 
 /// How the foot post-process finds and holds planted feet (with `Fit::foot_lock`).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Feet {
     /// Contacts from the motion's geometry, strides warped to the root's speed, then pinned.

@@ -109,7 +109,7 @@ impl Generator<'_> {
         // Stage 2: the whole motion again, with that root observed on every frame. The track
         // also overwrites the prediction's root velocities at every step (CondMDI's
         // imputation), so x_t carries it: observed through the condition alone, the fine-tuned
-        // reference model kept much of its own speed (docs/track-fit.md).
+        // reference model kept much of its own speed.
         let opts2 = Options { impose_track: true, ..opts.clone() };
         let x2 = sampler::sample(self.model, self.schedule, &tracked, &opts2, |k, n| {
             progress(n + k, 2 * n)

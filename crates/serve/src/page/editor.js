@@ -252,8 +252,9 @@
     a.href = URL.createObjectURL(blob); a.download = name; document.body.appendChild(a); a.click(); a.remove();
     setTimeout(() => URL.revokeObjectURL(a.href), 1000);
   }
-  ["bvh", "features", "joints"].forEach((f) => on("export-" + f, "click", async () => {
-    try { const r = await api("/api/export?format=" + f, request()); download(f === "bvh" ? "motion.bvh" : `motion_${f}.npy`, await r.blob()); showError(null); } catch (e) { showError(e); }
+  const exportName = { bvh: "motion.bvh", glb: "motion.glb", features: "motion_features.npy", joints: "motion_joints.npy" };
+  ["bvh", "glb", "features", "joints"].forEach((f) => on("export-" + f, "click", async () => {
+    try { const r = await api("/api/export?format=" + f, request()); download(exportName[f], await r.blob()); showError(null); } catch (e) { showError(e); }
   }));
   on("export-keys", "click", () => {
     const doc = Object.assign(spec(), { source: { text: E.text, seed: Number($("seed").value) || 0, editor: "diffkfc serve" } });

@@ -114,6 +114,7 @@ fn write_sample(
     diffkfc_data::write_atomic(&stem.with_extension("bvh"), rig.to_text().as_bytes())?;
     // The BVH is a rigid rig: it reproduces the motion when the fit made it rigid.
     let (bvh_mean, bvh_max) = diffkfc_data::io::rig::export_error(&T2M, &j, &rig);
+    diffkfc_data::io::gltf::write(&stem.with_extension("glb"), &T2M, &j)?;
     let path_file = format!("{name}_root_path.npy");
     if let Some(p) = &done.root_path {
         npy::write(dir.join(&path_file), &[p.len() / 3, 3], p)?;
@@ -123,6 +124,7 @@ fn write_sample(
         "joints": format!("{name}_joints.npy"),
         "gif": format!("{name}.gif"),
         "bvh": format!("{name}.bvh"),
+        "glb": format!("{name}.glb"),
         "bvh_error_m": {"mean": bvh_mean, "max": bvh_max},
         "bone_length_std_m": diffkfc_data::postprocess::rigid::bone_length_std(&T2M, &j) * T2M.metres_per_unit,
         "rigid": done.rigid,
@@ -168,7 +170,7 @@ fn sample_view(
             fmt(&s["k_trans"]),
             fmt(&s["foot_skating"])
         ),
-        links: ["gif", "bvh", "features", "joints"]
+        links: ["gif", "bvh", "glb", "features", "joints"]
             .iter()
             .map(|k| (k.to_string(), s[*k].as_str().unwrap_or("").to_string()))
             .collect(),
@@ -315,7 +317,8 @@ fn is_output(name: &str) -> bool {
         return false;
     };
     let (num, tail) = rest.split_at(rest.find(|c: char| !c.is_ascii_digit()).unwrap_or(rest.len()));
-    !num.is_empty() && [".npy", "_joints.npy", ".gif", ".bvh", "_root_path.npy"].contains(&tail)
+    !num.is_empty()
+        && [".npy", "_joints.npy", ".gif", ".bvh", ".glb", "_root_path.npy"].contains(&tail)
 }
 
 /// `--out` may take this run's outputs (checked before any work).
