@@ -24,6 +24,9 @@ from mathutils import Matrix, Quaternion, Vector
 
 from . import rig
 
+FEET = [("steps", "steps", "stances held, swings lifted clear of the floor (default)"),
+        ("warp", "warp", "strides scaled to the root's speed, then pinned"), ("pin", "pin", "planted spans pinned"),
+        ("network", "network", "the network's contact labels, pinned")]
 FITS = [("track", "track", "root first, then the body (default)"), ("warp", "warp", "warp the network's motion onto the keys"),
         ("paste", "paste", "paste the keys into their frames"), ("none", "none", "the network's motion as it is")]
 
@@ -48,7 +51,9 @@ class DiffkfcSettings(bpy.types.PropertyGroup):
     seed: bpy.props.IntProperty(name="Seed", default=0, min=0)
     fit: bpy.props.EnumProperty(name="Fit", items=FITS, default="track")
     foot_lock: bpy.props.BoolProperty(name="Plant feet", default=True)
-    selected_only: bpy.props.BoolProperty(name="Selected bones' keys only", default=False)
+    feet: bpy.props.EnumProperty(name="Feet", items=FEET, default="steps")
+    selected_only: bpy.props.BoolProperty(name="Selected bones only", default=False,
+                                          description="Keys observe only the selected bones (body-part keys)")
     last_ms: bpy.props.FloatProperty(name="Last generation (ms)", default=0.0)
 
 
@@ -99,8 +104,13 @@ def request_for(context, obj, bones, s, start, end):
     for f in frames:
         pose = [rig.to_ours(p, scale) for p in poses[f]]
         keys.append({"frame": f - start, "joints": pose, "root": pose[0], "heading": rig.heading_deg(pose)})
-    body = {"text": s.prompt, "seed": s.seed, "fit": s.fit, "foot_lock": s.foot_lock,
+    body = {"text": s.prompt, "seed": s.seed, "fit": s.fit, "foot_lock": s.foot_lock, "feet": s.feet,
             "keyframes": {"length": end - start + 1, "keyframes": keys}}
+    if s.selected_only:
+        chosen = [rig.SNAKE[j] for j, b in enumerate(bones) if obj.data.bones[b].select]
+        if not chosen:
+            raise rig.RigError("'Selected bones only' is on but none of the armature's mapped bones is selected")
+        body["keyframes"]["joints"] = ",".join(chosen)
     return body, scale
 
 
@@ -163,6 +173,16 @@ def write_action(obj, bones, joints, start, scale, name):
             values[b][0].append(list(loc))
             values[b][1].append(list(q))
     action = bpy.data.actions.new(name)
+    try:
+        fill(action, bones, values, start)
+    except Exception as e:  # never leave a half-written action behind
+        bpy.data.actions.remove(action)
+        raise rig.RigError(f"writing the action failed: {e}")
+    return action
+
+
+def fill(action, bones, values, start):
+    """F-curves of every mapped bone's location and quaternion, one key per frame (linear)."""
     for b in bones:
         locs, quats = values[b]
         for k in range(1, len(quats)):
@@ -178,7 +198,6 @@ def write_action(obj, bones, joints, start, scale, name):
                 fc.keyframe_points.foreach_set("co", co)
                 fc.keyframe_points.foreach_set("interpolation", [1] * len(rows))  # LINEAR
                 fc.update()
-    return action
 
 
 class DIFFKFC_OT_generate(bpy.types.Operator):
@@ -210,12 +229,16 @@ class DIFFKFC_OT_generate(bpy.types.Operator):
         except (rig.RigError, OSError, ValueError, KeyError) as e:
             self.report({"ERROR"}, str(e).splitlines()[0])
             return {"CANCELLED"}
+        try:
+            action = write_action(obj, bones, joints, start, scale, f"diffkfc: {s.prompt[:40]}")
+        except rig.RigError as e:
+            self.report({"ERROR"}, str(e).splitlines()[0])
+            return {"CANCELLED"}
         old = obj.animation_data.action if obj.animation_data else None
         if old is not None:
             old.use_fake_user = True
         for b in bones:
             obj.pose.bones[b].rotation_mode = "QUATERNION"
-        action = write_action(obj, bones, joints, start, scale, f"diffkfc: {s.prompt[:40]}")
         obj.animation_data_create()
         obj.animation_data.action = action
         context.scene.frame_set(context.scene.frame_current)
@@ -258,6 +281,8 @@ class DIFFKFC_PT_panel(bpy.types.Panel):
         col.prop(s, "seed")
         col.prop(s, "fit")
         col.prop(s, "foot_lock")
+        if s.foot_lock:
+            col.prop(s, "feet")
         col.prop(s, "selected_only")
         col.operator("diffkfc.generate")
         col.operator("diffkfc.start_server")
