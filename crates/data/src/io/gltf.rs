@@ -138,69 +138,59 @@ struct Body {
 /// The body: a box from each joint's parent to it, bound to the parent, and a cube at each leaf
 /// bound to it (positions, normals, joints, indices), in the bind pose `at` (metres).
 fn body(parents: &[i64], at: &[Vec3]) -> Body {
-    let (mut pos, mut nrm, mut jnt, mut idx) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    let leaf = |j: usize| !parents.contains(&(j as i64));
+    let mut body = Body { pos: Vec::new(), nrm: Vec::new(), jnt: Vec::new(), idx: Vec::new() };
     let w = BONE_HALF_WIDTH as f64;
-    let mut add_box = |from: Vec3, to: Vec3, bone: usize| {
-        let axis = quat::sub(to, from);
-        let dir = quat::normalize(axis);
+    for (j, &p) in parents.iter().enumerate() {
+        if p >= 0 {
+            body.push_box(at[p as usize], at[j], p as usize);
+        }
+        if !parents.contains(&(j as i64)) {
+            body.push_box(at[j], quat::add(at[j], [0.0, 2.0 * w, 0.0]), j);
+        }
+    }
+    body
+}
+
+impl Body {
+    /// A box of half-width [`BONE_HALF_WIDTH`] from `from` to `to`, bound to joint `bone`.
+    fn push_box(&mut self, from: Vec3, to: Vec3, bone: usize) {
+        let w = BONE_HALF_WIDTH as f64;
+        let dir = quat::normalize(quat::sub(to, from));
         let helper = if dir[1].abs() < 0.9 { [0.0, 1.0, 0.0] } else { [1.0, 0.0, 0.0] };
         let u = quat::scale(quat::normalize(quat::cross(dir, helper)), w);
         let v = quat::scale(quat::normalize(quat::cross(dir, u)), w);
         // Corner (a, b, c): along the bone (0 or 1), then -/+ u and -/+ v.
-        let corner = |a: usize, b: f64, c: f64| {
+        let corner = |(a, b, c): (usize, f64, f64)| {
             quat::add(
                 quat::add(if a == 0 { from } else { to }, quat::scale(u, b)),
                 quat::scale(v, c),
             )
         };
+        let neg = |x: Vec3| quat::scale(x, -1.0);
         let faces: [Face; 6] = [
-            (
-                [(0, -1.0, -1.0), (0, -1.0, 1.0), (0, 1.0, 1.0), (0, 1.0, -1.0)],
-                quat::scale(dir, -1.0),
-            ),
+            ([(0, -1.0, -1.0), (0, -1.0, 1.0), (0, 1.0, 1.0), (0, 1.0, -1.0)], neg(dir)),
             ([(1, -1.0, -1.0), (1, 1.0, -1.0), (1, 1.0, 1.0), (1, -1.0, 1.0)], dir),
             ([(0, 1.0, -1.0), (0, 1.0, 1.0), (1, 1.0, 1.0), (1, 1.0, -1.0)], u),
-            (
-                [(0, -1.0, -1.0), (1, -1.0, -1.0), (1, -1.0, 1.0), (0, -1.0, 1.0)],
-                quat::scale(u, -1.0),
-            ),
+            ([(0, -1.0, -1.0), (1, -1.0, -1.0), (1, -1.0, 1.0), (0, -1.0, 1.0)], neg(u)),
             ([(0, -1.0, 1.0), (1, -1.0, 1.0), (1, 1.0, 1.0), (0, 1.0, 1.0)], v),
-            (
-                [(0, -1.0, -1.0), (0, 1.0, -1.0), (1, 1.0, -1.0), (1, -1.0, -1.0)],
-                quat::scale(v, -1.0),
-            ),
+            ([(0, -1.0, -1.0), (0, 1.0, -1.0), (1, 1.0, -1.0), (1, -1.0, -1.0)], neg(v)),
         ];
         for (quad, normal) in faces {
-            let base = pos.len() as u16;
+            let base = self.pos.len() as u16;
             let n = quat::normalize(normal);
-            for (a, b, c) in quad {
-                pos.push(corner(a, b, c).iter().map(|&x| x as f32).collect());
-                nrm.push(n.iter().map(|&x| x as f32).collect());
+            for c in quad {
+                self.pos.push(corner(c).iter().map(|&x| x as f32).collect());
+                self.nrm.push(n.iter().map(|&x| x as f32).collect());
                 // Unused slots stay 0 with weight 0, as the validator asks.
-                jnt.push([bone as u8, 0, 0, 0]);
+                self.jnt.push([bone as u8, 0, 0, 0]);
             }
             // Counter-clockwise seen from outside, whatever the corners' handedness.
-            let (p0, p1, p2) = (
-                corner(quad[0].0, quad[0].1, quad[0].2),
-                corner(quad[1].0, quad[1].1, quad[1].2),
-                corner(quad[2].0, quad[2].1, quad[2].2),
-            );
+            let (p0, p1, p2) = (corner(quad[0]), corner(quad[1]), corner(quad[2]));
             let outward = quat::dot(quat::cross(quat::sub(p1, p0), quat::sub(p2, p0)), n) > 0.0;
             let tri: [u16; 6] = if outward { [0, 1, 2, 0, 2, 3] } else { [0, 2, 1, 0, 3, 2] };
-            idx.extend(tri.iter().map(|t| base + t));
-        }
-    };
-    for (j, &p) in parents.iter().enumerate() {
-        if p >= 0 {
-            add_box(at[p as usize], at[j], p as usize);
-        }
-        if leaf(j) {
-            let up = quat::add(at[j], [0.0, 2.0 * w, 0.0]);
-            add_box(at[j], up, j);
+            self.idx.extend(tri.iter().map(|t| base + t));
         }
     }
-    Body { pos, nrm, jnt, idx }
 }
 
 /// The body as a mesh primitive, every vertex bound wholly to one joint.
@@ -369,23 +359,7 @@ fn animate(root: &mut Root, bin: &mut Bin, posed: &rig::PosedRig, skel: &Skeleto
             });
         };
     for j in 0..posed.parents.len() {
-        // Sign-continuous, so that interpolating between frames takes the short way.
-        let mut prev: Option<Vec<f32>> = None;
-        let rows: Vec<Vec<f32>> = posed
-            .local
-            .iter()
-            .map(|l| {
-                let mut q = xyzw(l[j]);
-                if prev
-                    .as_ref()
-                    .is_some_and(|p| p.iter().zip(&q).map(|(a, b)| a * b).sum::<f32>() < 0.0)
-                {
-                    q.iter_mut().for_each(|x| *x = -*x);
-                }
-                prev = Some(q.clone());
-                q
-            })
-            .collect();
+        let rows = rotation_rows(posed, j);
         add(rows, j, Property::Rotation, bin, root);
         if posed.parents[j] < 0 {
             let rows =
@@ -400,6 +374,27 @@ fn animate(root: &mut Root, bin: &mut Bin, posed: &rig::PosedRig, skel: &Skeleto
         name: Some(name.into()),
         samplers,
     });
+}
+
+/// Joint `j`'s rotation per frame as glTF's (x, y, z, w), sign-continuous so that
+/// interpolating between frames takes the short way.
+fn rotation_rows(posed: &rig::PosedRig, j: usize) -> Vec<Vec<f32>> {
+    let mut prev: Option<Vec<f32>> = None;
+    posed
+        .local
+        .iter()
+        .map(|l| {
+            let mut q = xyzw(l[j]);
+            if prev
+                .as_ref()
+                .is_some_and(|p| p.iter().zip(&q).map(|(a, b)| a * b).sum::<f32>() < 0.0)
+            {
+                q.iter_mut().for_each(|x| *x = -*x);
+            }
+            prev = Some(q.clone());
+            q
+        })
+        .collect()
 }
 
 /// The GLB container: a 12-byte header, the JSON chunk (space-padded) and the binary chunk.

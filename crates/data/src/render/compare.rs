@@ -169,11 +169,24 @@ pub fn text_table(folders: &[Folder]) -> String {
                 .collect()
         })
         .collect();
+    out.extend(columns(folders, &labels, &cells, label_w));
+    out.join("\n")
+}
+
+/// The table's rows: a heading row of folder labels and a row per number, the folders that do
+/// not fit in [`TABLE_WIDTH`] characters going on into another table below.
+fn columns(
+    folders: &[Folder],
+    labels: &[String],
+    cells: &[Vec<String>],
+    label_w: usize,
+) -> Vec<String> {
     let col_w: Vec<usize> = folders
         .iter()
-        .zip(&cells)
+        .zip(cells)
         .map(|(f, c)| c.iter().chain([&f.label]).map(|v| v.chars().count()).max().unwrap_or(0))
         .collect();
+    let mut out = Vec::new();
     let mut start = 0;
     while start < folders.len() {
         let mut end = start + 1;
@@ -195,7 +208,7 @@ pub fn text_table(folders: &[Folder]) -> String {
         }
         start = end;
     }
-    out.join("\n")
+    out
 }
 
 /// `to` as a path relative to the folder `from` (both made absolute first), with `/` separators.
