@@ -1,6 +1,6 @@
 //! Degenerate motions through the binary, each class once per command that reads a motion
 //! (`sample --from`, `keyframes suggest --from`, `data features|joints|bvh`, `render`): every
-//! run exits 0 with finite outputs or refuses with one line naming the file. The property test
+//! run exits 0 with finite outputs or refuses with one line naming the file and writes nothing. The property test
 //! behind it, over 10 000 generated cases, is `crates/model/tests/degenerate.rs`.
 
 mod common;
@@ -50,6 +50,8 @@ fn works_or_refuses(o: &std::process::Output, file: &str, out: &Path, what: &str
         true
     } else {
         assert_one_line_error(o, &[file]);
+        // A refused command writes nothing.
+        assert!(!out.exists(), "{what}: refused but {} was written", out.display());
         false
     }
 }
