@@ -8,7 +8,7 @@ use burn::prelude::Device;
 use diffkfc_data::io::keyframe_file::{self, KeyframeSet, KeyframeSpec};
 use diffkfc_data::motion::representation::Joints;
 use diffkfc_data::motion::root_key::{self, RootKey};
-use diffkfc_data::{render, T2M};
+use diffkfc_data::{motion::representation as rep, T2M};
 use diffkfc_model::error::ModelError;
 use diffkfc_model::sampling::fit::{Fit, Fitted};
 use diffkfc_model::sampling::guidance;
@@ -104,8 +104,8 @@ impl Engine {
             })?
             .remove(0);
         let generate_ms = t0.elapsed().as_secs_f64() * 1e3;
-        let local = render::drawable_joints(&T2M, &fitted.features)
-            .map_err(|e| ApiError::invalid(format!("the sample diverged ({e})")))?;
+        // The session refused a motion that is not drawable, so these joints are.
+        let local = rep::recover_from_ric_f32(&T2M, &fitted.features);
         let origin = origin_of(&r.keyframes);
         let joints = in_world(&local, origin);
         let traj = root_key::root_trajectory(&fitted.features, T2M.feature_dim())

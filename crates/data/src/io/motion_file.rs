@@ -156,15 +156,6 @@ pub fn load_feature_joints(path: &Path, skel: &Skeleton) -> Result<Joints, DataE
     Ok(j)
 }
 
-/// Every frame of `joints` (from `path`) a pose rotations can be told from: a motion used as
-/// keys or a source is refused on a collapsed body rather than carried into the fit.
-fn check_poses(path: &Path, skel: &Skeleton, joints: &Joints) -> Result<(), DataError> {
-    for (f, pose) in joints.iter().enumerate() {
-        rep::check_pose(skel, pose).map_err(|m| invalid(path, format!("frame {f}: {m}")))?;
-    }
-    Ok(())
-}
-
 /// Features (T, D) of a motion file: features as they are, joints or BVH through
 /// `process_file` (one frame fewer).
 pub fn load_motion_features(
@@ -195,7 +186,9 @@ pub fn motion_features_from_bytes(
             let f = check_features(name, arr.map(|x| x as f32), skel, MIN_MOTION_FRAMES)?.data;
             let joints = rep::recover_from_ric_f32(skel, &f);
             magnitude::check_joints(skel, &joints).map_err(|m| invalid(name, m.to_string()))?;
-            check_poses(name, skel, &joints)?;
+            // A motion used as keys or a source is refused on a collapsed body rather than
+            // carried into the fit (the check joints files get in `features_from_joints`).
+            rep::validate_joints(skel, &joints).map_err(|e| e.in_file(name))?;
             return Ok(f);
         }
         check_joints(name, arr, skel, MIN_MOTION_FRAMES)?
