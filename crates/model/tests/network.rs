@@ -80,10 +80,23 @@ fn tiny_models(dev: &Device) -> Vec<diffkfc_model::Denoiser> {
         })
         .collect();
     assert!(k > 0, "the temporal taps were found");
-    // Temporal patching: tokens of 4 frames, with key input, so that lengths that are not a
-    // multiple of 4 leave padding inside a real token.
-    let patched = DiffKfcConfig::tiny().with_patch_frames(4).with_key_input(true).init(dev);
-    vec![plain, diffkfc_model::network::params::load(conv, &vals), patched]
+    // The per-frame key input starts at zero too: perturbed.
+    let keyed = DiffKfcConfig::tiny().with_key_input(true).init(dev);
+    let keyed_vals: Vec<Vec<f32>> = diffkfc_model::network::params::values(&keyed)
+        .into_iter()
+        .map(|(_, v)| {
+            if v.iter().all(|&x| x == 0.0) {
+                (0..v.len()).map(|i| (i as f32 * 0.29).sin() * 0.3).collect()
+            } else {
+                v
+            }
+        })
+        .collect();
+    vec![
+        plain,
+        diffkfc_model::network::params::load(conv, &vals),
+        diffkfc_model::network::params::load(keyed, &keyed_vals),
+    ]
 }
 
 fn max_diff(a: &[f32], b: &[f32]) -> f32 {

@@ -4,17 +4,15 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
-use burn::prelude::Device;
 use clap::Args;
 use diffkfc_data::dataset::{read_captions, Dataset};
 use diffkfc_data::io::ownership::{self, Output};
 use diffkfc_data::io::{motion_file, npy};
 use diffkfc_data::motion::representation::{joints_to_f32, Joints};
 use diffkfc_eval::inbetween::{interpolate, table, Bench, Clip, ClipScores, Gap};
-use diffkfc_model::run::load::InferenceModel;
 use diffkfc_model::sampling::guidance;
 use diffkfc_model::sampling::sampler::{self, Options};
-use diffkfc_model::text::{self, minilm::MiniLm, TextEncoder};
+use diffkfc_model::sampling::session::Session;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::args::{FitArgs, SamplerArg};
@@ -120,8 +118,9 @@ pub fn run(a: InbetweenArgs) -> Result<()> {
         bail!("--clips: must be at least 1");
     }
     let owned = ownership::check(&a.out, Output::Report, a.force, "--out")?;
-    let loaded = InferenceModel::load(&a.checkpoint, &crate::device::parse(&a.device)?)?;
     let ds = Dataset::open(&a.data)?;
+    let session = Session::load(&a.checkpoint, &crate::device::parse(&a.device)?, ds.skeleton)?;
+    let loaded = &session.loaded;
     if ds.dim() != loaded.cfg.model.feat_dim {
         bail!(
             "--data: {} has {}-d features, {} reads {}",
@@ -132,7 +131,6 @@ pub fn run(a: InbetweenArgs) -> Result<()> {
         );
     }
     let (clips, short) = read_clips(&ds, &a, loaded.cfg.model.max_frames)?;
-    let enc = MiniLm::load(&text::default_dir(), &Device::flex())?;
     let opts = Options {
         sampler: a.sampler.sampler(a.steps),
         text_guidance: guidance::text_guidance("--text-guidance", None, &loaded.cfg)?,
@@ -146,7 +144,6 @@ pub fn run(a: InbetweenArgs) -> Result<()> {
         .expect("template")
         .progress_chars("=> "),
     );
-    let words = loaded.cfg.model.text_words;
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("--out: creating {}", a.out.display()))?;
     if owned {
@@ -155,7 +152,7 @@ pub fn run(a: InbetweenArgs) -> Result<()> {
     let t0 = std::time::Instant::now();
     let mut results = Vec::new();
     for (i, clip) in clips.iter().enumerate() {
-        let emb = enc.embed_words(&[clip.caption.as_str()], words)?.remove(0);
+        let emb = session.embed(&clip.caption)?;
         let (scores, motions) = bench.run_clip(clip, &emb, a.seed + i as u64, || pb.inc(1));
         if a.save_motions {
             save_motions(&a.out.join("motions"), clip, &scores, &motions, ds.skeleton)?;

@@ -1,8 +1,6 @@
 //! Keyframe selection (which frames are observed) and partial keyframes (which feature dims of
 //! an observed frame belong to a body part).
 
-pub mod timeline;
-
 use serde::{Deserialize, Serialize};
 
 use crate::motion::representation::Layout;

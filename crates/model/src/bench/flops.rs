@@ -49,9 +49,7 @@ pub fn forward_planned(
     work: &[BlockWork],
 ) -> Flops {
     let (b, n, d, f) = (batch, frames, c.d_model, c.ffn);
-    // The decoder runs on tokens of `p` frames (`patch_frames`), the encoder per frame.
-    let p = c.patch_frames.max(1);
-    let nd = n.div_ceil(p);
+    let nd = n;
     let (le, ld) = (n + 1, nd + 2);
     let block = |w: &BlockWork| {
         let (q, k) = (w.queries, w.keys);
@@ -82,15 +80,15 @@ pub fn forward_planned(
         + linear(b * ld, f, d)
         + word_attention;
     // The extensions' per-frame projections added to the decoder's frame tokens.
-    let path_in = if c.root_path { linear(b * nd, p * PATH_CHANNELS, d) } else { 0.0 };
+    let path_in = if c.root_path { linear(b * nd, PATH_CHANNELS, d) } else { 0.0 };
     let key_in =
-        if c.key_input { linear(b * nd, p * 2 * (c.feat_dim + c.root_channels), d) } else { 0.0 };
-    let decoder = linear(b * nd, p * c.feat_dim, d)
+        if c.key_input { linear(b * nd, 2 * (c.feat_dim + c.root_channels), d) } else { 0.0 };
+    let decoder = linear(b * nd, c.feat_dim, d)
         + path_in
         + key_in
         + 2.0 * linear(b, d, d)
         + c.dec_layers as f64 * layer
-        + linear(b * nd, d, p * c.feat_dim);
+        + linear(b * nd, d, c.feat_dim);
     Flops { encoder, decoder }
 }
 

@@ -54,13 +54,6 @@ pub struct DiffKfcConfig {
     /// an absolute-root model needs to give HumanML3D features back; set by training.
     #[config(default = "Vec::new()")]
     pub velocity_stats: Vec<f32>,
-    /// Frames per decoder token (temporal patching, our extension): the decoder reads and
-    /// writes tokens of this many consecutive frames, so its attention and projections cost
-    /// 1/patch_frames of a per-frame decoder's and a wider one costs what a narrow one did. The
-    /// keyframe encoder stays per frame. 1 = one token per frame (the paper, and checkpoints
-    /// made before it).
-    #[config(default = 1)]
-    pub patch_frames: usize,
     /// Word states of the text encoder the decoder also attends to, beside the pooled sentence
     /// embedding (our extension, `crate::network::words`): the text input is then
     /// `text_dim * (1 + text_words)` wide (`TextEncoder::embed_words`), and longer captions keep

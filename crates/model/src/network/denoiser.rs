@@ -27,10 +27,9 @@ pub struct Encoded {
     pub key_pad: Mask,
     /// [B, 1, d] text token y_c.
     pub text_tok: Tensor<3>,
-    /// [B, 2+N/P] padding tokens of the decoder sequence.
+    /// [B, 2+N] padding tokens of the decoder sequence.
     pub self_pad: Mask,
-    /// [1, N / P, d] decoder token position encodings (sin/cos of every token, P frames each:
-    /// computed once, not per step).
+    /// [1, N, d] frame position encodings (computed once, not per step).
     pub pos: Tensor<3>,
     /// Which decoder tokens are real (what the temporal convolution may read).
     pub real: RealFrames,
@@ -40,9 +39,6 @@ pub struct Encoded {
     /// [B, N, d] each frame's own keyframe observation (`KeyframeEncoder::observations`),
     /// embedded (models with key input).
     pub key: Option<Tensor<3>>,
-    /// [B, N, 1] 1 on real frames, 0 on padding: a patched decoder zeroes x_t's padding frames,
-    /// which would otherwise share a token with real ones (models with `patch_frames` > 1).
-    pub frame_real: Option<Tensor<3>>,
     /// The text's word tokens as each decoder layer attends to them (models with `text_words`).
     pub words: Option<WordMemory>,
 }
@@ -60,7 +56,6 @@ impl Encoded {
             pos: self.pos.detach(),
             path: self.path.map(Tensor::detach),
             key: self.key.map(Tensor::detach),
-            frame_real: self.frame_real.map(Tensor::detach),
             words: self.words.map(WordMemory::detach),
             ..self
         }
@@ -85,8 +80,6 @@ pub struct Denoiser {
     velocity_stats: Vec<f32>,
     /// The per-frame keyframe input's projection (last, like `path_in`).
     key_in: Option<Linear>,
-    /// Frames per decoder token (`DiffKfcConfig::patch_frames`). No parameters.
-    patch: usize,
     /// The word states' projection (models with `text_words`; last, like `path_in`).
     word_in: Option<WordInput>,
     /// Width of the pooled text embedding and word states per text (`text_dim`, `text_words`).
@@ -98,9 +91,8 @@ pub struct Denoiser {
 impl DiffKfcConfig {
     pub fn init(&self, device: &Device) -> Denoiser {
         let d = self.d_model;
-        let p = self.patch_frames.max(1);
         Denoiser {
-            x_in: LinearConfig::new(p * self.feat_dim, d).init(device),
+            x_in: LinearConfig::new(self.feat_dim, d).init(device),
             text_in: LinearConfig::new(self.text_dim, d).init(device),
             time: TimestepEmbed::new(d, device),
             encoder: KeyframeEncoder::new(
@@ -125,22 +117,21 @@ impl DiffKfcConfig {
                     )
                 })
                 .collect(),
-            out: LinearConfig::new(d, p * self.feat_dim).init(device),
+            out: LinearConfig::new(d, self.feat_dim).init(device),
             d_model: d,
             dma_sizes: self.dma_sizes.clone(),
             // Zero at first: a model fine-tuned from one without the hint starts as that model.
             path_in: self.root_path.then(|| {
-                LinearConfig::new(p * PATH_CHANNELS, d)
+                LinearConfig::new(PATH_CHANNELS, d)
                     .with_initializer(burn::nn::Initializer::Zeros)
                     .init(device)
             }),
             velocity_stats: if self.absolute_root { self.velocity_stats.clone() } else { vec![] },
             key_in: self.key_input.then(|| {
-                LinearConfig::new(p * 2 * (self.feat_dim + self.root_channels), d)
+                LinearConfig::new(2 * (self.feat_dim + self.root_channels), d)
                     .with_initializer(burn::nn::Initializer::Zeros)
                     .init(device)
             }),
-            patch: p,
             word_in: (self.text_words > 0).then(|| WordInput::new(self.text_dim, d, device)),
             text_dim: self.text_dim,
             text_words: self.text_words,
@@ -154,7 +145,6 @@ impl Denoiser {
     pub fn encode(&self, c: &Condition) -> Encoded {
         let device = c.kf.device();
         let [b, n, _] = c.kf.dims();
-        let (p, np) = (self.patch, n.div_ceil(self.patch));
         let (pooled, word_states) = words::split(c.text.clone(), self.text_dim, self.text_words);
         let text_tok = linear(&self.text_in, pooled).unsqueeze_dim::<3>(1);
         let words = self.word_in.as_ref().zip(word_states).map(|(wi, states)| {
@@ -163,38 +153,21 @@ impl Denoiser {
             WordMemory::new(kv, &c.text, self.text_dim)
         });
         let plan = DmaPlan::new(&c.kf_frames, &c.real, b, n, &self.dma_sizes);
-        let frame_pos = positions(n, self.d_model, &device);
-        let pos = if p == 1 { frame_pos.clone() } else { positions(np, self.d_model, &device) };
+        let pos = positions(n, self.d_model, &device);
         let obs = self.encoder.observations(c);
-        let frame_real = (p > 1).then(|| {
-            let r: Vec<f32> = c.real.iter().map(|&r| if r { 1.0 } else { 0.0 }).collect();
-            Tensor::<1>::from_floats(r.as_slice(), &device).reshape([b, n, 1])
-        });
-        let masked = |x: Tensor<3>| match &frame_real {
-            Some(r) => patchify(x * r.clone(), p),
-            None => x,
-        };
-        let key = self.key_in.as_ref().map(|l| linear(l, masked(obs.clone())));
-        let tokens = self.encoder.forward(text_tok.clone(), obs, frame_pos, &plan);
+        let key = self.key_in.as_ref().map(|l| linear(l, obs.clone()));
+        let tokens = self.encoder.forward(text_tok.clone(), obs, pos.clone(), &plan);
         let key_pad = plan.final_valid().iter().map(|v| !v).collect();
-        // A decoder token is real when any of its frames is.
-        let real: Vec<bool> = (0..b * np)
-            .map(|k| {
-                let (s, i) = (k / np, k % np);
-                (i * p..((i + 1) * p).min(n)).any(|f| c.real[s * n + f])
-            })
-            .collect();
-        let self_pad = (0..b * (np + 2))
-            .map(|k| k % (np + 2) >= 2 && !real[k / (np + 2) * np + k % (np + 2) - 2])
+        let self_pad = (0..b * (n + 2))
+            .map(|k| k % (n + 2) >= 2 && !c.real[k / (n + 2) * n + k % (n + 2) - 2])
             .collect();
         let cross_kv = self.layers.iter().map(|l| l.cross_kv(tokens.clone())).collect();
-        let path = self.path_in.as_ref().map(|l| linear(l, masked(c.path.clone())));
+        let path = self.path_in.as_ref().map(|l| linear(l, c.path.clone()));
         Encoded {
             words,
             path,
             key,
-            frame_real,
-            real: RealFrames::new(&real, b, np, &device),
+            real: RealFrames::new(&c.real, b, n, &device),
             cross_kv,
             tokens,
             key_pad: key_mask(key_pad),
@@ -205,15 +178,10 @@ impl Denoiser {
     }
 
     /// Predict x0 from x_t [B, N, D] at timesteps `t` (one per sample) -> [B, N, D]; the decoder
-    /// runs on [B, 2 + ceil(N / P), d] (time and text tokens, then tokens of P frames).
+    /// runs on [B, 2 + N, d] (time and text tokens, then the frames).
     pub fn decode(&self, x_t: Tensor<3>, t: &[usize], e: &Encoded) -> Tensor<3> {
         let device = x_t.device();
-        let [b, n, feat] = x_t.dims();
-        let np = n.div_ceil(self.patch);
-        let x_t = match &e.frame_real {
-            Some(r) => patchify(x_t * r.clone(), self.patch),
-            None => x_t,
-        };
+        let [b, n, _] = x_t.dims();
         let mut frames = linear(&self.x_in, x_t) + e.pos.clone();
         if let Some(p) = &e.path {
             frames = frames + p.clone();
@@ -228,11 +196,7 @@ impl Denoiser {
             h = layer.forward(h, e.self_pad.clone(), kv, e.key_pad.clone(), &e.real, w);
         }
         let d = self.d_model;
-        let y = linear(&self.out, h.slice([0..b, 2..np + 2, 0..d]));
-        if self.patch == 1 {
-            return y;
-        }
-        y.reshape([b, np * self.patch, feat]).slice([0..b, 0..n, 0..feat])
+        linear(&self.out, h.slice([0..b, 2..n + 2, 0..d]))
     }
 
     /// The velocity statistics of a model that sees an absolute root; None for a velocity root.
@@ -242,11 +206,6 @@ impl Denoiser {
 
     pub fn forward(&self, x_t: Tensor<3>, t: &[usize], c: &Condition) -> Tensor<3> {
         self.decode(x_t, t, &self.encode(c))
-    }
-
-    /// Frames per decoder token.
-    pub fn patch_frames(&self) -> usize {
-        self.patch
     }
 
     /// Parameter counts: (keyframe encoder, decoder and the rest, total).
@@ -267,20 +226,4 @@ impl Denoiser {
             ("total", self.num_params()),
         ]
     }
-}
-
-/// Frames [B, N, C] as tokens of `p` consecutive frames [B, ceil(N / p), p * C] (the last one
-/// zero-padded): frame f's channels at `(f % p) * C..` of token f / p.
-pub fn patchify(x: Tensor<3>, p: usize) -> Tensor<3> {
-    if p == 1 {
-        return x;
-    }
-    let [b, n, c] = x.dims();
-    let np = n.div_ceil(p);
-    let x = if np * p > n {
-        Tensor::cat(vec![x.clone(), Tensor::zeros([b, np * p - n, c], &x.device())], 1)
-    } else {
-        x
-    };
-    x.reshape([b, np, p * c])
 }

@@ -83,9 +83,6 @@ pub struct TrainingConfig {
     pub root_loss_weight: f64,
     /// Weight of the 4 foot-contact channels in the reconstruction terms (1 = the paper).
     pub contact_loss_weight: f64,
-    /// Min-SNR weighting of the reconstruction terms: min(SNR(t), gamma) / gamma per sample
-    /// (`training::weighting`; 0 = off, the paper).
-    pub min_snr_gamma: f64,
     /// Probability that a training sample's text is dropped (a zero embedding), so that the
     /// text-free branch of text classifier-free guidance is learned (MDM: 0.1; 0 = off, the paper).
     /// Drawn independently of the keyframes' drop; validation keeps every text.
@@ -150,7 +147,6 @@ impl Default for TrainingConfig {
             smooth_loss: 0.0,
             root_loss_weight: 1.0,
             contact_loss_weight: 1.0,
-            min_snr_gamma: 0.0,
             text_drop_prob: 0.0,
             text_drop_prob_unkeyed: None,
             rollout_prob: 0.0,
@@ -187,6 +183,7 @@ impl RunConfig {
         let bad = |msg: String| ModelError::Config(msg);
         let mut v: serde_json::Value =
             serde_json::from_str(text).map_err(|e| bad(format!("not valid JSON: {e}")))?;
+        super::retired::strip(&mut v)?;
         let model = v.get_mut("model").ok_or(bad("missing section 'model'".into()))?;
         let base = match model {
             serde_json::Value::String(name) => DiffKfcConfig::preset(name)
@@ -300,9 +297,6 @@ impl RunConfig {
                 &format!("must be 0 or {}", diffkfc_data::motion::root_key::ROOT_CHANNELS),
             );
         }
-        if !(1..=8).contains(&m.patch_frames) {
-            return bad("model.patch_frames", &m.patch_frames, "must be 1 to 8");
-        }
         if (m.temporal_kernel.is_multiple_of(2) && m.temporal_kernel != 0) || m.temporal_kernel > 31
         {
             return bad(
@@ -352,7 +346,6 @@ impl RunConfig {
             ("training.smooth_loss", t.smooth_loss),
             ("training.root_loss_weight", t.root_loss_weight),
             ("training.contact_loss_weight", t.contact_loss_weight),
-            ("training.min_snr_gamma", t.min_snr_gamma),
         ];
         for (key, v) in non_negative {
             if !(v.is_finite() && v >= 0.0) {
@@ -431,7 +424,6 @@ mod tests {
             (r#""training": {"ema_decay": 1.5}"#, "training.ema_decay: 1.5"),
             (r#""training": {"grad_clip": -1}"#, "training.grad_clip: -1"),
             (r#""training": {"root_loss_weight": -2}"#, "training.root_loss_weight: -2"),
-            (r#""training": {"min_snr_gamma": -1}"#, "training.min_snr_gamma: -1"),
             (r#""training": {"text_drop_prob": 1.5}"#, "training.text_drop_prob: 1.5"),
             (
                 r#""training": {"text_drop_prob": 0.1, "text_drop_prob_unkeyed": 2}"#,
@@ -466,8 +458,6 @@ mod tests {
             (r#"{"preset": "tiny", "d_model": 0}"#, "model.d_model: 0"),
             (r#"{"preset": "tiny", "dropout": 1.5}"#, "model.dropout: 1.5"),
             (r#"{"preset": "tiny", "temporal_kernel": 4}"#, "model.temporal_kernel: 4"),
-            (r#"{"preset": "tiny", "patch_frames": 0}"#, "model.patch_frames: 0"),
-            (r#"{"preset": "tiny", "patch_frames": 9}"#, "model.patch_frames: 9"),
         ] {
             let e = RunConfig::parse(&format!(r#"{{"model": {model}}}"#)).unwrap_err().to_string();
             assert!(e.contains(needle), "{model}: {e}");
@@ -507,14 +497,14 @@ mod tests {
     }
 
     /// The study's options round-trip, and a config written before they existed (no such keys)
-    /// reads as the paper's behaviour: one frame per token, uniform loss weights, whole keys.
+    /// reads as the paper's behaviour: uniform loss weights, whole keys.
     #[test]
     fn new_options_default_to_the_old_behaviour() {
         let old = RunConfig::parse(r#"{"model": "tiny", "training": {"lr": 0.001}}"#).unwrap();
-        assert_eq!((old.model.patch_frames, old.model.text_words), (1, 0));
+        assert_eq!(old.model.text_words, 0);
         assert!(old.training.trainable.is_empty());
         let t = &old.training;
-        assert_eq!((t.root_loss_weight, t.contact_loss_weight, t.min_snr_gamma), (1.0, 1.0, 0.0));
+        assert_eq!((t.root_loss_weight, t.contact_loss_weight), (1.0, 1.0));
         assert_eq!((old.keyframes.part_prob, old.training.rollout_prob), (0.0, 0.0));
         assert_eq!(old.training.rollout_steps, 1);
         assert_eq!(old.training.text_drop_prob_unkeyed, None);
@@ -523,9 +513,9 @@ mod tests {
             assert!(!old.to_json().contains(key), "old configs write as before: {key}");
         }
         let c = RunConfig::parse(
-            r#"{"model": {"preset": "tiny", "patch_frames": 4, "text_words": 32},
+            r#"{"model": {"preset": "tiny", "text_words": 32},
                 "keyframes": {"part_prob": 0.3, "max_observed_sigma": 30},
-                "training": {"root_loss_weight": 8, "contact_loss_weight": 4, "min_snr_gamma": 5,
+                "training": {"root_loss_weight": 8, "contact_loss_weight": 4,
                              "rollout_prob": 0.5, "rollout_gap": 50, "rollout_steps": 2,
                              "text_drop_prob": 0.1, "text_drop_prob_unkeyed": 0.5,
                              "trainable": ["word"]}}"#,
@@ -533,7 +523,7 @@ mod tests {
         .unwrap();
         let again = RunConfig::parse(&c.to_json()).unwrap();
         assert_eq!(c, again);
-        assert_eq!((again.model.patch_frames, again.training.root_loss_weight), (4, 8.0));
+        assert_eq!((again.model.text_words, again.training.root_loss_weight), (32, 8.0));
         assert_eq!(
             (again.keyframes.part_prob, again.keyframes.max_observed_sigma),
             (0.3, Some(30.0))

@@ -7,3 +7,4 @@ pub mod dir;
 pub mod load;
 pub mod lock;
 pub mod recipe;
+pub mod retired;

@@ -84,7 +84,7 @@ fn with_observed_root(pred: Tensor<3>, x0: Tensor<3>, kf_mask: Tensor<3>) -> Ten
     pred * (m.ones_like() - m.clone()) + x0 * m
 }
 
-/// All loss terms; the kinematic ones only when their weight is positive. `sqrt_w` [B, 1, D]
+/// All loss terms; the kinematic ones only when their weight is positive. `sqrt_w` [1, 1, D]
 /// (`training::weighting::sqrt_weights`) scales target and prediction of the reconstruction
 /// terms (L_simple and the keyframe term), so they become weighted means.
 pub fn losses(

@@ -230,7 +230,7 @@ impl Trainer<'_> {
             tb.x_t = rollout::rolled_x_t(model, schedule, &tb.cond, x0, noise, x_t, step);
         }
         let pred = model.forward(tb.x_t, t, &tb.cond);
-        let w = weighting::sqrt_weights(&self.cfg.training, schedule, t, b.dim, device);
+        let w = weighting::sqrt_weights(&self.cfg.training, b.dim, device);
         losses(tb.x0, pred, tb.cond.kf_mask, tb.valid, w, &self.kinematic())
     }
 

@@ -2,7 +2,7 @@
 //! motion from a timeline of prompts (`diffkfc_model::sampling::timeline` generates it; each
 //! window after the first repeats the last [`OVERLAP`] frames of the motion so far).
 
-use diffkfc_data::keyframes::timeline as tl;
+use diffkfc_model::sampling::timeline::plan as tl;
 use diffkfc_model::sampling::timeline::{self, joins, TimelineKeys};
 
 use super::*;

@@ -1,14 +1,17 @@
 //! One long motion from a timeline of prompts, window after window
-//! (`diffkfc_data::keyframes::timeline` plans the windows). Each window after the first is given
+//! (`plan` parses the timeline and plans the windows). Each window after the first is given
 //! the last frames of the motion so far as keyframes (every feature, place and heading, in the
 //! window's own frame), and its frames from the last repeated one on replace the motion's, so
 //! the root path integrates through every join.
 
+pub mod plan;
+
 use diffkfc_data::io::keyframe_file::relative_to;
-use diffkfc_data::keyframes::timeline::Window;
 use diffkfc_data::motion::root_key::{root_trajectory, RootKey};
 use diffkfc_data::postprocess::footlock::LockReport;
 use diffkfc_data::postprocess::warp::Correction;
+
+use plan::Window;
 
 use crate::sampling::fit::Fitted;
 use crate::sampling::pipeline::{Generator, KeyedItem};
