@@ -264,34 +264,9 @@ fn train_resume_and_outputs() {
         "2",
     ]);
     assert_one_line_error(&o, &refused);
-    // An absolute-root run records the data's velocity statistics, and its samples come back
-    // as HumanML3D features.
-    let (abs, o) = train_variant(&d, &data, "abs", "\"absolute_root\": true", &[]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let stored = std::fs::read_to_string(abs.join("config.json")).unwrap();
-    assert!(stored.contains("\"velocity_stats\""), "{stored}");
-    let keys = write_keys(&d, "keys.json", r#"{"frame": 30, "root": [0.5, 0.9, 2.0]}"#);
-    let out = d.join("abs-sample");
-    let sample = |extra: &[&str]| sample_keyed(&abs, &keys, &out, extra);
-    let o = sample(&["--keyframe-fit", "none", "--no-foot-lock", "--steps", "2"]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    assert_finite_sample(&out);
-    // Place guidance moves velocity channels such a model does not have: refused by sample
-    // and eval alike, before any work.
-    let refused = "--place-guidance 10: the model sees an absolute root";
-    assert_one_line_error(&sample(&["--place-guidance", "10"]), &[refused]);
-    let o = diffkfc(&[
-        "eval",
-        "--checkpoint",
-        s(&abs),
-        "--evaluator",
-        s(&d.join("no-evaluator")),
-        "--data",
-        s(&data),
-        "--place-guidance",
-        "10",
-    ]);
-    assert_one_line_error(&o, &[refused]);
+    // A retired option turned on is refused, naming the key; at its neutral value it loads.
+    let (_, o) = train_variant(&d, &data, "abs", "\"absolute_root\": true", &[]);
+    assert_one_line_error(&o, &["model.absolute_root: true", "no longer supported"]);
     // A time budget stops cleanly with a checkpoint.
     let run2 = d.join("budget");
     let o = diffkfc(&[

@@ -16,7 +16,6 @@ use diffkfc_eval::t2m::{split_captions, T2mEvaluator};
 use diffkfc_eval::text_motion::Gaussian;
 use diffkfc_eval::train_evaluator::embed_split;
 use diffkfc_model::run::load::InferenceModel;
-use diffkfc_model::sampling::place::PlaceGuidance;
 use diffkfc_model::sampling::sampler;
 use diffkfc_model::text::cache::embed_captions;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -313,7 +312,6 @@ fn evaluate(mut a: RunArgs) -> Result<()> {
     let device = a.tg_mode.device(crate::device::parse(&a.device)?);
     let loaded = InferenceModel::load(&run_dir, &device)?;
     let (cfg, step) = (&loaded.cfg, loaded.step);
-    PlaceGuidance::for_model(a.place_guidance, &loaded.model, &loaded.mean, &loaded.std)?;
     // From here on the scale is the one used: the flag's or the model's default.
     a.text_guidance = Some(diffkfc_model::sampling::guidance::text_guidance(
         "--text-guidance",

@@ -324,8 +324,7 @@ impl Job {
                 loaded.schedule.steps
             );
         }
-        let place =
-            PlaceGuidance::for_model(a.place_guidance, &loaded.model, &loaded.mean, &loaded.std)?;
+        let place = PlaceGuidance::of_strength(a.place_guidance, &loaded.mean, &loaded.std);
         let text_guidance =
             guidance::text_guidance("--text-guidance", a.text_guidance, &loaded.cfg)?;
         let opts = Options {

@@ -108,7 +108,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let Some(config) = a.config.clone() else {
         return super::recipe::run(a);
     };
-    let (mut cfg, data, max_steps) = resolve_config(&a, &config)?;
+    let (cfg, data, max_steps) = resolve_config(&a, &config)?;
     let run = RunDir::new(a.out.clone().unwrap_or_else(|| {
         let stem = config.file_stem().map(|s| s.to_string_lossy().into_owned());
         PathBuf::from("runs").join(stem.unwrap_or_else(|| "run".into()))
@@ -125,7 +125,6 @@ pub fn run(a: TrainArgs) -> Result<()> {
     };
     check_memory(&cfg, if parallel.is_some() { "cuda" } else { &a.device })?;
     let d = TrainingData::open(&cfg, &data)?;
-    cfg.bind_dataset(&d.ds.mean, &d.ds.std);
     let _held = RunLock::claim(&run.path, claim)?;
     if a.resume {
         run.check_resumable(&cfg, &d.ds.mean)?;

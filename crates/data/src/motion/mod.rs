@@ -2,7 +2,6 @@
 //! representation and its inverse, single poses, the root's place and heading (keys, absolute
 //! angles and places, paths, dense tracks), and physical plausibility and size checks.
 
-pub mod absolute_root;
 pub mod magnitude;
 pub mod plausibility;
 pub(crate) mod pose;

@@ -1,7 +1,6 @@
 //! Network configuration: the paper's, and smaller ones for CPU work.
 
 use burn::prelude::*;
-use diffkfc_data::motion::absolute_root::VelocityStats;
 
 /// DiffKFC denoiser hyper-parameters.
 #[derive(Config, Debug, PartialEq)]
@@ -46,14 +45,6 @@ pub struct DiffKfcConfig {
     /// input); false for checkpoints made before it.
     #[config(default = false)]
     pub key_input: bool,
-    /// The network sees the root as yaw angle and place instead of velocities
-    /// (`diffkfc_data::motion::absolute_root`; our extension); false for checkpoints made before it.
-    #[config(default = false)]
-    pub absolute_root: bool,
-    /// The dataset's mean and std of the three velocity root channels (means, then stds), which
-    /// an absolute-root model needs to give HumanML3D features back; set by training.
-    #[config(default = "Vec::new()")]
-    pub velocity_stats: Vec<f32>,
     /// Word states of the text encoder the decoder also attends to, beside the pooled sentence
     /// embedding (our extension, `crate::network::words`): the text input is then
     /// `text_dim * (1 + text_words)` wide (`TextEncoder::embed_words`), and longer captions keep
@@ -67,15 +58,6 @@ impl DiffKfcConfig {
     /// Values of one text input: the pooled embedding and `text_words` word states.
     pub fn text_width(&self) -> usize {
         self.text_dim * (1 + self.text_words)
-    }
-
-    /// The velocity statistics of an absolute-root model; None for a velocity-root model.
-    /// Panics on an absolute-root config without them (`RunConfig::bind_dataset` sets them).
-    pub fn absolute(&self) -> Option<VelocityStats> {
-        self.absolute_root.then(|| {
-            VelocityStats::from_flat(&self.velocity_stats)
-                .expect("an absolute-root model carries the dataset's velocity statistics")
-        })
     }
 
     /// The paper: d 512, 8 heads, FFN 1024, 8 decoder layers, 8 DMA blocks {2,2,4,4,6,6,8,N}.

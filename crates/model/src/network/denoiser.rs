@@ -4,7 +4,6 @@
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 
-use diffkfc_data::motion::absolute_root::VelocityStats;
 use diffkfc_data::motion::root_path::PATH_CHANNELS;
 
 use crate::kernels::{key_mask, linear, Mask};
@@ -75,9 +74,6 @@ pub struct Denoiser {
     /// The root path hint's projection (last, so positional checkpoints of models without it
     /// are a prefix of its parameters).
     path_in: Option<Linear>,
-    /// The dataset's velocity statistics of an absolute-root model (`DiffKfcConfig::absolute`,
-    /// flat); empty for a velocity root. No parameters.
-    velocity_stats: Vec<f32>,
     /// The per-frame keyframe input's projection (last, like `path_in`).
     key_in: Option<Linear>,
     /// The word states' projection (models with `text_words`; last, like `path_in`).
@@ -126,7 +122,6 @@ impl DiffKfcConfig {
                     .with_initializer(burn::nn::Initializer::Zeros)
                     .init(device)
             }),
-            velocity_stats: if self.absolute_root { self.velocity_stats.clone() } else { vec![] },
             key_in: self.key_input.then(|| {
                 LinearConfig::new(2 * (self.feat_dim + self.root_channels), d)
                     .with_initializer(burn::nn::Initializer::Zeros)
@@ -197,11 +192,6 @@ impl Denoiser {
         }
         let d = self.d_model;
         linear(&self.out, h.slice([0..b, 2..n + 2, 0..d]))
-    }
-
-    /// The velocity statistics of a model that sees an absolute root; None for a velocity root.
-    pub fn absolute_root(&self) -> Option<VelocityStats> {
-        VelocityStats::from_flat(&self.velocity_stats)
     }
 
     pub fn forward(&self, x_t: Tensor<3>, t: &[usize], c: &Condition) -> Tensor<3> {

@@ -4,7 +4,6 @@
 use std::path::Path;
 
 use diffkfc_data::dataset::batch::KeyframeConfig;
-use diffkfc_data::motion::absolute_root::VelocityStats;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{ModelError, Result};
@@ -308,9 +307,8 @@ impl RunConfig {
         Ok(())
     }
 
-    /// Rates in [0, 1], loss weights finite and non-negative, lr positive; no kinematic losses with an absolute root.
+    /// Rates in [0, 1], loss weights finite and non-negative, lr positive.
     fn check_training(&self) -> Result<()> {
-        let m = &self.model;
         let t = &self.training;
         let k = &self.keyframes;
         let unit = [
@@ -365,22 +363,7 @@ impl RunConfig {
         if t.rollout_prob > 0.0 && !(1..=10).contains(&t.rollout_steps) {
             return bad("training.rollout_steps", &t.rollout_steps, "must be 1 to 10");
         }
-        if m.absolute_root && t.lambda_pos + t.lambda_vel + t.lambda_foot > 0.0 {
-            return bad(
-                "model.absolute_root",
-                &m.absolute_root,
-                "the kinematic losses (training.lambda_pos, lambda_vel, lambda_foot) read velocity roots; set them to 0",
-            );
-        }
         Ok(())
-    }
-
-    /// Record the dataset's velocity statistics in an absolute-root model's config (its
-    /// checkpoints then give HumanML3D features back on their own); no change otherwise.
-    pub fn bind_dataset(&mut self, mean: &[f32], std: &[f32]) {
-        if self.model.absolute_root {
-            self.model.velocity_stats = VelocityStats::of(mean, std).flat();
-        }
     }
 
     pub fn to_json(&self) -> String {
@@ -467,7 +450,7 @@ mod tests {
         )
         .unwrap_err()
         .to_string();
-        assert!(e.contains("model.absolute_root: true") && e.contains("lambda_pos"), "{e}");
+        assert!(e.contains("model.absolute_root: true") && e.contains("no longer"), "{e}");
         let e = RunConfig::parse(r#"{"model": "huge"}"#).unwrap_err().to_string();
         assert!(e.contains("unknown preset 'huge'"), "{e}");
         let e = RunConfig::parse(r#"{"model": "tiny", "keyframes": {"strategy": "sometimes"}}"#)

@@ -2,23 +2,49 @@
 //! loads when it left them at their default (what the code now always does), and one that
 //! turned them on is refused with the key named, instead of being read as something else.
 
-use serde_json::{json, Value};
+use serde_json::Value;
 
 use crate::error::{ModelError, Result};
 
-/// (section, key, the value that behaves as the code now does, what it was).
-const RETIRED: &[(&str, &str, fn() -> Value, &str)] = &[
-    ("model", "patch_frames", || json!(1), "temporal patching"),
-    ("training", "min_snr_gamma", || json!(0.0), "min-SNR loss weighting"),
+/// A removed option: its section and key, the value (JSON) that behaves as the code now does,
+/// and what it was.
+struct Retired {
+    section: &'static str,
+    key: &'static str,
+    neutral: &'static str,
+    what: &'static str,
+}
+
+const RETIRED: &[Retired] = &[
+    Retired { section: "model", key: "patch_frames", neutral: "1", what: "temporal patching" },
+    Retired {
+        section: "model",
+        key: "absolute_root",
+        neutral: "false",
+        what: "the absolute-root representation",
+    },
+    Retired {
+        section: "model",
+        key: "velocity_stats",
+        neutral: "[]",
+        what: "the absolute-root representation",
+    },
+    Retired {
+        section: "training",
+        key: "min_snr_gamma",
+        neutral: "0",
+        what: "min-SNR loss weighting",
+    },
 ];
 
 /// Removes the retired keys of `config` (a run config's JSON) that hold their neutral value;
 /// errors on one that does not.
 pub fn strip(config: &mut Value) -> Result<()> {
-    for (section, key, neutral, what) in RETIRED {
+    for Retired { section, key, neutral, what } in RETIRED {
         let Some(Value::Object(s)) = config.get_mut(*section) else { continue };
         let Some(v) = s.remove(*key) else { continue };
-        let same = match (&v, neutral()) {
+        let neutral: Value = serde_json::from_str(neutral).expect("a JSON literal");
+        let same = match (&v, neutral) {
             (Value::Number(a), Value::Number(b)) => a.as_f64() == b.as_f64(),
             (a, b) => *a == b,
         };
@@ -35,6 +61,7 @@ pub fn strip(config: &mut Value) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use serde_json::json;
 
     #[test]
     fn neutral_values_are_dropped_and_others_refused() {

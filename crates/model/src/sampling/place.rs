@@ -4,13 +4,41 @@
 //! step makes the hit exact; this asks the network for a walk that covers the keyed ground
 //! itself, so the warp has less to stretch.
 
-use diffkfc_data::motion::absolute_root::VelocityStats;
 use diffkfc_data::motion::quat;
 use diffkfc_data::motion::representation::recover_root_rot_pos;
 use diffkfc_data::motion::root_key::{ROOT_CHANNELS, ROOT_POS_SCALE};
 
-use crate::error::ModelError;
-use crate::Denoiser;
+/// The root channels place guidance moves: 0 yaw rate, 1 and 2 the ground-plane step in the
+/// facing frame.
+const VELOCITY_CHANNELS: usize = 3;
+
+/// Normalisation (mean, std) of the velocity root channels 0..3 in the dataset's statistics.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VelocityStats {
+    pub mean: [f32; VELOCITY_CHANNELS],
+    pub std: [f32; VELOCITY_CHANNELS],
+}
+
+impl VelocityStats {
+    /// From a dataset's full Mean/Std vectors.
+    pub fn of(mean: &[f32], std: &[f32]) -> VelocityStats {
+        let take = |v: &[f32]| [v[0], v[1], v[2]];
+        VelocityStats { mean: take(mean), std: take(std) }
+    }
+
+    /// The de-normalised velocity root channels of a normalised motion's first `len` frames
+    /// as rows of four (the fourth, height, zero), the layout `recover_root_rot_pos` reads
+    /// with `dim` 4.
+    pub fn raw_rows(&self, x: &[f32], len: usize, dim: usize) -> Vec<f64> {
+        let mut raw = vec![0f64; len * 4];
+        for f in 0..len {
+            for c in 0..VELOCITY_CHANNELS {
+                raw[f * 4 + c] = (x[f * dim + c] * self.std[c] + self.mean[c]) as f64;
+            }
+        }
+        raw
+    }
+}
 
 /// Strength and the de-normalisation of the root channels 0..3 (angular velocity, linear
 /// velocity x and z).
@@ -26,21 +54,9 @@ impl PlaceGuidance {
         PlaceGuidance { strength, velocity: VelocityStats::of(mean, std) }
     }
 
-    /// Place guidance of `strength` for `model`: none at 0; an error for a model that sees an
-    /// absolute root, whose keyed places are observed features and whose root channels hold no
-    /// velocities to move.
-    pub fn for_model(
-        strength: f64,
-        model: &Denoiser,
-        mean: &[f32],
-        std: &[f32],
-    ) -> Result<Option<Self>, ModelError> {
-        if strength > 0.0 && model.absolute_root().is_some() {
-            return Err(ModelError::Config(format!(
-                "--place-guidance {strength}: the model sees an absolute root (model.absolute_root), so keyed places are already observed features; leave it at 0"
-            )));
-        }
-        Ok((strength > 0.0).then(|| PlaceGuidance::new(strength, mean, std)))
+    /// Place guidance of `strength` from a dataset's feature mean and std: none at 0.
+    pub fn of_strength(strength: f64, mean: &[f32], std: &[f32]) -> Option<Self> {
+        (strength > 0.0).then(|| PlaceGuidance::new(strength, mean, std))
     }
 
     /// Mean over keyed places of the squared distance (m^2) between the root path of one

@@ -4,7 +4,6 @@
 //! afterwards is `fit`'s job.
 
 use burn::prelude::*;
-use diffkfc_data::motion::absolute_root::{self, VelocityStats};
 use diffkfc_data::motion::root_key::ROOT_CHANNELS;
 use diffkfc_data::motion::root_track;
 use diffkfc_data::rng::Rng;
@@ -155,24 +154,6 @@ impl Request {
             .collect()
     }
 
-    /// The request as a model with an absolute root sees it (`diffkfc_data::motion::absolute_root`):
-    /// the root channels of every frame observed from the keyed places and headings alone.
-    pub fn with_absolute_root(&self) -> Request {
-        let (n, d, r) = (self.frames, self.dim, ROOT_CHANNELS);
-        let mut out = self.clone();
-        for i in 0..self.batch {
-            absolute_root::keyframes(
-                &self.root[i * n * r..(i + 1) * n * r],
-                &self.root_mask[i * n * r..(i + 1) * n * r],
-                n,
-                &mut out.kf[i * n * d..(i + 1) * n * d],
-                &mut out.mask[i * n * d..(i + 1) * n * d],
-                d,
-            );
-        }
-        out
-    }
-
     /// The network's condition of this request.
     pub fn condition(&self, device: &Device) -> Condition {
         let (b, n, d) = (self.batch, self.frames, self.dim);
@@ -195,18 +176,6 @@ pub fn sample(
     mut progress: impl FnMut(usize, usize),
 ) -> Vec<f32> {
     let device = model.devices().first().cloned().unwrap_or_else(Device::flex);
-    let absolute = model.absolute_root();
-    // An absolute-root model reads keyed places as features; place guidance, which moves
-    // velocity channels, has nothing to do there.
-    let (abs_req, abs_opts);
-    let (req, opts) = match absolute {
-        Some(_) => {
-            abs_req = req.with_absolute_root();
-            abs_opts = Options { place: None, ..opts.clone() };
-            (&abs_req, &abs_opts)
-        }
-        None => (req, opts),
-    };
     let (b, n, d) = (req.batch, req.frames, req.dim);
     let cond = req.condition(&device);
     let keys: Vec<Vec<usize>> = (0..b).map(|i| req.key_frames(i)).collect();
@@ -260,23 +229,14 @@ pub fn sample(
         }
         progress(k + 1, ts.len());
     }
-    finish(&mut x, req, absolute.as_ref());
+    finish(&mut x, req);
     x
 }
 
-/// The sampler's result as HumanML3D features: an absolute-root model's root given back as
-/// velocities, frames past each length zeroed.
-fn finish(x: &mut [f32], req: &Request, absolute: Option<&VelocityStats>) {
+/// The sampler's result with the frames past each length zeroed.
+fn finish(x: &mut [f32], req: &Request) {
     let (n, d) = (req.frames, req.dim);
     for i in 0..req.batch {
-        if let Some(stats) = absolute {
-            absolute_root::to_relative(
-                &mut x[i * n * d..(i + 1) * n * d],
-                req.lengths[i],
-                d,
-                stats,
-            );
-        }
         for f in req.lengths[i]..n {
             x[(i * n + f) * d..(i * n + f + 1) * d].iter_mut().for_each(|v| *v = 0.0);
         }

@@ -3,8 +3,6 @@
 use burn::prelude::*;
 use burn::tensor::TensorData;
 use diffkfc_data::dataset::batch::Batch;
-use diffkfc_data::motion::absolute_root::{self, VelocityStats, CHANNELS};
-use diffkfc_data::motion::root_key::ROOT_CHANNELS;
 use rayon::prelude::*;
 
 use crate::diffusion::Schedule;
@@ -21,34 +19,20 @@ pub struct TensorBatch {
     pub cond: Condition,
 }
 
-/// `text` holds one embedding of width `text_dim` per sample, row-major. `absolute`: the model
-/// sees an absolute root (`diffkfc_data::motion::absolute_root`): the motion's root channels become
-/// angle and place, observed at a keyframe where the keyframe observes its heading / place.
-/// `noised`: the schedule, timesteps and noise ([B * N * D]) that make x_t. The elementwise work
-/// runs here on the host, in parallel, and the buffers become tensors without a copy: as Burn
-/// ops they were single-threaded passes on the training thread.
+/// `text` holds one embedding of width `text_dim` per sample, row-major. `noised`: the
+/// schedule, timesteps and noise ([B * N * D]) that make x_t. The elementwise work runs here
+/// on the host, in parallel, and the buffers become tensors without a copy: as Burn ops they
+/// were single-threaded passes on the training thread.
 pub fn to_tensors(
     b: &Batch,
     text: &[f32],
     text_dim: usize,
-    absolute: Option<&VelocityStats>,
     noised: (&Schedule, &[usize], &[f32]),
     device: &Device,
 ) -> TensorBatch {
     let (bs, n, d) = (b.batch_size, b.frames, b.dim);
     assert_eq!(text.len(), bs * text_dim, "one text embedding per sample");
-    let (mut x0, mut kf_mask) = (b.x0.clone(), b.kf_mask.clone());
-    if let Some(stats) = absolute {
-        let r = ROOT_CHANNELS;
-        for i in 0..bs {
-            absolute_root::to_absolute(&mut x0[i * n * d..(i + 1) * n * d], b.lengths[i], d, stats);
-            for f in 0..n {
-                let rm = &b.root_mask[(i * n + f) * r..(i * n + f + 1) * r];
-                kf_mask[(i * n + f) * d..][..CHANNELS]
-                    .copy_from_slice(&absolute_root::observed(rm));
-            }
-        }
-    }
+    let (x0, kf_mask) = (b.x0.clone(), b.kf_mask.clone());
     let (schedule, t, noise) = noised;
     let x_t = schedule.q_sample_host(&x0, t, noise);
     let kf: Vec<f32> = x0.par_iter().zip(&kf_mask).map(|(x, m)| x * m).collect();

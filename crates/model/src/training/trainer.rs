@@ -15,7 +15,6 @@ use burn::prelude::*;
 use diffkfc_data::dataset::batch::{Batch, KeyframeConfig, Loader};
 use diffkfc_data::dataset::cache::PackedSplit;
 use diffkfc_data::dataset::Dataset;
-use diffkfc_data::motion::absolute_root::VelocityStats;
 use diffkfc_data::rng::Rng;
 
 use crate::diffusion::Schedule;
@@ -216,9 +215,8 @@ impl Trainer<'_> {
         device: &Device,
         train: bool,
     ) -> Losses {
-        let abs = self.cfg.model.absolute();
         let noised = (schedule, t, noise);
-        let mut tb = to_tensors(b, &self.text_of(b), self.text.dim, abs.as_ref(), noised, device);
+        let mut tb = to_tensors(b, &self.text_of(b), self.text.dim, noised, device);
         let tc = &self.cfg.training;
         if train && tc.rollout_prob > 0.0 {
             let rolled = rollout::chosen(tc.seed, tc.rollout_prob, t, noise);
@@ -408,15 +406,7 @@ impl Trainer<'_> {
     /// The schedule, after the checks a run must pass before it writes anything.
     fn checked_schedule(&self, max_steps: usize) -> Result<Schedule> {
         self.cfg.training.check_stop(max_steps)?;
-        let schedule = self.cfg.diffusion.schedule()?;
-        if self.cfg.model.absolute_root
-            && VelocityStats::from_flat(&self.cfg.model.velocity_stats).is_none()
-        {
-            return Err(ModelError::Config(
-                "model.absolute_root: the config lacks the dataset's velocity statistics (RunConfig::bind_dataset)".into(),
-            ));
-        }
-        Ok(schedule)
+        self.cfg.diffusion.schedule()
     }
 
     /// The model and optimiser a run starts from, and its step: the newest checkpoint when
