@@ -185,12 +185,10 @@ fn train_resume_and_outputs() {
         !run.join("ckpt-00000002.safetensors").exists()
             && run.join("ckpt-00000006.safetensors").exists()
     );
-    // A model grown by the root path hint starts from this run's weights (--init): every
-    // shared tensor taken, the hint's projection initialised.
-    let grown = train_grown(&d, &data, &run, "\"root_path\": true", "path_in");
-    assert_eq!(steps(&grown), vec![1, 2]);
-    // Likewise the per-frame key input, whose run then samples with a keyframe.
+    // A model grown by the per-frame key input starts from this run's weights (--init): every
+    // shared tensor taken, the input's projection initialised; its run samples with a keyframe.
     let ki = train_grown(&d, &data, &run, "\"key_input\": true", "key_in");
+    assert_eq!(steps(&ki), vec![1, 2]);
     let keys = write_keys(&d, "ki-keys.json", r#"{"frame": 20, "root": [0.3, 0.9, 1.0]}"#);
     let ki_out = d.join("ki-sample");
     let o = sample_keyed(&ki, &keys, &ki_out, &["--steps", "2"]);

@@ -98,7 +98,6 @@ fn keyframes_reproduce_a_clip_far_better_than_text() {
     let mut cfg =
         RunConfig::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/tiny.json"))
             .unwrap();
-    cfg.model.root_path = true;
     cfg.training.batch_size = 16;
     cfg.training.max_steps = steps;
     cfg.training.warmup_steps = 20;

@@ -41,7 +41,7 @@ pub struct TrainArgs {
     pub(crate) force: bool,
     /// Start a new run from these weights (a run or model directory, or a checkpoint file):
     /// every parameter it has with the same name and shape is taken, the model's others
-    /// (an extension the source lacks, such as model.root_path) start as initialised.
+    /// (an extension the source lacks, such as model.key_input) start as initialised.
     #[arg(long, value_name = "CHECKPOINT")]
     pub(crate) init: Option<PathBuf>,
     /// Stop at this step (default: training.max_steps of the config).

@@ -8,7 +8,6 @@ pub(crate) mod pose;
 pub mod quat;
 pub mod representation;
 pub mod root_key;
-pub mod root_path;
 pub mod root_track;
 pub mod skeleton;
 pub mod travel;

@@ -5,8 +5,6 @@
 //! ([`forward_planned`] with `DmaPlan::work`: what the fused CPU path computes, so a rate from
 //! it is never above what the machine did).
 
-use diffkfc_data::motion::root_path::PATH_CHANNELS;
-
 use crate::network::keyframe_encoder::BlockWork;
 use crate::DiffKfcConfig;
 
@@ -80,11 +78,9 @@ pub fn forward_planned(
         + linear(b * ld, f, d)
         + word_attention;
     // The extensions' per-frame projections added to the decoder's frame tokens.
-    let path_in = if c.root_path { linear(b * nd, PATH_CHANNELS, d) } else { 0.0 };
     let key_in =
         if c.key_input { linear(b * nd, 2 * (c.feat_dim + c.root_channels), d) } else { 0.0 };
     let decoder = linear(b * nd, c.feat_dim, d)
-        + path_in
         + key_in
         + 2.0 * linear(b, d, d)
         + c.dec_layers as f64 * layer
@@ -128,22 +124,21 @@ mod tests {
         assert!((dec - 19.4).abs() < 0.1, "{dec}");
     }
 
-    /// The extensions' frame projections cost twice their weights per frame, the weights
+    /// The per-frame key input costs twice its weights per frame, the weights
     /// counted on the built model (its parameter count less the base model's, less the bias).
     #[test]
-    fn extensions_cost_their_projections() {
+    fn key_input_costs_its_projection() {
         use burn::prelude::*;
         let dev = Device::flex();
         let base = DiffKfcConfig::tiny();
         let params = |c: &DiffKfcConfig| c.init(&dev).num_params() as f64;
         let d = base.d_model as f64;
-        for grown in [base.clone().with_root_path(true), base.clone().with_key_input(true)] {
-            let weights = params(&grown) - params(&base) - d;
-            let per_frame =
-                |c: &DiffKfcConfig| (forward(c, 1, 11).total() - forward(c, 1, 1).total()) / 10.0;
-            let added = per_frame(&grown) - per_frame(&base);
-            assert!((added - 2.0 * weights).abs() < 1e-6 * added, "{added} vs 2 x {weights}");
-        }
+        let grown = base.clone().with_key_input(true);
+        let weights = params(&grown) - params(&base) - d;
+        let per_frame =
+            |c: &DiffKfcConfig| (forward(c, 1, 11).total() - forward(c, 1, 1).total()) / 10.0;
+        let added = per_frame(&grown) - per_frame(&base);
+        assert!((added - 2.0 * weights).abs() < 1e-6 * added, "{added} vs 2 x {weights}");
     }
 
     /// With no keyframe each block updates only the text token and attends only to it: the

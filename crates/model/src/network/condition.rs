@@ -1,11 +1,9 @@
 //! What the denoiser is conditioned on: the text embedding, the keyframes' features and masks,
-//! their root places and headings, and the path they imply, for a batch.
+//! their root places and headings, for a batch.
 
 use burn::prelude::*;
 
 use diffkfc_data::motion::root_key::ROOT_CHANNELS;
-use diffkfc_data::motion::root_path::{path_channels, PATH_CHANNELS};
-use diffkfc_data::T2M;
 
 /// What the model is conditioned on, for a batch of B samples of N frames.
 #[derive(Clone, Debug)]
@@ -20,9 +18,6 @@ pub struct Condition {
     /// zero where unobserved, and its mask.
     pub root: Tensor<3>,
     pub root_mask: Tensor<3>,
-    /// [B, N, PATH_CHANNELS] the velocity the keyed places imply for each frame
-    /// (`diffkfc_data::motion::root_path`), read by the decoder of models with path channels.
-    pub path: Tensor<3>,
     /// `[B*N]` frames with any observed feature.
     pub kf_frames: Vec<bool>,
     /// `[B*N]` real (non-padding) frames.
@@ -59,14 +54,7 @@ impl Condition {
             })
             .collect();
         let root_t = |v: &[f32]| Tensor::<1>::from_floats(v, device).reshape([b, n, r]);
-        let path: Vec<f32> = (0..b)
-            .flat_map(|i| {
-                let s = i * n * r..(i + 1) * n * r;
-                path_channels(&root[s.clone()], &root_mask[s], n, T2M.fps)
-            })
-            .collect();
         Condition {
-            path: Tensor::<1>::from_floats(path.as_slice(), device).reshape([b, n, PATH_CHANNELS]),
             text,
             kf,
             kf_mask,
@@ -91,7 +79,6 @@ impl Condition {
             kf_mask: self.kf_mask.zeros_like(),
             root: self.root.zeros_like(),
             root_mask: self.root_mask.zeros_like(),
-            path: self.path.zeros_like(),
             kf_frames: vec![false; self.kf_frames.len()],
             real: self.real.clone(),
         }
@@ -109,8 +96,7 @@ impl Condition {
             kf: self.kf.clone().select(0, idx.clone()),
             kf_mask: self.kf_mask.clone().select(0, idx.clone()),
             root: self.root.clone().select(0, idx.clone()),
-            root_mask: self.root_mask.clone().select(0, idx.clone()),
-            path: self.path.clone().select(0, idx),
+            root_mask: self.root_mask.clone().select(0, idx),
             kf_frames: frames(&self.kf_frames),
             real: frames(&self.real),
         }
@@ -124,7 +110,6 @@ impl Condition {
             kf_mask: self.kf_mask.clone().without_autodiff(),
             root: self.root.clone().without_autodiff(),
             root_mask: self.root_mask.clone().without_autodiff(),
-            path: self.path.clone().without_autodiff(),
             kf_frames: self.kf_frames.clone(),
             real: self.real.clone(),
         }

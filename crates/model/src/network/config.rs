@@ -35,10 +35,6 @@ pub struct DiffKfcConfig {
     /// extension, `crate::network::temporal`); 0 = none (the paper, and checkpoints made before it).
     #[config(default = 0)]
     pub temporal_kernel: usize,
-    /// The decoder also reads, per frame, the velocity the keyed places imply
-    /// (`diffkfc_data::motion::root_path`; our extension); false for checkpoints made before it.
-    #[config(default = false)]
-    pub root_path: bool,
     /// The decoder's frame tokens also read their own frame's keyframe values and masks (pose
     /// features and root channels) through a zero-initialised projection, beside the keyframe
     /// encoder's cross-attention (our extension, as CondMDI feeds observations with the noisy

@@ -4,8 +4,6 @@
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 
-use diffkfc_data::motion::root_path::PATH_CHANNELS;
-
 use crate::kernels::{key_mask, linear, Mask};
 use crate::network::condition::Condition;
 use crate::network::config::DiffKfcConfig;
@@ -32,9 +30,6 @@ pub struct Encoded {
     pub pos: Tensor<3>,
     /// Which decoder tokens are real (what the temporal convolution may read).
     pub real: RealFrames,
-    /// [B, N, d] the root path hint's embedding, added to the decoder's frame tokens (models
-    /// with path channels).
-    pub path: Option<Tensor<3>>,
     /// [B, N, d] each frame's own keyframe observation (`KeyframeEncoder::observations`),
     /// embedded (models with key input).
     pub key: Option<Tensor<3>>,
@@ -53,7 +48,6 @@ impl Encoded {
             cross_kv: self.cross_kv.into_iter().map(|(k, v)| (k.detach(), v.detach())).collect(),
             text_tok: self.text_tok.detach(),
             pos: self.pos.detach(),
-            path: self.path.map(Tensor::detach),
             key: self.key.map(Tensor::detach),
             words: self.words.map(WordMemory::detach),
             ..self
@@ -71,12 +65,9 @@ pub struct Denoiser {
     out: Linear,
     d_model: usize,
     dma_sizes: Vec<usize>,
-    /// The root path hint's projection (last, so positional checkpoints of models without it
-    /// are a prefix of its parameters).
-    path_in: Option<Linear>,
-    /// The per-frame keyframe input's projection (last, like `path_in`).
+    /// The per-frame keyframe input's projection (last, so positional checkpoints of models without it are a prefix of its parameters).
     key_in: Option<Linear>,
-    /// The word states' projection (models with `text_words`; last, like `path_in`).
+    /// The word states' projection (models with `text_words`; last, like `key_in`).
     word_in: Option<WordInput>,
     /// Width of the pooled text embedding and word states per text (`text_dim`, `text_words`).
     /// No parameters.
@@ -116,12 +107,6 @@ impl DiffKfcConfig {
             out: LinearConfig::new(d, self.feat_dim).init(device),
             d_model: d,
             dma_sizes: self.dma_sizes.clone(),
-            // Zero at first: a model fine-tuned from one without the hint starts as that model.
-            path_in: self.root_path.then(|| {
-                LinearConfig::new(PATH_CHANNELS, d)
-                    .with_initializer(burn::nn::Initializer::Zeros)
-                    .init(device)
-            }),
             key_in: self.key_input.then(|| {
                 LinearConfig::new(2 * (self.feat_dim + self.root_channels), d)
                     .with_initializer(burn::nn::Initializer::Zeros)
@@ -157,10 +142,8 @@ impl Denoiser {
             .map(|k| k % (n + 2) >= 2 && !c.real[k / (n + 2) * n + k % (n + 2) - 2])
             .collect();
         let cross_kv = self.layers.iter().map(|l| l.cross_kv(tokens.clone())).collect();
-        let path = self.path_in.as_ref().map(|l| linear(l, c.path.clone()));
         Encoded {
             words,
-            path,
             key,
             real: RealFrames::new(&c.real, b, n, &device),
             cross_kv,
@@ -178,9 +161,6 @@ impl Denoiser {
         let device = x_t.device();
         let [b, n, _] = x_t.dims();
         let mut frames = linear(&self.x_in, x_t) + e.pos.clone();
-        if let Some(p) = &e.path {
-            frames = frames + p.clone();
-        }
         if let Some(k) = &e.key {
             frames = frames + k.clone();
         }
@@ -206,7 +186,6 @@ impl Denoiser {
             + self.text_in.num_params()
             + self.time.num_params()
             + self.out.num_params()
-            + self.path_in.as_ref().map_or(0, |l| l.num_params())
             + self.key_in.as_ref().map_or(0, |l| l.num_params())
             + self.word_in.as_ref().map_or(0, |l| l.num_params());
         vec![

@@ -29,6 +29,7 @@ const RETIRED: &[Retired] = &[
         neutral: "[]",
         what: "the absolute-root representation",
     },
+    Retired { section: "model", key: "root_path", neutral: "false", what: "the root path hint" },
     Retired {
         section: "training",
         key: "min_snr_gamma",

@@ -124,7 +124,6 @@ fn stack(a: &Condition, b: &Condition) -> Condition {
         kf_mask: Tensor::cat(vec![a.kf_mask.clone(), b.kf_mask.clone()], 0),
         root: Tensor::cat(vec![a.root.clone(), b.root.clone()], 0),
         root_mask: Tensor::cat(vec![a.root_mask.clone(), b.root_mask.clone()], 0),
-        path: Tensor::cat(vec![a.path.clone(), b.path.clone()], 0),
         kf_frames: a.kf_frames.iter().chain(&b.kf_frames).copied().collect(),
         real: a.real.iter().chain(&b.real).copied().collect(),
     }

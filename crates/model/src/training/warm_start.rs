@@ -1,5 +1,5 @@
-//! Starting a run from another run's weights: a model grown by an extension (the root path
-//! hint, the per-frame key input) is fine-tuned from one trained without it. Every parameter
+//! Starting a run from another run's weights: a model grown by an extension (the per-frame
+//! key input, the text's word states) is fine-tuned from one trained without it. Every parameter
 //! the checkpoint has, by name (or by position, for checkpoints written before names, whose
 //! parameters are a prefix of the grown model's), with the same shape, is taken; the rest keep
 //! their initialisation.
@@ -176,10 +176,7 @@ mod tests {
         let cond = request().condition(&dev);
         let x = Tensor::<3>::random([2, 30, 263], burn::tensor::Distribution::Default, &dev);
         let want = params::host(old.forward(x.clone(), &[10, 500], &cond));
-        let grown_by = [
-            (base.clone().with_root_path(true), ["path_in.weight", "path_in.bias"]),
-            (base.clone().with_key_input(true), ["key_in.weight", "key_in.bias"]),
-        ];
+        let grown_by = [(base.clone().with_key_input(true), ["key_in.weight", "key_in.bias"])];
         for (cfg, new) in grown_by {
             for named in [true, false] {
                 let ck = checkpoint_of(&old, named);
@@ -310,12 +307,9 @@ mod tests {
     }
 
     #[test]
-    fn the_hint_and_key_input_reach_the_decoder_only_where_keys_are() {
+    fn the_key_input_reaches_the_decoder_only_where_keys_are() {
         let dev = Device::flex();
-        let grown = [
-            (DiffKfcConfig::tiny().with_root_path(true), "path_in.weight"),
-            (DiffKfcConfig::tiny().with_key_input(true), "key_in.weight"),
-        ];
+        let grown = [(DiffKfcConfig::tiny().with_key_input(true), "key_in.weight")];
         for (cfg, weight) in grown {
             let m0 = cfg.init(&dev);
             // The projection's weights made nonzero (its bias stays zero).
