@@ -333,9 +333,11 @@ impl Protocol<'_> {
                 seed: Rng::derive(seed, 7, c as u64).next_u64(),
                 tg_mode: self.opts.tg_mode,
                 inpaint: s.inpaint,
-                place: (self.opts.place_guidance > 0.0).then(|| {
-                    PlaceGuidance::new(self.opts.place_guidance, self.gen.mean, self.gen.std)
-                }),
+                place: PlaceGuidance::of_strength(
+                    self.opts.place_guidance,
+                    self.gen.mean,
+                    self.gen.std,
+                ),
                 ..Default::default()
             };
             let fitted = self.gen.generate(&req, &opts, self.opts.fit, |_, _| tick());

@@ -56,45 +56,35 @@ fn condition(
     (x, cond)
 }
 
-/// The tiny network, and the tiny network with a temporal convolution whose (zero-initialised)
-/// taps are made non-zero, so that the invariants are checked through it too.
+/// `model` with every all-zero tensor (zero-initialised extensions, LayerNorm offsets) made
+/// non-zero, so that the invariants are checked through them; `expected` names a tensor that
+/// must be among them.
+fn perturbed(model: diffkfc_model::Denoiser, expected: &str) -> diffkfc_model::Denoiser {
+    use diffkfc_model::network::params;
+    let names = params::names(&model);
+    let mut hit = false;
+    let vals: Vec<Vec<f32>> = params::values(&model)
+        .into_iter()
+        .zip(&names)
+        .map(|((_, v), name)| {
+            if !v.iter().all(|&x| x == 0.0) {
+                return v;
+            }
+            hit |= name.contains(expected);
+            (0..v.len()).map(|i| ((i + 1) as f32 * 0.37).sin() * 0.5).collect()
+        })
+        .collect();
+    assert!(hit, "{expected} was found zero and perturbed");
+    params::load(model, &vals)
+}
+
+/// The tiny network, and the tiny network with a temporal convolution and with the per-frame
+/// key input (both zero-initialised, perturbed so that they do something).
 fn tiny_models(dev: &Device) -> Vec<diffkfc_model::Denoiser> {
-    let plain = DiffKfcConfig::tiny().init(dev);
-    // Temporal taps start at zero: perturbed so that they do something.
-    let conv = DiffKfcConfig::tiny().with_temporal_kernel(3).init(dev);
-    let mut k = 0u32;
-    let vals: Vec<Vec<f32>> = diffkfc_model::network::params::values(&conv)
-        .into_iter()
-        .map(|(_, v)| {
-            if v.iter().all(|&x| x == 0.0) && [3 * 64, 64].contains(&v.len()) {
-                v.iter()
-                    .map(|_| {
-                        k += 1;
-                        ((k as f32 * 0.37).sin()) * 0.5
-                    })
-                    .collect()
-            } else {
-                v
-            }
-        })
-        .collect();
-    assert!(k > 0, "the temporal taps were found");
-    // The per-frame key input starts at zero too: perturbed.
-    let keyed = DiffKfcConfig::tiny().with_key_input(true).init(dev);
-    let keyed_vals: Vec<Vec<f32>> = diffkfc_model::network::params::values(&keyed)
-        .into_iter()
-        .map(|(_, v)| {
-            if v.iter().all(|&x| x == 0.0) {
-                (0..v.len()).map(|i| (i as f32 * 0.29).sin() * 0.3).collect()
-            } else {
-                v
-            }
-        })
-        .collect();
     vec![
-        plain,
-        diffkfc_model::network::params::load(conv, &vals),
-        diffkfc_model::network::params::load(keyed, &keyed_vals),
+        DiffKfcConfig::tiny().init(dev),
+        perturbed(DiffKfcConfig::tiny().with_temporal_kernel(3).init(dev), "temporal"),
+        perturbed(DiffKfcConfig::tiny().with_key_input(true).init(dev), "key_in"),
     ]
 }
 

@@ -47,8 +47,7 @@ pub fn forward_planned(
     work: &[BlockWork],
 ) -> Flops {
     let (b, n, d, f) = (batch, frames, c.d_model, c.ffn);
-    let nd = n;
-    let (le, ld) = (n + 1, nd + 2);
+    let (le, ld) = (n + 1, n + 2);
     let block = |w: &BlockWork| {
         let (q, k) = (w.queries, w.keys);
         linear(q, d, d)
@@ -79,12 +78,12 @@ pub fn forward_planned(
         + word_attention;
     // The extensions' per-frame projections added to the decoder's frame tokens.
     let key_in =
-        if c.key_input { linear(b * nd, 2 * (c.feat_dim + c.root_channels), d) } else { 0.0 };
-    let decoder = linear(b * nd, c.feat_dim, d)
+        if c.key_input { linear(b * n, 2 * (c.feat_dim + c.root_channels), d) } else { 0.0 };
+    let decoder = linear(b * n, c.feat_dim, d)
         + key_in
         + 2.0 * linear(b, d, d)
         + c.dec_layers as f64 * layer
-        + linear(b * nd, d, c.feat_dim);
+        + linear(b * n, d, c.feat_dim);
     Flops { encoder, decoder }
 }
 

@@ -65,7 +65,8 @@ pub struct Denoiser {
     out: Linear,
     d_model: usize,
     dma_sizes: Vec<usize>,
-    /// The per-frame keyframe input's projection (last, so positional checkpoints of models without it are a prefix of its parameters).
+    /// The per-frame keyframe input's projection (last, so positional checkpoints of models
+    /// without it are a prefix of its parameters).
     key_in: Option<Linear>,
     /// The word states' projection (models with `text_words`; last, like `key_in`).
     word_in: Option<WordInput>,

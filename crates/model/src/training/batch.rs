@@ -32,16 +32,16 @@ pub fn to_tensors(
 ) -> TensorBatch {
     let (bs, n, d) = (b.batch_size, b.frames, b.dim);
     assert_eq!(text.len(), bs * text_dim, "one text embedding per sample");
-    let (x0, kf_mask) = (b.x0.clone(), b.kf_mask.clone());
+    let (x0, kf_mask) = (b.x0.clone(), &b.kf_mask);
     let (schedule, t, noise) = noised;
     let x_t = schedule.q_sample_host(&x0, t, noise);
-    let kf: Vec<f32> = x0.par_iter().zip(&kf_mask).map(|(x, m)| x * m).collect();
+    let kf: Vec<f32> = x0.par_iter().zip(kf_mask).map(|(x, m)| x * m).collect();
     let owned = |v: Vec<f32>| Tensor::<3>::from_data(TensorData::new(v, [bs, n, d]), device);
     let kf_mask_t = Tensor::<1>::from_floats(kf_mask.as_slice(), device).reshape([bs, n, d]);
     let real = b.valid.iter().map(|&v| v > 0.0).collect();
     let text = Tensor::<1>::from_floats(text, device).reshape([bs, text_dim]);
     let cond =
-        Condition::new(text, owned(kf), kf_mask_t, &kf_mask, &b.root, &b.root_mask, real, device);
+        Condition::new(text, owned(kf), kf_mask_t, kf_mask, &b.root, &b.root_mask, real, device);
     TensorBatch {
         x0: owned(x0),
         x_t: owned(x_t),
