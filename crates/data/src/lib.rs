@@ -1,16 +1,15 @@
 //! diffkfc-data: everything about motion data before and after the network, in the order of the
 //! pipeline: `motion` (skeletons, the HumanML3D representation, root keys and tracks), `io`
 //! (npy, BVH, motion and keyframe files, atomic outputs), `dataset` (the HumanML3D layout, the
-//! packed cache, batches with keyframe masks, checks, the synthetic set), `keyframes` (selection
-//! and timelines), `postprocess` (warp, rigid refit, foot lock) and `render` (GIF, contact sheet,
-//! the 3D page).
+//! packed cache, batches with keyframe masks, checks, the synthetic set), `keyframes`
+//! (selection) and `postprocess` (warp, rigid refit, foot lock). Pictures of motion are the
+//! `diffkfc-render` crate's.
 
 pub mod dataset;
 pub mod io;
 pub mod keyframes;
 pub mod motion;
 pub mod postprocess;
-pub mod render;
 pub mod rng;
 #[cfg(any(test, feature = "testing"))]
 pub mod testing;

@@ -53,15 +53,10 @@ fn every_clip_is_plausible_and_everything_is_covered() {
     let d = out_dir("cover");
     let n = 600;
     synth::write_dataset(&d, &SynthSpec::legacy(n, 1), 2, &|_, _| {}).unwrap();
-    let manifest: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(d.join("manifest.json")).unwrap()).unwrap();
-    let clips = manifest["clips"].as_array().unwrap();
+    let clips = manifest(&d)["clips"].as_array().unwrap().clone();
     assert_eq!(clips.len(), n);
     let mut seen: HashMap<&str, HashSet<String>> = HashMap::new();
-    let (mut worst_bone, mut min_h, mut max_v, mut max_a) = (0.0f64, f64::INFINITY, 0.0f64, 0.0f64);
-    let (mut skate_sum, mut skate_n) = (0.0, 0);
-    for c in clips {
-        let id = c["id"].as_str().unwrap();
+    for c in &clips {
         let split = c["split"].as_str().unwrap();
         for a in c["actions"].as_array().unwrap() {
             seen.entry(split).or_default().insert(a["action"].as_str().unwrap().to_string());
@@ -69,6 +64,62 @@ fn every_clip_is_plausible_and_everything_is_covered() {
         seen.entry(split)
             .or_default()
             .insert(format!("pattern:{}", c["pattern"].as_str().unwrap()));
+    }
+    assert_plausible(&d, &clips);
+    for a in ACTIONS {
+        for split in ["train", "test"] {
+            assert!(seen[split].contains(a.name), "{} missing from {split}", a.name);
+        }
+    }
+    for p in ["single", "sequence", "simultaneous", "ambiguous"] {
+        for split in ["train", "test"] {
+            assert!(seen[split].contains(&format!("pattern:{p}")), "{p} missing from {split}");
+        }
+    }
+    std::fs::remove_dir_all(d).unwrap();
+}
+
+/// A varied set (`--vary 1`) is as plausible as the plain one, the same actions at other
+/// paces: its clips' lengths differ, their action spans stay inside them.
+#[test]
+fn a_varied_set_is_plausible_at_other_paces() {
+    let (plain, varied) = (out_dir("plain"), out_dir("varied"));
+    let n = 300;
+    synth::write_dataset(&plain, &SynthSpec::legacy(n, 1), 2, &|_, _| {}).unwrap();
+    let spec = SynthSpec { vary: 1.0, ..SynthSpec::legacy(n, 1) };
+    synth::write_dataset(&varied, &spec, 2, &|_, _| {}).unwrap();
+    let (m0, m1) = (manifest(&plain), manifest(&varied));
+    assert_eq!((m0.get("vary"), m1["vary"].as_f64()), (None, Some(1.0)));
+    let clips = m1["clips"].as_array().unwrap().clone();
+    assert_plausible(&varied, &clips);
+    let frames = |c: &serde_json::Value| c["frames"].as_u64().unwrap();
+    // The same draws (a varied clip that its features cannot represent is redrawn).
+    let pairs = clips.iter().zip(m0["clips"].as_array().unwrap());
+    let same: Vec<_> = pairs.filter(|(a, b)| a["captions"] == b["captions"]).collect();
+    let other = same.iter().filter(|(a, b)| frames(a) != frames(b)).count();
+    assert!(same.len() > n * 9 / 10 && other > same.len() * 3 / 4, "{} {other}", same.len());
+    for c in &clips {
+        for a in c["actions"].as_array().unwrap() {
+            let (s, e) = (a["start"].as_u64().unwrap(), a["end"].as_u64().unwrap());
+            assert!(s < e && e <= frames(c) + 1, "{}: span {s}..{e} of {}", c["id"], frames(c));
+        }
+    }
+    for d in [plain, varied] {
+        std::fs::remove_dir_all(d).unwrap();
+    }
+}
+
+fn manifest(d: &std::path::Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(d.join("manifest.json")).unwrap()).unwrap()
+}
+
+/// Every clip of `d` has rigid bones, stays above the ground, has no velocity or acceleration
+/// spike and three captions that parse; the mean foot skating is small.
+fn assert_plausible(d: &std::path::Path, clips: &[serde_json::Value]) {
+    let (mut worst_bone, mut min_h, mut max_v, mut max_a) = (0.0f64, f64::INFINITY, 0.0f64, 0.0f64);
+    let mut skate_sum = 0.0;
+    for c in clips {
+        let id = c["id"].as_str().unwrap();
         let j = npy::read_f64(d.join(format!("new_joints/{id}.npy"))).unwrap();
         let t = j.shape[0];
         assert!((40..196).contains(&t), "{id}: {t} frames");
@@ -84,24 +135,12 @@ fn every_clip_is_plausible_and_everything_is_covered() {
         min_h = min_h.min(p.min_height);
         max_v = max_v.max(p.max_speed);
         skate_sum += p.foot_skating;
-        skate_n += 1;
         let (caps, errs) = texts::parse_file(&d.join(format!("texts/{id}.txt"))).unwrap();
         assert!(errs.is_empty() && caps.len() == 3, "{id}: {errs:?}");
     }
-    let skate = skate_sum / skate_n as f64;
-    eprintln!("synth plausibility over {n} clips: bone std {worst_bone:.2e} m, min height {min_h:.3} m, max speed {max_v:.2} m/s, max accel {max_a:.0} m/s^2, mean foot skating {skate:.4}");
+    let skate = skate_sum / clips.len() as f64;
+    eprintln!("synth plausibility over {} clips: bone std {worst_bone:.2e} m, min height {min_h:.3} m, max speed {max_v:.2} m/s, max accel {max_a:.0} m/s^2, mean foot skating {skate:.4}", clips.len());
     assert!(skate < 0.05, "foot skating ratio {skate}");
-    for a in ACTIONS {
-        for split in ["train", "test"] {
-            assert!(seen[split].contains(a.name), "{} missing from {split}", a.name);
-        }
-    }
-    for p in ["single", "sequence", "simultaneous", "ambiguous"] {
-        for split in ["train", "test"] {
-            assert!(seen[split].contains(&format!("pattern:{p}")), "{p} missing from {split}");
-        }
-    }
-    std::fs::remove_dir_all(d).unwrap();
 }
 
 /// A walk puts its feet down in turn: left and right toe contacts alternate, and each

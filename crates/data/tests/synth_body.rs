@@ -85,7 +85,7 @@ fn bodies_share_legs_and_feet() {
 fn manifest_records_the_body_and_bad_names_are_refused() {
     let d = std::env::temp_dir().join(format!("diffkfc-body-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
-    let spec = SynthSpec { clips: 3, seed: 1, body: Body::HumanMl3d };
+    let spec = SynthSpec { clips: 3, seed: 1, body: Body::HumanMl3d, vary: 0.0 };
     synth::write_dataset(&d, &spec, 1, &|_, _| {}).unwrap();
     let m: serde_json::Value =
         serde_json::from_slice(&std::fs::read(d.join("manifest.json")).unwrap()).unwrap();

@@ -2,9 +2,9 @@
 //! pose math, the view and the editor) and the skeleton facts they need, served at `/`.
 
 use diffkfc_data::motion::{quat, representation as rep};
-use diffkfc_data::render::viewer::{escape, SCENE_JS};
 use diffkfc_data::{Skeleton, T2M};
 use diffkfc_model::sampling::sampler::DEFAULT_STEPS;
+use diffkfc_render::viewer::{escape, SCENE_JS};
 use serde_json::json;
 
 use crate::api::Limits;

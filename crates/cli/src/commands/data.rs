@@ -163,6 +163,12 @@ struct SynthArgs {
     /// (the hand-set body of `models/tiny-synth`'s set and the sets before).
     #[arg(long, default_value = "humanml3d")]
     body: Body,
+    /// Variation beyond the actions' own parameters, 0 to 2: at 1 each clip's pace changes
+    /// across it (0.75-1.33x on average, a slow ±35% wave) and its posture drifts (spine,
+    /// head, arms, pelvis height), so that text alone cannot tell how it moves between keys.
+    /// 0 (the default) is the reference model's set.
+    #[arg(long, default_value_t = 0.0)]
+    vary: f64,
     /// Worker threads (default: all cores). The output does not depend on it.
     #[arg(long)]
     threads: Option<usize>,
@@ -287,12 +293,15 @@ fn synth(a: SynthArgs) -> Result<()> {
     if a.threads.is_some_and(|t| t == 0 || t > 1024) {
         bail!("--threads: {} must be 1 to 1024", a.threads.unwrap_or(0));
     }
+    if !(0.0..=2.0).contains(&a.vary) {
+        bail!("--vary: {} must be 0 to 2", a.vary);
+    }
     let threads = a
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1));
     let bar = std::sync::Mutex::new(crate::progress::bar("synthesising"));
     let t0 = std::time::Instant::now();
-    let spec = SynthSpec { clips: a.clips, seed: a.seed, body: a.body };
+    let spec = SynthSpec { clips: a.clips, seed: a.seed, body: a.body, vary: a.vary };
     let s = diffkfc_data::dataset::synth::write_dataset(&a.out, &spec, threads, &|d, n| {
         (bar.lock().unwrap())(d, n)
     })?;

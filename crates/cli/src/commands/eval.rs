@@ -15,8 +15,8 @@ use diffkfc_eval::report;
 use diffkfc_eval::t2m::{split_captions, T2mEvaluator};
 use diffkfc_eval::text_motion::Gaussian;
 use diffkfc_eval::train_evaluator::embed_split;
-use diffkfc_model::run::load::InferenceModel;
 use diffkfc_model::sampling::sampler;
+use diffkfc_model::sampling::session::Session;
 use diffkfc_model::text::cache::embed_captions;
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -310,7 +310,9 @@ fn evaluate(mut a: RunArgs) -> Result<()> {
     let strategy = check_counts(&a)?;
     ownership::check(&a.out, Output::Report, a.force, "--out")?;
     let device = a.tg_mode.device(crate::device::parse(&a.device)?);
-    let loaded = InferenceModel::load(&run_dir, &device)?;
+    let ds = Dataset::open(&data)?;
+    let session = Session::load(&run_dir, &device, ds.skeleton)?;
+    let loaded = &session.loaded;
     let (cfg, step) = (&loaded.cfg, loaded.step);
     // From here on the scale is the one used: the flag's or the model's default.
     a.text_guidance = Some(diffkfc_model::sampling::guidance::text_guidance(
@@ -318,7 +320,6 @@ fn evaluate(mut a: RunArgs) -> Result<()> {
         a.text_guidance,
         &loaded.cfg,
     )?);
-    let ds = Dataset::open(&data)?;
     if ds.dim() != cfg.model.feat_dim {
         bail!(
             "--data: {} has {}-d features, the checkpoint {} expects {}",
@@ -331,7 +332,9 @@ fn evaluate(mut a: RunArgs) -> Result<()> {
     let split =
         PackedSplit::open(&ds, &a.split, &default_cache_dir(&ds), crate::progress::bar("caching"))?;
     let num_items = check_split(&a, &split, cfg.model.max_frames)?;
-    // The evaluator reads pooled embeddings; a model with word states reads its own input.
+    // The split's captions are embedded in batches and cached on disk (thousands of them),
+    // not one by one through the session. The evaluator reads pooled embeddings; a model with
+    // word states reads its own input.
     let text = embed_captions(&ds, &[&split], 0, crate::progress::bar("embedding"))?;
     let words = cfg.model.text_words;
     let model_text = (words > 0)
@@ -343,7 +346,7 @@ fn evaluate(mut a: RunArgs) -> Result<()> {
     let sampler = a.sampler.sampler(a.steps);
     let opts = options(&a, num_items, strategy);
     let p = Protocol {
-        gen: loaded.generator(ds.skeleton),
+        gen: session.generator(),
         ds: &ds,
         split: &split,
         text: model_text.as_ref().unwrap_or(&text),

@@ -1,4 +1,4 @@
-//! `diffkfc render --page`: one page comparing sample folders (`diffkfc_data::render::compare`),
+//! `diffkfc render --page`: one page comparing sample folders (`diffkfc_render::compare`),
 //! with the 3D view of all of them, a contact sheet and a run's loss plot written beside it.
 
 use std::path::{Path, PathBuf};
@@ -6,9 +6,10 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use diffkfc_data::io::motion_file::load_motion;
 use diffkfc_data::io::rig::ImportOptions;
-use diffkfc_data::render::compare::{self, Folder, PageParts};
-use diffkfc_data::render::viewer::{self, ViewMotion};
-use diffkfc_data::{render, T2M};
+use diffkfc_data::T2M;
+use diffkfc_render as render;
+use diffkfc_render::compare::{self, Folder, PageParts};
+use diffkfc_render::viewer::{self, ViewMotion};
 
 /// Read the folders, write view.html, sheet.png (and loss.svg from `run`) beside `out`, then
 /// `out` itself; print the table.

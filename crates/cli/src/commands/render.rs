@@ -5,8 +5,9 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Result};
 use clap::Args;
-use diffkfc_data::render::viewer::{self, ViewMotion};
-use diffkfc_data::{render, T2M};
+use diffkfc_data::T2M;
+use diffkfc_render as render;
+use diffkfc_render::viewer::{self, ViewMotion};
 
 use diffkfc_data::io::motion_file::load_motion;
 

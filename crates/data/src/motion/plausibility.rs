@@ -1,9 +1,11 @@
 //! Physical plausibility measures of joint-position motions (metres, Y up): what the
-//! synthetic set is tested against and what `eval` reports as foot skating.
+//! synthetic set is tested against and what `eval` reports as foot skating; and whether a
+//! motion can be drawn at all (a diverged sampler's cannot).
 
 use crate::motion::quat::{self, Vec3};
 use crate::motion::representation::Joints;
 use crate::motion::skeleton::Skeleton;
+use crate::DataError;
 
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Plausibility {
@@ -94,6 +96,36 @@ pub fn foot_skating_ratio(skel: &Skeleton, j: &Joints) -> f64 {
     } else {
         skate as f64 / contact as f64
     }
+}
+
+/// Farthest a joint may be from the origin and still be drawn (metres): the ground grid has a
+/// line every 0.5 m, so a motion 1e30 m long would take forever.
+pub const MAX_EXTENT_M: f64 = 10_000.0;
+
+/// A motion that can be drawn: every coordinate finite and within `MAX_EXTENT_M`.
+pub fn check_drawable(j: &Joints) -> Result<(), DataError> {
+    for (t, frame) in j.iter().enumerate() {
+        for (k, p) in frame.iter().enumerate() {
+            if let Some(v) = p.iter().find(|v| !(v.is_finite() && v.abs() <= MAX_EXTENT_M)) {
+                return Err(DataError::Invalid(format!("frame {t}, joint {k} is at {v} m: not finite or beyond {MAX_EXTENT_M} m, cannot draw it")));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The joints of generated features `[T, D]`, or why they cannot be a motion (a diverged
+/// sampler): a non-finite feature, or joints that cannot be drawn.
+pub fn drawable_joints(skel: &Skeleton, features: &[f32]) -> Result<Joints, DataError> {
+    if !features.iter().all(|v| v.is_finite()) {
+        return Err(DataError::Invalid("features not finite".into()));
+    }
+    let j = crate::motion::representation::recover_from_ric(
+        skel,
+        &features.iter().map(|&v| v as f64).collect::<Vec<_>>(),
+    );
+    check_drawable(&j)?;
+    Ok(j)
 }
 
 #[cfg(test)]

@@ -44,6 +44,9 @@ pub struct SynthSet {
     pub clips: usize,
     #[serde(default)]
     pub seed: u64,
+    /// `data synth --vary`.
+    #[serde(default)]
+    pub vary: f64,
 }
 
 fn default_clips() -> usize {
@@ -131,7 +134,10 @@ impl SynthSet {
         if self.clips == 0 || self.clips > 100_000 {
             return Err(format!("clips: {} must be 1 to 100000", self.clips));
         }
-        Ok(SynthSpec { clips: self.clips, seed: self.seed, body })
+        if !(0.0..=2.0).contains(&self.vary) {
+            return Err(format!("vary: {} must be 0 to 2", self.vary));
+        }
+        Ok(SynthSpec { clips: self.clips, seed: self.seed, body, vary: self.vary })
     }
 }
 

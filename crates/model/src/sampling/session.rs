@@ -7,7 +7,8 @@ use std::path::Path;
 use std::sync::Mutex;
 
 use burn::prelude::Device;
-use diffkfc_data::{render, Skeleton};
+use diffkfc_data::motion::plausibility;
+use diffkfc_data::Skeleton;
 
 use crate::error::Result;
 use crate::run::load::InferenceModel;
@@ -90,7 +91,7 @@ impl Session {
     ) -> std::result::Result<Vec<Fitted>, Diverged> {
         let fitted = self.generator().generate(req, opts, fit, progress);
         for (index, f) in fitted.iter().enumerate() {
-            if let Err(e) = render::drawable_joints(self.skel, &f.features) {
+            if let Err(e) = plausibility::drawable_joints(self.skel, &f.features) {
                 return Err(Diverged { index, reason: e.to_string() });
             }
         }

@@ -11,6 +11,7 @@ pub mod body;
 pub mod captions;
 pub mod gait;
 pub mod manifest;
+pub mod variation;
 
 use std::path::{Path, PathBuf};
 
@@ -182,9 +183,14 @@ fn end_pose(p: &Pose) -> Pose {
 /// reproduce its motion (HumanML3D's smoothed facing direction cannot represent a body that
 /// ends facing opposite to its start within a few seconds; such draws are redrawn).
 pub fn clip(body: Body, seed: u64, index: usize) -> (Clip, Vec<f32>) {
+    clip_of(&SynthSpec { clips: index + 1, seed, body, vary: 0.0 }, index)
+}
+
+/// Clip `index` of the set `spec`: see [`clip`].
+pub fn clip_of(spec: &SynthSpec, index: usize) -> (Clip, Vec<f32>) {
     let mut last = None;
     for attempt in 0..16u64 {
-        let c = clip_attempt(body, seed, index, attempt);
+        let c = clip_attempt(spec, index, attempt);
         let feats = rep::features_from_joints(&T2M, &c.joints, FOOT_CONTACT_THRESHOLD)
             .expect("synthetic joints are valid");
         let rec = rep::recover_from_ric(&T2M, &feats.iter().map(|&v| v as f64).collect::<Vec<_>>());
@@ -208,18 +214,23 @@ fn representable(input: &rep::Joints, rec: &rep::Joints) -> bool {
     })
 }
 
-fn clip_attempt(body: Body, seed: u64, index: usize, attempt: u64) -> Clip {
-    let mut r = Rng::derive(seed, 7 + (attempt << 8), index as u64);
+fn clip_attempt(spec: &SynthSpec, index: usize, attempt: u64) -> Clip {
+    let mut r = Rng::derive(spec.seed, 7 + (attempt << 8), index as u64);
     // 3.14, not PI: the synthetic set's bytes are fixed by its seed, and PI would change them.
     #[allow(clippy::approx_constant)]
     let start = Pose::standing(r.range(-1.0, 1.0), r.range(-1.0, 1.0), r.range(-3.14, 3.14));
     let pattern = PATTERNS[[0, 0, 0, 1, 1, 2, 2, 3][r.below(8)]];
-    let d = match pattern {
+    let mut d = match pattern {
         Pattern::Single => single(&mut r, &start),
         Pattern::Sequence | Pattern::Ambiguous => sequence_or_ambiguous(&mut r, &start, pattern),
         Pattern::Simultaneous => simultaneous(&mut r, &start),
     };
-    finish(body, index, pattern, d)
+    if spec.vary > 0.0 {
+        // Its own stream, so a set without variation keeps its bytes.
+        let mut v = Rng::derive(spec.seed, 9 + (attempt << 8), index as u64);
+        d.poses = variation::apply(&mut v, spec.vary, &d.poses, &mut d.spans, MAX_CLIP_FRAMES + 1);
+    }
+    finish(spec.body, index, pattern, d)
 }
 
 /// Most feature frames of a clip (+1 position frame -> at most 195 feature frames, < 196).
@@ -429,12 +440,14 @@ pub struct SynthSpec {
     pub clips: usize,
     pub seed: u64,
     pub body: Body,
+    /// Variation beyond the actions' own parameters ([`variation`]); 0 for none.
+    pub vary: f64,
 }
 
 impl SynthSpec {
     /// `clips` clips of `seed` drawn by the legacy body.
     pub fn legacy(clips: usize, seed: u64) -> SynthSpec {
-        SynthSpec { clips, seed, body: Body::Legacy }
+        SynthSpec { clips, seed, body: Body::Legacy, vary: 0.0 }
     }
 }
 
@@ -454,7 +467,11 @@ pub fn write_dataset(
     let (mean, std) = mean_std(&sum, &sq, frames);
     npy::write(tmp.join("Mean.npy"), &[dim], &mean)?;
     npy::write(tmp.join("Std.npy"), &[dim], &std)?;
-    let manifest = json!({"generator": "diffkfc data synth", "version": env!("CARGO_PKG_VERSION"), "seed": seed, "body": spec.body.name(), "clips": metas});
+    let mut manifest = json!({"generator": "diffkfc data synth", "version": env!("CARGO_PKG_VERSION"), "seed": seed, "body": spec.body.name(), "clips": metas});
+    if spec.vary > 0.0 {
+        // Only where set, so sets without variation keep their bytes.
+        manifest["vary"] = json!(spec.vary);
+    }
     crate::write_atomic(
         &tmp.join("manifest.json"),
         &serde_json::to_vec_pretty(&manifest).expect("json"),
@@ -516,7 +533,7 @@ fn write_clips(
     let done = std::sync::atomic::AtomicUsize::new(0);
     type Out = (ClipMeta, Vec<f64>, Vec<f64>, usize);
     let work = |i: usize| -> Result<Out, DataError> {
-        let (c, feats) = clip(spec.body, spec.seed, i);
+        let (c, feats) = clip_of(spec, i);
         let t = feats.len() / dim;
         let fdata: Vec<f64> = feats.iter().map(|&v| v as f64).collect();
         let rec = rep::recover_from_ric(&T2M, &fdata);

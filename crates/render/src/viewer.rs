@@ -4,8 +4,8 @@
 
 use serde_json::json;
 
-use crate::motion::representation::Joints;
-use crate::motion::skeleton::Skeleton;
+use diffkfc_data::motion::representation::Joints;
+use diffkfc_data::motion::skeleton::Skeleton;
 
 const SCRIPT: &str = include_str!("viewer.js");
 /// The camera, grid and figure drawing shared with the keyframe editor's page.
@@ -126,7 +126,7 @@ body{{font-family:system-ui,sans-serif;margin:16px;color:#0f172a;max-width:1200p
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::T2M;
+    use diffkfc_data::T2M;
 
     /// Text from users (prompts, labels) cannot end the data script or inject markup, and the
     /// embedded data parses back to the motion.

@@ -7,10 +7,11 @@ pub mod viewer;
 
 use std::path::Path;
 
-use crate::motion::quat::Vec3;
-use crate::motion::representation::Joints;
-use crate::motion::skeleton::Skeleton;
-use crate::DataError;
+use diffkfc_data::motion::plausibility;
+use diffkfc_data::motion::quat::Vec3;
+use diffkfc_data::motion::representation::Joints;
+use diffkfc_data::motion::skeleton::Skeleton;
+use diffkfc_data::DataError;
 
 /// Palette indices.
 #[derive(Clone, Copy)]
@@ -243,36 +244,6 @@ fn draw_figure(
     }
 }
 
-/// Farthest a joint may be from the origin and still be drawn (metres): the ground grid has a
-/// line every 0.5 m, so a motion 1e30 m long would take forever.
-pub const MAX_EXTENT_M: f64 = 10_000.0;
-
-/// A motion that can be drawn: every coordinate finite and within `MAX_EXTENT_M`.
-pub fn check_drawable(j: &Joints) -> Result<(), DataError> {
-    for (t, frame) in j.iter().enumerate() {
-        for (k, p) in frame.iter().enumerate() {
-            if let Some(v) = p.iter().find(|v| !(v.is_finite() && v.abs() <= MAX_EXTENT_M)) {
-                return Err(DataError::Invalid(format!("frame {t}, joint {k} is at {v} m: not finite or beyond {MAX_EXTENT_M} m, cannot draw it")));
-            }
-        }
-    }
-    Ok(())
-}
-
-/// The joints of generated features `[T, D]`, or why they cannot be a motion (a diverged
-/// sampler): a non-finite feature, or joints that cannot be drawn.
-pub fn drawable_joints(skel: &Skeleton, features: &[f32]) -> Result<Joints, DataError> {
-    if !features.iter().all(|v| v.is_finite()) {
-        return Err(DataError::Invalid("features not finite".into()));
-    }
-    let j = crate::motion::representation::recover_from_ric(
-        skel,
-        &features.iter().map(|&v| v as f64).collect::<Vec<_>>(),
-    );
-    check_drawable(&j)?;
-    Ok(j)
-}
-
 /// Size of GIF frames.
 pub const GIF_SIZE: usize = 320;
 
@@ -284,7 +255,7 @@ pub const GIF_SIZE: usize = 320;
 pub const MAX_GHOSTS: usize = 12;
 
 pub fn gif(skel: &Skeleton, j: &Joints, keyframes: &[usize], path: &Path) -> Result<(), DataError> {
-    check_drawable(j).map_err(|e| e.in_file(path))?;
+    plausibility::check_drawable(j).map_err(|e| e.in_file(path))?;
     let (w, h) = (GIF_SIZE, GIF_SIZE);
     let cam = Camera::fit(j, w, h);
     let mut base = Canvas::new(w, h);
@@ -322,7 +293,7 @@ pub fn gif(skel: &Skeleton, j: &Joints, keyframes: &[usize], path: &Path) -> Res
             enc.write_frame(&frame).map_err(io)?;
         }
     }
-    crate::write_atomic(path, &bytes)
+    diffkfc_data::write_atomic(path, &bytes)
 }
 
 /// A contact sheet: one cell per clip, each a strobe of `poses` poses from light to dark,
@@ -335,7 +306,7 @@ pub fn sheet(
     path: &Path,
 ) -> Result<(), DataError> {
     for (j, _) in clips {
-        check_drawable(j).map_err(|e| e.in_file(path))?;
+        plausibility::check_drawable(j).map_err(|e| e.in_file(path))?;
     }
     let cols = cols.max(1).min(clips.len().max(1));
     let rows = clips.len().div_ceil(cols).max(1);
@@ -382,5 +353,5 @@ pub fn sheet(
         };
         enc.write_header().map_err(err)?.write_image_data(&out).map_err(err)?;
     }
-    crate::write_atomic(path, &bytes)
+    diffkfc_data::write_atomic(path, &bytes)
 }

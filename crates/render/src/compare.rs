@@ -8,8 +8,8 @@ use std::path::{Component, Path, PathBuf};
 
 use serde_json::Value;
 
-use crate::render::viewer::escape;
-use crate::DataError;
+use crate::viewer::escape;
+use diffkfc_data::DataError;
 
 /// One sample folder: where it is, what it is called on the page, and its results.json.
 #[derive(Clone, Debug)]
