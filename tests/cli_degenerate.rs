@@ -5,10 +5,10 @@
 
 mod common;
 use common::*;
-use diffkfc_data::dataset::synth::{clip, Body};
 use diffkfc_data::io::npy;
 use diffkfc_data::motion::representation::{joints_to_f32, recover_from_ric_f32};
 use diffkfc_data::T2M;
+use diffkfc_synth::{clip, Body};
 use std::path::Path;
 
 const D: usize = 263;

@@ -190,10 +190,7 @@ fn four_clients_hold_the_editor_for_a_session() {
     let line = line_with(server.stdout.take().unwrap(), "diffkfc editor: http://");
     let url = line.split_whitespace().find(|w| w.starts_with("http://")).unwrap();
     let addr: SocketAddr = url.trim_start_matches("http://").trim_end_matches('/').parse().unwrap();
-    let pose = diffkfc_data::dataset::synth::clip(diffkfc_data::dataset::synth::Body::Legacy, 0, 0)
-        .0
-        .joints[0]
-        .clone();
+    let pose = diffkfc_synth::clip(diffkfc_synth::Body::Legacy, 0, 0).0.joints[0].clone();
     let (t0, log) = (Instant::now(), Arc::new(Mutex::new(Log::default())));
     let end = t0 + Duration::from_secs_f64(secs);
     let warm_up = 120f64.min(secs / 4.0);

@@ -10,13 +10,8 @@ use diffkfc_data::dataset::Dataset;
 
 fn loader(c: &mut Criterion) {
     let dir = std::env::temp_dir().join(format!("diffkfc-loader-bench-{}", std::process::id()));
-    diffkfc_data::dataset::synth::write_dataset(
-        &dir,
-        &diffkfc_data::dataset::synth::SynthSpec::legacy(200, 0),
-        2,
-        &|_, _| {},
-    )
-    .expect("synthetic set");
+    diffkfc_synth::write_dataset(&dir, &diffkfc_synth::SynthSpec::legacy(200, 0), 2, &|_, _| {})
+        .expect("synthetic set");
     let ds = Dataset::open(&dir).expect("dataset");
     let split = PackedSplit::open(&ds, "train", &default_cache_dir(&ds), |_, _| {}).expect("cache");
     let mut g = c.benchmark_group("loader");

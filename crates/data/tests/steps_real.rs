@@ -72,9 +72,7 @@ fn a_real_walk_made_to_shuffle_gets_its_steps_back() {
 /// A synthetic clip whose only action is `action`: its features.
 fn synthetic(action: &str) -> Vec<f32> {
     (0..600)
-        .map(|i| {
-            diffkfc_data::dataset::synth::clip(diffkfc_data::dataset::synth::Body::Legacy, 3, i)
-        })
+        .map(|i| diffkfc_synth::clip(diffkfc_synth::Body::Legacy, 3, i))
         .find(|(c, _)| c.meta.actions.len() == 1 && c.meta.actions[0].action == action)
         .map(|(_, f)| f)
         .unwrap_or_else(|| panic!("a {action} among the first synthetic clips"))

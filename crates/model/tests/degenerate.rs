@@ -132,8 +132,7 @@ fn convert(feats: &[f32], class: &str) {
 fn degenerate_motions_never_panic_and_never_give_nan() {
     // Half the readers' count: each case runs the whole fit chain, not one parse.
     let n = diffkfc_data::testing::fuzz::cases() / 2;
-    let (_, base) =
-        diffkfc_data::dataset::synth::clip(diffkfc_data::dataset::synth::Body::Legacy, 0, 0);
+    let (_, base) = diffkfc_synth::clip(diffkfc_synth::Body::Legacy, 0, 0);
     let model = DiffKfcConfig::tiny().init(&Device::flex());
     let schedule = Schedule::cosine(1000);
     let (mean, std) = (vec![0f32; D], vec![1f32; D]);

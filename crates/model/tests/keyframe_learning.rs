@@ -14,7 +14,6 @@ use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
 use diffkfc_data::dataset::cache::PackedSplit;
-use diffkfc_data::dataset::synth::SynthSpec;
 use diffkfc_data::dataset::{Dataset, MAX_FRAMES};
 use diffkfc_data::keyframes;
 use diffkfc_data::motion::root_key::{self, ROOT_CHANNELS};
@@ -27,6 +26,7 @@ use diffkfc_model::sampling::sampler::{sample, Options, Request};
 use diffkfc_model::text::cache::EmbeddingCache;
 use diffkfc_model::training::optim::StateLocation;
 use diffkfc_model::training::trainer::Trainer;
+use diffkfc_synth::SynthSpec;
 
 fn env_or(name: &str, default: usize) -> usize {
     std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
@@ -84,13 +84,8 @@ fn root_path_error(ds: &Dataset, gen: &[f32], gt: &[f32], len: usize) -> f64 {
 fn keyframes_reproduce_a_clip_far_better_than_text() {
     let steps = env_or("DIFFKFC_KFTEST_STEPS", 400);
     let root = root_dir();
-    diffkfc_data::dataset::synth::write_dataset(
-        &root.join("data"),
-        &SynthSpec::legacy(24, 5),
-        2,
-        &|_, _| {},
-    )
-    .unwrap();
+    diffkfc_synth::write_dataset(&root.join("data"), &SynthSpec::legacy(24, 5), 2, &|_, _| {})
+        .unwrap();
     let ds = Dataset::open(root.join("data")).unwrap();
     let train =
         PackedSplit::open(&ds, "train", &root.join("data/.diffkfc-cache"), |_, _| {}).unwrap();

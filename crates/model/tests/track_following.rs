@@ -13,7 +13,6 @@ use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
 use diffkfc_data::dataset::cache::PackedSplit;
-use diffkfc_data::dataset::synth::SynthSpec;
 use diffkfc_data::dataset::{denormalise, normalise, Dataset, MAX_FRAMES};
 use diffkfc_data::motion::representation::recover_from_ric;
 use diffkfc_data::motion::root_key::{self, ROOT_CHANNELS};
@@ -22,6 +21,7 @@ use diffkfc_model::diffusion::Schedule;
 use diffkfc_model::run::load::load_for_inference;
 use diffkfc_model::sampling::sampler::{sample, Options, Request};
 use diffkfc_model::text::{self, minilm::MiniLm, TextEncoder};
+use diffkfc_synth::SynthSpec;
 
 fn root_dir() -> PathBuf {
     let d = std::env::temp_dir().join(format!("diffkfc-track-{}", std::process::id()));
@@ -90,13 +90,8 @@ fn a_dense_root_track_is_followed_by_the_pelvis_and_the_feet() {
         Err(e) => return eprintln!("SKIPPED: {e}"),
     };
     let root = root_dir();
-    diffkfc_data::dataset::synth::write_dataset(
-        &root.join("data"),
-        &SynthSpec::legacy(60, 77),
-        2,
-        &|_, _| {},
-    )
-    .unwrap();
+    diffkfc_synth::write_dataset(&root.join("data"), &SynthSpec::legacy(60, 77), 2, &|_, _| {})
+        .unwrap();
     let ds = Dataset::open(root.join("data")).unwrap();
     let clips =
         PackedSplit::open(&ds, "train", &root.join("data/.diffkfc-cache"), |_, _| {}).unwrap();

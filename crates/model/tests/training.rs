@@ -19,13 +19,8 @@ static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
 fn dataset(name: &str, clips: usize) -> PathBuf {
     let d = std::env::temp_dir().join(format!("diffkfc-train-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
-    diffkfc_data::dataset::synth::write_dataset(
-        &d,
-        &diffkfc_data::dataset::synth::SynthSpec::legacy(clips, 2),
-        2,
-        &|_, _| {},
-    )
-    .unwrap();
+    diffkfc_synth::write_dataset(&d, &diffkfc_synth::SynthSpec::legacy(clips, 2), 2, &|_, _| {})
+        .unwrap();
     d
 }
 

@@ -391,9 +391,9 @@ fn loader_case(a: &BenchArgs) -> Result<Option<f64>> {
     let dir = match &a.data {
         Some(d) => d.clone(),
         None => {
-            diffkfc_data::dataset::synth::write_dataset(
+            diffkfc_synth::write_dataset(
                 &tmp,
-                &diffkfc_data::dataset::synth::SynthSpec::legacy(300, 0),
+                &diffkfc_synth::SynthSpec::legacy(300, 0),
                 2,
                 &|_, _| {},
             )?;

@@ -10,9 +10,9 @@ use diffkfc_data::io::motion_file::{
 use diffkfc_data::motion::representation::{self as rep, FOOT_CONTACT_THRESHOLD};
 
 use crate::args::{refuse_overwriting_input, BvhInputArgs};
-use diffkfc_data::dataset::synth::{Body, SynthSpec};
 use diffkfc_data::{dataset::loader_bench, io::rig};
 use diffkfc_data::{io::npy, Skeleton};
+use diffkfc_synth::{Body, SynthSpec};
 
 #[derive(Args)]
 pub struct DataArgs {
@@ -242,7 +242,7 @@ pub fn run(args: DataArgs) -> Result<()> {
 }
 
 fn clips(a: ClipsArgs) -> Result<()> {
-    use diffkfc_data::dataset::synth::manifest::{find_clips, ClipQuery};
+    use diffkfc_synth::manifest::{find_clips, ClipQuery};
     let q = ClipQuery {
         split: a.split,
         actions: a.actions,
@@ -302,9 +302,8 @@ fn synth(a: SynthArgs) -> Result<()> {
     let bar = std::sync::Mutex::new(crate::progress::bar("synthesising"));
     let t0 = std::time::Instant::now();
     let spec = SynthSpec { clips: a.clips, seed: a.seed, body: a.body, vary: a.vary };
-    let s = diffkfc_data::dataset::synth::write_dataset(&a.out, &spec, threads, &|d, n| {
-        (bar.lock().unwrap())(d, n)
-    })?;
+    let s =
+        diffkfc_synth::write_dataset(&a.out, &spec, threads, &|d, n| (bar.lock().unwrap())(d, n))?;
     println!(
         "{}: {} clips, {} frames ({:.2} h at 20 fps), seed {}, {} body, in {:.1} s",
         s.out.display(),

@@ -7,10 +7,10 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use diffkfc_data::dataset::synth::write_dataset;
 use diffkfc_model::run::checkpoint::{self, Checkpoint};
 use diffkfc_model::run::lock::is_run;
 use diffkfc_model::run::recipe::{Recipe, Stage};
+use diffkfc_synth::write_dataset;
 
 use super::train::TrainArgs;
 

@@ -5,7 +5,6 @@ pub mod batch;
 pub mod cache;
 pub mod check;
 pub mod loader_bench;
-pub mod synth;
 
 use std::path::{Path, PathBuf};
 

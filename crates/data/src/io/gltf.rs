@@ -428,8 +428,7 @@ mod tests {
     use crate::T2M;
 
     fn walk() -> Joints {
-        crate::dataset::synth::clip(crate::dataset::synth::Body::Legacy, 0, 0).0.joints[..40]
-            .to_vec()
+        diffkfc_synth::clip(diffkfc_synth::Body::Legacy, 0, 0).0.joints[..40].to_vec()
     }
 
     /// Forward kinematics of the file's own nodes and animation at frame `f` (metres).

@@ -304,8 +304,7 @@ mod tests {
     #[test]
     fn reads_places_headings_and_names_errors() {
         let pose = |k: f64| -> String {
-            let j =
-                &crate::dataset::synth::clip(crate::dataset::synth::Body::Legacy, 0, 0).0.joints[0];
+            let j = &diffkfc_synth::clip(diffkfc_synth::Body::Legacy, 0, 0).0.joints[0];
             serde_json::to_string(&j.iter().map(|p| p.map(|v| v * k)).collect::<Vec<_>>()).unwrap()
         };
         let keyed = |k: f64| {

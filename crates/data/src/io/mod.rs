@@ -1,7 +1,7 @@
 //! Files: `.npy` arrays, BVH (parsing, rig import and export), motion and keyframe files a
 //! user hands us, caption files, and writing outputs atomically, one file or a whole folder, into folders a command owns.
 
-pub(crate) mod atomic;
+pub mod atomic;
 pub mod bvh;
 pub mod gltf;
 pub mod keyframe_file;

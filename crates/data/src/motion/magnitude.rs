@@ -134,7 +134,7 @@ mod tests {
     use crate::T2M;
 
     fn walk() -> Joints {
-        crate::dataset::synth::clip(crate::dataset::synth::Body::Legacy, 0, 0).0.joints
+        diffkfc_synth::clip(diffkfc_synth::Body::Legacy, 0, 0).0.joints
     }
 
     #[test]
@@ -163,7 +163,7 @@ mod tests {
 
     #[test]
     fn features_beyond_their_limits_are_named() {
-        let f = crate::dataset::synth::clip(crate::dataset::synth::Body::Legacy, 0, 0).1;
+        let f = diffkfc_synth::clip(diffkfc_synth::Body::Legacy, 0, 0).1;
         check_features(&T2M, &f).unwrap();
         let d = T2M.feature_dim();
         for (c, v, what) in

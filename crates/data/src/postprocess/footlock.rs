@@ -332,7 +332,7 @@ mod tests {
     fn walk() -> Vec<f32> {
         let mut clip = None;
         for i in 0..400 {
-            let (c, f) = crate::dataset::synth::clip(crate::dataset::synth::Body::Legacy, 3, i);
+            let (c, f) = diffkfc_synth::clip(diffkfc_synth::Body::Legacy, 3, i);
             if c.meta.actions.len() == 1 && c.meta.actions[0].action == "walk_forward" {
                 clip = Some(f);
                 break;

@@ -255,7 +255,7 @@ mod tests {
     /// A synthetic forward walk's joints.
     fn walk() -> Joints {
         for i in 0..400 {
-            let (c, f) = crate::dataset::synth::clip(crate::dataset::synth::Body::Legacy, 3, i);
+            let (c, f) = diffkfc_synth::clip(diffkfc_synth::Body::Legacy, 3, i);
             if c.meta.actions.len() == 1 && c.meta.actions[0].action == "walk_forward" {
                 return recover_from_ric_f32(&T2M, &f);
             }

@@ -14,7 +14,7 @@
 
 use std::collections::BTreeMap;
 
-use diffkfc_data::dataset::synth::{Body, SynthSpec};
+use diffkfc_synth::{Body, SynthSpec};
 use serde::Deserialize;
 use serde_json::Value;
 

@@ -5,7 +5,7 @@ use serde_json::{json, Value};
 
 use super::body::{self, smooth, Arm, Pose};
 use super::gait::{self, Gait, RootState};
-use crate::rng::Rng;
+use diffkfc_data::rng::Rng;
 
 pub const FPS: f64 = 20.0;
 const PI: f64 = std::f64::consts::PI;

@@ -7,7 +7,7 @@ use std::f64::consts::TAU;
 
 use super::body::{Arm, Pose};
 use super::ActionSpan;
-use crate::rng::Rng;
+use diffkfc_data::rng::Rng;
 
 /// Fewest frames a varied clip keeps (or its own length, if shorter).
 const MIN_FRAMES: usize = 60;
@@ -72,7 +72,9 @@ fn warp(r: &mut Rng, strength: f64, n: usize, cap: usize, limit: f64) -> Vec<f64
 /// Fastest rate the clip may be played at: its pelvis and ankles within [`MAX_SPEED`], its
 /// pelvis within [`MAX_ACCEL`] (acceleration grows with the rate's square); at least 1.
 fn pace_limit(poses: &[Pose]) -> f64 {
-    let d = |a: [f64; 3], b: [f64; 3]| crate::motion::quat::norm(crate::motion::quat::sub(a, b));
+    let d = |a: [f64; 3], b: [f64; 3]| {
+        diffkfc_data::motion::quat::norm(diffkfc_data::motion::quat::sub(a, b))
+    };
     let speed = poses
         .windows(2)
         .flat_map(|w| {
@@ -84,7 +86,7 @@ fn pace_limit(poses: &[Pose]) -> f64 {
         .windows(3)
         .map(|w| {
             let v = std::array::from_fn(|k| w[2].root[k] - 2.0 * w[1].root[k] + w[0].root[k]);
-            crate::motion::quat::norm(v)
+            diffkfc_data::motion::quat::norm(v)
         })
         .fold(0.0, f64::max)
         * FPS

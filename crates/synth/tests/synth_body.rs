@@ -1,9 +1,9 @@
 //! The synthetic set's bodies against real HumanML3D clips (`../shared/fixtures/humanml3d`):
 //! the `humanml3d` body has their hips, collars and pelvis height; the legacy body does not.
 
-use diffkfc_data::dataset::synth::{self, body, Body, SynthSpec};
 use diffkfc_data::motion::quat::{self, Vec3};
 use diffkfc_data::{io::npy, testing::fixtures};
+use diffkfc_synth::{self as synth, body, Body, SynthSpec};
 
 /// Mean over frames of: pelvis height above its hips' midpoint, distance between the hips,
 /// the up component of the chest -> collar directions (both sides), pelvis height above the

@@ -3,10 +3,10 @@
 
 use std::collections::{HashMap, HashSet};
 
-use diffkfc_data::dataset::synth::{self, actions::ACTIONS, Body, SynthSpec};
 use diffkfc_data::motion::plausibility;
 use diffkfc_data::motion::representation as rep;
 use diffkfc_data::{io::npy, io::texts, T2M};
+use diffkfc_synth::{self as synth, actions::ACTIONS, Body, SynthSpec};
 
 fn out_dir(name: &str) -> std::path::PathBuf {
     let d = std::env::temp_dir().join(format!("diffkfc-synth-{name}-{}", std::process::id()));
@@ -147,7 +147,7 @@ fn assert_plausible(d: &std::path::Path, clips: &[serde_json::Value]) {
 /// planted foot stays put.
 #[test]
 fn walking_feet_alternate_on_the_ground() {
-    use diffkfc_data::dataset::synth::{actions, body::Pose};
+    use diffkfc_synth::{actions, body::Pose};
     let mut rng = diffkfc_data::rng::Rng::new(3);
     let seg = (actions::by_name("walk_forward").gen)(&mut rng, &Pose::standing(0.0, 0.0, 0.0), 120);
     let joints: rep::Joints = synth::body::joints_seq(Body::Legacy, &seg.poses);

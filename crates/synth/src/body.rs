@@ -3,8 +3,8 @@
 //! exactly where they were put. Bone lengths are the target skeleton's, so `process_file`'s
 //! retargeting leaves the motion unchanged.
 
-use crate::motion::quat::{self, Vec3};
-use crate::motion::skeleton::T2M;
+use diffkfc_data::motion::quat::{self, Vec3};
+use diffkfc_data::motion::skeleton::T2M;
 
 /// Angles of one arm in the upper-body frame (radians): raise forward, raise sideways
 /// (outwards), elbow flexion.

@@ -1,6 +1,6 @@
 //! Caption text and HumanML3D-style `word/POS` tokens from a small built-in lexicon.
 
-use crate::rng::Rng;
+use diffkfc_data::rng::Rng;
 
 pub const SUBJECTS: &[&str] = &[
     "a person",

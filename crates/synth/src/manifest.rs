@@ -5,7 +5,7 @@ use std::path::Path;
 
 use serde_json::Value;
 
-use crate::DataError;
+use diffkfc_data::DataError;
 
 /// What a clip must be.
 #[derive(Clone, Debug, Default)]

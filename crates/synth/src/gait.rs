@@ -4,7 +4,7 @@
 //! root paths and gait parameters.
 
 use super::body::{self, lerp3, Pose};
-use crate::motion::quat::{self, Vec3};
+use diffkfc_data::motion::quat::{self, Vec3};
 
 /// Per-frame root state.
 #[derive(Clone, Copy, Debug)]
