@@ -83,6 +83,24 @@ fn bench_suite_smoke() {
         &diffkfc(&["bench", "--config", "tiny", "--cases", "train,fly"]),
         &["--cases", "fly"],
     );
+    // The whole keyed sample needs weights: a preset is refused, a model directory samples the
+    // quick start's 147-frame walk keyed at 5%.
+    assert_one_line_error(
+        &diffkfc(&["bench", "--config", "tiny", "--cases", "sample"]),
+        &["--cases sample", "'tiny'", "model or run directory"],
+    );
+    if have_text_encoder() {
+        let model = concat!(env!("CARGO_MANIFEST_DIR"), "/../../models/tiny-synth");
+        let o = diffkfc(&["bench", "--config", model, "--cases", "sample", "--quick"]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let line: serde_json::Value =
+            serde_json::from_str(stdout(&o).lines().nth(1).unwrap()).unwrap();
+        assert_eq!((line["case"].as_str(), line["frames"].as_u64()), (Some("sample"), Some(147)));
+        assert!(
+            line["ms"].as_f64().unwrap() > 0.0 && line["keys"].as_u64().unwrap() >= 2,
+            "{line}"
+        );
+    }
     // --torch/--reference: a stand-in for the PyTorch script (prints the reference's JSON line
     // with known times) checks the side-by-side plumbing and the ratios without torch.
     let d = scratch("bench");

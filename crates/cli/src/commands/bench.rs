@@ -19,13 +19,17 @@ pub const AFTER_HELP: &str = "\
 Cases: train (forward + backward + Adam), call (one guided sampling call: both keyframe-guidance
 branches in a batch of 2, encoder included), call-cached (the same, decoder only with the
 encoder output cached, as in every denoising step after the first), ddim (a full DDIM sample,
-keyframe + transition guidance), loader (packed-cache batches/s; --data, else a generated set).
+keyframe + transition guidance), loader (packed-cache batches/s; --data, else a generated set),
+sample (a whole keyed sample as `diffkfc sample` makes it with the default pipeline: the quick
+start's 147-frame walk and wave, synthetic clip 32 of the default set keyed at 5%; --config a
+model or run directory).
 Examples:
   diffkfc bench --config paper
   diffkfc bench --config paper --torch /path/to/venv/bin/python   (side by side, with ratios)
   diffkfc bench --config paper --cases train,call,call-cached --torch PY --rounds 3
                                                          (alternating, median ratio of 3 rounds)
-  diffkfc bench --config tiny --quick                              (smoke test)";
+  diffkfc bench --config tiny --quick                              (smoke test)
+  diffkfc bench --config models/mid-synth --cases sample --repeats 5  (the quick start's sample)";
 
 #[derive(Args)]
 pub struct BenchArgs {
@@ -33,7 +37,7 @@ pub struct BenchArgs {
     /// small network), a run config file, or a run or model directory (models/mid-synth).
     #[arg(long, default_value = "paper")]
     config: String,
-    /// Comma-separated cases: train, call, call-cached, ddim, loader.
+    /// Comma-separated cases: train, call, call-cached, ddim, loader, sample.
     #[arg(long, default_value = "train,call,call-cached,ddim,loader")]
     cases: String,
     /// Training batch size (the sampling cases generate one motion: a guidance batch of 2).
@@ -216,10 +220,14 @@ fn torch_reference(python: &PathBuf, a: &BenchArgs, preset: &str, repeats: usize
 pub fn run(a: BenchArgs) -> Result<()> {
     let cfg = model_config(&a.config)?;
     let cases: Vec<&str> = a.cases.split(',').map(str::trim).filter(|c| !c.is_empty()).collect();
-    if let Some(bad) =
-        cases.iter().find(|c| !["train", "call", "call-cached", "ddim", "loader"].contains(c))
+    if let Some(bad) = cases
+        .iter()
+        .find(|c| !["train", "call", "call-cached", "ddim", "loader", "sample"].contains(c))
     {
-        bail!("--cases: unknown case '{bad}' (train, call, call-cached, ddim, loader)");
+        bail!("--cases: unknown case '{bad}' (train, call, call-cached, ddim, loader, sample)");
+    }
+    if cases.contains(&"sample") && !std::path::Path::new(&a.config).is_dir() {
+        bail!("--cases sample: --config '{}' must be a model or run directory (its weights generate the sample)", a.config);
     }
     if a.batch == 0 || a.frames == 0 || a.frames > cfg.max_frames {
         bail!("--batch/--frames: need a batch >= 1 and 1..={} frames", cfg.max_frames);
@@ -244,6 +252,9 @@ pub fn run(a: BenchArgs) -> Result<()> {
     for round in 1..=rounds {
         // DDIM and the loader have no PyTorch counterpart: first round only.
         let ours = model_cases(&a, &cfg, &cases, runs, &device, round == 1)?;
+        if round == 1 && cases.contains(&"sample") {
+            sample_case(&a, runs)?;
+        }
         if round == 1 && cases.contains(&"loader") {
             let items_per_s = loader_case(&a)?;
             if let (Some(&ms), Some(ips)) = (ours.get("train_step"), items_per_s) {
@@ -373,6 +384,60 @@ fn model_cases(
         );
     }
     Ok(ours)
+}
+
+/// The `sample` case: the quick start's keyed sample, generated `runs` times after a warm-up
+/// (the model, the text encoder and the keys are loaded once, outside the timing).
+fn sample_case(a: &BenchArgs, runs: usize) -> Result<()> {
+    let tmp = std::env::temp_dir().join(format!("diffkfc-bench-sample-{}", std::process::id()));
+    std::fs::create_dir_all(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+    let spec = diffkfc_synth::SynthSpec {
+        clips: 33,
+        seed: 0,
+        body: diffkfc_synth::Body::HumanMl3d,
+        vary: 0.0,
+    };
+    let (clip, feats) = diffkfc_synth::clip_of(&spec, 32);
+    let source = tmp.join("000032.npy");
+    let d = diffkfc_data::T2M.feature_dim();
+    diffkfc_data::io::npy::write(&source, &[feats.len() / d, d], &feats)?;
+    let (src, out) = (source.display().to_string(), tmp.join("out").display().to_string());
+    let argv = [
+        "sample",
+        "--checkpoint",
+        &a.config,
+        "--text",
+        &clip.meta.captions[0],
+        "--from",
+        &src,
+        "--keyframe-rate",
+        "0.05",
+        "--num-samples",
+        "1",
+        "--out",
+        &out,
+        "--device",
+        &a.device,
+    ];
+    let prepared = super::sample::Prepared::new(&argv);
+    let _ = std::fs::remove_dir_all(&tmp);
+    let p = prepared?;
+    let mut failed = None;
+    let t = time_ms(runs, || {
+        if let Err(e) = p.generate() {
+            failed = Some(e.to_string());
+        }
+    });
+    if let Some(e) = failed {
+        bail!("--cases sample: the sample failed: {e}");
+    }
+    emit(
+        json!({"case": "sample", "impl": "diffkfc", "ms": t.0, "runs_ms": t.1, "cpu_utilisation": t.2,
+        "config": a.config, "frames": p.frames, "keys": p.keys, "text": clip.meta.captions[0],
+        "pipeline": "default (track fit: DDIM-20 twice, text guidance; rigid refit; feet steps)",
+        "threads": rayon_threads()}),
+    );
+    Ok(())
 }
 
 /// Training throughput with the loader, from the two measured cases, their times added: motions

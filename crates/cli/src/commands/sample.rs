@@ -399,3 +399,35 @@ impl Job {
         Ok((fitted, t0.elapsed().as_secs_f64()))
     }
 }
+
+/// One keyed sample prepared from `sample`'s flags as `sample` prepares it (keys read, model and
+/// prompt loaded), to be generated again and again: `bench`'s `sample` case.
+pub(crate) struct Prepared {
+    job: Job,
+    req: Request,
+    args: SampleArgs,
+    /// The motion's frames and keyed frames.
+    pub frames: usize,
+    pub keys: usize,
+}
+
+impl Prepared {
+    /// `argv`: `sample`'s flags, the command name first.
+    pub(crate) fn new(argv: &[&str]) -> Result<Prepared> {
+        use clap::FromArgMatches;
+        let m =
+            SampleArgs::augment_args(clap::Command::new("sample")).try_get_matches_from(argv)?;
+        let args = SampleArgs::from_arg_matches(&m)?;
+        check_flags(&args)?;
+        let keys = request_keys(&args)?;
+        let job = Job::load(&args)?;
+        let emb = job.embed(&args.text, "--text")?;
+        let req = job.request(&emb, keys.length, 1, &[(&keys.values, &keys.mask, &keys.root)]);
+        Ok(Prepared { job, req, args, frames: keys.length, keys: keys.frames.len() })
+    }
+
+    /// The sample, fitted and checked, as `sample` generates it.
+    pub(crate) fn generate(&self) -> Result<Vec<Fitted>> {
+        Ok(self.job.generate(&self.req, &self.args)?.0)
+    }
+}
