@@ -30,6 +30,17 @@ fn synth_check_and_render() {
         &diffkfc(&["data", "synth", "--out", s(&d.join("c")), "--body", "smpl"]),
         &["--body", "'smpl'", "legacy, humanml3d"],
     );
+    // --vary is recorded in the manifest; out of its range it is refused and nothing written.
+    let o = diffkfc(&["data", "synth", "--out", s(&d.join("v")), "--clips", "3", "--vary", "1"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("v/manifest.json")).unwrap()).unwrap();
+    assert_eq!(m["vary"].as_f64(), Some(1.0));
+    assert_one_line_error(
+        &diffkfc(&["data", "synth", "--out", s(&d.join("w")), "--vary", "3"]),
+        &["--vary", "3", "0 to 2"],
+    );
+    assert!(!d.join("w").exists());
 
     // GIF: one frame per motion frame; keyframe frames use the highlight colour.
     let clip = out.join("new_joint_vecs/000000.npy");

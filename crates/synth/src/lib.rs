@@ -23,6 +23,7 @@ use serde_json::{json, Value};
 use self::actions::{Part, Segment, ACTIONS};
 pub use self::body::Body;
 use self::body::Pose;
+use diffkfc_data::motion::quat;
 use diffkfc_data::motion::representation::{self as rep, FOOT_CONTACT_THRESHOLD};
 use diffkfc_data::rng::Rng;
 use diffkfc_data::T2M;
@@ -208,10 +209,8 @@ pub fn clip_of(spec: &SynthSpec, index: usize) -> (Clip, Vec<f32>) {
 fn representable(input: &rep::Joints, rec: &rep::Joints) -> bool {
     rec.windows(2).zip(input.windows(2)).all(|(r, i)| {
         (0..22).all(|j| {
-            let a =
-                diffkfc_data::motion::quat::norm(diffkfc_data::motion::quat::sub(r[1][j], r[0][j]));
-            let b =
-                diffkfc_data::motion::quat::norm(diffkfc_data::motion::quat::sub(i[1][j], i[0][j]));
+            let a = quat::norm(quat::sub(r[1][j], r[0][j]));
+            let b = quat::norm(quat::sub(i[1][j], i[0][j]));
             (a - b).abs() < 1e-3
         })
     })
@@ -420,6 +419,9 @@ fn finish(body: Body, index: usize, pattern: Pattern, d: Draft) -> Clip {
         },
     }
 }
+
+/// Most clips a set may have: three times HumanML3D's 29 232 (about 12 GB of files).
+pub const MAX_CLIPS: usize = 100_000;
 
 /// What a synthetic set is: the same spec gives the same bytes.
 #[derive(Clone, Copy, Debug)]

@@ -5,9 +5,14 @@
 
 use std::f64::consts::TAU;
 
+use super::actions::FPS;
 use super::body::{Arm, Pose};
 use super::ActionSpan;
+use diffkfc_data::motion::quat;
 use diffkfc_data::rng::Rng;
+
+/// Strongest variation a set may ask for (`data synth --vary`, a recipe's `vary`).
+pub const MAX_STRENGTH: f64 = 2.0;
 
 /// Fewest frames a varied clip keeps (or its own length, if shorter).
 const MIN_FRAMES: usize = 60;
@@ -16,7 +21,6 @@ const MIN_FRAMES: usize = 60;
 /// run or a jump is never sped up past what a body does.
 const MAX_SPEED: f64 = 13.0;
 const MAX_ACCEL: f64 = 50.0;
-const FPS: f64 = 20.0;
 
 /// `poses` varied at `strength` (0: unchanged; 1: pace 0.75-1.33x on average, changing by up
 /// to ±35% across the clip, posture drifting), at most `cap` poses long; `spans` follow the
@@ -72,9 +76,7 @@ fn warp(r: &mut Rng, strength: f64, n: usize, cap: usize, limit: f64) -> Vec<f64
 /// Fastest rate the clip may be played at: its pelvis and ankles within [`MAX_SPEED`], its
 /// pelvis within [`MAX_ACCEL`] (acceleration grows with the rate's square); at least 1.
 fn pace_limit(poses: &[Pose]) -> f64 {
-    let d = |a: [f64; 3], b: [f64; 3]| {
-        diffkfc_data::motion::quat::norm(diffkfc_data::motion::quat::sub(a, b))
-    };
+    let d = |a: [f64; 3], b: [f64; 3]| quat::norm(quat::sub(a, b));
     let speed = poses
         .windows(2)
         .flat_map(|w| {
@@ -86,7 +88,7 @@ fn pace_limit(poses: &[Pose]) -> f64 {
         .windows(3)
         .map(|w| {
             let v = std::array::from_fn(|k| w[2].root[k] - 2.0 * w[1].root[k] + w[0].root[k]);
-            diffkfc_data::motion::quat::norm(v)
+            quat::norm(v)
         })
         .fold(0.0, f64::max)
         * FPS

@@ -80,6 +80,9 @@ pub struct BenchArgs {
     device: String,
 }
 
+/// Every case `--cases` knows.
+const CASES: [&str; 6] = ["train", "call", "call-cached", "ddim", "loader", "sample"];
+
 fn model_config(spec: &str) -> Result<DiffKfcConfig> {
     if let Some(c) = DiffKfcConfig::preset(spec) {
         return Ok(c);
@@ -220,11 +223,8 @@ fn torch_reference(python: &PathBuf, a: &BenchArgs, preset: &str, repeats: usize
 pub fn run(a: BenchArgs) -> Result<()> {
     let cfg = model_config(&a.config)?;
     let cases: Vec<&str> = a.cases.split(',').map(str::trim).filter(|c| !c.is_empty()).collect();
-    if let Some(bad) = cases
-        .iter()
-        .find(|c| !["train", "call", "call-cached", "ddim", "loader", "sample"].contains(c))
-    {
-        bail!("--cases: unknown case '{bad}' (train, call, call-cached, ddim, loader, sample)");
+    if let Some(bad) = cases.iter().find(|c| !CASES.contains(c)) {
+        bail!("--cases: unknown case '{bad}' ({})", CASES.join(", "));
     }
     if cases.contains(&"sample") && !std::path::Path::new(&a.config).is_dir() {
         bail!("--cases sample: --config '{}' must be a model or run directory (its weights generate the sample)", a.config);
@@ -391,13 +391,7 @@ fn model_cases(
 fn sample_case(a: &BenchArgs, runs: usize) -> Result<()> {
     let tmp = std::env::temp_dir().join(format!("diffkfc-bench-sample-{}", std::process::id()));
     std::fs::create_dir_all(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
-    let spec = diffkfc_synth::SynthSpec {
-        clips: 33,
-        seed: 0,
-        body: diffkfc_synth::Body::HumanMl3d,
-        vary: 0.0,
-    };
-    let (clip, feats) = diffkfc_synth::clip_of(&spec, 32);
+    let (clip, feats) = diffkfc_synth::clip(diffkfc_synth::Body::HumanMl3d, 0, 32);
     let source = tmp.join("000032.npy");
     let d = diffkfc_data::T2M.feature_dim();
     diffkfc_data::io::npy::write(&source, &[feats.len() / d, d], &feats)?;

@@ -12,6 +12,7 @@ use diffkfc_data::motion::representation::{self as rep, FOOT_CONTACT_THRESHOLD};
 use crate::args::{refuse_overwriting_input, BvhInputArgs};
 use diffkfc_data::{dataset::loader_bench, io::rig};
 use diffkfc_data::{io::npy, Skeleton};
+use diffkfc_synth::variation::MAX_STRENGTH;
 use diffkfc_synth::{Body, SynthSpec};
 
 #[derive(Args)]
@@ -280,21 +281,19 @@ fn bench_loader(a: BenchLoaderArgs) -> Result<()> {
     Ok(())
 }
 
-/// Most clips `data synth` writes: three times HumanML3D's 29 232 (about 12 GB of files).
-const MAX_SYNTH_CLIPS: usize = 100_000;
-
 fn synth(a: SynthArgs) -> Result<()> {
-    if a.clips == 0 || a.clips > MAX_SYNTH_CLIPS {
+    if a.clips == 0 || a.clips > diffkfc_synth::MAX_CLIPS {
         bail!(
-            "--clips: {} must be 1 to {MAX_SYNTH_CLIPS} (each clip is about 120 KB of files)",
-            a.clips
+            "--clips: {} must be 1 to {} (each clip is about 120 KB of files)",
+            a.clips,
+            diffkfc_synth::MAX_CLIPS
         );
     }
     if a.threads.is_some_and(|t| t == 0 || t > 1024) {
         bail!("--threads: {} must be 1 to 1024", a.threads.unwrap_or(0));
     }
-    if !(0.0..=2.0).contains(&a.vary) {
-        bail!("--vary: {} must be 0 to 2", a.vary);
+    if !(0.0..=MAX_STRENGTH).contains(&a.vary) {
+        bail!("--vary: {} must be 0 to {MAX_STRENGTH}", a.vary);
     }
     let threads = a
         .threads

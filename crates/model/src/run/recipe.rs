@@ -14,7 +14,8 @@
 
 use std::collections::BTreeMap;
 
-use diffkfc_synth::{Body, SynthSpec};
+use diffkfc_synth::variation::MAX_STRENGTH;
+use diffkfc_synth::{Body, SynthSpec, MAX_CLIPS};
 use serde::Deserialize;
 use serde_json::Value;
 
@@ -131,11 +132,11 @@ impl SynthSet {
     /// The set's `data synth` spec.
     pub fn spec(&self) -> std::result::Result<SynthSpec, String> {
         let body: Body = self.body.parse()?;
-        if self.clips == 0 || self.clips > 100_000 {
-            return Err(format!("clips: {} must be 1 to 100000", self.clips));
+        if self.clips == 0 || self.clips > MAX_CLIPS {
+            return Err(format!("clips: {} must be 1 to {MAX_CLIPS}", self.clips));
         }
-        if !(0.0..=2.0).contains(&self.vary) {
-            return Err(format!("vary: {} must be 0 to 2", self.vary));
+        if !(0.0..=MAX_STRENGTH).contains(&self.vary) {
+            return Err(format!("vary: {} must be 0 to {MAX_STRENGTH}", self.vary));
         }
         Ok(SynthSpec { clips: self.clips, seed: self.seed, body, vary: self.vary })
     }
@@ -171,6 +172,10 @@ mod tests {
             ),
             (TWO.replace("\"lr\": 2e-4", "\"lr\": -1"), "stages[1] (slow): training.lr"),
             (TWO.replace("legacy", "giant"), "data.a: "),
+            (
+                TWO.replace("\"legacy\"}", "\"legacy\", \"vary\": 2.5}"),
+                "data.a: vary: 2.5 must be 0 to 2",
+            ),
             (TWO.replace("\"slow\"", "\"a b\""), "name: letters"),
         ];
         for (text, want) in cases {
