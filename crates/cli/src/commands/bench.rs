@@ -359,7 +359,7 @@ fn model_cases(
             "sampling_call",
             t,
             f.total() / 1e9,
-            json!({"batch": 2, "encoder": true, "common": common}),
+            json!({"batch": 2, "encoder": true, "decoder": s.decoder(), "common": common}),
         );
     }
     if cases.contains(&"call-cached") {
@@ -369,7 +369,7 @@ fn model_cases(
             "sampling_call_cached",
             t,
             f.decoder / 1e9,
-            json!({"batch": 2, "encoder": false, "common": common}),
+            json!({"batch": 2, "encoder": false, "decoder": s.decoder(), "common": common}),
         );
     }
     if ddim {

@@ -5,12 +5,15 @@
 
 pub mod flops;
 
+use std::cell::RefCell;
+
 use burn::prelude::*;
 use diffkfc_data::keyframes;
 use diffkfc_data::rng::Rng;
 
 use crate::diffusion::scheduler::Sampler;
 use crate::diffusion::Schedule;
+use crate::network::inference::{self, DecoderPlan};
 use crate::sampling::guidance::Guidance;
 use crate::sampling::sampler::{self, Options, Request};
 use crate::training::optim::{Optimiser, StateLocation};
@@ -125,7 +128,11 @@ pub struct Sampling<'a> {
     pub model: &'a Denoiser,
     pub req: Request,
     pub encoded: Encoded,
+    /// The host decoder of `encoded`, where sampling runs it (`inference::serves`).
+    plan: Option<RefCell<DecoderPlan>>,
     x: Tensor<3>,
+    /// x on the host, as sampling holds it.
+    x_host: Vec<f32>,
     t: Vec<usize>,
 }
 
@@ -155,7 +162,19 @@ impl<'a> Sampling<'a> {
         let mut r = Rng::new(4);
         let rows = paper_guidance().branches() * batch;
         let x = normal_tensor(&mut r, [rows, frames, cfg.feat_dim], &device);
-        Sampling { model, req, encoded, x, t: vec![500; rows] }
+        let plan = inference::serves(&device)
+            .then(|| RefCell::new(DecoderPlan::new(model, &guided(&req.condition(&device)))));
+        let x_host = params::host(x.clone());
+        Sampling { model, req, encoded, plan, x, x_host, t: vec![500; rows] }
+    }
+
+    /// Which decoder the calls run: "host" (`network::inference`) or "tensor".
+    pub fn decoder(&self) -> &'static str {
+        if self.plan.is_some() {
+            "host"
+        } else {
+            "tensor"
+        }
     }
 
     /// Matrix-product FLOPs of one guided call as computed (see `TrainStep::flops`).
@@ -165,9 +184,19 @@ impl<'a> Sampling<'a> {
         crate::bench::flops::forward_planned(cfg, b, n, &block_work(cfg, &cond))
     }
 
-    /// One guided denoising call: decoder only (encoder output cached, as in every step after
-    /// the first) or encoder + decoder.
+    /// One guided denoising call as sampling makes it: decoder only (encoder output cached, and
+    /// on the host decoder its buffers, as in every step after the first) or encoder + decoder
+    /// (the host decoder's set-up included).
     pub fn call(&self, with_encoder: bool) -> Vec<f32> {
+        let device = self.x.device();
+        if let Some(plan) = &self.plan {
+            let x = &self.x_host;
+            if with_encoder {
+                let c = guided(&self.req.condition(&device));
+                return DecoderPlan::new(self.model, &c).decode(x, self.t[0]).to_vec();
+            }
+            return plan.borrow_mut().decode(x, self.t[0]).to_vec();
+        }
         let out = if with_encoder {
             let enc = self.model.encode(&guided(&self.req.condition(&self.x.device())));
             self.model.decode(self.x.clone(), &self.t, &enc)

@@ -60,6 +60,46 @@ fn sample_forward_rows(yb: &mut [f32], hb: &[f32], rb: &[f32], w: &[f32], s: &Co
 elementwise_builds!(sample_forward, sample_forward_rows, sample_forward_avx512,
     sample_forward_avx2, (yb: &mut [f32], hb: &[f32], rb: &[f32], w: &[f32], s: &ConvShape));
 
+/// Adds the convolution of token rows `rows` (of all B x M, flattened) to `out` [rows, d]: the
+/// single-threaded row form of [`temporal_forward`] for the sampling path (one parallel region
+/// chains it with the rows' other ops), each value summed over the taps in the same order.
+pub fn temporal_add_rows(
+    h: &[f32],
+    w: &[f32],
+    real: &[f32],
+    s: &ConvShape,
+    rows: std::ops::Range<usize>,
+    out: &mut [f32],
+) {
+    let (m, n, d) = (s.rows, s.frames(), s.d);
+    let mut y = vec![0f32; d];
+    for (r, o) in rows.zip(out.chunks_mut(d)) {
+        let (b, i) = (r / m, r % m);
+        y.fill(0.0);
+        if i >= s.skip {
+            let (hb, rb) = (&h[b * m * d..(b + 1) * m * d], &real[b * n..(b + 1) * n]);
+            frame_taps(&mut y, hb, rb, w, s, i - s.skip);
+        }
+        o.iter_mut().zip(&y).for_each(|(o, y)| *o += y);
+    }
+}
+
+/// y [d] = the taps' sum for frame t of one sample's tokens hb [M, d] (`sample_forward`'s order).
+#[inline(always)]
+fn frame_taps_rows(y: &mut [f32], hb: &[f32], rb: &[f32], w: &[f32], s: &ConvShape, t: usize) {
+    let d = s.d;
+    for k in 0..s.kernel {
+        let Some(src) = s.source(t, k, rb) else { continue };
+        let x = &hb[(s.skip + src) * d..(s.skip + src + 1) * d];
+        for ((o, &wv), &xv) in y.iter_mut().zip(&w[k * d..(k + 1) * d]).zip(x) {
+            *o += xv * wv;
+        }
+    }
+}
+
+elementwise_builds!(frame_taps, frame_taps_rows, frame_taps_avx512, frame_taps_avx2,
+    (y: &mut [f32], hb: &[f32], rb: &[f32], w: &[f32], s: &ConvShape, t: usize));
+
 /// Gradients (dh, dw) of [`temporal_forward`] for `dy` [B, M, d]. The taps' gradient is summed
 /// per sample, then over the samples in order: the same for any thread count.
 pub fn temporal_backward(

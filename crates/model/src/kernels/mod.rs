@@ -14,6 +14,7 @@ mod grad;
 pub mod host;
 mod mha;
 mod mse;
+pub mod rows;
 mod simd;
 mod softmax;
 mod tiles;
@@ -23,6 +24,7 @@ use std::sync::{Arc, OnceLock};
 use burn::backend::flex::FlexTensor;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{backend_extension, Backend, Dispatch, DispatchDevice, Flex};
+use burn::backend::{BackendTensor, DispatchTensorKind};
 use burn::nn::{LayerNorm, Linear};
 use burn::prelude::*;
 use burn::tensor::activation::softmax;
@@ -31,6 +33,7 @@ use burn::tensor::TensorData;
 use crate::network::dropout::Dropout;
 
 pub use attention_call::{AttnShape, Mask};
+pub use conv::{temporal_add_rows, ConvShape};
 
 /// Whether running on `count` of `total` rows (or keys) through a gather is worth it: above ~3/4
 /// the saved products no longer pay for the gather and scatter. One rule for the DMA blocks' row
@@ -228,25 +231,69 @@ impl FusedOps for Flex {
 }
 
 /// The flex attention and, where the flash kernel ran (small heads), its rows' log-sum-exp for
-/// the backward. `DIFFKFC_ATTENTION=head` keeps every head on the per-head path (A/B runs).
+/// the backward.
 fn attention_with_lse(
     q: &FlexTensor,
     k: &FlexTensor,
     v: &FlexTensor,
     args: &AttnArgs,
 ) -> (FlexTensor, Option<Arc<Vec<f32>>>) {
-    static PER_HEAD: OnceLock<bool> = OnceLock::new();
-    let per_head =
-        *PER_HEAD.get_or_init(|| std::env::var("DIFFKFC_ATTENTION").is_ok_and(|v| v == "head"));
     let s = attn_shape(q, k, args.heads);
     let (q, k, v) = (slice(q), slice(k), slice(v));
-    let (out, lse) = if flash::serves(s.dh()) && !per_head {
+    let (out, lse) = if flash::serves(s.dh()) && !per_head() {
         let (out, lse) = flash::forward(&q, &k, &v, &s, &args.mask);
         (out, Some(Arc::new(lse)))
     } else {
         (mha::attention_forward(&q, &k, &v, &s, &args.mask), None)
     };
     (tensor(out, [s.batch, s.lq, s.d].into()), lse)
+}
+
+/// Attention of q [B, Lq, d] to k, v [B, Lk, d] on host slices -> [B, Lq, d]: the kernel the
+/// flex op runs for these shapes (`attention_with_lse`), parallel over heads.
+pub fn attention_host(q: &[f32], k: &[f32], v: &[f32], s: &AttnShape, mask: &Mask) -> Vec<f32> {
+    if flash::serves(s.dh()) && !per_head() {
+        flash::forward(q, k, v, s, mask).0
+    } else {
+        mha::attention_forward(q, k, v, s, mask)
+    }
+}
+
+/// `DIFFKFC_ATTENTION=head` keeps every head on the per-head path (A/B runs).
+fn per_head() -> bool {
+    static PER_HEAD: OnceLock<bool> = OnceLock::new();
+    *PER_HEAD.get_or_init(|| std::env::var("DIFFKFC_ATTENTION").is_ok_and(|v| v == "head"))
+}
+
+/// A float tensor's values on the host: the flex tensor's own buffer where it is contiguous f32
+/// (no copy: the sampling path reads every weight of the network once per sample), else a copy.
+pub enum HostView {
+    Flex(FlexTensor),
+    Owned(Vec<f32>),
+}
+
+impl HostView {
+    pub fn of<const D: usize>(t: Tensor<D>) -> HostView {
+        let flex = match t.clone().into_dispatch().kind {
+            DispatchTensorKind::Flex(BackendTensor::Float(f)) => Some(f),
+            _ => None,
+        };
+        match flex.filter(|f| f.as_slice::<f32>().is_some()) {
+            Some(f) => HostView::Flex(f),
+            None => HostView::Owned(crate::network::params::host(t)),
+        }
+    }
+}
+
+impl std::ops::Deref for HostView {
+    type Target = [f32];
+
+    fn deref(&self) -> &[f32] {
+        match self {
+            HostView::Flex(f) => f.as_slice::<f32>().expect("checked contiguous f32 when made"),
+            HostView::Owned(v) => v,
+        }
+    }
 }
 
 /// Whether the fused kernels serve this device: flex, with or without autodiff, unless

@@ -82,7 +82,7 @@ pub(super) fn avx512() -> bool {
 /// operations in every build (no reassociation, no contraction), so the results are the same
 /// bits; only the vector width differs.
 macro_rules! elementwise_builds {
-    ($name:ident, $generic:ident, $avx512:ident, $avx2:ident,
+    ($vis:vis $name:ident, $generic:ident, $avx512:ident, $avx2:ident,
         ($($arg:ident: $ty:ty),*) $(-> $ret:ty)?) => {
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = "avx512f,avx2,fma")]
@@ -94,7 +94,7 @@ macro_rules! elementwise_builds {
         fn $avx2($($arg: $ty),*) $(-> $ret)? {
             $generic($($arg),*)
         }
-        fn $name($($arg: $ty),*) $(-> $ret)? {
+        $vis fn $name($($arg: $ty),*) $(-> $ret)? {
             #[cfg(target_arch = "x86_64")]
             if $crate::kernels::simd::avx512() {
                 // SAFETY: the CPU has the features the function was compiled for.

@@ -15,18 +15,18 @@ use crate::network::temporal::{RealFrames, TemporalConv};
 
 #[derive(Module, Debug)]
 pub struct DecoderLayer {
-    self_attn: Attention,
-    cross_attn: Attention,
-    ff1: Linear,
-    ff2: Linear,
-    ln1: LayerNorm,
-    ln2: LayerNorm,
-    ln3: LayerNorm,
+    pub(super) self_attn: Attention,
+    pub(super) cross_attn: Attention,
+    pub(super) ff1: Linear,
+    pub(super) ff2: Linear,
+    pub(super) ln1: LayerNorm,
+    pub(super) ln2: LayerNorm,
+    pub(super) ln3: LayerNorm,
     drop: Dropout,
     /// Last, so that layers without it visit their parameters as before (old checkpoints).
-    temporal: Option<TemporalConv>,
+    pub(super) temporal: Option<TemporalConv>,
     /// Attention to the word tokens, zero output at first (after `temporal`, for the same reason).
-    words: Option<Attention>,
+    pub(super) words: Option<Attention>,
 }
 
 /// A decoder layer's word keys and values ([B, W, d] each) and the word padding.

@@ -57,23 +57,23 @@ impl Encoded {
 
 #[derive(Module, Debug)]
 pub struct Denoiser {
-    x_in: Linear,
-    text_in: Linear,
-    time: TimestepEmbed,
-    encoder: KeyframeEncoder,
-    layers: Vec<DecoderLayer>,
-    out: Linear,
-    d_model: usize,
-    dma_sizes: Vec<usize>,
+    pub(super) x_in: Linear,
+    pub(super) text_in: Linear,
+    pub(super) time: TimestepEmbed,
+    pub(super) encoder: KeyframeEncoder,
+    pub(super) layers: Vec<DecoderLayer>,
+    pub(super) out: Linear,
+    pub(super) d_model: usize,
+    pub(super) dma_sizes: Vec<usize>,
     /// The per-frame keyframe input's projection (last, so positional checkpoints of models
     /// without it are a prefix of its parameters).
-    key_in: Option<Linear>,
+    pub(super) key_in: Option<Linear>,
     /// The word states' projection (models with `text_words`; last, like `key_in`).
-    word_in: Option<WordInput>,
+    pub(super) word_in: Option<WordInput>,
     /// Width of the pooled text embedding and word states per text (`text_dim`, `text_words`).
     /// No parameters.
-    text_dim: usize,
-    text_words: usize,
+    pub(super) text_dim: usize,
+    pub(super) text_words: usize,
 }
 
 impl DiffKfcConfig {

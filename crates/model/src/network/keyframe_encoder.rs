@@ -137,10 +137,10 @@ impl BlockWork {
 
 #[derive(Module, Debug)]
 pub struct DmaBlock {
-    attn: Attention,
-    fc: Linear,
-    mlp1: Linear,
-    mlp2: Linear,
+    pub(super) attn: Attention,
+    pub(super) fc: Linear,
+    pub(super) mlp1: Linear,
+    pub(super) mlp2: Linear,
 }
 
 impl DmaBlock {
@@ -192,9 +192,9 @@ impl DmaBlock {
 pub struct KeyframeEncoder {
     /// Keyframe values and their per-feature mask (and the root channels with theirs, when the
     /// model has them) -> d (the mask tells partial keyframes apart).
-    kf_in: Linear,
-    blocks: Vec<DmaBlock>,
-    root_channels: usize,
+    pub(super) kf_in: Linear,
+    pub(super) blocks: Vec<DmaBlock>,
+    pub(super) root_channels: usize,
 }
 
 impl KeyframeEncoder {

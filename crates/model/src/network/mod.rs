@@ -9,6 +9,7 @@ pub mod config;
 pub(crate) mod decoder;
 pub mod denoiser;
 pub mod dropout;
+pub mod inference;
 pub mod keyframe_encoder;
 pub mod params;
 pub(crate) mod sinusoidal;

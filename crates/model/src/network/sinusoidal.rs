@@ -28,9 +28,9 @@ pub fn positions(n: usize, d: usize, device: &Device) -> Tensor<3> {
 /// Timestep embedding: sinusoid of t, then Linear-SiLU-Linear (MDM's TimestepEmbedder).
 #[derive(Module, Debug)]
 pub struct TimestepEmbed {
-    fc1: Linear,
-    fc2: Linear,
-    d: usize,
+    pub(super) fc1: Linear,
+    pub(super) fc2: Linear,
+    pub(super) d: usize,
 }
 
 impl TimestepEmbed {

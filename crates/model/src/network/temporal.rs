@@ -34,8 +34,8 @@ impl RealFrames {
 pub struct TemporalConv {
     /// [K, d] one filter tap per offset -K/2..=K/2 and channel; zero at initialisation, so a new
     /// layer starts as the plain transformer.
-    weight: Param<Tensor<2>>,
-    kernel: usize,
+    pub(super) weight: Param<Tensor<2>>,
+    pub(super) kernel: usize,
 }
 
 impl TemporalConv {

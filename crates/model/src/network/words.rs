@@ -41,11 +41,11 @@ pub fn padding(text: &[f32], b: usize, text_dim: usize, words: usize) -> Vec<boo
 /// The word states' projection to the decoder's width, with sinusoidal slot positions.
 #[derive(Module, Debug)]
 pub struct WordInput {
-    proj: Linear,
+    pub(super) proj: Linear,
     /// sqrt(text_dim): the states are unit vectors, each element about 1/sqrt(text_dim); at
     /// that scale their projection was about 0.04 against the positions' 0.7, and the words'
     /// attention read their slots rather than their words. No parameters.
-    scale: f32,
+    pub(super) scale: f32,
 }
 
 impl WordInput {

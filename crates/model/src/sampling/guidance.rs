@@ -117,6 +117,22 @@ impl Guidance {
 }
 
 /// Two conditions stacked along the batch: [a; b].
+impl Guidance {
+    /// [`Guidance::combine`] on host values: the branches' outputs stacked branch after branch,
+    /// each `len / branches` long -> the guided output (the same operations, the same bits).
+    pub fn combine_host(&self, out: &[f32]) -> Vec<f32> {
+        let per = out.len() / self.branches();
+        let c = &out[..per];
+        let mut x = c.to_vec();
+        for (k, s) in [self.kf, self.text].into_iter().flatten().enumerate() {
+            let part = &out[(k + 1) * per..(k + 2) * per];
+            let s = (s - 1.0) as f32;
+            x.iter_mut().zip(c).zip(part).for_each(|((x, c), p)| *x += (c - p) * s);
+        }
+        x
+    }
+}
+
 fn stack(a: &Condition, b: &Condition) -> Condition {
     Condition {
         text: Tensor::cat(vec![a.text.clone(), b.text.clone()], 0),
@@ -164,6 +180,13 @@ mod tests {
         assert_eq!(both.branches(), 3);
         let want = [1.0 + 1.0 * 0.5 + 2.0 * -2.0, 2.0 + 1.0 * 1.0 + 2.0 * 3.0];
         assert_eq!(host(both.combine(outputs(&[c, uk, ut]))), want);
+        // The host form (the sampling path's) gives the same bits.
+        for (g, rows) in
+            [(none, vec![c]), (kf, vec![c, uk]), (text, vec![c, ut]), (both, vec![c, uk, ut])]
+        {
+            let flat: Vec<f32> = rows.iter().flatten().copied().collect();
+            assert_eq!(g.combine_host(&flat), host(g.combine(outputs(&rows))));
+        }
     }
 
     #[test]

@@ -10,11 +10,12 @@ use diffkfc_data::rng::Rng;
 
 use crate::diffusion::scheduler::{self, timesteps, Sampler};
 use crate::diffusion::Schedule;
+use crate::network::inference::{self, DecoderPlan};
 use crate::network::params::host;
 use crate::sampling::guidance::Guidance;
 use crate::sampling::place::PlaceGuidance;
 use crate::sampling::transition;
-use crate::{Condition, Denoiser};
+use crate::{Condition, Denoiser, Encoded};
 
 /// Steps by default, with the default sampler [`DEFAULT_SAMPLER`] (DDIM): on the reference
 /// model trained on its own sampler steps (`training.rollout_steps`), DDIM-20 is within 5% of
@@ -186,43 +187,23 @@ pub fn sample(
         !exact || device.is_autodiff(),
         "exact transition guidance needs the model on an autodiff device"
     );
-    // The encoder runs once; the guidance branches share each decoder call. Its output is
-    // detached so per-step backward passes (exact mode) never reach into it.
     let cond = if opts.inpaint { cond.without_keyframes() } else { cond };
-    let enc = model.encode(&guidance.condition(&cond)).detach();
-    let branches = guidance.branches();
-    let kf_t = Tensor::<1>::from_floats(req.kf.as_slice(), &device).reshape([b, n, d]);
-    let mask_t = Tensor::<1>::from_floats(req.mask.as_slice(), &device).reshape([b, n, d]);
-    let track_mask = opts.impose_track.then(|| {
-        let dims: Vec<f32> =
-            (0..d).map(|k| if root_track::TRACK_DIMS.contains(&k) { 1.0 } else { 0.0 }).collect();
-        mask_t.clone() * Tensor::<1>::from_floats(dims.as_slice(), &device).reshape([1, 1, d])
-    });
+    let mut decoder = Decoder::new(model, &guidance.condition(&cond), exact);
+    let imposed = Imposed::new(req, opts, &device);
     let mut rng = Rng::new(opts.seed);
     let mut x: Vec<f32> = (0..b * n * d).map(|_| rng.normal() as f32).collect();
     let ts = timesteps(schedule, opts.sampler);
     let mut scheduler = scheduler::for_sampler(opts.sampler, schedule, rng);
     for (k, &t) in ts.iter().enumerate() {
-        let mut xt = Tensor::<1>::from_floats(x.as_slice(), &device).reshape([b, n, d]);
-        if exact {
-            xt = xt.require_grad();
-        }
-        let x0_t = if branches > 1 {
-            let xs = Tensor::cat(vec![xt.clone(); branches], 0);
-            guidance.combine(model.decode(xs, &vec![t; branches * b], &enc))
-        } else {
-            model.decode(xt.clone(), &vec![t; b], &enc)
-        };
-        let x0_t =
-            impose(x0_t, &kf_t, if opts.inpaint { Some(&mask_t) } else { track_mask.as_ref() });
-        let x0 = host(x0_t.clone().detach());
+        let (x0, x0_t) = decoder.predict(&x, t, &guidance, imposed.as_ref(), [b, n, d]);
         match ts.get(k + 1).copied() {
             None => x = x0,
             Some(prev) => {
                 let (ab, ab_prev) = (schedule.alphas_cumprod[t], schedule.alphas_cumprod[prev]);
                 // Posterior variance of the jump t -> prev: guidance moves x_t by it.
                 let var = (1.0 - ab_prev) / (1.0 - ab) * (1.0 - ab / ab_prev);
-                let step = Step { x0: &x0, x0_t, xt: &xt, var, exact };
+                let exact = x0_t.filter(|_| exact);
+                let step = Step { x0: &x0, exact, var };
                 let shift = guidance_shift(req, opts, &keys, step);
                 scheduler.step(&mut x, &x0, &shift, t, prev);
             }
@@ -231,6 +212,94 @@ pub fn sample(
     }
     finish(&mut x, req);
     x
+}
+
+/// The denoiser as a sample runs it: the host decoder where it serves (flex without autodiff),
+/// else the tensor path, which exact transition guidance differentiates through. Either
+/// encodes the condition once; the guidance branches share each decoder call.
+enum Decoder<'a> {
+    Host(DecoderPlan),
+    /// The encoder's output is detached so per-step backward passes never reach into it; with
+    /// exact transition guidance (true) each step's x_t takes a gradient.
+    Tensor(&'a Denoiser, Encoded, bool),
+}
+
+impl<'a> Decoder<'a> {
+    fn new(model: &'a Denoiser, guided: &Condition, exact: bool) -> Decoder<'a> {
+        if !exact && inference::serves(&guided.kf.device()) {
+            Decoder::Host(DecoderPlan::new(model, guided))
+        } else {
+            Decoder::Tensor(model, model.encode(guided).detach(), exact)
+        }
+    }
+
+    /// x0 predicted from x_t [B, N, D] at timestep t, the guidance branches combined and the
+    /// imposed features put back; on the tensor path also as a tensor, with the x_t it was
+    /// predicted from (differentiable in exact mode).
+    fn predict(
+        &mut self,
+        x: &[f32],
+        t: usize,
+        guidance: &Guidance,
+        imposed: Option<&Imposed>,
+        [b, n, d]: [usize; 3],
+    ) -> (Vec<f32>, Option<(Tensor<3>, Tensor<3>)>) {
+        match self {
+            Decoder::Host(plan) => {
+                let mut x0 = guidance.combine_host(plan.decode(x, t));
+                if let Some(i) = imposed {
+                    impose_host(&mut x0, &i.kf, &i.mask);
+                }
+                (x0, None)
+            }
+            Decoder::Tensor(model, enc, exact) => {
+                let device = enc.tokens.device();
+                let mut xt = Tensor::<1>::from_floats(x, &device).reshape([b, n, d]);
+                if *exact {
+                    xt = xt.require_grad();
+                }
+                let branches = guidance.branches();
+                let x0_t = if branches > 1 {
+                    let xs = Tensor::cat(vec![xt.clone(); branches], 0);
+                    guidance.combine(model.decode(xs, &vec![t; branches * b], enc))
+                } else {
+                    model.decode(xt.clone(), &vec![t; b], enc)
+                };
+                let x0_t = match imposed {
+                    Some(i) => impose(x0_t, &i.kf_t, &i.mask_t),
+                    None => x0_t,
+                };
+                (host(x0_t.clone().detach()), Some((x0_t, xt)))
+            }
+        }
+    }
+}
+
+/// Features a request imposes on every step's prediction (MDM-inp's observed features, an
+/// imposed track's root velocities), on the host and as tensors.
+struct Imposed {
+    kf: Vec<f32>,
+    mask: Vec<f32>,
+    kf_t: Tensor<3>,
+    mask_t: Tensor<3>,
+}
+
+impl Imposed {
+    fn new(req: &Request, opts: &Options, device: &Device) -> Option<Imposed> {
+        let d = req.dim;
+        let mask: Vec<f32> = if opts.inpaint {
+            req.mask.clone()
+        } else if opts.impose_track {
+            let track = |k: usize| root_track::TRACK_DIMS.contains(&(k % d));
+            req.mask.iter().enumerate().map(|(k, &m)| if track(k) { m } else { 0.0 }).collect()
+        } else {
+            return None;
+        };
+        let shape = [req.batch, req.frames, d];
+        let tensor = |v: &[f32]| Tensor::<1>::from_floats(v, device).reshape(shape);
+        let (kf_t, mask_t) = (tensor(&req.kf), tensor(&mask));
+        Some(Imposed { kf: req.kf.clone(), mask, kf_t, mask_t })
+    }
 }
 
 /// The sampler's result with the frames past each length zeroed.
@@ -245,10 +314,14 @@ fn finish(x: &mut [f32], req: &Request) {
 
 /// The prediction's observed features put back where the request imposes them: MDM-inp pastes
 /// every observed feature at every step, an imposed track its root velocities.
-fn impose(x0_t: Tensor<3>, kf: &Tensor<3>, mask: Option<&Tensor<3>>) -> Tensor<3> {
-    match mask {
-        Some(m) => x0_t * (m.ones_like() - m.clone()) + kf.clone() * m.clone(),
-        None => x0_t,
+fn impose(x0_t: Tensor<3>, kf: &Tensor<3>, m: &Tensor<3>) -> Tensor<3> {
+    x0_t * (m.ones_like() - m.clone()) + kf.clone() * m.clone()
+}
+
+/// [`impose`] on host values (the same operations, the same bits).
+fn impose_host(x0: &mut [f32], kf: &[f32], mask: &[f32]) {
+    for ((x, k), m) in x0.iter_mut().zip(kf).zip(mask) {
+        *x = *x * (1.0 - m) + k * m;
     }
 }
 
@@ -256,13 +329,11 @@ fn impose(x0_t: Tensor<3>, kf: &Tensor<3>, mask: Option<&Tensor<3>>) -> Tensor<3
 struct Step<'a> {
     /// Predicted x0 on the host, [B * N * D].
     x0: &'a [f32],
-    /// The same as a tensor (differentiable with respect to `xt` in exact mode).
-    x0_t: Tensor<3>,
-    xt: &'a Tensor<3>,
+    /// For transition guidance through the denoiser (the paper's Eq. 5) rather than on x0:
+    /// the same x0 as a tensor, differentiable with respect to the x_t it holds second.
+    exact: Option<(Tensor<3>, Tensor<3>)>,
     /// Posterior variance of the jump to the next timestep.
     var: f64,
-    /// Transition guidance through the denoiser (the paper's Eq. 5) rather than on x0.
-    exact: bool,
 }
 
 /// What guidance subtracts from a step's update: r * var * dL_tr/dx for transition guidance
@@ -287,12 +358,12 @@ fn guidance_shift(req: &Request, opts: &Options, keys: &[Vec<usize>], step: Step
             );
             grad[r].copy_from_slice(&g);
         }
-        if step.exact {
+        if let Some((x0_t, xt)) = step.exact {
             // Chain rule through the denoiser: d L / d x_t = J^T (d L / d x0).
-            let device = step.xt.device();
+            let device = xt.device();
             let g = Tensor::<1>::from_floats(grad.as_slice(), &device).reshape([b, n, d]);
-            let grads = (step.x0_t * g).sum().backward();
-            grad = step.xt.grad(&grads).map(host).unwrap_or(grad);
+            let grads = (x0_t * g).sum().backward();
+            grad = xt.grad(&grads).map(host).unwrap_or(grad);
         }
         for (s, gv) in shift.iter_mut().zip(grad) {
             *s = (opts.transition * step.var) as f32 * gv;

@@ -1,0 +1,281 @@
+//! What the decoder reads of one condition, computed on the host: `Denoiser::encode` (the text
+//! token, the keyframe encoder's DMA blocks, the cross-attention keys and values of its output,
+//! the word tokens' keys and values, the masks) with the same kernels, once per sample.
+
+use std::sync::Arc;
+
+use burn::prelude::*;
+
+use super::par::{at, par_rows, RowsMut};
+use super::weights::{HostBlock, HostLinear};
+use crate::kernels::rows::gelu;
+use crate::kernels::{attention_host, key_mask, worth_gathering, AttnShape, Mask};
+use crate::network::condition::Condition;
+use crate::network::denoiser::{Denoiser, Encoded};
+use crate::network::keyframe_encoder::DmaPlan;
+use crate::network::params::host;
+use crate::network::sinusoidal::sinusoid_table;
+use crate::network::words;
+
+/// Keys and values [B, Lk, d] an attention reads, with the keys it may not see.
+pub(super) struct Memory {
+    pub kv: (Vec<f32>, Vec<f32>),
+    pub lk: usize,
+    pub mask: Mask,
+}
+
+/// Everything the decoder's calls read of one condition: B samples of N frames, width d.
+pub(super) struct Encoding {
+    pub batch: usize,
+    pub n: usize,
+    pub d: usize,
+    /// [B, d] text tokens, [N, d] frame positions, [B, N, d] embedded key observations.
+    pub text_tok: Vec<f32>,
+    pub pos: Vec<f32>,
+    pub key: Option<Vec<f32>>,
+    /// Padding of the decoder's own sequence [B * (2 + N)].
+    pub self_pad: Mask,
+    /// Per decoder layer: the encoder output's keys and values, and the word tokens'.
+    pub cross: Vec<Memory>,
+    pub words: Vec<Memory>,
+    /// [B * N] 1 on real frames.
+    pub real: Vec<f32>,
+}
+
+/// x [rows, in] . w + b on all threads -> [rows, out].
+fn applied_par(lin: &HostLinear, x: &[f32]) -> Vec<f32> {
+    let (n_in, n_out) = (lin.w.len() / lin.width(), lin.width());
+    let rows = x.len() / n_in;
+    let mut y = vec![0f32; rows * n_out];
+    let dst = RowsMut::of(&mut y, n_out);
+    // SAFETY: each task writes its own rows.
+    par_rows(rows, |r| lin.apply(at(x, &r, n_in), unsafe { dst.get(&r) }));
+    y
+}
+
+/// Rows `rows` of x [_, width].
+fn gather(x: &[f32], rows: &[usize], width: usize) -> Vec<f32> {
+    rows.iter().flat_map(|&r| &x[r * width..(r + 1) * width]).copied().collect()
+}
+
+/// The rows a block runs on (`attention::Rows`): those `mask` marks, or all `mask.len()` of them
+/// when gathering would cost more than it saves.
+fn rows_of(mask: &[bool]) -> Vec<usize> {
+    let picked: Vec<usize> = (0..mask.len()).filter(|&i| mask[i]).collect();
+    if worth_gathering(picked.len(), mask.len()) {
+        picked
+    } else {
+        (0..mask.len()).collect()
+    }
+}
+
+/// `lin` of the rows `rows` of z, put back in place among zeros -> [B * L, d].
+fn projected(lin: &HostLinear, z: &[f32], rows: &[usize], d: usize) -> Vec<f32> {
+    let y = applied_par(lin, &gather(z, rows, d));
+    let mut full = vec![0f32; z.len()];
+    for (k, &r) in rows.iter().enumerate() {
+        full[r * d..(r + 1) * d].copy_from_slice(&y[k * d..(k + 1) * d]);
+    }
+    full
+}
+
+/// One DMA block on z [B * L, d] (`DmaBlock::forward`): the active rows attend to the valid ones
+/// under the block's mask and take FC([a || z]) through the MLP; inactive rows stay as they were
+/// unless so many rows are active that all of them run.
+fn dma_block(
+    bl: &HostBlock,
+    z: &mut [f32],
+    s: AttnShape,
+    blocked: &Arc<Vec<bool>>,
+    active: &[bool],
+    valid: &[bool],
+) {
+    let d = s.d;
+    if !active.iter().any(|&a| a) {
+        return;
+    }
+    let (queries, keys) = (rows_of(active), rows_of(valid));
+    let [wq, wk, wv] = &bl.qkv;
+    let (q, k, v) =
+        (projected(wq, z, &queries, d), projected(wk, z, &keys, d), projected(wv, z, &keys, d));
+    let ctx = attention_host(&q, &k, &v, &s, &Mask::Full(blocked.clone()));
+    let a = applied_par(&bl.out, &gather(&ctx, &queries, d));
+    let zs = gather(z, &queries, d);
+    let cat: Vec<f32> =
+        a.chunks(d).zip(zs.chunks(d)).flat_map(|(a, z)| a.iter().chain(z)).copied().collect();
+    let mut h = applied_par(&bl.mlp1, &applied_par(&bl.fc, &cat));
+    let width = bl.mlp1.width();
+    let hm = RowsMut::of(&mut h, width);
+    // SAFETY: each task writes its own rows.
+    par_rows(queries.len(), |r| gelu(unsafe { hm.get(&r) }));
+    let zk = applied_par(&bl.mlp2, &h);
+    if queries.len() == z.len() / d {
+        z.copy_from_slice(&zk);
+        return;
+    }
+    for (k, &r) in queries.iter().enumerate() {
+        let (row, new, old) =
+            (&mut z[r * d..(r + 1) * d], &zk[k * d..(k + 1) * d], &zs[k * d..(k + 1) * d]);
+        row.iter_mut().zip(new.iter().zip(old)).for_each(|(z, (n, o))| *z += n - o);
+    }
+}
+
+/// [B * N, 2 (D + R)]: each frame's keyed values (masked) and mask, then its root channels and
+/// theirs (`KeyframeEncoder::observations`).
+fn observations(c: &Condition, root_channels: usize) -> Vec<f32> {
+    let (kf, m, root, rm) = (
+        host(c.kf.clone()),
+        host(c.kf_mask.clone()),
+        host(c.root.clone()),
+        host(c.root_mask.clone()),
+    );
+    let [b, n, dim] = c.kf.dims();
+    let rc = c.root.dims()[2];
+    let mut out = Vec::with_capacity(b * n * 2 * (dim + root_channels));
+    for f in 0..b * n {
+        let (kf, m) = (&kf[f * dim..(f + 1) * dim], &m[f * dim..(f + 1) * dim]);
+        out.extend(kf.iter().zip(m).map(|(v, m)| v * m));
+        out.extend_from_slice(m);
+        if root_channels > 0 {
+            let (root, rm) =
+                (&root[f * rc..f * rc + root_channels], &rm[f * rc..f * rc + root_channels]);
+            out.extend(root.iter().zip(rm).map(|(v, m)| v * m));
+            out.extend_from_slice(rm);
+        }
+    }
+    out
+}
+
+/// Padding of the decoder's sequence [B * (2 + N)]: frames that are not real.
+fn self_padding(real: &[bool], b: usize, n: usize) -> Mask {
+    key_mask(
+        (0..b * (n + 2))
+            .map(|k| k % (n + 2) >= 2 && !real[k / (n + 2) * n + k % (n + 2) - 2])
+            .collect(),
+    )
+}
+
+/// The text token [B, d] of the pooled embedding, and (models with word states) each decoder
+/// layer's keys and values of the word tokens (`words::WordInput`).
+fn text(model: &Denoiser, c: &Condition) -> (Vec<f32>, Vec<Memory>) {
+    let text = host(c.text.clone());
+    let b = c.kf.dims()[0];
+    let (td, w, d) = (model.text_dim, model.text_words, model.d_model);
+    let width = text.len() / b;
+    let pooled: Vec<f32> = text.chunks(width).flat_map(|t| &t[..td]).copied().collect();
+    let text_tok = HostLinear::new(&model.text_in).applied(&pooled);
+    let Some(wi) = model.word_in.as_ref().filter(|_| w > 0) else {
+        return (text_tok, Vec::new());
+    };
+    let states: Vec<f32> =
+        text.chunks(width).flat_map(|t| &t[td..]).map(|v| v * wi.scale).collect();
+    let mut tokens = HostLinear::new(&wi.proj).applied(&states);
+    let pos = sinusoid_table(&(0..w).map(|i| i as f32).collect::<Vec<_>>(), d);
+    for t in tokens.chunks_mut(w * d) {
+        t.iter_mut().zip(&pos).for_each(|(t, p)| *t += p);
+    }
+    let mask = key_mask(words::padding(&text, b, td, w));
+    let words = model
+        .layers
+        .iter()
+        .filter_map(|l| l.words.as_ref())
+        .map(|a| {
+            let [k, v] = [&a.key, &a.value].map(|l| applied_par(&HostLinear::new(l), &tokens));
+            Memory { kv: (k, v), lk: w, mask: mask.clone() }
+        })
+        .collect();
+    (text_tok, words)
+}
+
+/// The keyframe encoder's output [B * (1 + N), d]: the text token and the frames' observations
+/// (with positions) through the DMA blocks, plus the global skip.
+fn keyframe_encoder(
+    model: &Denoiser,
+    plan: &DmaPlan,
+    text_tok: &[f32],
+    obs: &[f32],
+    pos: &[f32],
+) -> Vec<f32> {
+    let enc = &model.encoder;
+    let (b, n, d) = (plan.batch, plan.frames, model.d_model);
+    let frames = applied_par(&HostLinear::new(&enc.kf_in), obs);
+    let l = n + 1;
+    let mut z0 = vec![0f32; b * l * d];
+    for s in 0..b {
+        z0[s * l * d..(s * l + 1) * d].copy_from_slice(&text_tok[s * d..(s + 1) * d]);
+        let rows = z0[(s * l + 1) * d..(s + 1) * l * d].iter_mut();
+        let src = frames[s * n * d..(s + 1) * n * d].iter().zip(pos);
+        rows.zip(src).for_each(|(z, (f, p))| *z = f + p);
+    }
+    let mut z = z0.clone();
+    for (k, block) in enc.blocks.iter().enumerate() {
+        let bl = HostBlock::new(block);
+        let s = AttnShape { batch: b, lq: l, lk: l, heads: bl.heads, d };
+        dma_block(&bl, &mut z, s, &plan.blocked[k], &plan.active[k], plan.valid_before(k));
+    }
+    z.iter_mut().zip(&z0).for_each(|(z, z0)| *z += z0);
+    z
+}
+
+impl Encoding {
+    /// `Denoiser::encode` of `c` on the host.
+    pub fn new(model: &Denoiser, c: &Condition) -> Encoding {
+        let [b, n, _] = c.kf.dims();
+        let d = model.d_model;
+        let (text_tok, words) = text(model, c);
+        let obs = observations(c, model.encoder.root_channels);
+        let key = model.key_in.as_ref().map(|l| applied_par(&HostLinear::new(l), &obs));
+        let pos = sinusoid_table(&(0..n).map(|i| i as f32).collect::<Vec<_>>(), d);
+        let plan = DmaPlan::new(&c.kf_frames, &c.real, b, n, &model.dma_sizes);
+        let tokens = keyframe_encoder(model, &plan, &text_tok, &obs, &pos);
+        let key_pad = key_mask(plan.final_valid().iter().map(|v| !v).collect());
+        let cross = model
+            .layers
+            .iter()
+            .map(|layer| {
+                let [k, v] = [&layer.cross_attn.key, &layer.cross_attn.value]
+                    .map(|l| applied_par(&HostLinear::new(l), &tokens));
+                Memory { kv: (k, v), lk: n + 1, mask: key_pad.clone() }
+            })
+            .collect();
+        Encoding {
+            batch: b,
+            n,
+            d,
+            text_tok,
+            pos,
+            key,
+            self_pad: self_padding(&c.real, b, n),
+            cross,
+            words,
+            real: c.real.iter().map(|&r| if r { 1.0 } else { 0.0 }).collect(),
+        }
+    }
+
+    /// The tensor encoder's output read back (the decoder's tests take it apart from this
+    /// encoder).
+    pub fn of_encoded(e: &Encoded) -> Encoding {
+        let [b, l, d] = e.tokens.dims();
+        let memory = |kv: &(Tensor<3>, Tensor<3>), mask: &Mask| Memory {
+            lk: kv.0.dims()[1],
+            kv: (host(kv.0.clone()), host(kv.1.clone())),
+            mask: mask.clone(),
+        };
+        let words = match &e.words {
+            Some(m) => m.kv.iter().map(|kv| memory(kv, &m.pad)).collect(),
+            None => Vec::new(),
+        };
+        Encoding {
+            batch: b,
+            n: l - 1,
+            d,
+            text_tok: host(e.text_tok.clone()),
+            pos: host(e.pos.clone()),
+            key: e.key.clone().map(host),
+            self_pad: e.self_pad.clone(),
+            cross: e.cross_kv.iter().map(|kv| memory(kv, &e.key_pad)).collect(),
+            words,
+            real: e.real.host.to_vec(),
+        }
+    }
+}

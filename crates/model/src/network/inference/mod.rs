@@ -1,0 +1,389 @@
+//! The decoder's forward for sampling, on host buffers: what [`Denoiser::decode`] computes, without
+//! Burn's dispatch, with the weights and the encoder's output read out once per sample and the
+//! activations in buffers reused across the denoising steps.
+//!
+//! Why: a sampling call of the small networks is ~1 GFLOP in ~45 ops; through the tensor API
+//! each op is a pool round trip and a new buffer, and a narrow layer's product (128 x 128) ran
+//! on one thread. Here each thread takes a block of token rows and chains the row-wise ops on it
+//! (products, residual, LayerNorm, GELU, the temporal convolution); only the attention cores,
+//! which read whole sequences, are separate parallel steps: three row regions per layer, each
+//! ending with the next one's first products.
+//! Every value is computed by the same kernels in the same order as the tensor path: the
+//! outputs are the same bits (tested), and so are the samples.
+
+mod encoder;
+mod par;
+mod weights;
+
+use std::ops::Range;
+
+use burn::prelude::*;
+
+use crate::kernels::rows::{gelu, residual_layer_norm};
+use crate::kernels::{attention_host, temporal_add_rows, AttnShape, ConvShape};
+use crate::network::condition::Condition;
+use crate::network::denoiser::{Denoiser, Encoded};
+use crate::network::sinusoidal::sinusoid_table;
+use encoder::Encoding;
+use par::{at, par_rows, RowsMut};
+use weights::{HostLayer, HostLinear};
+
+/// Whether the host decoder serves sampling on `device`: flex without autodiff (where the
+/// tensor path runs the same kernels), unless `DIFFKFC_DECODER=tensor` asks for the tensor path
+/// (A/B runs) or `DIFFKFC_KERNELS=burn` for the composed ops.
+pub fn serves(device: &Device) -> bool {
+    static TENSOR: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    let tensor =
+        *TENSOR.get_or_init(|| std::env::var("DIFFKFC_DECODER").is_ok_and(|v| v == "tensor"));
+    !tensor && !device.is_autodiff() && crate::kernels::fused(device)
+}
+
+/// The activations of one call, [B * (2 + N), width] each, reused across calls.
+struct Workspace {
+    h: Vec<f32>,
+    h2: Vec<f32>,
+    q: Vec<f32>,
+    k: Vec<f32>,
+    v: Vec<f32>,
+    tmp: Vec<f32>,
+    ff: Vec<f32>,
+    /// x_t . W_in + b [b, N, d] (once for the branches that share x_t) and the output [B, N, D].
+    frames: Vec<f32>,
+    out: Vec<f32>,
+}
+
+impl Workspace {
+    fn qkv(&mut self, d: usize) -> [RowsMut; 3] {
+        [RowsMut::of(&mut self.q, d), RowsMut::of(&mut self.k, d), RowsMut::of(&mut self.v, d)]
+    }
+}
+
+/// A sample's decoder on the host: the weights and one condition's encoding.
+pub struct DecoderPlan {
+    /// The timestep MLP's two layers.
+    time: [HostLinear; 2],
+    x_in: HostLinear,
+    out: HostLinear,
+    layers: Vec<HostLayer>,
+    heads: usize,
+    enc: Encoding,
+    ws: Workspace,
+}
+
+impl DecoderPlan {
+    /// The decoder of `model` for the condition `c` (B samples, N frames), encoded here.
+    pub fn new(model: &Denoiser, c: &Condition) -> DecoderPlan {
+        rayon::scope(|_| DecoderPlan::with(model, Encoding::new(model, c)))
+    }
+
+    /// The decoder of `model` for a condition the tensor path encoded.
+    pub fn of_encoded(model: &Denoiser, e: &Encoded) -> DecoderPlan {
+        DecoderPlan::with(model, Encoding::of_encoded(e))
+    }
+
+    fn with(model: &Denoiser, enc: Encoding) -> DecoderPlan {
+        let (b, n, d) = (enc.batch, enc.n, enc.d);
+        let layers: Vec<HostLayer> = model.layers.iter().map(HostLayer::new).collect();
+        let ffn = layers.first().map_or(d, |l| l.ff1.width());
+        let rows = b * (n + 2);
+        let zeros = |k: usize| vec![0f32; k];
+        let out = HostLinear::new(&model.out);
+        let ws = Workspace {
+            h: zeros(rows * d),
+            h2: zeros(rows * d),
+            q: zeros(rows * d),
+            k: zeros(rows * d),
+            v: zeros(rows * d),
+            tmp: zeros(rows * d),
+            ff: zeros(rows * ffn),
+            frames: Vec::new(),
+            out: zeros(b * n * out.width()),
+        };
+        DecoderPlan {
+            time: [&model.time.fc1, &model.time.fc2].map(HostLinear::new),
+            x_in: HostLinear::new(&model.x_in),
+            out,
+            heads: model.layers.first().map_or(1, |l| l.self_attn.heads),
+            layers,
+            enc,
+            ws,
+        }
+    }
+
+    /// x0 [B, N, D] predicted from x_t [b, N, D] at timestep `t`, where B is a multiple of b:
+    /// sample s reads x_t's sample s mod b (guidance branches share x_t, stacked branch after
+    /// branch). The same values as `Denoiser::decode` of x_t repeated B / b times.
+    pub fn decode(&mut self, x_t: &[f32], t: usize) -> &[f32] {
+        let time = self.time_embedding(t);
+        // On a pool thread: each parallel region is then a cheap join, not a hand-over from a
+        // thread outside the pool (a futex wake and wait each).
+        rayon::scope(|_| {
+            self.input(x_t, &time);
+            for i in 0..self.layers.len() {
+                self.layer(i);
+            }
+        });
+        &self.ws.out
+    }
+
+    /// y_t [B, d]: `TimestepEmbed::forward` (sinusoid, Linear, SiLU, Linear) of t for every
+    /// sample, as the tensor path batches it (`gemm` rounds a single row differently).
+    fn time_embedding(&self, t: usize) -> Vec<f32> {
+        let [fc1, fc2] = &self.time;
+        let table = sinusoid_table(&vec![t as f32; self.enc.batch], self.enc.d);
+        let mut h = fc1.applied(&table);
+        h.iter_mut().for_each(|v| *v *= sigmoid(*v));
+        fc2.applied(&h)
+    }
+
+    /// h = [y_t, text token, x_t W_in + b + positions (+ key observations)] per sample
+    /// (`time` [B, d]).
+    fn input(&mut self, x_t: &[f32], time: &[f32]) {
+        let (n, d, l) = (self.enc.n, self.enc.d, self.enc.n + 2);
+        let dim = self.x_in.w.len() / d;
+        let xb = x_t.len() / (n * dim);
+        assert!(xb > 0 && self.enc.batch.is_multiple_of(xb), "x_t [b, N, D] with b dividing the batch");
+        self.ws.frames.resize(xb * n * d, 0.0);
+        let frames = RowsMut::of(&mut self.ws.frames, d);
+        let x_in = &self.x_in;
+        // SAFETY: each task writes its own rows.
+        par_rows(xb * n, |r| x_in.apply(at(x_t, &r, dim), unsafe { frames.get(&r) }));
+        let qkv = self.ws.qkv(d);
+        let (h, fr) = (RowsMut::of(&mut self.ws.h, d), &self.ws.frames);
+        let e = &self.enc;
+        let (text, pos, key) = (&e.text_tok, &e.pos, e.key.as_deref());
+        let first = self.layers.first();
+        par_rows(e.batch * l, |r| {
+            // SAFETY: each task writes its own rows.
+            let out = unsafe { h.get(&r) };
+            for (row, o) in r.clone().zip(out.chunks_mut(d)) {
+                let (s, i) = (row / l, row % l);
+                match i {
+                    0 => o.copy_from_slice(&time[s * d..(s + 1) * d]),
+                    1 => o.copy_from_slice(&text[s * d..(s + 1) * d]),
+                    _ => {
+                        let f = i - 2;
+                        let src = &fr[((s % xb) * n + f) * d..((s % xb) * n + f + 1) * d];
+                        let p = &pos[f * d..(f + 1) * d];
+                        o.iter_mut().zip(src).zip(p).for_each(|((o, x), p)| *o = x + p);
+                        if let Some(k) = key {
+                            let k = &k[(s * n + f) * d..(s * n + f + 1) * d];
+                            o.iter_mut().zip(k).for_each(|(o, k)| *o += k);
+                        }
+                    }
+                }
+            }
+            if let Some(layer) = first {
+                layer.project(out, &r, qkv);
+            }
+        });
+    }
+
+    /// The shape of an attention of the decoder's tokens to `lk` keys.
+    fn shape(&self) -> impl Fn(usize) -> AttnShape {
+        let (batch, lq, heads, d) = (self.enc.batch, self.enc.n + 2, self.heads, self.enc.d);
+        move |lk| AttnShape { batch, lq, lk, heads, d }
+    }
+
+    /// Decoder layer `i`: h -> h (`DecoderLayer::forward` without dropout).
+    fn layer(&mut self, i: usize) {
+        let (b, d, l) = (self.enc.batch, self.enc.d, self.enc.n + 2);
+        let rows = b * l;
+        let shape = self.shape();
+        let layer = &self.layers[i];
+        let ws = &mut self.ws;
+        // Self-attention's core over each whole sequence (its projections were the last
+        // region's).
+        let ctx = attention_host(&ws.q, &ws.k, &ws.v, &shape(l), &self.enc.self_pad);
+        // Its output, the temporal convolution, h2 = LN1(h + a), and the cross-attention's
+        // queries.
+        let conv = layer.temporal.as_ref().map(|(w, kernel)| {
+            let s = ConvShape { batch: b, rows: l, skip: 2, d, kernel: *kernel };
+            (w, s)
+        });
+        let (tmp, h2, q) =
+            (RowsMut::of(&mut ws.tmp, d), RowsMut::of(&mut ws.h2, d), RowsMut::of(&mut ws.q, d));
+        let (h, real) = (&ws.h, &self.enc.real);
+        par_rows(rows, |r| {
+            // SAFETY: each task writes its own rows of tmp, h2 and q; h is only read.
+            let (a, y, q) = unsafe { (tmp.get(&r), h2.get(&r), q.get(&r)) };
+            layer.self_out.apply(at(&ctx, &r, d), a);
+            if let Some((w, s)) = &conv {
+                temporal_add_rows(h, w, real, s, r.clone(), a);
+            }
+            residual_layer_norm(at(h, &r, d), a, &layer.ln[0].0, &layer.ln[0].1, y);
+            layer.cross_q.apply(y, q);
+        });
+        let cross = &self.enc.cross[i];
+        let ctx = attention_host(&ws.q, &cross.kv.0, &cross.kv.1, &shape(cross.lk), &cross.mask);
+        // Its output and h = LN2(h2 + c), then the words' queries.
+        let (tmp, h, q) =
+            (RowsMut::of(&mut ws.tmp, d), RowsMut::of(&mut ws.h, d), RowsMut::of(&mut ws.q, d));
+        let h2 = &ws.h2;
+        par_rows(rows, |r| {
+            // SAFETY: each task writes its own rows of tmp, h and q; h2 is only read.
+            let (a, y, q) = unsafe { (tmp.get(&r), h.get(&r), q.get(&r)) };
+            layer.cross_out.apply(at(&ctx, &r, d), a);
+            residual_layer_norm(at(h2, &r, d), a, &layer.ln[1].0, &layer.ln[1].1, y);
+            if let Some([wq, _]) = &layer.words {
+                wq.apply(y, q);
+            }
+        });
+        let words = layer.words.as_ref().and(self.enc.words.get(i));
+        let words = words.map(|m| attention_host(&ws.q, &m.kv.0, &m.kv.1, &shape(m.lk), &m.mask));
+        self.feed_forward(i, words);
+    }
+
+    /// The words' attention output added to h (a plain residual), then the feed-forward block:
+    /// h = LN3(h + W2 gelu(W1 h)), written back into h; then on the same rows the next layer's
+    /// projections, or after the last layer the output.
+    fn feed_forward(&mut self, i: usize, words: Option<Vec<f32>>) {
+        let (n, d) = (self.enc.n, self.enc.d);
+        let rows = self.enc.batch * (n + 2);
+        let layer = &self.layers[i];
+        let next = self.layers.get(i + 1);
+        let ws = &mut self.ws;
+        let (qkv, out) = (ws.qkv(d), RowsMut::of(&mut ws.out, self.out.width()));
+        let f = layer.ff1.width();
+        let (h, tmp, ff, y) = (
+            RowsMut::of(&mut ws.h, d),
+            RowsMut::of(&mut ws.tmp, d),
+            RowsMut::of(&mut ws.ff, f),
+            RowsMut::of(&mut ws.h2, d),
+        );
+        par_rows(rows, |r| {
+            // SAFETY: each task reads and writes only its own rows of every buffer.
+            let (h, a, ff, y) = unsafe { (h.get(&r), tmp.get(&r), ff.get(&r), y.get(&r)) };
+            if let (Some([_, wo]), Some(ctx)) = (&layer.words, &words) {
+                wo.apply(at(ctx, &r, d), a);
+                h.iter_mut().zip(a.iter()).for_each(|(h, a)| *h += a);
+            }
+            layer.ff1.apply(h, ff);
+            gelu(ff);
+            layer.ff2.apply(ff, a);
+            residual_layer_norm(h, a, &layer.ln[2].0, &layer.ln[2].1, y);
+            match next {
+                Some(next) => next.project(y, &r, qkv),
+                // SAFETY: each task writes the output rows of its own frames.
+                None => unsafe { output(&self.out, y, &r, n, out) },
+            }
+        });
+        std::mem::swap(&mut ws.h, &mut ws.h2);
+    }
+}
+
+/// The logistic function as flex computes it (Burn's SiLU is x times it), in both branches.
+fn sigmoid(x: f32) -> f32 {
+    if x >= 0.0 {
+        1.0 / (1.0 + (-x).exp())
+    } else {
+        let e = x.exp();
+        e / (1.0 + e)
+    }
+}
+
+/// The output rows [B * N, D] of the token rows `r` of h (`h` holding those rows): their frame
+/// rows . W_out + b, in runs within one sample each (two tokens per sample are not frames).
+///
+/// # Safety
+/// No other task may write the output rows of these frames meanwhile.
+unsafe fn output(lin: &HostLinear, h: &[f32], r: &Range<usize>, n: usize, out: RowsMut) {
+    let (l, d) = (n + 2, h.len() / r.len());
+    let mut row = r.start;
+    while row < r.end {
+        let (s, i) = (row / l, row % l);
+        let end = r.end.min((s + 1) * l);
+        if i < 2 {
+            row = (s * l + 2).min(end);
+            continue;
+        }
+        let frames = s * n + i - 2..s * n + end - s * l - 2;
+        lin.apply(at(h, &(row - r.start..end - r.start), d), out.get(&frames));
+        row = end;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::network::config::DiffKfcConfig;
+    use crate::network::params;
+    use crate::sampling::sampler::Request;
+    use burn::tensor::Distribution;
+
+    /// A network with every optional part (temporal convolution, key input, word states), its
+    /// zero-started branches (taps, key input, word outputs) moved off zero.
+    fn network(dev: &Device) -> (DiffKfcConfig, Denoiser) {
+        let mut cfg = DiffKfcConfig::new();
+        cfg.d_model = 32;
+        cfg.heads = 2;
+        cfg.ffn = 64;
+        cfg.dec_layers = 2;
+        cfg.dma_sizes = vec![2, 4, 0];
+        cfg.temporal_kernel = 5;
+        cfg.key_input = true;
+        cfg.text_dim = 16;
+        cfg.text_words = 4;
+        let model = cfg.init(dev);
+        let vals: Vec<Vec<f32>> = params::values(&model)
+            .into_iter()
+            .enumerate()
+            .map(|(k, (_, v))| {
+                let wobble = |i: usize| ((i * 31 + k * 17) % 13) as f32 / 60.0 - 0.1;
+                v.iter().enumerate().map(|(i, x)| x + wobble(i)).collect()
+            })
+            .collect();
+        (cfg, params::load(model, &vals))
+    }
+
+    /// Two samples (the second with padding frames and its last word slots empty), each keyed on
+    /// its `keyed` frames: sparse keys gather the DMA blocks' rows, dense ones do not.
+    fn request(cfg: &DiffKfcConfig, n: usize, keyed: &[usize]) -> Request {
+        let (dim, width) = (cfg.feat_dim, cfg.text_dim * (1 + cfg.text_words));
+        let mut text: Vec<f32> =
+            (0..2 * width).map(|i| ((i * 37 % 11) as f32 - 5.0) / 7.0).collect();
+        text[2 * width - 2 * cfg.text_dim..].fill(0.0);
+        let mut req = Request::text_only(n, dim, text, width, vec![n, n - 6]);
+        for f in keyed.iter().flat_map(|&f| [f, n + f]) {
+            req.mask[f * dim..(f + 1) * dim].fill(1.0);
+            req.kf[f * dim..(f + 1) * dim]
+                .iter_mut()
+                .enumerate()
+                .for_each(|(j, v)| *v = 0.3 - j as f32 * 1e-3);
+            req.root_mask[f * 4..f * 4 + 2].fill(1.0);
+            req.root[f * 4..f * 4 + 2].fill(0.5);
+        }
+        req
+    }
+
+    /// The host path against `Denoiser::encode` and `decode` on the tensor path: the decoder
+    /// alone on the tensor encoder's output, and the whole path from the condition, with two
+    /// samples sharing x_t as guidance branches do. The same kernels on the same rows in the
+    /// same order: the same bits.
+    #[test]
+    fn matches_the_tensor_path_bit_for_bit() {
+        let dev = Device::flex();
+        let (cfg, model) = network(&dev);
+        let n = 23;
+        let dense: Vec<usize> = (0..n).collect();
+        for keyed in [&[0, 9, 16][..], &dense[..]] {
+            let cond = request(&cfg, n, keyed).condition(&dev);
+            let enc = model.encode(&cond);
+            let x = Tensor::<3>::random([1, n, cfg.feat_dim], Distribution::Normal(0.0, 1.0), &dev);
+            let xs = Tensor::cat(vec![x.clone(), x.clone()], 0);
+            let mut plans =
+                [DecoderPlan::of_encoded(&model, &enc), DecoderPlan::new(&model, &cond)];
+            for t in [999, 17] {
+                let want = params::host(model.decode(xs.clone(), &[t, t], &enc));
+                for (which, plan) in ["decoder", "encoder and decoder"].iter().zip(&mut plans) {
+                    let got = plan.decode(&params::host(x.clone()), t);
+                    assert_eq!(got.len(), want.len());
+                    let worst =
+                        got.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+                    let keys = keyed.len();
+                    assert!(got == want, "{which}, {keys} keys, t {t}: off by up to {worst}");
+                }
+            }
+        }
+    }
+}
