@@ -136,7 +136,10 @@ fn drag_a_key_and_the_motion_follows() {
     if !have_text_encoder() {
         return;
     }
-    let model = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/tiny-synth");
+    // The tiny model by default; DIFFKFC_EDITOR_MODEL=models/mid-synth times the reference model.
+    let model = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../..")
+        .join(std::env::var("DIFFKFC_EDITOR_MODEL").unwrap_or_else(|_| "models/tiny-synth".into()));
     let mut server = Command::new(env!("CARGO_BIN_EXE_diffkfc"))
         .args(["serve", "--checkpoint", s(&model), "--port", "0"])
         .stdout(Stdio::piped())

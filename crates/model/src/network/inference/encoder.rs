@@ -55,7 +55,11 @@ fn applied_par(lin: &HostLinear, x: &[f32]) -> Vec<f32> {
 
 /// Rows `rows` of x [_, width].
 fn gather(x: &[f32], rows: &[usize], width: usize) -> Vec<f32> {
-    rows.iter().flat_map(|&r| &x[r * width..(r + 1) * width]).copied().collect()
+    let mut out = Vec::with_capacity(rows.len() * width);
+    for &r in rows {
+        out.extend_from_slice(&x[r * width..(r + 1) * width]);
+    }
+    out
 }
 
 /// The rows a block runs on (`attention::Rows`): those `mask` marks, or all `mask.len()` of them
@@ -101,8 +105,11 @@ fn dma_block(
     let ctx = attention_host(&q, &k, &v, &s, &Mask::Full(blocked.clone()));
     let a = applied_par(&bl.out, &gather(&ctx, &queries, d));
     let zs = gather(z, &queries, d);
-    let cat: Vec<f32> =
-        a.chunks(d).zip(zs.chunks(d)).flat_map(|(a, z)| a.iter().chain(z)).copied().collect();
+    let mut cat = Vec::with_capacity(2 * a.len());
+    for (a, z) in a.chunks(d).zip(zs.chunks(d)) {
+        cat.extend_from_slice(a);
+        cat.extend_from_slice(z);
+    }
     let mut h = applied_par(&bl.mlp1, &applied_par(&bl.fc, &cat));
     let width = bl.mlp1.width();
     let hm = RowsMut::of(&mut h, width);

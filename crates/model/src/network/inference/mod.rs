@@ -142,7 +142,10 @@ impl DecoderPlan {
         let (n, d, l) = (self.enc.n, self.enc.d, self.enc.n + 2);
         let dim = self.x_in.w.len() / d;
         let xb = x_t.len() / (n * dim);
-        assert!(xb > 0 && self.enc.batch.is_multiple_of(xb), "x_t [b, N, D] with b dividing the batch");
+        assert!(
+            xb > 0 && self.enc.batch.is_multiple_of(xb),
+            "x_t [b, N, D] with b dividing the batch"
+        );
         self.ws.frames.resize(xb * n * d, 0.0);
         let frames = RowsMut::of(&mut self.ws.frames, d);
         let x_in = &self.x_in;
