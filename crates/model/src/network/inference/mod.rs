@@ -114,6 +114,12 @@ impl DecoderPlan {
     /// sample s reads x_t's sample s mod b (guidance branches share x_t, stacked branch after
     /// branch). The same values as `Denoiser::decode` of x_t repeated B / b times.
     pub fn decode(&mut self, x_t: &[f32], t: usize) -> &[f32] {
+        self.decode_each(x_t, &vec![t; self.enc.batch])
+    }
+
+    /// As [`DecoderPlan::decode`], sample s at timestep `t[s]` (B of them).
+    pub fn decode_each(&mut self, x_t: &[f32], t: &[usize]) -> &[f32] {
+        assert_eq!(t.len(), self.enc.batch, "one timestep per sample");
         let time = self.time_embedding(t);
         // On a pool thread: each parallel region is then a cheap join, not a hand-over from a
         // thread outside the pool (a futex wake and wait each).
@@ -126,11 +132,12 @@ impl DecoderPlan {
         &self.ws.out
     }
 
-    /// y_t [B, d]: `TimestepEmbed::forward` (sinusoid, Linear, SiLU, Linear) of t for every
-    /// sample, as the tensor path batches it (`gemm` rounds a single row differently).
-    fn time_embedding(&self, t: usize) -> Vec<f32> {
+    /// y_t [B, d]: `TimestepEmbed::forward` (sinusoid, Linear, SiLU, Linear) of each sample's
+    /// timestep, as the tensor path batches them (`gemm` rounds a single row differently).
+    fn time_embedding(&self, t: &[usize]) -> Vec<f32> {
         let [fc1, fc2] = &self.time;
-        let table = sinusoid_table(&vec![t as f32; self.enc.batch], self.enc.d);
+        let t: Vec<f32> = t.iter().map(|&t| t as f32).collect();
+        let table = sinusoid_table(&t, self.enc.d);
         let mut h = fc1.applied(&table);
         h.iter_mut().for_each(|v| *v *= sigmoid(*v));
         fc2.applied(&h)
@@ -376,15 +383,15 @@ mod tests {
             let xs = Tensor::cat(vec![x.clone(), x.clone()], 0);
             let mut plans =
                 [DecoderPlan::of_encoded(&model, &enc), DecoderPlan::new(&model, &cond)];
-            for t in [999, 17] {
-                let want = params::host(model.decode(xs.clone(), &[t, t], &enc));
+            for t in [[999, 999], [17, 17], [600, 3]] {
+                let want = params::host(model.decode(xs.clone(), &t, &enc));
                 for (which, plan) in ["decoder", "encoder and decoder"].iter().zip(&mut plans) {
-                    let got = plan.decode(&params::host(x.clone()), t);
+                    let got = plan.decode_each(&params::host(x.clone()), &t);
                     assert_eq!(got.len(), want.len());
                     let worst =
                         got.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
                     let keys = keyed.len();
-                    assert!(got == want, "{which}, {keys} keys, t {t}: off by up to {worst}");
+                    assert!(got == want, "{which}, {keys} keys, t {t:?}: off by up to {worst}");
                 }
             }
         }
