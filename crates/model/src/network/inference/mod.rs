@@ -1,6 +1,6 @@
-//! The decoder's forward for sampling, on host buffers: what [`Denoiser::decode`] computes, without
-//! Burn's dispatch, with the weights and the encoder's output read out once per sample and the
-//! activations in buffers reused across the denoising steps.
+//! The denoiser for sampling, on host buffers: what [`Denoiser::encode`] and
+//! [`Denoiser::decode`] compute, without Burn's dispatch, the condition encoded once per sample,
+//! the weights read in place and the activations in buffers reused across the denoising steps.
 //!
 //! Why: a sampling call of the small networks is ~1 GFLOP in ~45 ops; through the tensor API
 //! each op is a pool round trip and a new buffer, and a narrow layer's product (128 x 128) ran
