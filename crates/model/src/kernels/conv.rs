@@ -61,7 +61,7 @@ elementwise_builds!(sample_forward, sample_forward_rows, sample_forward_avx512,
     sample_forward_avx2, (yb: &mut [f32], hb: &[f32], rb: &[f32], w: &[f32], s: &ConvShape));
 
 /// Adds the convolution of token rows `rows` (of all B x M, flattened) to `out` [rows, d]: the
-/// single-threaded row form of [`temporal_forward`] for the sampling path (one parallel region
+/// single-threaded row form of `temporal_forward` for the sampling path (one parallel region
 /// chains it with the rows' other ops), each value summed over the taps in the same order.
 pub fn temporal_add_rows(
     h: &[f32],

@@ -218,18 +218,19 @@ pub fn sample(
 /// else the tensor path, which exact transition guidance differentiates through. Either
 /// encodes the condition once; the guidance branches share each decoder call.
 enum Decoder<'a> {
-    Host(DecoderPlan),
+    Host(Box<DecoderPlan>),
     /// The encoder's output is detached so per-step backward passes never reach into it; with
-    /// exact transition guidance (true) each step's x_t takes a gradient.
-    Tensor(&'a Denoiser, Encoded, bool),
+    /// exact transition guidance (true) each step's x_t takes a gradient. (Both boxed: with
+    /// the GPU backends compiled in, tensors and the plan's views are large.)
+    Tensor(&'a Denoiser, Box<Encoded>, bool),
 }
 
 impl<'a> Decoder<'a> {
     fn new(model: &'a Denoiser, guided: &Condition, exact: bool) -> Decoder<'a> {
         if !exact && inference::serves(&guided.kf.device()) {
-            Decoder::Host(DecoderPlan::new(model, guided))
+            Decoder::Host(Box::new(DecoderPlan::new(model, guided)))
         } else {
-            Decoder::Tensor(model, model.encode(guided).detach(), exact)
+            Decoder::Tensor(model, Box::new(model.encode(guided).detach()), exact)
         }
     }
 
