@@ -46,14 +46,7 @@ pub fn temporal_forward(h: &[f32], w: &[f32], real: &[f32], s: &ConvShape) -> Ve
 fn sample_forward_rows(yb: &mut [f32], hb: &[f32], rb: &[f32], w: &[f32], s: &ConvShape) {
     let d = s.d;
     for t in 0..s.frames() {
-        let out = &mut yb[(s.skip + t) * d..(s.skip + t + 1) * d];
-        for k in 0..s.kernel {
-            let Some(src) = s.source(t, k, rb) else { continue };
-            let x = &hb[(s.skip + src) * d..(s.skip + src + 1) * d];
-            for ((o, &wv), &xv) in out.iter_mut().zip(&w[k * d..(k + 1) * d]).zip(x) {
-                *o += xv * wv;
-            }
-        }
+        frame_taps_rows(&mut yb[(s.skip + t) * d..(s.skip + t + 1) * d], hb, rb, w, s, t);
     }
 }
 
@@ -84,7 +77,7 @@ pub fn temporal_add_rows(
     }
 }
 
-/// y [d] = the taps' sum for frame t of one sample's tokens hb [M, d] (`sample_forward`'s order).
+/// y [d] += the taps' sum for frame t of one sample's tokens hb [M, d], tap after tap.
 #[inline(always)]
 fn frame_taps_rows(y: &mut [f32], hb: &[f32], rb: &[f32], w: &[f32], s: &ConvShape, t: usize) {
     let d = s.d;

@@ -240,7 +240,7 @@ fn attention_with_lse(
 ) -> (FlexTensor, Option<Arc<Vec<f32>>>) {
     let s = attn_shape(q, k, args.heads);
     let (q, k, v) = (slice(q), slice(k), slice(v));
-    let (out, lse) = if flash::serves(s.dh()) && !per_head() {
+    let (out, lse) = if uses_flash(&s) {
         let (out, lse) = flash::forward(&q, &k, &v, &s, &args.mask);
         (out, Some(Arc::new(lse)))
     } else {
@@ -252,17 +252,20 @@ fn attention_with_lse(
 /// Attention of q [B, Lq, d] to k, v [B, Lk, d] on host slices -> [B, Lq, d]: the kernel the
 /// flex op runs for these shapes (`attention_with_lse`), parallel over heads.
 pub fn attention_host(q: &[f32], k: &[f32], v: &[f32], s: &AttnShape, mask: &Mask) -> Vec<f32> {
-    if flash::serves(s.dh()) && !per_head() {
+    if uses_flash(s) {
         flash::forward(q, k, v, s, mask).0
     } else {
         mha::attention_forward(q, k, v, s, mask)
     }
 }
 
-/// `DIFFKFC_ATTENTION=head` keeps every head on the per-head path (A/B runs).
-fn per_head() -> bool {
+/// Whether an attention of these shapes runs the flash kernel (small heads) rather than the
+/// per-head one; `DIFFKFC_ATTENTION=head` keeps every head on the per-head path (A/B runs).
+fn uses_flash(s: &AttnShape) -> bool {
     static PER_HEAD: OnceLock<bool> = OnceLock::new();
-    *PER_HEAD.get_or_init(|| std::env::var("DIFFKFC_ATTENTION").is_ok_and(|v| v == "head"))
+    let per_head =
+        *PER_HEAD.get_or_init(|| std::env::var("DIFFKFC_ATTENTION").is_ok_and(|v| v == "head"));
+    flash::serves(s.dh()) && !per_head
 }
 
 /// A float tensor's values on the host: the flex tensor's own buffer where it is contiguous f32

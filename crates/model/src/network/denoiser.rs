@@ -120,6 +120,13 @@ impl DiffKfcConfig {
     }
 }
 
+/// Keys of the decoder's sequence [B * (2 + N)] that are padding (time and text tokens, then
+/// the frames; `real` [B * N]).
+pub fn self_padding(real: &[bool], b: usize, n: usize) -> Mask {
+    let l = n + 2;
+    key_mask((0..b * l).map(|k| k % l >= 2 && !real[k / l * n + k % l - 2]).collect())
+}
+
 impl Denoiser {
     /// Run the keyframe encoder and the decoder's cross-attention projections of its output
     /// (once per condition).
@@ -139,9 +146,6 @@ impl Denoiser {
         let key = self.key_in.as_ref().map(|l| linear(l, obs.clone()));
         let tokens = self.encoder.forward(text_tok.clone(), obs, pos.clone(), &plan);
         let key_pad = plan.final_valid().iter().map(|v| !v).collect();
-        let self_pad = (0..b * (n + 2))
-            .map(|k| k % (n + 2) >= 2 && !c.real[k / (n + 2) * n + k % (n + 2) - 2])
-            .collect();
         let cross_kv = self.layers.iter().map(|l| l.cross_kv(tokens.clone())).collect();
         Encoded {
             words,
@@ -151,7 +155,7 @@ impl Denoiser {
             tokens,
             key_pad: key_mask(key_pad),
             text_tok,
-            self_pad: key_mask(self_pad),
+            self_pad: self_padding(&c.real, b, n),
             pos,
         }
     }

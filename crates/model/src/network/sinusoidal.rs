@@ -21,8 +21,13 @@ pub fn sinusoid_table(positions: &[f32], d: usize) -> Vec<f32> {
 
 /// Positional encodings of `n` frames: [1, n, d].
 pub fn positions(n: usize, d: usize, device: &Device) -> Tensor<3> {
+    Tensor::<1>::from_floats(position_table(n, d).as_slice(), device).reshape([1, n, d])
+}
+
+/// The same encodings on the host, [n, d].
+pub fn position_table(n: usize, d: usize) -> Vec<f32> {
     let pos: Vec<f32> = (0..n).map(|i| i as f32).collect();
-    Tensor::<1>::from_floats(sinusoid_table(&pos, d).as_slice(), device).reshape([1, n, d])
+    sinusoid_table(&pos, d)
 }
 
 /// Timestep embedding: sinusoid of t, then Linear-SiLU-Linear (MDM's TimestepEmbedder).

@@ -189,7 +189,7 @@ pub fn sample(
     );
     let cond = if opts.inpaint { cond.without_keyframes() } else { cond };
     let mut decoder = Decoder::new(model, &guidance.condition(&cond), exact);
-    let imposed = Imposed::new(req, opts, &device);
+    let imposed = Imposed::new(req, opts, decoder.tensor_device().as_ref());
     let mut rng = Rng::new(opts.seed);
     let mut x: Vec<f32> = (0..b * n * d).map(|_| rng.normal() as f32).collect();
     let ts = timesteps(schedule, opts.sampler);
@@ -226,6 +226,14 @@ enum Decoder<'a> {
 }
 
 impl<'a> Decoder<'a> {
+    /// The device of the tensor path (None on the host decoder).
+    fn tensor_device(&self) -> Option<Device> {
+        match self {
+            Decoder::Host(_) => None,
+            Decoder::Tensor(_, enc, _) => Some(enc.tokens.device()),
+        }
+    }
+
     fn new(model: &'a Denoiser, guided: &Condition, exact: bool) -> Decoder<'a> {
         if !exact && inference::serves(&guided.kf.device()) {
             Decoder::Host(Box::new(DecoderPlan::new(model, guided)))
@@ -242,14 +250,14 @@ impl<'a> Decoder<'a> {
         x: &[f32],
         t: usize,
         guidance: &Guidance,
-        imposed: Option<&Imposed>,
+        imposed: Option<&Imposed<'_>>,
         [b, n, d]: [usize; 3],
     ) -> (Vec<f32>, Option<(Tensor<3>, Tensor<3>)>) {
         match self {
             Decoder::Host(plan) => {
                 let mut x0 = guidance.combine_host(plan.decode(x, t));
                 if let Some(i) = imposed {
-                    impose_host(&mut x0, &i.kf, &i.mask);
+                    impose_host(&mut x0, i.kf, &i.mask);
                 }
                 (x0, None)
             }
@@ -266,8 +274,8 @@ impl<'a> Decoder<'a> {
                 } else {
                     model.decode(xt.clone(), &vec![t; b], enc)
                 };
-                let x0_t = match imposed {
-                    Some(i) => impose(x0_t, &i.kf_t, &i.mask_t),
+                let x0_t = match imposed.and_then(|i| i.tensors.as_ref()) {
+                    Some((kf, mask)) => impose(x0_t, kf, mask),
                     None => x0_t,
                 };
                 (host(x0_t.clone().detach()), Some((x0_t, xt)))
@@ -277,16 +285,17 @@ impl<'a> Decoder<'a> {
 }
 
 /// Features a request imposes on every step's prediction (MDM-inp's observed features, an
-/// imposed track's root velocities), on the host and as tensors.
-struct Imposed {
-    kf: Vec<f32>,
+/// imposed track's root velocities): the request's values and where they are imposed, and for
+/// the tensor path both as tensors.
+struct Imposed<'a> {
+    kf: &'a [f32],
     mask: Vec<f32>,
-    kf_t: Tensor<3>,
-    mask_t: Tensor<3>,
+    tensors: Option<(Tensor<3>, Tensor<3>)>,
 }
 
-impl Imposed {
-    fn new(req: &Request, opts: &Options, device: &Device) -> Option<Imposed> {
+impl<'a> Imposed<'a> {
+    /// `device`: the tensor path's (None: the host decoder, which needs no tensors).
+    fn new(req: &'a Request, opts: &Options, device: Option<&Device>) -> Option<Imposed<'a>> {
         let d = req.dim;
         let mask: Vec<f32> = if opts.inpaint {
             req.mask.clone()
@@ -297,9 +306,11 @@ impl Imposed {
             return None;
         };
         let shape = [req.batch, req.frames, d];
-        let tensor = |v: &[f32]| Tensor::<1>::from_floats(v, device).reshape(shape);
-        let (kf_t, mask_t) = (tensor(&req.kf), tensor(&mask));
-        Some(Imposed { kf: req.kf.clone(), mask, kf_t, mask_t })
+        let tensors = device.map(|device| {
+            let tensor = |v: &[f32]| Tensor::<1>::from_floats(v, device).reshape(shape);
+            (tensor(&req.kf), tensor(&mask))
+        });
+        Some(Imposed { kf: &req.kf, mask, tensors })
     }
 }
 

@@ -11,10 +11,10 @@ use super::weights::{HostBlock, HostLinear};
 use crate::kernels::rows::gelu;
 use crate::kernels::{attention_host, key_mask, worth_gathering, AttnShape, Mask};
 use crate::network::condition::Condition;
-use crate::network::denoiser::{Denoiser, Encoded};
+use crate::network::denoiser::{self_padding, Denoiser, Encoded};
 use crate::network::keyframe_encoder::DmaPlan;
 use crate::network::params::host;
-use crate::network::sinusoidal::sinusoid_table;
+use crate::network::sinusoidal::position_table;
 use crate::network::words;
 
 /// Keys and values [B, Lk, d] an attention reads, with the keys it may not see.
@@ -153,15 +153,6 @@ fn observations(c: &Condition, root_channels: usize) -> Vec<f32> {
     out
 }
 
-/// Padding of the decoder's sequence [B * (2 + N)]: frames that are not real.
-fn self_padding(real: &[bool], b: usize, n: usize) -> Mask {
-    key_mask(
-        (0..b * (n + 2))
-            .map(|k| k % (n + 2) >= 2 && !real[k / (n + 2) * n + k % (n + 2) - 2])
-            .collect(),
-    )
-}
-
 /// The text token [B, d] of the pooled embedding, and (models with word states) each decoder
 /// layer's keys and values of the word tokens (`words::WordInput`).
 fn text(model: &Denoiser, c: &Condition) -> (Vec<f32>, Vec<Memory>) {
@@ -177,7 +168,7 @@ fn text(model: &Denoiser, c: &Condition) -> (Vec<f32>, Vec<Memory>) {
     let states: Vec<f32> =
         text.chunks(width).flat_map(|t| &t[td..]).map(|v| v * wi.scale).collect();
     let mut tokens = HostLinear::new(&wi.proj).applied(&states);
-    let pos = sinusoid_table(&(0..w).map(|i| i as f32).collect::<Vec<_>>(), d);
+    let pos = position_table(w, d);
     for t in tokens.chunks_mut(w * d) {
         t.iter_mut().zip(&pos).for_each(|(t, p)| *t += p);
     }
@@ -232,7 +223,7 @@ impl Encoding {
         let (text_tok, words) = text(model, c);
         let obs = observations(c, model.encoder.root_channels);
         let key = model.key_in.as_ref().map(|l| applied_par(&HostLinear::new(l), &obs));
-        let pos = sinusoid_table(&(0..n).map(|i| i as f32).collect::<Vec<_>>(), d);
+        let pos = position_table(n, d);
         let plan = DmaPlan::new(&c.kf_frames, &c.real, b, n, &model.dma_sizes);
         let tokens = keyframe_encoder(model, &plan, &text_tok, &obs, &pos);
         let key_pad = key_mask(plan.final_valid().iter().map(|v| !v).collect());
