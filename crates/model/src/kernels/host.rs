@@ -384,32 +384,11 @@ pub fn gelu_backward(h: &[f32], dy: &[f32], m: Option<&[f32]>) -> Vec<f32> {
 /// are added in the same order for any thread count).
 const LN_ROWS: usize = 64;
 
-/// A row's mean and 1 / sqrt(biased variance + eps). The sums run in 16 lanes added in a fixed
-/// order: a vector's worth per step rather than one dependent add per element (a 128-wide row
-/// was ~1000 cycles), with the same bits in every build.
-#[inline(always)]
 fn moments(x: &[f32], eps: f32) -> (f32, f32) {
     let n = x.len() as f32;
-    let mean = lane_sum(x, |v| v) / n;
-    let var = lane_sum(x, |v| (v - mean) * (v - mean)) / n;
+    let mean = x.iter().sum::<f32>() / n;
+    let var = x.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / n;
     (mean, 1.0 / (var + eps).sqrt())
-}
-
-/// The sum of f(x) over x: element i into lane i mod 16, then the lanes in order.
-#[inline(always)]
-fn lane_sum(x: &[f32], f: impl Fn(f32) -> f32) -> f32 {
-    const LANES: usize = 16;
-    let mut acc = [0f32; LANES];
-    let mut chunks = x.chunks_exact(LANES);
-    for c in &mut chunks {
-        for j in 0..LANES {
-            acc[j] += f(c[j]);
-        }
-    }
-    for (a, &v) in acc.iter_mut().zip(chunks.remainder()) {
-        *a += f(v);
-    }
-    acc.iter().sum()
 }
 
 /// (x - mean) / sqrt(var + eps) * gamma + beta over rows of `gamma.len()` (biased variance).
