@@ -130,6 +130,7 @@ fn main() {
         Command::Render(args) => commands::render::run(args),
         Command::Model(args) => commands::model::run(args),
         Command::Bench(args) => commands::bench::run(args),
+        Command::Train(args) if args.recipe.is_some() => commands::recipe::run(args),
         Command::Train(args) => commands::train::run(args),
         Command::Sample(args) => commands::sample::run(args),
         Command::Keyframes(args) => commands::sample::suggest::run(args),

@@ -21,15 +21,15 @@ pub const PLANTED_SPEED_MPS: f64 = 0.15;
 
 /// The three gait numbers of one motion.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct Gait {
+pub struct GaitNumbers {
     pub root_speed_mps: f64,
     pub planted_share: f64,
     pub stride_amplitude_m: f64,
 }
 
 /// All three measures; a motion of fewer than 2 frames has none of them (zeros).
-pub fn measure(skel: &Skeleton, j: &Joints) -> Gait {
-    Gait {
+pub fn measure(skel: &Skeleton, j: &Joints) -> GaitNumbers {
+    GaitNumbers {
         root_speed_mps: root_speed(skel, j),
         planted_share: planted_share(skel, j),
         stride_amplitude_m: stride_amplitude(skel, j),

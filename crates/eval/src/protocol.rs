@@ -37,7 +37,7 @@ pub const R_BATCH: usize = 32;
 pub const K_TRANS_WINDOW: usize = 2;
 
 #[derive(Clone, Debug)]
-pub struct Options {
+pub struct ProtocolOptions {
     pub replications: usize,
     pub num_items: usize,
     pub samples_for_ade: usize,
@@ -92,7 +92,7 @@ pub struct Protocol<'a> {
     /// The model's text inputs (with its `model.text_words` word states).
     pub text: &'a EmbeddingCache,
     pub evaluator: &'a dyn TextMotionEvaluator,
-    pub opts: Options,
+    pub opts: ProtocolOptions,
 }
 
 struct Item<'s> {
@@ -240,7 +240,7 @@ impl Protocol<'_> {
     /// included, so a slight overestimate).
     pub fn estimate_seconds(&self, settings: &[Setting]) -> f64 {
         let probe = Protocol {
-            opts: Options {
+            opts: ProtocolOptions {
                 sampler: Sampler::Ddim(2),
                 num_items: self.opts.batch,
                 ..self.opts.clone()
@@ -288,7 +288,6 @@ impl Protocol<'_> {
         seed: u64,
         tick: &mut dyn FnMut(),
     ) -> Vec<Vec<Vec<f32>>> {
-        let d = self.ds.dim();
         let all_dims = keyframes::dim_mask(self.ds.skeleton, None);
         let mut out: Vec<Vec<Vec<f32>>> = items.iter().map(|_| vec![Vec::new(); k]).collect();
         for (c, chunk) in self.batches(items, k).iter().enumerate() {
@@ -297,19 +296,8 @@ impl Protocol<'_> {
                 .iter()
                 .map(|&(p, _)| keyframes::frame_mask(items[p].len, &keys[p], &all_dims))
                 .collect();
-            let roots: Vec<Vec<RootKey>> = chunk
-                .iter()
-                .map(|&(p, _)| {
-                    let mut root = vec![RootKey::default(); items[p].len];
-                    if self.opts.root_keys {
-                        let traj = root_key::root_trajectory(items[p].feats, d);
-                        for &f in &keys[p] {
-                            root[f] = traj[f];
-                        }
-                    }
-                    root
-                })
-                .collect();
+            let roots: Vec<Vec<RootKey>> =
+                chunk.iter().map(|&(p, _)| self.root_keys(&items[p], &keys[p])).collect();
             let keyed: Vec<KeyedItem> = chunk
                 .iter()
                 .zip(masks.iter().zip(&roots))
@@ -325,27 +313,39 @@ impl Protocol<'_> {
                 })
                 .collect();
             let req = self.gen.request(n, &keyed);
-            let opts = sampler::Options {
-                sampler: self.opts.sampler,
-                kf_guidance: self.opts.kf_guidance,
-                text_guidance: self.opts.text_guidance,
-                transition: s.transition,
-                seed: Rng::derive(seed, 7, c as u64).next_u64(),
-                tg_mode: self.opts.tg_mode,
-                inpaint: s.inpaint,
-                place: PlaceGuidance::of_strength(
-                    self.opts.place_guidance,
-                    self.gen.mean,
-                    self.gen.std,
-                ),
-                ..Default::default()
-            };
+            let opts = self.sampler_options(s, Rng::derive(seed, 7, c as u64).next_u64());
             let fitted = self.gen.generate(&req, &opts, self.opts.fit, |_, _| tick());
             for (f, &(p, j)) in fitted.into_iter().zip(chunk) {
                 out[p][j] = f.features;
             }
         }
         out
+    }
+
+    /// The root keys of `item` at `keys` (none unless the protocol keys the root).
+    fn root_keys(&self, item: &Item, keys: &[usize]) -> Vec<RootKey> {
+        let mut root = vec![RootKey::default(); item.len];
+        if self.opts.root_keys {
+            let traj = root_key::root_trajectory(item.feats, self.ds.dim());
+            keys.iter().for_each(|&f| root[f] = traj[f]);
+        }
+        root
+    }
+
+    /// The sampler's options for setting `s` with this seed.
+    fn sampler_options(&self, s: &Setting, seed: u64) -> sampler::Options {
+        let o = &self.opts;
+        sampler::Options {
+            sampler: o.sampler,
+            kf_guidance: o.kf_guidance,
+            text_guidance: o.text_guidance,
+            transition: s.transition,
+            seed,
+            tg_mode: o.tg_mode,
+            inpaint: s.inpaint,
+            place: PlaceGuidance::of_strength(o.place_guidance, self.gen.mean, self.gen.std),
+            ..Default::default()
+        }
     }
 
     /// Text-motion metrics of motions paired with the replication's caption embeddings; returns
@@ -496,13 +496,7 @@ impl Protocol<'_> {
             .collect();
         let targets = if s.suggested { &staged[..] } else { items };
         let keys = if s.suggested {
-            let d = self.ds.dim();
-            targets
-                .iter()
-                .map(|t| {
-                    keyframes::select(Strategy::Mdo, t.len, s.rate, t.feats, d, &mut Rng::new(0))
-                })
-                .collect()
+            self.mdo_keys(targets, s.rate)
         } else {
             self.keys(rep, items, s.rate)
         };
@@ -520,28 +514,41 @@ impl Protocol<'_> {
         let ranks = self.text_motion(reference, texts, &motions, rep_seed, &mut row.values);
         row.per_item.entry(TEXT_RANK).or_default().push(ranks);
         if self.opts.multimodality > 0 {
-            let m = self.opts.multimodality.min(items.len());
-            let groups = self.generate(
-                &targets[..m],
-                &keys[..m],
-                &s,
-                MM_GENERATIONS,
-                rep_seed ^ 0x4d4d,
-                tick,
-            );
-            let emb: Vec<Vec<Vec<f64>>> = groups
-                .iter()
-                .map(|g| {
-                    let g: Vec<&[f32]> = g.iter().map(Vec::as_slice).collect();
-                    finite(self.evaluator.embed_motions(&g), "the MultiModality embeddings")
-                })
-                .collect::<crate::error::Result<_>>()?;
-            row.values
-                .entry("multimodality")
-                .or_default()
-                .push(multimodality(&emb, MM_PAIRS, rep_seed));
+            let mm = self.multimodality_of(targets, &keys, &s, rep_seed, tick)?;
+            row.values.entry("multimodality").or_default().push(mm);
         }
         Ok(())
+    }
+
+    /// The MDO frames of each target at `rate` (the two-stage row's keys).
+    fn mdo_keys(&self, targets: &[Item], rate: f64) -> Vec<Vec<usize>> {
+        let d = self.ds.dim();
+        let select =
+            |t: &Item| keyframes::select(Strategy::Mdo, t.len, rate, t.feats, d, &mut Rng::new(0));
+        targets.iter().map(select).collect()
+    }
+
+    /// MultiModality over the first --multimodality targets: `MM_GENERATIONS` generations of
+    /// each, embedded, `MM_PAIRS` pairs apart.
+    fn multimodality_of(
+        &self,
+        targets: &[Item],
+        keys: &[Vec<usize>],
+        s: &Setting,
+        rep_seed: u64,
+        tick: &mut dyn FnMut(),
+    ) -> crate::error::Result<f64> {
+        let m = self.opts.multimodality.min(targets.len());
+        let groups =
+            self.generate(&targets[..m], &keys[..m], s, MM_GENERATIONS, rep_seed ^ 0x4d4d, tick);
+        let emb: Vec<Vec<Vec<f64>>> = groups
+            .iter()
+            .map(|g| {
+                let g: Vec<&[f32]> = g.iter().map(Vec::as_slice).collect();
+                finite(self.evaluator.embed_motions(&g), "the MultiModality embeddings")
+            })
+            .collect::<crate::error::Result<_>>()?;
+        Ok(multimodality(&emb, MM_PAIRS, rep_seed))
     }
 
     /// Per item, the keyframe metrics of its generations `gens` against its target: ADE (the

@@ -335,6 +335,39 @@ impl Weights {
     }
 }
 
+/// The GloVe vectors of the evaluator's vocabulary (glove.npy, glove_words.txt) by word, and
+/// their width; the vocabulary must hold 'unk', 'sos' and 'eos'.
+fn read_glove(dir: &Path) -> Result<(HashMap<String, Vec<f32>>, usize)> {
+    let glove_path = dir.join("glove.npy");
+    let vectors = diffkfc_data::io::npy::read_f32(&glove_path)?;
+    let words_path = dir.join("glove_words.txt");
+    let words = std::fs::read_to_string(&words_path)
+        .map_err(|err| EvalError::Io { path: words_path.clone(), err })?;
+    let words: Vec<&str> = words.lines().collect();
+    if vectors.shape.len() != 2 || vectors.shape[0] != words.len() {
+        return Err(EvalError::file(
+            &glove_path,
+            format!(
+                "shape {:?} does not match the {} words of glove_words.txt",
+                vectors.shape,
+                words.len()
+            ),
+        ));
+    }
+    let word_dim = vectors.shape[1];
+    let glove: HashMap<String, Vec<f32>> = words
+        .iter()
+        .enumerate()
+        .map(|(i, w)| (w.to_string(), vectors.data[i * word_dim..(i + 1) * word_dim].to_vec()))
+        .collect();
+    for needed in ["unk", "sos", "eos"] {
+        if !glove.contains_key(needed) {
+            return Err(EvalError::file(&words_path, format!("the vocabulary has no '{needed}'")));
+        }
+    }
+    Ok((glove, word_dim))
+}
+
 impl T2mEvaluator {
     /// Load a converted evaluator directory; `captions` give the tokens of every caption the
     /// evaluation will embed (the dataset's text files).
@@ -348,36 +381,7 @@ impl T2mEvaluator {
             }
         }
         let w = Weights::read(&dir.join("evaluator.safetensors"))?;
-        let glove_path = dir.join("glove.npy");
-        let vectors = diffkfc_data::io::npy::read_f32(&glove_path)?;
-        let words_path = dir.join("glove_words.txt");
-        let words = std::fs::read_to_string(&words_path)
-            .map_err(|err| EvalError::Io { path: words_path.clone(), err })?;
-        let words: Vec<&str> = words.lines().collect();
-        if vectors.shape.len() != 2 || vectors.shape[0] != words.len() {
-            return Err(EvalError::file(
-                &glove_path,
-                format!(
-                    "shape {:?} does not match the {} words of glove_words.txt",
-                    vectors.shape,
-                    words.len()
-                ),
-            ));
-        }
-        let word_dim = vectors.shape[1];
-        let glove: HashMap<String, Vec<f32>> = words
-            .iter()
-            .enumerate()
-            .map(|(i, w)| (w.to_string(), vectors.data[i * word_dim..(i + 1) * word_dim].to_vec()))
-            .collect();
-        for needed in ["unk", "sos", "eos"] {
-            if !glove.contains_key(needed) {
-                return Err(EvalError::file(
-                    &words_path,
-                    format!("the vocabulary has no '{needed}'"),
-                ));
-            }
-        }
+        let (glove, word_dim) = read_glove(dir)?;
         let read = |n: &str| diffkfc_data::io::npy::read_f32(dir.join(n)).map(|a| a.data);
         let (mean, std) = (read("mean.npy")?, read("std.npy")?);
         let conv1 = w.conv("movement_encoder.main.0", device)?;

@@ -14,8 +14,8 @@ use diffkfc_model::training::optim::{Optimiser, StateLocation};
 
 use crate::error::{EvalError, Result};
 use crate::evaluator::{
-    eval_length, info_nce, motion_tensor, text_tensor, ContrastiveEvaluator, EvaluatorConfig,
-    TextMotionEvaluator,
+    eval_length, info_nce, motion_tensor, text_tensor, ContrastiveEvaluator, Evaluator,
+    EvaluatorConfig, TextMotionEvaluator,
 };
 use crate::text_motion::{finite, r_precision};
 
@@ -102,7 +102,35 @@ impl EvaluatorTraining<'_> {
             last = l;
             on_step(step + 1, l);
         }
-        let snap = optim.snapshot(&model);
+        let vals = self.save(&optim, &model, shapes)?;
+        let ev = ContrastiveEvaluator {
+            model: params::load(self.cfg.init(&self.device), &vals),
+            mean: self.ds.mean.clone(),
+            std: self.ds.std.clone(),
+            text: self.text,
+            device: self.device.clone(),
+        };
+        let (t, m) = embed_split(&ev, self.ds, self.test)?;
+        let (r, mm) = r_precision(&t, &m, 32);
+        Ok(EvaluatorReport {
+            steps: self.steps,
+            first_loss: first,
+            last_loss: last,
+            r_precision: r,
+            mm_dist: mm,
+            items: t.len(),
+        })
+    }
+
+    /// The trained weights as a checkpoint in --out (with the set's normalisation beside it);
+    /// returns them. Refused if a weight is not finite.
+    fn save(
+        &self,
+        optim: &Optimiser,
+        model: &Evaluator,
+        shapes: Vec<Vec<usize>>,
+    ) -> Result<Vec<Vec<f32>>> {
+        let snap = optim.snapshot(model);
         if let Some(x) = snap.model.iter().flatten().find(|x| !x.is_finite()) {
             return Err(EvalError::NonFinite(format!(
                 "{}: after {} steps a weight is {x} (not finite): nothing saved; lower --lr ({})",
@@ -122,29 +150,13 @@ impl EvaluatorTraining<'_> {
             adam_v: snap.v,
             config: serde_json::to_string(&self.cfg).expect("config serialises"),
             seed: self.seed,
-            names: params::names(&model),
+            names: params::names(model),
         };
         ck.save(&self.out)?;
         Checkpoint::prune(&self.out, 1);
         let dims = [self.ds.dim()];
         diffkfc_data::io::npy::write(self.out.join("Mean.npy"), &dims, &self.ds.mean)?;
         diffkfc_data::io::npy::write(self.out.join("Std.npy"), &dims, &self.ds.std)?;
-        let ev = ContrastiveEvaluator {
-            model: params::load(self.cfg.init(&self.device), &vals),
-            mean: self.ds.mean.clone(),
-            std: self.ds.std.clone(),
-            text: self.text,
-            device: self.device.clone(),
-        };
-        let (t, m) = embed_split(&ev, self.ds, self.test)?;
-        let (r, mm) = r_precision(&t, &m, 32);
-        Ok(EvaluatorReport {
-            steps: self.steps,
-            first_loss: first,
-            last_loss: last,
-            r_precision: r,
-            mm_dist: mm,
-            items: t.len(),
-        })
+        Ok(vals)
     }
 }

@@ -2,7 +2,7 @@
 //! libraries, opens from disk): orbit camera, play/pause, a frame slider, keyframes marked on a
 //! timeline and drawn in orange at their frames, the numbers under each motion.
 
-use serde_json::json;
+use serde_json::{json, Value};
 
 use diffkfc_data::motion::representation::Joints;
 use diffkfc_data::motion::skeleton::Skeleton;
@@ -52,44 +52,8 @@ pub fn page(
     motions: &[ViewMotion],
     segments: &[(usize, String)],
 ) -> String {
-    let side = |p: &str| -> Vec<usize> {
-        (0..skel.num_joints()).filter(|&j| skel.joint_names[j].starts_with(p)).collect()
-    };
-    let head = skel.joint_names.iter().position(|n| *n == "head").unwrap_or(skel.num_joints() - 1);
-    let data = json!({
-        "fps": skel.fps,
-        "parents": skel.parents(),
-        "left": side("l_"),
-        "right": side("r_"),
-        "head": head,
-        "segments": segments,
-        "motions": motions.iter().map(|m| json!({
-            "label": m.label,
-            "frames": m.joints.len(),
-            "joints": flat(&m.joints),
-            "keyframes": m.keyframes,
-            "key_joints": m.key_joints,
-            "key_poses": m.key_poses.iter().map(|(f, p)| json!([f, flat(std::slice::from_ref(p))])).collect::<Vec<_>>(),
-            "root_path": m.root_path.as_ref().map(|p| p.iter().flat_map(|v| [v[0], v[2]]).map(|v| (v * 1000.0).round() / 1000.0).collect::<Vec<_>>()),
-            "planted": m.planted,
-        })).collect::<Vec<_>>(),
-    });
-    let cards: String = motions
-        .iter()
-        .map(|m| {
-            let links: Vec<String> = m
-                .links
-                .iter()
-                .map(|(t, href)| format!("<a href=\"{}\">{}</a>", escape(href), escape(t)))
-                .collect();
-            format!(
-                "<div class=card><b>{}</b><br>{}<br>{}</div>",
-                escape(&m.label),
-                escape(&m.numbers),
-                links.join(" &middot; ")
-            )
-        })
-        .collect();
+    let data = view_data(skel, motions, segments);
+    let cards: String = motions.iter().map(card).collect();
     format!(
         r#"<!doctype html>
 <html lang=en><meta charset=utf-8><title>{title}</title>
@@ -120,6 +84,47 @@ body{{font-family:system-ui,sans-serif;margin:16px;color:#0f172a;max-width:1200p
         title = escape(title),
         tl = 8 + 10 * motions.len(),
         data = data.to_string().replace("</", "<\\/"),
+    )
+}
+
+/// The page's data: the skeleton's tree and sides, the timeline's segments, every motion.
+fn view_data(skel: &Skeleton, motions: &[ViewMotion], segments: &[(usize, String)]) -> Value {
+    let side = |p: &str| -> Vec<usize> {
+        (0..skel.num_joints()).filter(|&j| skel.joint_names[j].starts_with(p)).collect()
+    };
+    let head = skel.joint_names.iter().position(|n| *n == "head").unwrap_or(skel.num_joints() - 1);
+    json!({
+        "fps": skel.fps,
+        "parents": skel.parents(),
+        "left": side("l_"),
+        "right": side("r_"),
+        "head": head,
+        "segments": segments,
+        "motions": motions.iter().map(|m| json!({
+            "label": m.label,
+            "frames": m.joints.len(),
+            "joints": flat(&m.joints),
+            "keyframes": m.keyframes,
+            "key_joints": m.key_joints,
+            "key_poses": m.key_poses.iter().map(|(f, p)| json!([f, flat(std::slice::from_ref(p))])).collect::<Vec<_>>(),
+            "root_path": m.root_path.as_ref().map(|p| p.iter().flat_map(|v| [v[0], v[2]]).map(|v| (v * 1000.0).round() / 1000.0).collect::<Vec<_>>()),
+            "planted": m.planted,
+        })).collect::<Vec<_>>(),
+    })
+}
+
+/// A motion's card under the view: its label, numbers and links.
+fn card(m: &ViewMotion) -> String {
+    let links: Vec<String> = m
+        .links
+        .iter()
+        .map(|(t, href)| format!("<a href=\"{}\">{}</a>", escape(href), escape(t)))
+        .collect();
+    format!(
+        "<div class=card><b>{}</b><br>{}<br>{}</div>",
+        escape(&m.label),
+        escape(&m.numbers),
+        links.join(" &middot; ")
     )
 }
 

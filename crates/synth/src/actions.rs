@@ -19,7 +19,7 @@ pub enum Part {
 }
 
 /// What one action produced.
-pub struct Segment {
+pub struct Performance {
     pub poses: Vec<Pose>,
     pub params: Value,
     /// Words substituted into the phrase templates ({side}).
@@ -33,7 +33,7 @@ pub struct Action {
     pub phrases: &'static [(&'static str, &'static str)],
     /// Preferred duration range in frames when alone.
     pub frames: (usize, usize),
-    pub gen: fn(&mut Rng, &Pose, usize) -> Segment,
+    pub gen: fn(&mut Rng, &Pose, usize) -> Performance,
 }
 
 fn side_word(s: usize) -> &'static str {

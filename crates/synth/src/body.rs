@@ -274,7 +274,14 @@ fn joints_with(body: Body, p: &Pose, bend: &mut [Option<Vec3>; 2]) -> Vec<Vec3> 
     place(&mut j, 14, 9, q3, mirror(body.collar()));
     place(&mut j, 16, 13, q3, body.shoulder());
     place(&mut j, 17, 14, q3, mirror(body.shoulder()));
-    // Arms in the chest frame: forward f, up u, outward o.
+    arms(p, q3, &mut j, bend);
+    legs(p, &mut j);
+    j
+}
+
+/// The arms' joints (elbows, wrists) from the shoulders in `j`, in the chest frame `q3`.
+fn arms(p: &Pose, q3: quat::Quat, j: &mut [Vec3], bend: &mut [Option<Vec3>; 2]) {
+    // Forward f, up u, outward o.
     let f = quat::qrot(q3, [0.0, 0.0, 1.0]);
     let u = quat::qrot(q3, [0.0, 1.0, 0.0]);
     for (side, (sho, elb, wri)) in [(0usize, (16usize, 18usize, 20usize)), (1, (17, 19, 21))] {
@@ -307,7 +314,11 @@ fn joints_with(body: Body, p: &Pose, bend: &mut [Option<Vec3>; 2]) -> Vec<Vec3> 
         let fore = quat::add(quat::scale(d, a.elbow.cos()), quat::scale(b, a.elbow.sin()));
         j[wri] = quat::add(j[elb], quat::scale(fore, len(wri)));
     }
-    // Legs: IK to the ankle targets, knees towards the front (spread by knee_out).
+}
+
+/// The legs' joints (knees, ankles, feet) from the hips in `j`: IK to the ankle targets.
+fn legs(p: &Pose, j: &mut [Vec3]) {
+    // Knees towards the front (spread by knee_out).
     for (side, (hip, knee, ankle, foot)) in
         [(0usize, (1usize, 4usize, 7usize, 10usize)), (1, (2, 5, 8, 11))]
     {
@@ -324,7 +335,6 @@ fn joints_with(body: Body, p: &Pose, bend: &mut [Option<Vec3>; 2]) -> Vec<Vec3> 
         let fd = [fwd[0] * a.cos(), -a.sin(), fwd[2] * a.cos()];
         j[foot] = quat::add(j[ankle], quat::scale(fd, len(foot)));
     }
-    j
 }
 
 #[cfg(test)]

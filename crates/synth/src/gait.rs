@@ -74,38 +74,7 @@ impl Gait {
 pub fn locomote(traj: &[RootState], gait: &Gait, start_feet: [Vec3; 2], fps: f64) -> Vec<Pose> {
     let n = traj.len();
     let step_frames = (fps / gait.step_rate).max(2.0);
-    let ideal = |t: usize, side: usize| -> Vec3 {
-        let r = traj[t.min(n - 1)];
-        let base = body::neutral_foot(r.x, r.z, r.yaw, side);
-        // Lead the plant along the motion by a share of the step length.
-        let t1 = (t + 1).min(n - 1);
-        let t0 = t1.saturating_sub(1);
-        let v =
-            [(traj[t1].x - traj[t0].x) * step_frames, 0.0, (traj[t1].z - traj[t0].z) * step_frames];
-        quat::add(base, quat::scale(v, gait.lead))
-    };
-    let mut plants = start_feet;
-    // Swing schedule: (side, start frame, end frame, from, to).
-    let mut swings: Vec<(usize, f64, f64, Vec3, Vec3)> = Vec::new();
-    let mut k = 0usize;
-    loop {
-        let t0 = k as f64 * step_frames;
-        if t0 >= n as f64 {
-            break;
-        }
-        let side = k % 2;
-        let t1 = t0 + gait.swing * step_frames;
-        let land = (t1.round() as usize).min(n - 1);
-        let target = ideal(land, side);
-        let other = ideal(land, 1 - side);
-        let needs = quat::norm(quat::sub(target, plants[side])) > 0.025
-            || quat::norm(quat::sub(other, plants[1 - side])) > 0.025;
-        if needs {
-            swings.push((side, t0, t1, plants[side], target));
-            plants[side] = target;
-        }
-        k += 1;
-    }
+    let swings = swing_schedule(traj, gait, start_feet, step_frames);
     // Arms swing in proportion to the current speed.
     let speed = |t: usize| {
         let a = traj[t.saturating_sub(1)];
@@ -150,6 +119,53 @@ pub fn locomote(traj: &[RootState], gait: &Gait, start_feet: [Vec3; 2], fps: f64
         poses.push(pose);
     }
     poses
+}
+
+/// One foot's swing: (side, start frame, end frame, from, to).
+type Swing = (usize, f64, f64, Vec3, Vec3);
+
+/// The feet's swings along `traj`: a step every `step_frames` frames, alternating sides, each
+/// foot landing at its neutral place led along the motion; a step whose feet are already
+/// within 2.5 cm of their places is skipped (standing still).
+fn swing_schedule(
+    traj: &[RootState],
+    gait: &Gait,
+    start_feet: [Vec3; 2],
+    step_frames: f64,
+) -> Vec<Swing> {
+    let n = traj.len();
+    let ideal = |t: usize, side: usize| -> Vec3 {
+        let r = traj[t.min(n - 1)];
+        let base = body::neutral_foot(r.x, r.z, r.yaw, side);
+        // Lead the plant along the motion by a share of the step length.
+        let t1 = (t + 1).min(n - 1);
+        let t0 = t1.saturating_sub(1);
+        let v =
+            [(traj[t1].x - traj[t0].x) * step_frames, 0.0, (traj[t1].z - traj[t0].z) * step_frames];
+        quat::add(base, quat::scale(v, gait.lead))
+    };
+    let mut plants = start_feet;
+    let mut swings = Vec::new();
+    let mut k = 0usize;
+    loop {
+        let t0 = k as f64 * step_frames;
+        if t0 >= n as f64 {
+            break;
+        }
+        let side = k % 2;
+        let t1 = t0 + gait.swing * step_frames;
+        let land = (t1.round() as usize).min(n - 1);
+        let target = ideal(land, side);
+        let other = ideal(land, 1 - side);
+        let needs = quat::norm(quat::sub(target, plants[side])) > 0.025
+            || quat::norm(quat::sub(other, plants[1 - side])) > 0.025;
+        if needs {
+            swings.push((side, t0, t1, plants[side], target));
+            plants[side] = target;
+        }
+        k += 1;
+    }
+    swings
 }
 
 /// How a root travels: `speed` (m/s) in direction `heading` relative to the facing (0 forward,

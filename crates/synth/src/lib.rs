@@ -20,7 +20,7 @@ pub use write::{mean_std, write_dataset, SynthSummary};
 use serde::Serialize;
 use serde_json::{json, Value};
 
-use self::actions::{Part, Segment, ACTIONS};
+use self::actions::{Part, Performance, ACTIONS};
 pub use self::body::Body;
 use self::body::Pose;
 use diffkfc_data::motion::quat;
@@ -125,7 +125,7 @@ fn frames_in(r: &mut Rng, range: (usize, usize), cap: usize) -> usize {
 }
 
 /// Run an action from `start` (upper-body actions over a standing idle).
-fn perform(r: &mut Rng, name: &str, start: &Pose, n: usize) -> Segment {
+fn perform(r: &mut Rng, name: &str, start: &Pose, n: usize) -> Performance {
     let a = actions::by_name(name);
     match a.part {
         Part::Lower => (a.gen)(r, start, n),
@@ -137,7 +137,7 @@ fn perform(r: &mut Rng, name: &str, start: &Pose, n: usize) -> Segment {
 }
 
 /// Put an upper-body action's arms (and twist) on top of a base segment's poses.
-fn overlay(r: &mut Rng, base: Segment, upper: &str) -> Segment {
+fn overlay(r: &mut Rng, base: Performance, upper: &str) -> Performance {
     let n = base.poses.len();
     let up = (actions::by_name(upper).gen)(r, &base.poses[0], n);
     let poses = base
@@ -159,7 +159,7 @@ fn overlay(r: &mut Rng, base: Segment, upper: &str) -> Segment {
             p
         })
         .collect();
-    Segment { poses, params: json!({"base": base.params, "upper": up.params}), side: up.side }
+    Performance { poses, params: json!({"base": base.params, "upper": up.params}), side: up.side }
 }
 
 /// Concatenate two segments, cross-fading the first `blend` frames of the second from the
@@ -325,7 +325,7 @@ fn sequence_or_ambiguous(r: &mut Rng, start: &Pose, pattern: Pattern) -> Draft {
 }
 
 /// "A, then B" and its variants for two actions performed one after the other.
-fn sequence_caption(r: &mut Rng, names: [&str; 2], s1: &Segment, s2: &Segment) -> String {
+fn sequence_caption(r: &mut Rng, names: [&str; 2], s1: &Performance, s2: &Performance) -> String {
     let p1 = pick_phrase(r, names[0], s1.side, false);
     let p1 = modify(r, p1, &s1.params);
     let (p2, g2) =
@@ -354,7 +354,11 @@ fn ambiguous_at_once(r: &mut Rng, start: &Pose, amb: &Ambiguous) -> (Vec<Pose>, 
                 .iter()
                 .map(|p| Pose { pitch: p.pitch + bend, head_pitch: -0.3, ..*p })
                 .collect();
-            Segment { poses, params: json!({"base": base.params, "spine_bend": bend}), side: None }
+            Performance {
+                poses,
+                params: json!({"base": base.params, "spine_bend": bend}),
+                side: None,
+            }
         }
         u => overlay(r, base, u),
     };

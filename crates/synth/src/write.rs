@@ -95,6 +95,35 @@ struct Written {
     frames: usize,
 }
 
+/// Clip `i`'s features and joints in `tmp`: its manifest entry, its features' per-channel sums
+/// and sums of squares, and its frame count.
+fn write_clip(
+    tmp: &Path,
+    spec: &SynthSpec,
+    i: usize,
+) -> Result<(ClipMeta, Vec<f64>, Vec<f64>, usize), DataError> {
+    let dim = T2M.feature_dim();
+    let (c, feats) = clip_of(spec, i);
+    let t = feats.len() / dim;
+    let fdata: Vec<f64> = feats.iter().map(|&v| v as f64).collect();
+    let rec = rep::recover_from_ric(&T2M, &fdata);
+    npy::write(tmp.join(format!("new_joint_vecs/{}.npy", c.meta.id)), &[t, dim], &feats)?;
+    npy::write(
+        tmp.join(format!("new_joints/{}.npy", c.meta.id)),
+        &[t, 22, 3],
+        &rep::joints_to_f32(&rec),
+    )?;
+    let mut sum = vec![0.0; dim];
+    let mut sq = vec![0.0; dim];
+    for row in fdata.chunks(dim) {
+        for k in 0..dim {
+            sum[k] += row[k];
+            sq[k] += row[k] * row[k];
+        }
+    }
+    Ok((c.meta, sum, sq, t))
+}
+
 /// Every clip's features and joints in `tmp`, `threads` at a time (each clip depends only on
 /// (seed, index), so the bytes do not depend on the thread count).
 fn write_clips(
@@ -108,27 +137,10 @@ fn write_clips(
     let done = std::sync::atomic::AtomicUsize::new(0);
     type Out = (ClipMeta, Vec<f64>, Vec<f64>, usize);
     let work = |i: usize| -> Result<Out, DataError> {
-        let (c, feats) = clip_of(spec, i);
-        let t = feats.len() / dim;
-        let fdata: Vec<f64> = feats.iter().map(|&v| v as f64).collect();
-        let rec = rep::recover_from_ric(&T2M, &fdata);
-        npy::write(tmp.join(format!("new_joint_vecs/{}.npy", c.meta.id)), &[t, dim], &feats)?;
-        npy::write(
-            tmp.join(format!("new_joints/{}.npy", c.meta.id)),
-            &[t, 22, 3],
-            &rep::joints_to_f32(&rec),
-        )?;
-        let mut sum = vec![0.0; dim];
-        let mut sq = vec![0.0; dim];
-        for row in fdata.chunks(dim) {
-            for k in 0..dim {
-                sum[k] += row[k];
-                sq[k] += row[k] * row[k];
-            }
-        }
+        let out = write_clip(tmp, spec, i)?;
         let d = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
         progress(d, n);
-        Ok((c.meta, sum, sq, t))
+        Ok(out)
     };
     let threads = threads.max(1);
     let mut results: Vec<Option<Result<Out, DataError>>> = (0..n).map(|_| None).collect();

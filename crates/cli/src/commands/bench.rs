@@ -222,19 +222,7 @@ fn torch_reference(python: &PathBuf, a: &BenchArgs, preset: &str, repeats: usize
 
 pub fn run(a: BenchArgs) -> Result<()> {
     let cfg = model_config(&a.config)?;
-    let cases: Vec<&str> = a.cases.split(',').map(str::trim).filter(|c| !c.is_empty()).collect();
-    if let Some(bad) = cases.iter().find(|c| !CASES.contains(c)) {
-        bail!("--cases: unknown case '{bad}' ({})", CASES.join(", "));
-    }
-    if cases.contains(&"sample") && !std::path::Path::new(&a.config).is_dir() {
-        bail!("--cases sample: --config '{}' must be a model or run directory (its weights generate the sample)", a.config);
-    }
-    if a.batch == 0 || a.frames == 0 || a.frames > cfg.max_frames {
-        bail!("--batch/--frames: need a batch >= 1 and 1..={} frames", cfg.max_frames);
-    }
-    if a.rounds == 0 {
-        bail!("--rounds: need at least 1");
-    }
+    let cases = checked_cases(&a, &cfg)?;
     let device = crate::device::parse(&a.device)?;
     let runs = if a.quick { 1 } else { a.repeats };
     let preset = reference_preset(&a)?;
@@ -264,31 +252,67 @@ pub fn run(a: BenchArgs) -> Result<()> {
         let Some(py) = &a.torch else { continue };
         let t = torch_reference(py, &a, &preset, runs)?;
         emit(json!({"case": "pytorch", "round": round, "reference": t}));
-        let keys = [
-            ("train_step", "train_step_ms"),
-            ("sampling_call", "cfg_call_ms"),
-            ("sampling_call_cached", "cfg_call_ms"),
-        ];
-        let r: BTreeMap<&str, f64> =
-            keys.iter().filter_map(|&(k, tk)| Some((k, ours.get(k)? / t[tk].as_f64()?))).collect();
-        let mut line = json!({"case": "ratio", "round": round, "note": "diffkfc ms / PyTorch ms, same machine, same run (<= 1.0: as fast or faster)"});
-        r.iter().for_each(|(k, v)| line[*k] = json!(v));
-        emit(line);
-        ratios.push(r);
+        ratios.push(round_ratios(&ours, &t, round));
     }
     if rounds > 1 {
-        let mut line = json!({"case": "ratio_summary", "rounds": rounds, "note": "median, min and max of the rounds' ratios"});
-        for k in ["train_step", "sampling_call", "sampling_call_cached"] {
-            let mut v: Vec<f64> = ratios.iter().filter_map(|r| r.get(k).copied()).collect();
-            if v.is_empty() {
-                continue;
-            }
-            v.sort_by(f64::total_cmp);
-            line[k] = json!({"median": median(&v), "min": v[0], "max": v[v.len() - 1]});
-        }
-        emit(line);
+        emit(ratio_summary(&ratios, rounds));
     }
     Ok(())
+}
+
+/// The cases asked for, once the arguments are checked against them and the config.
+fn checked_cases<'a>(a: &'a BenchArgs, cfg: &DiffKfcConfig) -> Result<Vec<&'a str>> {
+    let cases: Vec<&str> = a.cases.split(',').map(str::trim).filter(|c| !c.is_empty()).collect();
+    if let Some(bad) = cases.iter().find(|c| !CASES.contains(c)) {
+        bail!("--cases: unknown case '{bad}' ({})", CASES.join(", "));
+    }
+    if cases.contains(&"sample") && !std::path::Path::new(&a.config).is_dir() {
+        bail!("--cases sample: --config '{}' must be a model or run directory (its weights generate the sample)", a.config);
+    }
+    if a.batch == 0 || a.frames == 0 || a.frames > cfg.max_frames {
+        bail!("--batch/--frames: need a batch >= 1 and 1..={} frames", cfg.max_frames);
+    }
+    if a.rounds == 0 {
+        bail!("--rounds: need at least 1");
+    }
+    Ok(cases)
+}
+
+/// Cases PyTorch also times, with the key of its time in the reference's output.
+const TORCH_KEYS: [(&str, &str); 3] = [
+    ("train_step", "train_step_ms"),
+    ("sampling_call", "cfg_call_ms"),
+    ("sampling_call_cached", "cfg_call_ms"),
+];
+
+/// One round's ratios of our times to PyTorch's `t`, printed; returned by case.
+fn round_ratios(
+    ours: &BTreeMap<&'static str, f64>,
+    t: &Value,
+    round: usize,
+) -> BTreeMap<&'static str, f64> {
+    let r: BTreeMap<&str, f64> = TORCH_KEYS
+        .iter()
+        .filter_map(|&(k, tk)| Some((k, ours.get(k)? / t[tk].as_f64()?)))
+        .collect();
+    let mut line = json!({"case": "ratio", "round": round, "note": "diffkfc ms / PyTorch ms, same machine, same run (<= 1.0: as fast or faster)"});
+    r.iter().for_each(|(k, v)| line[*k] = json!(v));
+    emit(line);
+    r
+}
+
+/// Median, min and max over the rounds of each case's ratio.
+fn ratio_summary(ratios: &[BTreeMap<&str, f64>], rounds: usize) -> Value {
+    let mut line = json!({"case": "ratio_summary", "rounds": rounds, "note": "median, min and max of the rounds' ratios"});
+    for (k, _) in TORCH_KEYS {
+        let mut v: Vec<f64> = ratios.iter().filter_map(|r| r.get(k).copied()).collect();
+        if v.is_empty() {
+            continue;
+        }
+        v.sort_by(f64::total_cmp);
+        line[k] = json!({"median": median(&v), "min": v[0], "max": v[v.len() - 1]});
+    }
+    line
 }
 
 fn emit(v: Value) {
@@ -315,7 +339,7 @@ fn model_cases(
     device: &Device,
     with_ddim: bool,
 ) -> Result<BTreeMap<&'static str, f64>> {
-    let (b, n) = (a.batch, a.frames);
+    let n = a.frames;
     let common =
         json!({"config": a.config, "frames": n, "device": a.device, "threads": rayon_threads()});
     let mut ours = BTreeMap::new();
@@ -325,25 +349,7 @@ fn model_cases(
         emit(line(case, t, gflop, extra));
     };
     if cases.contains(&"train") {
-        let mut w = TrainStep::new(cfg, b, n, device);
-        // On the CPU each step is paired with a peak reading taken right after it: other
-        // tenants slow both alike, so the pairs' ratio drifts less than one reading's.
-        let cpu = !crate::device::is_gpu(&a.device);
-        let probe_n = if a.quick { 256 } else { 2048 };
-        let (t, peaks) = time_ms_probed(runs, || w.step(), || cpu.then(|| matmul_peak(probe_n, 2)));
-        ours.insert("train_step", t.0);
-        let gflop = w.flops(cfg) / 1e9;
-        let paired: Vec<f64> =
-            t.1.iter().zip(&peaks).map(|(ms, peak)| gflop / (ms / 1e3) / peak).collect();
-        let [f, bw, up] = w.phases.map(|s| s * 1e3);
-        out(
-            "train_step",
-            t,
-            gflop,
-            json!({"batch": b, "last_step_phases_ms": {"forward": f, "backward": bw, "host_update": up},
-                "adjacent_peaks_gflops": peaks, "fraction_of_adjacent_peak": cpu.then(|| median(&paired)),
-                "common": common}),
-        );
+        ours.insert("train_step", train_case(a, cfg, runs, device, &common));
     }
     let ddim = with_ddim && cases.contains(&"ddim");
     if !(cases.contains(&"call") || cases.contains(&"call-cached") || ddim) {
@@ -384,6 +390,32 @@ fn model_cases(
         );
     }
     Ok(ours)
+}
+
+/// The `train` case: training steps of batch --batch, each on the CPU paired with a peak
+/// reading taken right after it (other tenants slow both alike, so the pairs' ratio drifts
+/// less than one reading's); prints its line, returns the median step (ms).
+fn train_case(
+    a: &BenchArgs,
+    cfg: &DiffKfcConfig,
+    runs: usize,
+    device: &Device,
+    common: &Value,
+) -> f64 {
+    let mut w = TrainStep::new(cfg, a.batch, a.frames, device);
+    let cpu = !crate::device::is_gpu(&a.device);
+    let probe_n = if a.quick { 256 } else { 2048 };
+    let (t, peaks) = time_ms_probed(runs, || w.step(), || cpu.then(|| matmul_peak(probe_n, 2)));
+    let ms = t.0;
+    let gflop = w.flops(cfg) / 1e9;
+    let paired: Vec<f64> =
+        t.1.iter().zip(&peaks).map(|(ms, peak)| gflop / (ms / 1e3) / peak).collect();
+    let [f, bw, up] = w.phases.map(|s| s * 1e3);
+    let extra = json!({"batch": a.batch, "last_step_phases_ms": {"forward": f, "backward": bw, "host_update": up},
+        "adjacent_peaks_gflops": peaks, "fraction_of_adjacent_peak": cpu.then(|| median(&paired)),
+        "common": common, "device_memory": memory(device)});
+    emit(line("train_step", t, gflop, extra));
+    ms
 }
 
 /// The `sample` case: the quick start's keyed sample, generated `runs` times after a warm-up

@@ -262,8 +262,8 @@ fn load_evaluator<'a>(
 }
 
 /// The protocol's options from the flags.
-fn options(a: &RunArgs, num_items: usize, strategy: Strategy) -> protocol::Options {
-    protocol::Options {
+fn options(a: &RunArgs, num_items: usize, strategy: Strategy) -> protocol::ProtocolOptions {
+    protocol::ProtocolOptions {
         replications: a.replications,
         num_items,
         samples_for_ade: a.samples_for_ade,
@@ -320,15 +320,7 @@ fn evaluate(mut a: RunArgs) -> Result<()> {
         a.text_guidance,
         &loaded.cfg,
     )?);
-    if ds.dim() != cfg.model.feat_dim {
-        bail!(
-            "--data: {} has {}-d features, the checkpoint {} expects {}",
-            data.display(),
-            ds.dim(),
-            run_dir.display(),
-            cfg.model.feat_dim
-        );
-    }
+    check_dim(&ds, &data, &run_dir, cfg.model.feat_dim)?;
     let split =
         PackedSplit::open(&ds, &a.split, &default_cache_dir(&ds), crate::progress::bar("caching"))?;
     let num_items = check_split(&a, &split, cfg.model.max_frames)?;
@@ -344,30 +336,15 @@ fn evaluate(mut a: RunArgs) -> Result<()> {
     let (_, real) = embed_split(ev.as_ref(), &ds, &split)?;
     let reference = Gaussian::fit(&real);
     let sampler = a.sampler.sampler(a.steps);
-    let opts = options(&a, num_items, strategy);
     let p = Protocol {
         gen: session.generator(),
         ds: &ds,
         split: &split,
         text: model_text.as_ref().unwrap_or(&text),
         evaluator: ev.as_ref(),
-        opts,
+        opts: options(&a, num_items, strategy),
     };
-    let total = p.planned_steps(&settings);
-    let estimate = p.estimate_seconds(&settings);
-    println!(
-        "eval: {} setting(s) x {} replication(s) x {num_items} items x {} sample(s), {sampler:?}: {total} denoising steps (batches of up to {}); estimate {:.1} min",
-        settings.len(),
-        a.replications,
-        a.samples_for_ade,
-        a.batch_size,
-        estimate / 60.0
-    );
-    let pb = ProgressBar::new(total as u64).with_style(
-        ProgressStyle::with_template("generating [{bar:30}] {pos}/{len} steps {elapsed} ETA {eta}")
-            .expect("template")
-            .progress_chars("=> "),
-    );
+    let pb = announce(&a, &p, &settings, num_items, sampler);
     let t0 = std::time::Instant::now();
     let rows = p.run(&settings, &reference, &mut || pb.inc(1))?;
     let captions = p.captions();
@@ -382,6 +359,44 @@ fn evaluate(mut a: RunArgs) -> Result<()> {
         captions: &captions,
     };
     write_report(&a, &run, &rows, &settings, num_items, real.len(), secs)
+}
+
+/// The dataset's feature width against the checkpoint's.
+fn check_dim(ds: &Dataset, data: &Path, run_dir: &Path, feat_dim: usize) -> Result<()> {
+    if ds.dim() != feat_dim {
+        bail!(
+            "--data: {} has {}-d features, the checkpoint {} expects {feat_dim}",
+            data.display(),
+            ds.dim(),
+            run_dir.display(),
+        );
+    }
+    Ok(())
+}
+
+/// Prints what the evaluation will run and its time estimate; the progress bar of its steps.
+fn announce(
+    a: &RunArgs,
+    p: &Protocol,
+    settings: &[Setting],
+    num_items: usize,
+    sampler: diffkfc_model::diffusion::scheduler::Sampler,
+) -> ProgressBar {
+    let total = p.planned_steps(settings);
+    let estimate = p.estimate_seconds(settings);
+    println!(
+        "eval: {} setting(s) x {} replication(s) x {num_items} items x {} sample(s), {sampler:?}: {total} denoising steps (batches of up to {}); estimate {:.1} min",
+        settings.len(),
+        a.replications,
+        a.samples_for_ade,
+        a.batch_size,
+        estimate / 60.0
+    );
+    ProgressBar::new(total as u64).with_style(
+        ProgressStyle::with_template("generating [{bar:30}] {pos}/{len} steps {elapsed} ETA {eta}")
+            .expect("template")
+            .progress_chars("=> "),
+    )
 }
 
 /// What an evaluation ran on, for its report.
@@ -438,20 +453,5 @@ fn write_report(
     if owned {
         Output::Report.mark(&a.out)?;
     }
-    write_report_files(&a.out, &report::to_json(rows, meta), &md)
-}
-
-/// `report.json` and `report.md` in `out` (written atomically), the table on stdout.
-pub(crate) fn write_report_files(out: &Path, json: &serde_json::Value, md: &str) -> Result<()> {
-    diffkfc_data::write_atomic(
-        &out.join("report.json"),
-        serde_json::to_string_pretty(json)?.as_bytes(),
-    )?;
-    diffkfc_data::write_atomic(&out.join("report.md"), md.as_bytes())?;
-    println!(
-        "{md}\nwrote {} and {}",
-        out.join("report.json").display(),
-        out.join("report.md").display()
-    );
-    Ok(())
+    super::report_files::write(&a.out, &report::to_json(rows, meta), &md)
 }

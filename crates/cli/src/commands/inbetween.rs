@@ -9,7 +9,7 @@ use diffkfc_data::dataset::{read_captions, Dataset};
 use diffkfc_data::io::ownership::{self, Output};
 use diffkfc_data::io::{motion_file, npy};
 use diffkfc_data::motion::representation::{joints_to_f32, Joints};
-use diffkfc_eval::inbetween::{interpolate, table, Bench, Clip, ClipScores, Gap};
+use diffkfc_eval::inbetween::{interpolate, table, Bench, ClipScores, Gap, SourceClip};
 use diffkfc_model::sampling::guidance;
 use diffkfc_model::sampling::sampler::{self, Options};
 use diffkfc_model::sampling::session::Session;
@@ -86,7 +86,11 @@ fn parse_gaps(spec: &str) -> Result<Vec<Gap>> {
 
 /// The split's clips with their first captions, cut to `max_frames`; clips under a second are
 /// left out (too short to key at a gap).
-fn read_clips(ds: &Dataset, a: &InbetweenArgs, max_frames: usize) -> Result<(Vec<Clip>, usize)> {
+fn read_clips(
+    ds: &Dataset,
+    a: &InbetweenArgs,
+    max_frames: usize,
+) -> Result<(Vec<SourceClip>, usize)> {
     let ids = ds.split_ids(&a.split)?;
     let (d, min) = (ds.dim(), ds.skeleton.fps.ceil() as usize);
     let (mut clips, mut short) = (Vec::new(), 0);
@@ -99,7 +103,7 @@ fn read_clips(ds: &Dataset, a: &InbetweenArgs, max_frames: usize) -> Result<(Vec
             continue;
         }
         let caption = read_captions(&ds.text_path(&id))?.remove(0).text;
-        clips.push(Clip { id, caption, features: feats[..frames * d].to_vec() });
+        clips.push(SourceClip { id, caption, features: feats[..frames * d].to_vec() });
     }
     if clips.is_empty() {
         bail!(
@@ -166,7 +170,7 @@ pub fn run(a: InbetweenArgs) -> Result<()> {
 /// Every gap's four motions of one clip as joints .npy: `<id>_<gap>_<method>.npy`.
 fn save_motions(
     dir: &std::path::Path,
-    clip: &Clip,
+    clip: &SourceClip,
     scores: &ClipScores,
     motions: &[(Joints, Joints)],
     skel: &diffkfc_data::Skeleton,
@@ -215,5 +219,5 @@ fn write_report(
         "keyframe_fit": format!("{:?}", fit.keyframes), "foot_lock": fit.foot_lock, "feet": format!("{:?}", fit.feet),
         "short_clips_left_out": short, "summary": summary, "clips": results,
     });
-    crate::commands::eval::write_report_files(&a.out, &json, &md)
+    super::report_files::write(&a.out, &json, &md)
 }

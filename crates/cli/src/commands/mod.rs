@@ -7,6 +7,7 @@ pub mod model;
 pub mod page;
 pub mod recipe;
 pub mod render;
+pub mod report_files;
 pub mod sample;
 pub mod serve;
 pub mod train;

@@ -20,50 +20,10 @@ pub fn run(
     title: &str,
     out: &Path,
 ) -> Result<()> {
-    if !labels.is_empty() && labels.len() != dirs.len() {
-        bail!(
-            "--label: {} label(s) for {} folder(s); give one per folder",
-            labels.len(),
-            dirs.len()
-        );
-    }
-    let names: Vec<String> = dirs
-        .iter()
-        .map(|d| {
-            d.file_name()
-                .map_or_else(|| d.display().to_string(), |n| n.to_string_lossy().into_owned())
-        })
-        .collect();
-    let folders = dirs
-        .iter()
-        .enumerate()
-        .map(|(i, d)| Folder::read(d, labels.get(i).cloned().unwrap_or_else(|| names[i].clone())))
-        .collect::<Result<Vec<_>, _>>()?;
+    let folders = read_folders(dirs, labels)?;
     let at = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     std::fs::create_dir_all(at).with_context(|| format!("-o: creating {}", at.display()))?;
-    let motions = folders
-        .iter()
-        .map(|f| {
-            let j = load_motion(&f.joints_path(), &T2M, &ImportOptions::default())?;
-            Ok((j, keyframes(f)))
-        })
-        .collect::<Result<Vec<_>>>()?;
-    let views: Vec<ViewMotion> = folders
-        .iter()
-        .zip(&motions)
-        .map(|(f, (j, keys))| ViewMotion {
-            label: f.label.clone(),
-            joints: j.clone(),
-            keyframes: keys.clone(),
-            numbers: f.results["text"].as_str().unwrap_or("").to_string(),
-            ..Default::default()
-        })
-        .collect();
-    diffkfc_data::write_atomic(
-        &at.join("view.html"),
-        viewer::page(&T2M, title, "", &views, &[]).as_bytes(),
-    )?;
-    render::sheet(&T2M, &motions, motions.len().min(4), 240, &at.join("sheet.png"))?;
+    write_view_and_sheet(&folders, title, at)?;
     let loss = match run {
         Some(r) => {
             let svg = r.join("loss.svg");
@@ -89,6 +49,54 @@ pub fn run(
         folders.len(),
         if loss { ", loss.svg" } else { "" }
     );
+    Ok(())
+}
+
+/// The sample folders, each labelled by its --label or else its name.
+fn read_folders(dirs: &[PathBuf], labels: &[String]) -> Result<Vec<Folder>> {
+    if !labels.is_empty() && labels.len() != dirs.len() {
+        bail!(
+            "--label: {} label(s) for {} folder(s); give one per folder",
+            labels.len(),
+            dirs.len()
+        );
+    }
+    let name = |d: &PathBuf| {
+        d.file_name().map_or_else(|| d.display().to_string(), |n| n.to_string_lossy().into_owned())
+    };
+    let folders = dirs
+        .iter()
+        .enumerate()
+        .map(|(i, d)| Folder::read(d, labels.get(i).cloned().unwrap_or_else(|| name(d))))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(folders)
+}
+
+/// view.html (the 3D view of every folder's motion, keys marked) and sheet.png in `at`.
+fn write_view_and_sheet(folders: &[Folder], title: &str, at: &Path) -> Result<()> {
+    let motions = folders
+        .iter()
+        .map(|f| {
+            let j = load_motion(&f.joints_path(), &T2M, &ImportOptions::default())?;
+            Ok((j, keyframes(f)))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let views: Vec<ViewMotion> = folders
+        .iter()
+        .zip(&motions)
+        .map(|(f, (j, keys))| ViewMotion {
+            label: f.label.clone(),
+            joints: j.clone(),
+            keyframes: keys.clone(),
+            numbers: f.results["text"].as_str().unwrap_or("").to_string(),
+            ..Default::default()
+        })
+        .collect();
+    diffkfc_data::write_atomic(
+        &at.join("view.html"),
+        viewer::page(&T2M, title, "", &views, &[]).as_bytes(),
+    )?;
+    render::sheet(&T2M, &motions, motions.len().min(4), 240, &at.join("sheet.png"))?;
     Ok(())
 }
 

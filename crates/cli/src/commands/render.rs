@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Result};
 use clap::Args;
+use diffkfc_data::motion::representation::Joints;
 use diffkfc_data::T2M;
 use diffkfc_render as render;
 use diffkfc_render::viewer::{self, ViewMotion};
@@ -120,27 +121,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
         }
     }
     if a.output.extension().is_some_and(|e| e.eq_ignore_ascii_case("html")) {
-        let views: Vec<ViewMotion> = motions
-            .into_iter()
-            .enumerate()
-            .map(|(i, j)| ViewMotion {
-                label: label(i),
-                keyframes: a.keyframes.clone(),
-                key_poses: a.keyframes.iter().map(|&k| (k, j[k].clone())).collect(),
-                numbers: format!(
-                    "{} frames, foot skating {:.4}",
-                    j.len(),
-                    diffkfc_data::motion::plausibility::foot_skating_ratio(&T2M, &j)
-                ),
-                joints: j,
-                ..Default::default()
-            })
-            .collect();
-        diffkfc_data::write_atomic(
-            &a.output,
-            viewer::page(&T2M, &a.title, "", &views, &[]).as_bytes(),
-        )?;
-        println!("{}: 3D page of {} motion(s)", a.output.display(), views.len());
+        write_view(&a, motions, &label)?;
     } else if a.sheet {
         let clips: Vec<_> = motions.into_iter().map(|j| (j, a.keyframes.clone())).collect();
         render::sheet(&T2M, &clips, a.columns, 240, &a.output)?;
@@ -159,6 +140,32 @@ pub fn run(a: RenderArgs) -> Result<()> {
         render::gif(&T2M, j, &a.keyframes, &a.output)?;
         println!("{}: {} frames at 20 fps", a.output.display(), j.len());
     }
+    Ok(())
+}
+
+/// The 3D page of `motions` (`-o x.html`), each with its keys' poses and its foot skating.
+fn write_view(a: &RenderArgs, motions: Vec<Joints>, label: &dyn Fn(usize) -> String) -> Result<()> {
+    let views: Vec<ViewMotion> = motions
+        .into_iter()
+        .enumerate()
+        .map(|(i, j)| ViewMotion {
+            label: label(i),
+            keyframes: a.keyframes.clone(),
+            key_poses: a.keyframes.iter().map(|&k| (k, j[k].clone())).collect(),
+            numbers: format!(
+                "{} frames, foot skating {:.4}",
+                j.len(),
+                diffkfc_data::motion::plausibility::foot_skating_ratio(&T2M, &j)
+            ),
+            joints: j,
+            ..Default::default()
+        })
+        .collect();
+    diffkfc_data::write_atomic(
+        &a.output,
+        viewer::page(&T2M, &a.title, "", &views, &[]).as_bytes(),
+    )?;
+    println!("{}: 3D page of {} motion(s)", a.output.display(), views.len());
     Ok(())
 }
 

@@ -13,7 +13,7 @@ use diffkfc_model::run::dir::RunDir;
 use diffkfc_model::run::lock::{Claim, RunLock};
 use diffkfc_model::text::cache::{embed_captions, EmbeddingCache};
 use diffkfc_model::training::optim::StateLocation;
-use diffkfc_model::training::trainer::{Event, Outcome, Trainer};
+use diffkfc_model::training::trainer::{Event, TrainOutcome, Trainer};
 use indicatif::{ProgressBar, ProgressStyle};
 
 #[derive(Args)]
@@ -105,9 +105,8 @@ fn check_memory(cfg: &RunConfig, device: &str) -> Result<()> {
 }
 
 pub fn run(a: TrainArgs) -> Result<()> {
-    let Some(config) = a.config.clone() else {
-        return super::recipe::run(a);
-    };
+    // Clap requires --config without --recipe, and main sends --recipe to `recipe::run`.
+    let config = a.config.clone().context("--config: required (or --recipe)")?;
     let (cfg, data, max_steps) = resolve_config(&a, &config)?;
     let run = RunDir::new(a.out.clone().unwrap_or_else(|| {
         let stem = config.file_stem().map(|s| s.to_string_lossy().into_owned());
@@ -158,6 +157,18 @@ pub fn run(a: TrainArgs) -> Result<()> {
     })?;
     pb.finish_and_clear();
     run.write_loss_plot()?;
+    finish(&run, &outcome, first, &signal, started.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// The run's summary; an interrupted run then exits with the signal's code.
+fn finish(
+    run: &RunDir,
+    outcome: &TrainOutcome,
+    first: Option<(usize, f64)>,
+    signal: &crate::signals::StopSignal,
+    secs: f64,
+) {
     let why = if signal.requested() {
         " (interrupted)"
     } else if outcome.stopped_early {
@@ -165,7 +176,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
     } else {
         ""
     };
-    print_summary(&run, &outcome, first, why, started.elapsed().as_secs_f64());
+    print_summary(run, outcome, first, why, secs);
     if let Some(code) = signal.exit_code() {
         // A script must be able to tell an interrupted run (checkpoint written) from a finished one.
         eprintln!(
@@ -175,7 +186,6 @@ pub fn run(a: TrainArgs) -> Result<()> {
         );
         std::process::exit(code);
     }
-    Ok(())
 }
 
 /// The weights the run starts from: `--init`, or, resuming a run killed before its first
@@ -318,7 +328,7 @@ impl TrainingData {
 /// What a training call did: steps, time, first and last training loss, validation loss.
 fn print_summary(
     run: &RunDir,
-    outcome: &Outcome,
+    outcome: &TrainOutcome,
     first: Option<(usize, f64)>,
     why: &str,
     secs: f64,

@@ -105,28 +105,16 @@ fn words_of(text: &str) -> impl Iterator<Item = String> + '_ {
 }
 
 pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport {
-    let mut problems = Vec::new();
-    let mut report = |file: &Path, problem: String| {
-        problems.push(Problem { file: file.display().to_string(), problem })
-    };
     let ds = match Dataset::open(root) {
         Ok(ds) => ds,
         Err(e) => return unreadable(root, e),
     };
     let dim = ds.dim();
-    let splits: Vec<(String, Vec<String>)> = SPLITS
-        .iter()
-        .filter_map(|s| match ds.split_ids(s) {
-            Ok(ids) => Some((s.to_string(), ids)),
-            Err(e) => {
-                report(
-                    &root.join(format!("{s}.txt")),
-                    format!("split list unreadable: {}", short(&e)),
-                );
-                None
-            }
-        })
-        .collect();
+    let mut problems = Vec::new();
+    let splits = read_splits(&ds, root, &mut problems);
+    let mut report = |file: &Path, problem: String| {
+        problems.push(Problem { file: file.display().to_string(), problem })
+    };
     let total: usize = splits.iter().map(|s| s.1.len()).sum();
     // Per id: (frames, captions) when usable; checked once even if listed in several splits.
     let mut seen: BTreeMap<String, Option<(usize, Vec<texts::Caption>)>> = BTreeMap::new();
@@ -174,6 +162,27 @@ pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport
         distinct_words: words.len(),
         length_histogram,
     }
+}
+
+/// Each split's ids; a split list that cannot be read is a problem.
+fn read_splits(
+    ds: &Dataset,
+    root: &Path,
+    problems: &mut Vec<Problem>,
+) -> Vec<(String, Vec<String>)> {
+    SPLITS
+        .iter()
+        .filter_map(|s| match ds.split_ids(s) {
+            Ok(ids) => Some((s.to_string(), ids)),
+            Err(e) => {
+                problems.push(Problem {
+                    file: root.join(format!("{s}.txt")).display().to_string(),
+                    problem: format!("split list unreadable: {}", short(&e)),
+                });
+                None
+            }
+        })
+        .collect()
 }
 
 /// An io error without the path (the report line already names the file).

@@ -209,7 +209,6 @@ pub const MAX_FRAMES: usize = 1_000_000;
 /// The MOTION section: `Frames: N` (present, a count that matches the frame lines),
 /// `Frame Time: s` and N lines of finite channel values of plausible size.
 fn parse_motion(motion: &str, joints: &[BvhJoint]) -> Result<(f64, Vec<Vec<f64>>), DataError> {
-    let per_frame: usize = joints.iter().map(|j| j.channels.len()).sum();
     let names: Vec<(String, Channel)> =
         joints.iter().flat_map(|j| j.channels.iter().map(move |c| (j.name.clone(), *c))).collect();
     let (mut frame_time, mut declared) = (None, None);
@@ -244,24 +243,7 @@ fn parse_motion(motion: &str, joints: &[BvhJoint]) -> Result<(f64, Vec<Vec<f64>>
                 Some(n) => bad(format!("more frame lines than 'Frames: {n}' says")),
             });
         }
-        let f = frames.len();
-        let v: Vec<f64> = line
-            .split_whitespace()
-            .map(|x| x.parse().map_err(|_| bad(format!("frame {f}: '{x}' is not a number"))))
-            .collect::<Result<_, _>>()?;
-        if v.len() != per_frame {
-            return Err(bad(format!(
-                "frame {f} has {} values, the hierarchy's channels need {per_frame}",
-                v.len()
-            )));
-        }
-        if let Some(k) =
-            v.iter().position(|x| !crate::motion::magnitude::within(*x, MAX_CHANNEL_VALUE))
-        {
-            let (joint, ch) = &names[k];
-            return Err(bad(format!("frame {f}: joint '{joint}' {} is {}; values must be finite and at most {MAX_CHANNEL_VALUE:e} in size", ch.name(), v[k])));
-        }
-        frames.push(v);
+        frames.push(frame_values(line, frames.len(), &names)?);
     }
     let frame_time = frame_time.ok_or_else(|| bad("no 'Frame Time:' line"))?;
     match declared {
@@ -271,6 +253,28 @@ fn parse_motion(motion: &str, joints: &[BvhJoint]) -> Result<(f64, Vec<Vec<f64>>
         }
         Some(_) => Ok((frame_time, frames)),
     }
+}
+
+/// Frame `f`'s channel values from its line: one number per channel (`names`: each channel's
+/// joint and kind), finite and of plausible size.
+fn frame_values(line: &str, f: usize, names: &[(String, Channel)]) -> Result<Vec<f64>, DataError> {
+    let v: Vec<f64> = line
+        .split_whitespace()
+        .map(|x| x.parse().map_err(|_| bad(format!("frame {f}: '{x}' is not a number"))))
+        .collect::<Result<_, _>>()?;
+    if v.len() != names.len() {
+        return Err(bad(format!(
+            "frame {f} has {} values, the hierarchy's channels need {}",
+            v.len(),
+            names.len()
+        )));
+    }
+    if let Some(k) = v.iter().position(|x| !crate::motion::magnitude::within(*x, MAX_CHANNEL_VALUE))
+    {
+        let (joint, ch) = &names[k];
+        return Err(bad(format!("frame {f}: joint '{joint}' {} is {}; values must be finite and at most {MAX_CHANNEL_VALUE:e} in size", ch.name(), v[k])));
+    }
+    Ok(v)
 }
 
 impl Bvh {

@@ -171,22 +171,8 @@ impl KeyframeSpec {
         max_len: usize,
     ) -> Result<KeyframeSet, DataError> {
         let bad = |m: String| DataError::Invalid(m);
-        let length = match (length, self.length) {
-            (Some(l), _) => l,
-            (None, None) => return Err(bad("no \"length\" (or pass --length)".into())),
-            (None, Some(l)) if l == 0 || l > max_len => {
-                return Err(bad(format!("length: {l} frames; must be 1 to {max_len}")))
-            }
-            (None, Some(l)) => l,
-        };
-        let spec = joints.map(str::to_string).or_else(|| self.joints.clone());
-        if spec.as_deref().is_some_and(|s| s.trim().is_empty()) {
-            return Err(bad("joints: empty; name body parts or joints, e.g. \"lower_body\" or \"left_arm,head\"".into()));
-        }
-        let observed: Vec<usize> = match &spec {
-            Some(s) => skel.resolve_joints(s).map_err(|e| bad(format!("joints: {e}")))?,
-            None => (0..skel.num_joints()).collect(),
-        };
+        let length = self.length_of(length, max_len)?;
+        let observed = self.observed_joints(skel, joints)?;
         let d = skel.feature_dim();
         let dims = keyframes::dim_mask(skel, Some(&observed));
         let (mut values, mut mask) = (vec![0f32; length * d], vec![0f32; length * d]);
@@ -230,6 +216,36 @@ impl KeyframeSpec {
         frames.sort_unstable();
         relative_to_first_frame(&mut root);
         Ok(KeyframeSet { length, frames, values, mask, joints: observed, root })
+    }
+
+    /// The motion's length: `length` (a flag) over the file's, which must be 1 to `max_len`.
+    fn length_of(&self, length: Option<usize>, max_len: usize) -> Result<usize, DataError> {
+        let bad = |m: String| DataError::Invalid(m);
+        match (length, self.length) {
+            (Some(l), _) => Ok(l),
+            (None, None) => Err(bad("no \"length\" (or pass --length)".into())),
+            (None, Some(l)) if l == 0 || l > max_len => {
+                Err(bad(format!("length: {l} frames; must be 1 to {max_len}")))
+            }
+            (None, Some(l)) => Ok(l),
+        }
+    }
+
+    /// The joints the keys observe: `joints` (a flag) over the file's, else all of them.
+    fn observed_joints(
+        &self,
+        skel: &Skeleton,
+        joints: Option<&str>,
+    ) -> Result<Vec<usize>, DataError> {
+        let bad = |m: String| DataError::Invalid(m);
+        let spec = joints.map(str::to_string).or_else(|| self.joints.clone());
+        if spec.as_deref().is_some_and(|s| s.trim().is_empty()) {
+            return Err(bad("joints: empty; name body parts or joints, e.g. \"lower_body\" or \"left_arm,head\"".into()));
+        }
+        match &spec {
+            Some(s) => skel.resolve_joints(s).map_err(|e| bad(format!("joints: {e}"))),
+            None => Ok((0..skel.num_joints()).collect()),
+        }
     }
 }
 

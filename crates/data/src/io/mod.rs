@@ -10,4 +10,5 @@ pub mod npy;
 pub mod output_set;
 pub mod ownership;
 pub mod rig;
+mod rig_names;
 pub mod texts;

@@ -21,40 +21,16 @@ use crate::motion::representation::{resample, Joints};
 use crate::motion::skeleton::Skeleton;
 use crate::DataError;
 
+use super::rig_names::map_joints;
+pub use super::rig_names::T2M_NAMES;
+
 const CM: f64 = 100.0;
 
 /// Names and T-pose bone directions of a skeleton's rig.
 pub(crate) struct Rig {
-    names: Vec<&'static str>,
+    pub(crate) names: Vec<&'static str>,
     tpose: Vec<Vec3>,
 }
-
-/// The common names of HumanML3D's 22 joints, in the skeleton's order (LaFAN1's names; Mixamo's
-/// differ only in the toes).
-pub const T2M_NAMES: [&str; 22] = [
-    "Hips",
-    "LeftUpLeg",
-    "RightUpLeg",
-    "Spine",
-    "LeftLeg",
-    "RightLeg",
-    "Spine1",
-    "LeftFoot",
-    "RightFoot",
-    "Spine2",
-    "LeftToe",
-    "RightToe",
-    "Neck",
-    "LeftShoulder",
-    "RightShoulder",
-    "Head",
-    "LeftArm",
-    "RightArm",
-    "LeftForeArm",
-    "RightForeArm",
-    "LeftHand",
-    "RightHand",
-];
 
 /// Direction of the bone ending at each joint in a T-pose facing +Z (left is +X): legs down,
 /// feet forward, spine and head up, arms straight out.
@@ -82,33 +58,6 @@ const T2M_TPOSE: [Vec3; 22] = [
     [1.0, 0.0, 0.0],
     [-1.0, 0.0, 0.0],
 ];
-
-/// Known naming conventions for the 22 joints, as the joints where they differ from
-/// [`T2M_NAMES`] (a file matches one when it has all 22).
-const T2M_CONVENTIONS: [(&str, &[(usize, &str)]); 3] = [
-    ("diffkfc / LaFAN1", &[]),
-    ("Mixamo", &[(10, "LeftToeBase"), (11, "RightToeBase")]),
-    (
-        "CMU",
-        &[
-            (3, "LowerBack"),
-            (6, "Spine"),
-            (9, "Spine1"),
-            (10, "LeftToeBase"),
-            (11, "RightToeBase"),
-            (12, "Neck1"),
-        ],
-    ),
-];
-
-/// The 22 names of a convention.
-fn convention_names(changes: &[(usize, &'static str)]) -> Vec<&'static str> {
-    let mut names = T2M_NAMES.to_vec();
-    for &(j, n) in changes {
-        names[j] = n;
-    }
-    names
-}
 
 pub(crate) fn rig(skel: &Skeleton) -> Rig {
     if skel.name == "t2m" {
@@ -312,16 +261,7 @@ pub fn export(skel: &Skeleton, joints: &Joints) -> Bvh {
     let parents = &posed.parents;
     let kids: Vec<Vec<usize>> = (0..skel.num_joints()).map(|j| children(parents, j)).collect();
     let rest = &posed.rest;
-    let order = topological(parents);
-    // BVH joints in depth-first order, so that the file lists each subtree in one block.
-    let mut dfs = Vec::new();
-    fn visit(j: usize, kids: &[Vec<usize>], out: &mut Vec<usize>) {
-        out.push(j);
-        for &c in &kids[j] {
-            visit(c, kids, out);
-        }
-    }
-    visit(order[0], &kids, &mut dfs);
+    let dfs = depth_first(topological(parents)[0], &kids);
     let slot: Vec<usize> = {
         let mut s = vec![0; skel.num_joints()];
         for (i, &j) in dfs.iter().enumerate() {
@@ -358,15 +298,32 @@ pub fn export(skel: &Skeleton, joints: &Joints) -> Bvh {
             }
         })
         .collect();
-    let mut prev: Vec<Option<[f64; 3]>> = vec![None; skel.num_joints()];
-    let frames = posed
+    let frames = channel_rows(&posed, &dfs, k);
+    Bvh { joints: bvh_joints, frame_time: 1.0 / skel.fps, frames }
+}
+
+/// The joints under `j` (itself first) in depth-first order, so that a BVH file lists each
+/// subtree in one block.
+fn depth_first(j: usize, kids: &[Vec<usize>]) -> Vec<usize> {
+    let mut out = vec![j];
+    for &c in &kids[j] {
+        out.extend(depth_first(c, kids));
+    }
+    out
+}
+
+/// Each frame's channel values in `dfs` order: the root's position (times `k`, file units per
+/// skeleton unit) and every joint's ZYX Euler angles, each kept near its previous frame's.
+fn channel_rows(posed: &PosedRig, dfs: &[usize], k: f64) -> Vec<Vec<f64>> {
+    let mut prev: Vec<Option<[f64; 3]>> = vec![None; posed.parents.len()];
+    posed
         .local
         .iter()
         .zip(&posed.root)
         .map(|(local, root)| {
             let mut row = Vec::with_capacity(3 + 3 * dfs.len());
-            for &j in &dfs {
-                if parents[j] < 0 {
+            for &j in dfs {
+                if posed.parents[j] < 0 {
                     row.extend(root.iter().map(|v| v * k));
                 }
                 let e = bvh::zyx_degrees(local[j], prev[j]);
@@ -375,8 +332,7 @@ pub fn export(skel: &Skeleton, joints: &Joints) -> Bvh {
             }
             row
         })
-        .collect();
-    Bvh { joints: bvh_joints, frame_time: 1.0 / skel.fps, frames }
+        .collect()
 }
 
 /// BVH text of a motion ([`export`]).
@@ -463,76 +419,9 @@ pub struct ImportOptions {
 /// Units a file may use, for the error message and detection: (name, metres per unit).
 pub const UNITS: [(&str, f64); 4] = [("m", 1.0), ("cm", 0.01), ("mm", 0.001), ("in", 0.0254)];
 
-fn bare(name: &str) -> String {
-    name.rsplit(':').next().unwrap_or(name).to_ascii_lowercase()
-}
-
-/// Index in the file of each skeleton joint.
-fn map_joints(skel: &Skeleton, b: &Bvh, map: &[(String, String)]) -> Result<Vec<usize>, DataError> {
-    let rig = rig(skel);
-    let find = |name: &str| {
-        b.joints
-            .iter()
-            .position(|j| j.name == name)
-            .or_else(|| b.joints.iter().position(|j| bare(&j.name) == bare(name)))
-    };
-    let mut fixed = vec![None; skel.num_joints()];
-    for (ours, theirs) in map {
-        let j = skel
-            .joint_index(ours)
-            .or_else(|| rig.names.iter().position(|n| n.eq_ignore_ascii_case(ours)))
-            .ok_or_else(|| {
-                DataError::Invalid(format!(
-                    "rig map: '{ours}' is not a joint of the {} skeleton (joints: {})",
-                    skel.name,
-                    rig.names.join(", ")
-                ))
-            })?;
-        fixed[j] = Some(find(theirs).ok_or_else(|| {
-            DataError::Invalid(format!(
-                "rig map: '{ours}' maps to '{theirs}', which the BVH does not have"
-            ))
-        })?);
-    }
-    let mut conventions: Vec<(&str, Vec<&str>)> =
-        vec![("diffkfc", rig.names.clone()), ("snake_case", skel.joint_names.to_vec())];
-    if skel.name == "t2m" {
-        conventions
-            .extend(T2M_CONVENTIONS.iter().map(|(n, changes)| (*n, convention_names(changes))));
-    }
-    let resolved: Vec<(&str, Vec<Option<usize>>)> = conventions
-        .iter()
-        .map(|(n, names)| {
-            (*n, names.iter().zip(&fixed).map(|(name, f)| f.or_else(|| find(name))).collect())
-        })
-        .collect();
-    let best = resolved
-        .iter()
-        .max_by_key(|(_, r)| r.iter().filter(|x| x.is_some()).count())
-        .expect("conventions");
-    if best.1.iter().all(Option::is_some) {
-        return Ok(best.1.iter().map(|x| x.unwrap_or(0)).collect());
-    }
-    let names = &conventions.iter().find(|(n, _)| *n == best.0).expect("convention").1;
-    let missing: Vec<String> = best
-        .1
-        .iter()
-        .enumerate()
-        .filter(|(_, x)| x.is_none())
-        .map(|(j, _)| format!("{} ({})", skel.joint_names[j], names[j]))
-        .collect();
-    Err(DataError::Invalid(format!(
-        "BVH: no joint for {} of the {} skeleton (closest naming: {}); map them with --rig-map (JSON {{\"{}\": \"<joint in the file>\", ...}})",
-        missing.join(", "),
-        skel.name,
-        best.0,
-        skel.joint_names[best.1.iter().position(Option::is_none).unwrap_or(0)]
-    )))
-}
-
 /// A BVH's motion as the skeleton's joint positions (its units, Y up, its frame rate).
 pub fn import(skel: &Skeleton, b: &Bvh, opts: &ImportOptions) -> Result<Joints, DataError> {
-    let index = map_joints(skel, b, &opts.rig_map)?;
+    let index = map_joints(skel, b, &opts.rig_map, &rig(skel).names)?;
     let world = b.world_positions();
     let mut joints: Joints = world.iter().map(|f| index.iter().map(|&k| f[k]).collect()).collect();
     if joints.is_empty() {

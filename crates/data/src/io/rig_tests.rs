@@ -1,3 +1,4 @@
+use super::super::rig_names::{convention_names, T2M_CONVENTIONS};
 use super::*;
 use crate::{io::npy, motion::representation as rep, testing::fixtures, T2M};
 

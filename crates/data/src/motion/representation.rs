@@ -320,55 +320,12 @@ pub fn features_from_joints_to(
     validate_joints(skel, joints)?;
     let global = canonical(skel, uniform_skeleton_to(skel, joints, lengths)?);
     let t = global.len();
-    let jn = skel.num_joints();
-
-    // Foot contacts: squared displacement per frame below the threshold.
-    let contact = |f: usize, j: usize| -> f64 {
-        let d = quat::sub(global[f + 1][j], global[f][j]);
-        if quat::dot(d, d) < feet_threshold {
-            1.0
-        } else {
-            0.0
-        }
-    };
-
     let rotations = inverse_kinematics(skel, &global, true);
-    let r_rot: Vec<Quat> = rotations.iter().map(|q| q[0]).collect();
-
     let layout = Layout::of(skel);
     let dim = layout.dim();
     let mut out = vec![0f32; (t - 1) * dim];
-    for f in 0..t - 1 {
-        let row = &mut out[f * dim..(f + 1) * dim];
-        // Root angular velocity: arcsin of the y part of r_rot[f+1] * r_rot[f]^-1.
-        let rv = quat::qmul(r_rot[f + 1], quat::qinv(r_rot[f]));
-        row[0] = rv[2].asin() as f32;
-        let lin = quat::qrot(r_rot[f + 1], quat::sub(global[f + 1][0], global[f][0]));
-        row[1] = lin[0] as f32;
-        row[2] = lin[2] as f32;
-        row[3] = global[f][0][1] as f32;
-        // RIC: root-relative in xz, turned by the frame's own root rotation.
-        for j in 1..jn {
-            let p = global[f][j];
-            let local =
-                quat::qrot(r_rot[f], [p[0] - global[f][0][0], p[1], p[2] - global[f][0][2]]);
-            let ric = layout.ric().start + (j - 1) * 3;
-            row[ric..ric + 3].iter_mut().zip(local).for_each(|(r, v)| *r = v as f32);
-            let rot = layout.rot().start + (j - 1) * 6;
-            let c6 = quat::to_cont6d(rotations[f][j]);
-            row[rot..rot + 6].iter_mut().zip(c6).for_each(|(r, v)| *r = v as f32);
-        }
-        for j in 0..jn {
-            let v = quat::qrot(r_rot[f], quat::sub(global[f + 1][j], global[f][j]));
-            for k in 0..3 {
-                row[layout.vel().start + j * 3 + k] = v[k] as f32;
-            }
-        }
-        let c = layout.contacts().start;
-        let feet = [skel.feet_left[0], skel.feet_left[1], skel.feet_right[0], skel.feet_right[1]];
-        for (k, &j) in feet.iter().enumerate() {
-            row[c + k] = contact(f, j) as f32;
-        }
+    for (f, row) in out.chunks_exact_mut(dim).enumerate() {
+        feature_row(skel, &layout, &global, &rotations, f, feet_threshold, row);
     }
     if let Some(k) = out.iter().position(|v| !v.is_finite()) {
         return Err(DataError::Invalid(format!(
@@ -378,6 +335,50 @@ pub fn features_from_joints_to(
         )));
     }
     Ok(out)
+}
+
+/// Frame `f`'s features (HumanML3D's `process_file`): the root's angular and linear velocity
+/// and height, the root-relative joint positions (RIC) and rotations, the joint velocities and
+/// the four foot contacts (squared displacement to the next frame below `feet_threshold`).
+fn feature_row(
+    skel: &Skeleton,
+    layout: &Layout,
+    global: &Joints,
+    rotations: &[Vec<Quat>],
+    f: usize,
+    feet_threshold: f64,
+    row: &mut [f32],
+) {
+    let r_rot = |f: usize| rotations[f][0];
+    // Root angular velocity: arcsin of the y part of r_rot[f+1] * r_rot[f]^-1.
+    let rv = quat::qmul(r_rot(f + 1), quat::qinv(r_rot(f)));
+    row[0] = rv[2].asin() as f32;
+    let lin = quat::qrot(r_rot(f + 1), quat::sub(global[f + 1][0], global[f][0]));
+    row[1] = lin[0] as f32;
+    row[2] = lin[2] as f32;
+    row[3] = global[f][0][1] as f32;
+    // RIC: root-relative in xz, turned by the frame's own root rotation.
+    for j in 1..skel.num_joints() {
+        let p = global[f][j];
+        let local = quat::qrot(r_rot(f), [p[0] - global[f][0][0], p[1], p[2] - global[f][0][2]]);
+        let ric = layout.ric().start + (j - 1) * 3;
+        row[ric..ric + 3].iter_mut().zip(local).for_each(|(r, v)| *r = v as f32);
+        let rot = layout.rot().start + (j - 1) * 6;
+        let c6 = quat::to_cont6d(rotations[f][j]);
+        row[rot..rot + 6].iter_mut().zip(c6).for_each(|(r, v)| *r = v as f32);
+    }
+    for j in 0..skel.num_joints() {
+        let v = quat::qrot(r_rot(f), quat::sub(global[f + 1][j], global[f][j]));
+        for k in 0..3 {
+            row[layout.vel().start + j * 3 + k] = v[k] as f32;
+        }
+    }
+    let c = layout.contacts().start;
+    let feet = [skel.feet_left[0], skel.feet_left[1], skel.feet_right[0], skel.feet_right[1]];
+    for (k, &j) in feet.iter().enumerate() {
+        let d = quat::sub(global[f + 1][j], global[f][j]);
+        row[c + k] = if quat::dot(d, d) < feet_threshold { 1.0 } else { 0.0 };
+    }
 }
 
 /// Joint positions put as HumanML3D puts them: the floor at y = 0, the first frame's root at the

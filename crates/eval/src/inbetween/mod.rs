@@ -72,7 +72,7 @@ impl Gap {
 }
 
 /// A clip to key: its raw (de-normalised) features `[frames, D]` and a caption.
-pub struct Clip {
+pub struct SourceClip {
     pub id: String,
     pub caption: String,
     pub features: Vec<f32>,
@@ -121,7 +121,7 @@ impl Bench<'_> {
     }
 
     /// One motion per key set: `clip` keyed at `keys` (whole poses, places and headings).
-    fn request(&self, clip: &Clip, text: &[f32], keys: &[Vec<usize>]) -> Request {
+    fn request(&self, clip: &SourceClip, text: &[f32], keys: &[Vec<usize>]) -> Request {
         let d = self.gen.skel.feature_dim();
         let len = clip.features.len() / d;
         let traj = root_key::root_trajectory(&clip.features, d);
@@ -144,7 +144,7 @@ impl Bench<'_> {
     /// and score everything against the clip. `text` is the caption's embedding.
     pub fn run_clip(
         &self,
-        clip: &Clip,
+        clip: &SourceClip,
         text: &[f32],
         seed: u64,
         mut progress: impl FnMut(),

@@ -260,7 +260,8 @@ pub(super) fn rows(x: &[f32], cols: usize) -> View {
     View { ptr: x.as_ptr(), rs: cols as isize, cs: 1 }
 }
 
-fn transposed(x: &[f32], cols: usize) -> View {
+/// A row-major [_, cols] matrix read as its transpose.
+pub(super) fn transposed(x: &[f32], cols: usize) -> View {
     View { ptr: x.as_ptr(), rs: 1, cs: cols as isize }
 }
 

@@ -10,7 +10,7 @@ use std::sync::Arc;
 use rayon::prelude::*;
 
 use super::attention_call::{AttnShape, Mask};
-use super::host::{matmul, matmul_scaled, Out, View};
+use super::host::{matmul, matmul_scaled, transposed, Out, View};
 use super::softmax::{self, Open};
 
 /// The keys of one sample that some query may see, and the mask restricted to them.
@@ -162,6 +162,29 @@ unsafe fn scatter_keys(
     }
 }
 
+/// Where one head's dK and dV rows go, and their row stride: straight into the [B, Lk, d]
+/// buffers at offset `at`, or, for a compacted head, into the scratch `grads` [2, n, dh]
+/// (scattered to their rows afterwards).
+///
+/// # Safety
+/// `at` is the head's first key row and column in buffers of [B, Lk, d].
+unsafe fn key_grad_rows(
+    compacted: bool,
+    grads: &mut Vec<f32>,
+    (dkp, dvp): (Out, Out),
+    at: usize,
+    n: usize,
+    s: &AttnShape,
+) -> (*mut f32, *mut f32, usize) {
+    let dh = s.dh();
+    if !compacted {
+        return (dkp.0.add(at), dvp.0.add(at), s.d);
+    }
+    grads.resize(2 * n * dh, 0.0);
+    let g = grads.as_mut_ptr();
+    (g, g.add(n * dh), dh)
+}
+
 /// Gradients (dQ, dK, dV) of [`attention_forward`] for the output gradient `dout` [B, Lq, d];
 /// the probabilities are recomputed (cheaper than keeping [B, H, Lq, Lk] per layer).
 pub fn attention_backward(
@@ -193,41 +216,28 @@ pub fn attention_backward(
             // writes only its own dh columns of sample b's rows in dq, dk and dv.
             let dq_at = unsafe { dqp.0.add(b * lq * s.d + col) };
             if n == 0 {
-                (0..lq).for_each(|i| unsafe { std::ptr::write_bytes(dq_at.add(i * s.d), 0, dh) });
-                return;
+                return (0..lq).for_each(|i| unsafe { dq_at.add(i * s.d).write_bytes(0, dh) });
             }
             let (qh, go) = (s.head(q, lq, b, h), s.head(dout, lq, b, h));
             keys.probabilities(qh, s, p);
             let (p, dp) = (&mut p[..lq * n], &mut dp[..lq * n]);
             // dK and dV of the compacted keys go to a scratch [2, n, dh] first, then to their rows.
             let compacted = compact[b].as_ref();
-            let (dk_at, dv_at, rs) = match compacted {
-                None => unsafe {
-                    (dkp.0.add(b * lk * s.d + col), dvp.0.add(b * lk * s.d + col), s.d)
-                },
-                Some(_) => {
-                    grads.resize(2 * n * dh, 0.0);
-                    let at = grads.as_mut_ptr();
-                    (at, unsafe { at.add(n * dh) }, dh)
-                }
-            };
-            let pt = View { ptr: p.as_ptr(), rs: 1, cs: n as isize };
-            let vt = View { ptr: keys.v.ptr, rs: keys.v.cs, cs: keys.v.rs };
-            unsafe {
-                // dV = P^T dO; dP = dO V^T.
-                matmul(n, dh, lq, dv_at, rs, pt, go);
-                matmul(lq, n, dh, dp.as_mut_ptr(), n, go, vt);
-            }
+            let at = b * lk * s.d + col;
+            let (dk_at, dv_at, rs) =
+                unsafe { key_grad_rows(compacted.is_some(), grads, (dkp, dvp), at, n, s) };
+            let (pt, vt) =
+                (transposed(p, n), View { ptr: keys.v.ptr, rs: keys.v.cs, cs: keys.v.rs });
+            // dV = P^T dO; dP = dO V^T; dS from dP; dQ = dS K; dK = dS^T Q.
+            unsafe { matmul(n, dh, lq, dv_at, rs, pt, go) };
+            unsafe { matmul(lq, n, dh, dp.as_mut_ptr(), n, go, vt) };
             softmax_backward(p, dp, n, scale);
             let ds = View { ptr: dp.as_ptr(), rs: n as isize, cs: 1 };
-            let dst_t = View { ptr: dp.as_ptr(), rs: 1, cs: n as isize };
-            unsafe {
-                matmul(lq, dh, n, dq_at, s.d, ds, keys.k);
-                matmul(n, dh, lq, dk_at, rs, dst_t, qh);
-            }
+            unsafe { matmul(lq, dh, n, dq_at, s.d, ds, keys.k) };
+            unsafe { matmul(n, dh, lq, dk_at, rs, transposed(dp, n), qh) };
             if let Some(c) = compacted {
                 // SAFETY: the rows of sample b, columns of head h, as above.
-                unsafe { scatter_keys(grads, &c.cols, (dkp, dvp), (b * lk) * s.d + col, s.d, dh) };
+                unsafe { scatter_keys(grads, &c.cols, (dkp, dvp), at, s.d, dh) };
             }
         },
     );

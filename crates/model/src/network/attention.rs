@@ -61,12 +61,12 @@ impl Attention {
         &self,
         x: Tensor<2>,
         b: usize,
-        queries: &Rows,
-        keys: &Rows,
+        queries: &TokenRows,
+        keys: &TokenRows,
         mask: Mask,
     ) -> Tensor<2> {
         let [bl, d] = x.dims();
-        let full = |rows: &Rows, lin: &Linear| {
+        let full = |rows: &TokenRows, lin: &Linear| {
             rows.scatter(linear(lin, rows.gather(x.clone()))).reshape([b, bl / b, d])
         };
         let ctx = kernels::attention(
@@ -93,20 +93,20 @@ impl Attention {
 
 /// A subset of the B x (1+N) token rows, as the index to gather them (None: all rows, or so
 /// many that gathering would cost more than it saves).
-pub struct Rows {
+pub struct TokenRows {
     pub count: usize,
     pub total: usize,
     pub index: Option<Tensor<1, Int>>,
 }
 
-impl Rows {
-    pub fn new(mask: &[bool], device: &Device) -> Rows {
+impl TokenRows {
+    pub fn new(mask: &[bool], device: &Device) -> TokenRows {
         let rows: Vec<i64> =
             mask.iter().enumerate().filter(|(_, &v)| v).map(|(i, _)| i as i64).collect();
         let (count, total) = (rows.len(), mask.len());
         let index = worth_gathering(count, total)
             .then(|| Tensor::<1, Int>::from_data(TensorData::new(rows, [count]), device));
-        Rows { count, total, index }
+        TokenRows { count, total, index }
     }
 
     /// The subset's rows of x [total, d] -> [count or total, d].

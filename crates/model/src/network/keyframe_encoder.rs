@@ -14,7 +14,7 @@ use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 
 use crate::kernels::{linear, linear_gelu, rows_run, Mask};
-use crate::network::attention::{Attention, Rows};
+use crate::network::attention::{Attention, TokenRows};
 use crate::network::condition::Condition;
 
 /// Per-block validity and attention masks of a batch, computed on the host from the keyframe
@@ -167,12 +167,12 @@ impl DmaBlock {
         valid: &[bool],
     ) -> Tensor<3> {
         let [b, l, d] = z.dims();
-        let rows = Rows::new(active, &z.device());
+        let rows = TokenRows::new(active, &z.device());
         if rows.count == 0 {
             return z;
         }
         let flat = z.reshape([b * l, d]);
-        let keys = Rows::new(valid, &flat.device());
+        let keys = TokenRows::new(valid, &flat.device());
         let zs = rows.gather(flat.clone());
         let a = self.attn.forward_rows(flat.clone(), b, &rows, &keys, blocked);
         let zk = linear(

@@ -42,6 +42,24 @@ fn bytes(v: &[f32]) -> Vec<u8> {
     v.iter().flat_map(|f| f.to_le_bytes()).collect()
 }
 
+/// Shapes and values of a checkpoint's parameters, in order.
+type Tensors = (Vec<Vec<usize>>, Vec<Vec<f32>>);
+
+/// The parameter names a named checkpoint's metadata lists, `n` of them.
+fn stored_names(
+    meta: &std::collections::HashMap<String, String>,
+    n: usize,
+) -> std::result::Result<Vec<String>, String> {
+    let v: Vec<String> = meta
+        .get("names")
+        .and_then(|t| serde_json::from_str(t).ok())
+        .ok_or_else(|| "metadata 'names' missing".to_string())?;
+    if v.len() != n {
+        return Err(format!("{} names for {n} parameters", v.len()));
+    }
+    Ok(v)
+}
+
 /// Shape and values (as f32) of tensor `name`, stored as F32 or F16; errors name `path`.
 fn tensor_values(
     st: &safetensors::SafeTensors,
@@ -190,28 +208,16 @@ impl Checkpoint {
                 .ok_or_else(|| err(format!("metadata '{k}' missing")))
         };
         let n = num("params")? as usize;
-        let names: Vec<String> = if named {
-            let v: Vec<String> = meta
-                .get("names")
-                .and_then(|t| serde_json::from_str(t).ok())
-                .ok_or_else(|| err("metadata 'names' missing".into()))?;
-            if v.len() != n {
-                return Err(err(format!("{} names for {n} parameters", v.len())));
-            }
-            v
-        } else {
-            Vec::new()
-        };
+        let names = if named { stored_names(&meta, n).map_err(err)? } else { Vec::new() };
         // Format 2 stores tensors by name, format 1 by position.
         let key = |i: usize| names.get(i).cloned().unwrap_or_else(|| format!("{i:04}"));
         let st = safetensors::SafeTensors::deserialize(&data).map_err(|e| err(e.to_string()))?;
+        // Every parameter's tensor under one prefix: shapes and values.
+        let read = |prefix: &str| -> Result<Tensors> {
+            (0..n).map(|i| tensor_values(&st, &format!("{prefix}/{}", key(i)), path)).collect()
+        };
         if weights_only {
-            let (mut shapes, mut model) = (vec![], vec![]);
-            for i in 0..n {
-                let (shape, values) = tensor_values(&st, &format!("weights/{}", key(i)), path)?;
-                shapes.push(shape);
-                model.push(values);
-            }
+            let (shapes, model) = read("weights")?;
             let config = meta.get("config").cloned().unwrap_or_default();
             return Ok(Checkpoint::weights(
                 num("step")? as usize,
@@ -222,29 +228,16 @@ impl Checkpoint {
                 names,
             ));
         }
-        let get = |name: String| tensor_values(&st, &name, path);
-        let (mut shapes, mut model, mut m, mut v, mut ema) =
-            (vec![], vec![], vec![], vec![], vec![]);
+        let (shapes, model) = read("model")?;
         let has_ema = st.names().iter().any(|k| k.starts_with("ema/"));
-        for i in 0..n {
-            let k = key(i);
-            let (s, p) = get(format!("model/{k}"))?;
-            shapes.push(s);
-            model.push(p);
-            m.push(get(format!("adam_m/{k}"))?.1);
-            v.push(get(format!("adam_v/{k}"))?.1);
-            if has_ema {
-                ema.push(get(format!("ema/{k}"))?.1);
-            }
-        }
         Ok(Checkpoint {
             step: num("step")? as usize,
             shapes,
             model,
-            ema: has_ema.then_some(ema),
+            ema: if has_ema { Some(read("ema")?.1) } else { None },
             adam_step: num("adam_step")?,
-            adam_m: m,
-            adam_v: v,
+            adam_m: read("adam_m")?.1,
+            adam_v: read("adam_v")?.1,
             config: meta.get("config").cloned().unwrap_or_default(),
             seed: num("seed")?,
             names,

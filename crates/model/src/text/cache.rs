@@ -32,29 +32,7 @@ impl EmbeddingCache {
     ) -> Result<EmbeddingCache, TextError> {
         let name = cache_name(encoder.name(), words);
         let bad = |msg: String| TextError::Bad { path: path.to_path_buf(), msg };
-        let mut map = HashMap::new();
-        if let Ok(bytes) = std::fs::read(path) {
-            if let Ok((_, meta)) = safetensors::SafeTensors::read_metadata(&bytes) {
-                let same = meta
-                    .metadata()
-                    .as_ref()
-                    .and_then(|m| m.get("encoder"))
-                    .map(|e| *e == name)
-                    .unwrap_or(false);
-                if same {
-                    let st = safetensors::SafeTensors::deserialize(&bytes)
-                        .map_err(|e| bad(e.to_string()))?;
-                    for (name, t) in st.tensors() {
-                        let v: Vec<f32> = t
-                            .data()
-                            .chunks_exact(4)
-                            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                            .collect();
-                        map.insert(name, v);
-                    }
-                }
-            }
-        }
+        let mut map = read_cached(path, &name).map_err(|e| bad(e.to_string()))?;
         let mut missing: Vec<&String> =
             captions.iter().filter(|c| !map.contains_key(c.as_str())).collect();
         missing.sort();
@@ -112,4 +90,31 @@ pub fn embed_captions(
     let path = diffkfc_data::dataset::cache::default_cache_dir(ds)
         .join(format!("text-{}.safetensors", cache_name(encoder.name(), words)));
     EmbeddingCache::build(&path, &encoder, words, &captions, progress)
+}
+
+/// The embeddings a cache file at `path` holds, if it was made by encoder `name` (none if the
+/// file is missing, unreadable as a cache, or another encoder's).
+fn read_cached(
+    path: &Path,
+    name: &str,
+) -> Result<HashMap<String, Vec<f32>>, safetensors::SafeTensorError> {
+    let mut map = HashMap::new();
+    let Ok(bytes) = std::fs::read(path) else {
+        return Ok(map);
+    };
+    let Ok((_, meta)) = safetensors::SafeTensors::read_metadata(&bytes) else {
+        return Ok(map);
+    };
+    if meta.metadata().as_ref().and_then(|m| m.get("encoder")).is_some_and(|e| e == name) {
+        let st = safetensors::SafeTensors::deserialize(&bytes)?;
+        for (name, t) in st.tensors() {
+            let v: Vec<f32> = t
+                .data()
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect();
+            map.insert(name, v);
+        }
+    }
+    Ok(map)
 }

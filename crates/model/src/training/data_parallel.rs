@@ -300,7 +300,7 @@ impl StepSync {
 
 /// One replica's part of a step: Some((its forward's result, its gradient norm when every
 /// replica descended)), None when its forward pass panicked.
-pub(crate) type Part<T> = Option<(T, Option<f64>)>;
+pub(crate) type ReplicaPart<T> = Option<(T, Option<f64>)>;
 
 type Job<'s> = Box<dyn FnOnce(&mut Replica) + Send + 's>;
 

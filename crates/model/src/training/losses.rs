@@ -84,6 +84,29 @@ fn with_observed_root(pred: Tensor<3>, x0: Tensor<3>, kf_mask: Tensor<3>) -> Ten
     pred * (m.ones_like() - m.clone()) + x0 * m
 }
 
+/// L_simple and (with `keyed`) the keyframe term, on target and prediction scaled by `sqrt_w`.
+fn reconstruction(
+    x0: &Tensor<3>,
+    pred: &Tensor<3>,
+    kf_mask: &Tensor<3>,
+    valid: &Tensor<2>,
+    sqrt_w: Option<Tensor<3>>,
+    keyed: bool,
+) -> (Tensor<1>, Option<Tensor<1>>) {
+    let (rx0, rpred) = match sqrt_w {
+        Some(w) => (x0.clone() * w.clone(), pred.clone() * w),
+        None => (x0.clone(), pred.clone()),
+    };
+    if kernels::fused(&x0.device()) {
+        let both = kernels::masked_mse(rpred, rx0, kf_mask.clone(), valid.clone());
+        (both.clone().narrow(0, 0, 1), keyed.then(|| both.narrow(0, 1, 1)))
+    } else {
+        let simple = l_simple(rx0.clone(), rpred.clone(), kf_mask.clone(), valid.clone());
+        let key = keyed.then(|| l_key(rx0, rpred, kf_mask.clone(), valid.clone()));
+        (simple, key)
+    }
+}
+
 /// All loss terms; the kinematic ones only when their weight is positive. `sqrt_w` [1, 1, D]
 /// (`training::weighting::sqrt_weights`) scales target and prediction of the reconstruction
 /// terms (L_simple and the keyframe term), so they become weighted means.
@@ -95,19 +118,7 @@ pub fn losses(
     sqrt_w: Option<Tensor<3>>,
     k: &Kinematic,
 ) -> Losses {
-    let (rx0, rpred) = match sqrt_w {
-        Some(w) => (x0.clone() * w.clone(), pred.clone() * w),
-        None => (x0.clone(), pred.clone()),
-    };
-    let (simple, key) = if kernels::fused(&x0.device()) {
-        let both = kernels::masked_mse(rpred, rx0, kf_mask.clone(), valid.clone());
-        (both.clone().narrow(0, 0, 1), (k.keyframe_loss > 0.0).then(|| both.narrow(0, 1, 1)))
-    } else {
-        let simple = l_simple(rx0.clone(), rpred.clone(), kf_mask.clone(), valid.clone());
-        let key = (k.keyframe_loss > 0.0)
-            .then(|| l_key(rx0.clone(), rpred.clone(), kf_mask.clone(), valid.clone()));
-        (simple, key)
-    };
+    let (simple, key) = reconstruction(&x0, &pred, &kf_mask, &valid, sqrt_w, k.keyframe_loss > 0.0);
     let smooth = (k.smooth_loss > 0.0).then(|| l_smooth(x0.clone(), pred.clone(), valid.clone()));
     if !k.any() {
         return Losses { simple, key, smooth, pos: None, vel: None, foot: None };

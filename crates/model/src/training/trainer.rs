@@ -25,7 +25,7 @@ use crate::run::config::RunConfig;
 use crate::text::cache::EmbeddingCache;
 use crate::training::batch::to_tensors;
 use crate::training::data_parallel::{
-    self, DataParallel, GradSum, Part, Replica, Shard, StepSync, Workers,
+    self, DataParallel, GradSum, Replica, ReplicaPart, Shard, StepSync, Workers,
 };
 use crate::training::losses::Losses;
 use crate::training::losses::{losses, Kinematic};
@@ -135,7 +135,7 @@ pub struct Trainer<'a> {
 
 /// How a training call ended.
 #[derive(Debug)]
-pub struct Outcome {
+pub struct TrainOutcome {
     pub start_step: usize,
     pub end_step: usize,
     pub stopped_early: bool,
@@ -298,7 +298,7 @@ impl Trainer<'_> {
         max_steps: usize,
         stop: &dyn Fn() -> bool,
         on_event: &mut dyn FnMut(Event),
-    ) -> Result<Outcome> {
+    ) -> Result<TrainOutcome> {
         let tc = &self.cfg.training;
         let schedule = self.checked_schedule(max_steps)?;
         if let Some(dp) = self.parallel.as_ref().filter(|dp| dp.devices().len() > tc.batch_size) {
@@ -347,14 +347,10 @@ impl Trainer<'_> {
         steps: std::ops::Range<usize>,
         stop: &dyn Fn() -> bool,
         on_event: &mut dyn FnMut(Event),
-    ) -> Result<Outcome> {
+    ) -> Result<TrainOutcome> {
         let tc = &self.cfg.training;
         let (start, max_steps) = (steps.start, steps.end);
-        let loader = Loader {
-            text_drop_prob: tc.text_drop_prob,
-            text_drop_prob_unkeyed: tc.text_drop_prob_unkeyed,
-            ..Loader::new(self.ds, self.train, tc.batch_size, tc.seed, self.cfg.keyframes.clone())
-        };
+        let loader = self.loader();
         let (mut step, mut last, mut stopped) = (start, None, false);
         // The next step's batch and noise are drawn on another thread while this one trains
         // (single-threaded work that would otherwise leave a core idle).
@@ -400,7 +396,17 @@ impl Trainer<'_> {
             let p = files.checkpoint(step, learners.snapshot()?)?;
             on_event(Event::Checkpoint(step, &p));
         }
-        Ok(Outcome { start_step: start, end_step: step, stopped_early: stopped, last })
+        Ok(TrainOutcome { start_step: start, end_step: step, stopped_early: stopped, last })
+    }
+
+    /// The training split's batches, with the config's key and text-drop draws.
+    fn loader(&self) -> Loader<'_> {
+        let tc = &self.cfg.training;
+        Loader {
+            text_drop_prob: tc.text_drop_prob,
+            text_drop_prob_unkeyed: tc.text_drop_prob_unkeyed,
+            ..Loader::new(self.ds, self.train, tc.batch_size, tc.seed, self.cfg.keyframes.clone())
+        }
     }
 
     /// The schedule, after the checks a run must pass before it writes anything.
@@ -464,15 +470,10 @@ impl Trainer<'_> {
         step: usize,
         files: &RunFiles,
     ) -> Result<StepRecord> {
-        let tc = &self.cfg.training;
-        let lr = learning_rate(tc.lr, step, tc.warmup_steps, tc.cosine_decay, tc.max_steps);
-        let ctx = StepCtx {
-            step_seed: tc.seed.wrapping_mul(0x9E37_79B9).wrapping_add(step as u64),
-            // Early in training the EMA follows closely (as in common EMA warm-ups).
-            hyper: (tc.grad_clip, lr, tc.ema_decay.min((1.0 + step as f64) / (10.0 + step as f64))),
-        };
+        let ctx = self.step_ctx(step);
+        let lr = ctx.hyper.1;
         let host_sum = self.parallel.as_ref().is_some_and(|dp| dp.sum() == GradSum::Host);
-        let outs: Vec<Part<Terms>> = match learners {
+        let outs: Vec<ReplicaPart<Terms>> = match learners {
             Learners::One(r) => {
                 let sh = data_parallel::shards(b, t, noise, 1).remove(0);
                 vec![self.replica_step(r, &sh, schedule, &StepSync::new(1, false), ctx)]
@@ -518,6 +519,17 @@ impl Trainer<'_> {
         })
     }
 
+    /// Step `step`'s seed and its (gradient clip, learning rate, EMA decay).
+    fn step_ctx(&self, step: usize) -> StepCtx {
+        let tc = &self.cfg.training;
+        let lr = learning_rate(tc.lr, step, tc.warmup_steps, tc.cosine_decay, tc.max_steps);
+        StepCtx {
+            step_seed: tc.seed.wrapping_mul(0x9E37_79B9).wrapping_add(step as u64),
+            // Early in training the EMA follows closely (as in common EMA warm-ups).
+            hyper: (tc.grad_clip, lr, tc.ema_decay.min((1.0 + step as f64) / (10.0 + step as f64))),
+        }
+    }
+
     /// One replica's part of a step: its shard's forward pass and, once every replica's loss is
     /// known to be finite (`sync`), its backward pass, the gradient sum and the update.
     fn replica_step(
@@ -527,7 +539,7 @@ impl Trainer<'_> {
         schedule: &Schedule,
         sync: &StepSync,
         ctx: StepCtx,
-    ) -> Part<Terms> {
+    ) -> ReplicaPart<Terms> {
         let fwd = catch_unwind(AssertUnwindSafe(|| {
             r.device.seed(ctx.step_seed);
             crate::network::dropout::seed_shard(ctx.step_seed, sh.first, sh.batch.batch_size);

@@ -2,87 +2,87 @@
 
 use super::*;
 
-pub(super) fn walk(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn walk(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let speed = r.range(0.7, 1.6);
     let curve = r.range(-0.15, 0.15);
-    Segment {
+    Performance {
         poses: locomotion(s, n, speed, 0.0, curve, Gait::walk(speed), 0.02),
         params: json!({"speed": speed, "yaw_rate": curve}),
         side: None,
     }
 }
 
-pub(super) fn walk_backward(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn walk_backward(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let speed = r.range(0.35, 0.8);
     let mut g = Gait::walk(speed);
     g.pitch = -0.02;
-    Segment {
+    Performance {
         poses: locomotion(s, n, speed, PI, 0.0, g, 0.015),
         params: json!({"speed": speed}),
         side: None,
     }
 }
 
-pub(super) fn walk_sideways(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn walk_sideways(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let side = r.below(2);
     let speed = r.range(0.3, 0.6);
     let heading = if side == 0 { PI / 2.0 } else { -PI / 2.0 };
     let mut g = Gait::walk(speed);
     g.arm_swing = 0.05;
-    Segment {
+    Performance {
         poses: locomotion(s, n, speed, heading, 0.0, g, 0.01),
         params: json!({"speed": speed, "side": side_word(side)}),
         side: Some(side_word(side)),
     }
 }
 
-pub(super) fn walk_circle(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn walk_circle(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let side = r.below(2);
     let radius = r.range(0.8, 2.2);
     let speed = r.range(0.7, 1.2);
     let rate = speed / radius * if side == 0 { 1.0 } else { -1.0 };
-    Segment {
+    Performance {
         poses: locomotion(s, n, speed, 0.0, rate, Gait::walk(speed), 0.02),
         params: json!({"speed": speed, "radius": radius, "direction": side_word(side)}),
         side: Some(side_word(side)),
     }
 }
 
-pub(super) fn jog(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn jog(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let speed = r.range(1.8, 2.6);
-    Segment {
+    Performance {
         poses: locomotion(s, n, speed, 0.0, r.range(-0.1, 0.1), Gait::run(speed), 0.05),
         params: json!({"speed": speed}),
         side: None,
     }
 }
 
-pub(super) fn run(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn run(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let speed = r.range(3.0, 3.8);
     let mut g = Gait::run(speed);
     g.lift = 0.22;
     g.pitch = 0.22;
-    Segment {
+    Performance {
         poses: locomotion(s, n, speed, 0.0, r.range(-0.1, 0.1), g, 0.07),
         params: json!({"speed": speed}),
         side: None,
     }
 }
 
-pub(super) fn turn(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn turn(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let side = r.below(2);
     let angle = r.range(1.2, 3.3);
     let secs = n as f64 / FPS;
     // The eased trajectory covers about 80% of the nominal rate.
     let rate = angle / (secs * 0.8) * if side == 0 { 1.0 } else { -1.0 };
-    Segment {
+    Performance {
         poses: locomotion(s, n, 0.0, 0.0, rate, Gait::shuffle(), 0.0),
         params: json!({"angle": angle, "direction": side_word(side)}),
         side: Some(side_word(side)),
     }
 }
 
-pub(super) fn spin(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn spin(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let side = r.below(2);
     let angle = r.range(5.5, 7.0);
     let rate = angle / (n as f64 / FPS * 0.8) * if side == 0 { 1.0 } else { -1.0 };
@@ -92,14 +92,14 @@ pub(super) fn spin(r: &mut Rng, s: &Pose, n: usize) -> Segment {
     for p in &mut poses {
         p.arms = [Arm { flex: 0.1, abd: 0.9, elbow: 0.4 }; 2];
     }
-    Segment {
+    Performance {
         poses,
         params: json!({"angle": angle, "direction": side_word(side)}),
         side: Some(side_word(side)),
     }
 }
 
-pub(super) fn dance(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn dance(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     // Side steps to the left and right to a beat, arms swinging up and across.
     let beat = r.range(1.5, 2.3);
     let width = r.range(0.15, 0.3);
@@ -137,14 +137,14 @@ pub(super) fn dance(r: &mut Rng, s: &Pose, n: usize) -> Segment {
         ];
         p.lean = 0.1 * ph.sin();
     }
-    Segment {
+    Performance {
         poses,
         params: json!({"beat_hz": beat, "width": width, "arm_amplitude": amp}),
         side: None,
     }
 }
 
-pub(super) fn squat(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn squat(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let reps = 1 + r.below(3);
     let depth = r.range(0.25, 0.45);
     let b = bumps(n, reps, 0.1);
@@ -159,7 +159,7 @@ pub(super) fn squat(r: &mut Rng, s: &Pose, n: usize) -> Segment {
             p
         })
         .collect();
-    Segment { poses, params: json!({"reps": reps, "depth": depth}), side: None }
+    Performance { poses, params: json!({"reps": reps, "depth": depth}), side: None }
 }
 
 /// Vertical pelvis offset over one jump cycle (f in [0, 1)): crouch, push, flight of peak
@@ -232,57 +232,63 @@ pub(super) fn jumps(
             if let Some(free) = one_leg {
                 // The free foot tucks up behind, easing in and out at the ends of the clip.
                 let w = smooth(t as f64 / 8.0) * smooth((n - 1 - t) as f64 / 8.0);
-                let sgn = if free == 0 { 1.0 } else { -1.0 };
-                let base_y = p.root[1] - body::standing_height() + body::ANKLE_HEIGHT + 0.3;
-                let tucked = [
-                    p.root[0] - fwd[0] * 0.22 + left[0] * sgn * 0.1,
-                    base_y.max(p.feet[1 - free][1] + 0.25),
-                    p.root[2] - fwd[2] * 0.22 + left[2] * sgn * 0.1,
-                ];
-                p.feet[free] = body::lerp3(p.feet[free], tucked, w);
-                p.toe[free] = 0.6 * w;
-                p.lean = -sgn * 0.08 * w;
+                tuck(&mut p, free, w, (fwd, left));
             }
             p
         })
         .collect()
 }
 
-pub(super) fn jump_in_place(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+/// The `free` foot of a hop tucked up behind the body, by `w` (0: where it was), with the
+/// body leaning over the standing leg; `axes` the facing's forward and left.
+fn tuck(p: &mut Pose, free: usize, w: f64, (fwd, left): ([f64; 3], [f64; 3])) {
+    let sgn = if free == 0 { 1.0 } else { -1.0 };
+    let base_y = p.root[1] - body::standing_height() + body::ANKLE_HEIGHT + 0.3;
+    let tucked = [
+        p.root[0] - fwd[0] * 0.22 + left[0] * sgn * 0.1,
+        base_y.max(p.feet[1 - free][1] + 0.25),
+        p.root[2] - fwd[2] * 0.22 + left[2] * sgn * 0.1,
+    ];
+    p.feet[free] = body::lerp3(p.feet[free], tucked, w);
+    p.toe[free] = 0.6 * w;
+    p.lean = -sgn * 0.08 * w;
+}
+
+pub(super) fn jump_in_place(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let reps = 1 + r.below(3);
     let h = r.range(0.12, 0.32);
-    Segment {
+    Performance {
         poses: jumps(s, n, reps, h, 0.0, None),
         params: json!({"reps": reps, "height": h}),
         side: None,
     }
 }
 
-pub(super) fn jump_forward(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn jump_forward(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let reps = 1 + r.below(2);
     let h = r.range(0.15, 0.3);
     let d = r.range(0.4, 0.9);
-    Segment {
+    Performance {
         poses: jumps(s, n, reps, h, d, None),
         params: json!({"reps": reps, "height": h, "distance": d}),
         side: None,
     }
 }
 
-pub(super) fn hop(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn hop(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let free = r.below(2);
     let reps = 2 + r.below(4);
     let h = r.range(0.06, 0.14);
     let d = r.range(0.0, 0.25);
     // Hops on the other leg: "hops on the {side} leg" names the stance leg.
-    Segment {
+    Performance {
         poses: jumps(s, n, reps, h, d, Some(free)),
         params: json!({"reps": reps, "height": h, "distance": d, "leg": side_word(1 - free)}),
         side: Some(side_word(1 - free)),
     }
 }
 
-pub(super) fn sit(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn sit(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let depth = r.range(0.38, 0.5);
     let hold = r.range(0.15, 0.45);
     let (fwd, _) = body::axes(s.yaw);
@@ -304,14 +310,14 @@ pub(super) fn sit(r: &mut Rng, s: &Pose, n: usize) -> Segment {
         (a + hold + a * 0.5, lean),
         (1.0, *s),
     ];
-    Segment {
+    Performance {
         poses: keyed(n, &keys),
         params: json!({"depth": depth, "hold_fraction": hold}),
         side: None,
     }
 }
 
-pub(super) fn kneel(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn kneel(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let side = r.below(2);
     let hold = r.range(0.2, 0.5);
     let (fwd, _) = body::axes(s.yaw);
@@ -333,14 +339,14 @@ pub(super) fn kneel(r: &mut Rng, s: &Pose, n: usize) -> Segment {
     let a = (1.0 - hold) / 2.0;
     let keys =
         [(0.0, *s), (a * 0.5, mid), (a, k), (a + hold, k), (a + hold + a * 0.5, mid), (1.0, *s)];
-    Segment {
+    Performance {
         poses: keyed(n, &keys),
         params: json!({"knee": side_word(side), "hold_fraction": hold}),
         side: Some(side_word(side)),
     }
 }
 
-pub(super) fn kick(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn kick(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let side = r.below(2);
     let reps = 1 + r.below(2);
     let height = r.range(0.35, 0.85);
@@ -359,14 +365,14 @@ pub(super) fn kick(r: &mut Rng, s: &Pose, n: usize) -> Segment {
             p
         })
         .collect();
-    Segment {
+    Performance {
         poses,
         params: json!({"leg": side_word(side), "reps": reps, "height": height}),
         side: Some(side_word(side)),
     }
 }
 
-pub(super) fn pick_up(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn pick_up(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let side = r.below(2);
     let bend = r.range(1.0, 1.4);
     let hold = r.range(0.1, 0.3);
@@ -382,14 +388,14 @@ pub(super) fn pick_up(r: &mut Rng, s: &Pose, n: usize) -> Segment {
     up.arms[side] = Arm { flex: 0.7, abd: 0.1, elbow: 1.4 };
     let a = (1.0 - hold) / 2.0;
     let keys = [(0.0, *s), (a, down), (a + hold, down), (1.0, up)];
-    Segment {
+    Performance {
         poses: keyed(n, &keys),
         params: json!({"hand": side_word(side), "bend": bend, "hold_fraction": hold}),
         side: Some(side_word(side)),
     }
 }
 
-pub(super) fn stretch(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn stretch(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let sideways = r.chance(0.5);
     let lean = r.range(0.15, 0.35) * if r.chance(0.5) { 1.0 } else { -1.0 };
     let mut up = *s;
@@ -404,7 +410,7 @@ pub(super) fn stretch(r: &mut Rng, s: &Pose, n: usize) -> Segment {
         side.pitch = -0.05;
     }
     let keys = [(0.0, *s), (0.3, up), (0.55, side), (0.75, up), (1.0, *s)];
-    Segment {
+    Performance {
         poses: keyed(n, &keys),
         params: json!({"variant": if sideways { "side_lean" } else { "arms_out" }, "lean": lean}),
         side: None,
@@ -412,7 +418,7 @@ pub(super) fn stretch(r: &mut Rng, s: &Pose, n: usize) -> Segment {
 }
 
 /// Standing still with a slight sway (the base under standing upper-body actions).
-pub fn idle(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub fn idle(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let amp = r.range(0.003, 0.012);
     let (_, left) = body::axes(s.yaw);
     let poses = (0..n)
@@ -424,7 +430,7 @@ pub fn idle(r: &mut Rng, s: &Pose, n: usize) -> Segment {
             p
         })
         .collect();
-    Segment { poses, params: json!({"sway": amp}), side: None }
+    Performance { poses, params: json!({"sway": amp}), side: None }
 }
 
 // ---- upper-body actions: they only set arms (the base supplies everything else) ----

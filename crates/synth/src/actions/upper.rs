@@ -17,7 +17,7 @@ pub(super) fn envelope(x: f64, edge: f64) -> f64 {
     smooth(x / edge) * smooth((1.0 - x) / edge)
 }
 
-pub(super) fn wave(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn wave(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let side = r.below(2);
     let hz = r.range(1.2, 2.5);
     let high = r.range(2.2, 2.9);
@@ -31,14 +31,14 @@ pub(super) fn wave(r: &mut Rng, s: &Pose, n: usize) -> Segment {
             e,
         );
     });
-    Segment {
+    Performance {
         poses,
         params: json!({"hand": side_word(side), "frequency_hz": hz, "height": high}),
         side: Some(side_word(side)),
     }
 }
 
-pub(super) fn raise_arm(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn raise_arm(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let side = r.below(2);
     let reps = 1 + r.below(2);
     let forward = r.chance(0.5);
@@ -52,14 +52,14 @@ pub(super) fn raise_arm(r: &mut Rng, s: &Pose, n: usize) -> Segment {
         let w = b[((x * (n - 1) as f64).round() as usize).min(n - 1)];
         p.arms[side] = Arm::lerp(p.arms[side], target, w);
     });
-    Segment {
+    Performance {
         poses,
         params: json!({"arm": side_word(side), "reps": reps, "path": if forward { "front" } else { "side" }}),
         side: Some(side_word(side)),
     }
 }
 
-pub(super) fn raise_both(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn raise_both(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let reps = 1 + r.below(3);
     let height = r.range(2.0, 3.0);
     let b = bumps(n, reps, 0.1);
@@ -69,10 +69,10 @@ pub(super) fn raise_both(r: &mut Rng, s: &Pose, n: usize) -> Segment {
             p.arms[a] = Arm::lerp(p.arms[a], Arm { flex: height, abd: 0.15, elbow: 0.1 }, w);
         }
     });
-    Segment { poses, params: json!({"reps": reps, "height": height}), side: None }
+    Performance { poses, params: json!({"reps": reps, "height": height}), side: None }
 }
 
-pub(super) fn clap(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn clap(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let hz = r.range(1.5, 3.0);
     let height = r.range(1.0, 1.6);
     let secs = n as f64 / FPS;
@@ -84,10 +84,10 @@ pub(super) fn clap(r: &mut Rng, s: &Pose, n: usize) -> Segment {
                 Arm::lerp(p.arms[a], Arm { flex: height, abd: -0.45 + 0.55 * open, elbow: 0.9 }, e);
         }
     });
-    Segment { poses, params: json!({"frequency_hz": hz, "height": height}), side: None }
+    Performance { poses, params: json!({"frequency_hz": hz, "height": height}), side: None }
 }
 
-pub(super) fn punch(r: &mut Rng, s: &Pose, n: usize) -> Segment {
+pub(super) fn punch(r: &mut Rng, s: &Pose, n: usize) -> Performance {
     let side = r.below(2);
     let reps = 1 + r.below(4);
     let alternate = r.chance(0.4);
@@ -105,7 +105,7 @@ pub(super) fn punch(r: &mut Rng, s: &Pose, n: usize) -> Segment {
         p.arms[arm] = Arm::lerp(p.arms[arm], hit, w * e);
         p.twist = 0.25 * w * e * if arm == 0 { -1.0 } else { 1.0 };
     });
-    Segment {
+    Performance {
         poses,
         params: json!({"hand": side_word(side), "reps": reps, "alternate": alternate}),
         side: Some(side_word(side)),

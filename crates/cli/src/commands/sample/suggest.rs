@@ -68,18 +68,14 @@ pub fn run(a: KeyframesArgs) -> Result<()> {
     }
 }
 
-fn suggest(a: SuggestArgs) -> Result<()> {
-    let strategy: Strategy = a
-        .strategy
-        .parse()
-        .map_err(|e: diffkfc_data::UnknownChoice| anyhow::anyhow!("--strategy: {e}"))?;
-    let d = T2M.feature_dim();
-    let (feats, source) = match (&a.from, &a.checkpoint, &a.text) {
+/// The motion to key and its description: the --from file's, or one generated from --text by
+/// --checkpoint with the sampler's own flags and defaults, as `sample` would take them.
+fn source_motion(a: &SuggestArgs) -> Result<(Vec<f32>, String)> {
+    Ok(match (&a.from, &a.checkpoint, &a.text) {
         (Some(p), _, _) => {
             (load_motion_features(p, &T2M, &a.bvh.options()?)?, p.display().to_string())
         }
         (None, Some(ck), Some(text)) => {
-            // The sampler's own flags and defaults, as `sample` would take them.
             let argv = [
                 "sample",
                 "--checkpoint",
@@ -103,7 +99,16 @@ fn suggest(a: SuggestArgs) -> Result<()> {
             )
         }
         _ => bail!("keyframes suggest: needs --checkpoint and --text, or --from"),
-    };
+    })
+}
+
+fn suggest(a: SuggestArgs) -> Result<()> {
+    let strategy: Strategy = a
+        .strategy
+        .parse()
+        .map_err(|e: diffkfc_data::UnknownChoice| anyhow::anyhow!("--strategy: {e}"))?;
+    let d = T2M.feature_dim();
+    let (feats, source) = source_motion(&a)?;
     let n = feats.len() / d;
     let rate = match (a.count, a.rate) {
         (_, Some(r)) if !(r > 0.0 && r <= 1.0) => bail!("--rate: {r} must be in (0, 1]"),

@@ -62,7 +62,7 @@ fn gather(x: &[f32], rows: &[usize], width: usize) -> Vec<f32> {
     out
 }
 
-/// The rows a block runs on (`attention::Rows`): those `mask` marks, or all `mask.len()` of them
+/// The rows a block runs on (`attention::TokenRows`): those `mask` marks, or all `mask.len()` of them
 /// when gathering would cost more than it saves.
 fn rows_of(mask: &[bool]) -> Vec<usize> {
     let picked: Vec<usize> = (0..mask.len()).filter(|&i| mask[i]).collect();
