@@ -343,11 +343,7 @@ fn model_cases(
     let common =
         json!({"config": a.config, "frames": n, "device": a.device, "threads": rayon_threads()});
     let mut ours = BTreeMap::new();
-    // Each case's line, with the device's memory after it.
-    let out = |case: &str, t, gflop, mut extra: Value| {
-        extra["device_memory"] = memory(device);
-        emit(line(case, t, gflop, extra));
-    };
+    let out = |case: &str, t, gflop, extra: Value| emit_case(device, case, t, gflop, extra);
     if cases.contains(&"train") {
         ours.insert("train_step", train_case(a, cfg, runs, device, &common));
     }
@@ -413,9 +409,15 @@ fn train_case(
     let [f, bw, up] = w.phases.map(|s| s * 1e3);
     let extra = json!({"batch": a.batch, "last_step_phases_ms": {"forward": f, "backward": bw, "host_update": up},
         "adjacent_peaks_gflops": peaks, "fraction_of_adjacent_peak": cpu.then(|| median(&paired)),
-        "common": common, "device_memory": memory(device)});
-    emit(line("train_step", t, gflop, extra));
+        "common": common});
+    emit_case(device, "train_step", t, gflop, extra);
     ms
+}
+
+/// A model case's line, with the device's memory after it.
+fn emit_case(device: &Device, case: &str, t: Timing, gflop: f64, mut extra: Value) {
+    extra["device_memory"] = memory(device);
+    emit(line(case, t, gflop, extra));
 }
 
 /// The `sample` case: the quick start's keyed sample, generated `runs` times after a warm-up

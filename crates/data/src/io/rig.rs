@@ -28,7 +28,7 @@ const CM: f64 = 100.0;
 
 /// Names and T-pose bone directions of a skeleton's rig.
 pub(crate) struct Rig {
-    pub(crate) names: Vec<&'static str>,
+    names: Vec<&'static str>,
     tpose: Vec<Vec3>,
 }
 
