@@ -15,7 +15,7 @@ fn clip(root: &Path, id: &str, data: &[f32], frames: usize, caption: &str) {
     std::fs::write(root.join(format!("texts/{id}.txt")), caption).unwrap();
 }
 
-fn base(name: &str) -> Option<(std::path::PathBuf, Vec<f32>)> {
+fn base(name: &str) -> Option<(Scratch, Vec<f32>)> {
     let feats =
         npy::read_f32(fixtures::require("humanml3d/new_joint_vecs/012314.npy")?).unwrap().data;
     let d = scratch(name);

@@ -12,7 +12,7 @@ const CFG: &str = r#"{"model": {"preset": "tiny", "dec_layers": 1, "dma_sizes": 
   "training": {"batch_size": 4, "max_steps": 6, "checkpoint_every": 2, "keep_checkpoints": 2,
                "val_every": 3, "val_batches": 1, "log_every": 1}}"#;
 
-fn setup(name: &str) -> (std::path::PathBuf, std::path::PathBuf) {
+fn setup(name: &str) -> (Scratch, std::path::PathBuf) {
     let d = scratch(name);
     let data = d.join("synth");
     assert!(diffkfc(&["data", "synth", "--out", s(&data), "--clips", "20", "--seed", "9"])

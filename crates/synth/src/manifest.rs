@@ -59,8 +59,8 @@ mod tests {
 
     #[test]
     fn queries_select_by_split_actions_pattern_and_length() {
-        let d = std::env::temp_dir().join(format!("diffkfc-manifest-{}", std::process::id()));
-        std::fs::create_dir_all(&d).unwrap();
+        let tmp = tempfile::tempdir().unwrap();
+        let d = tmp.path();
         let clip = |id: &str, split: &str, acts: &[&str], pattern: &str, frames: usize| {
             serde_json::json!({"id": id, "split": split, "pattern": pattern, "frames": frames,
                 "actions": acts.iter().map(|a| serde_json::json!({"action": a})).collect::<Vec<_>>()})

@@ -152,13 +152,6 @@ mod tests {
         n.starts_with("sample_") || n == "results.json"
     }
 
-    fn scratch(name: &str) -> PathBuf {
-        let d = std::env::temp_dir().join(format!("diffkfc-set-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&d);
-        std::fs::create_dir_all(&d).unwrap();
-        d.join("out")
-    }
-
     fn write(set: &OutputSet, files: &[&str]) {
         for f in files {
             std::fs::write(set.path().join(f), f).unwrap();
@@ -167,7 +160,8 @@ mod tests {
 
     #[test]
     fn a_set_replaces_the_previous_one_whole_and_keeps_user_files() {
-        let out = scratch("swap");
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path().join("out");
         let set = OutputSet::begin(&out, MARK, ours, false, "--out").unwrap();
         write(&set, &["sample_00.npy", "sample_01.npy", "results.json"]);
         assert_eq!(set.commit().unwrap(), Committed::Created);
@@ -188,7 +182,8 @@ mod tests {
 
     #[test]
     fn a_failed_run_leaves_the_previous_set_and_no_partial() {
-        let out = scratch("fail");
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path().join("out");
         let set = OutputSet::begin(&out, MARK, ours, false, "--out").unwrap();
         write(&set, &["sample_00.npy"]);
         set.commit().unwrap();
@@ -207,14 +202,16 @@ mod tests {
 
     #[test]
     fn a_folder_that_is_not_ours_is_refused_or_merged_into() {
-        let out = scratch("foreign");
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path().join("out");
         std::fs::create_dir_all(&out).unwrap();
         std::fs::write(out.join("thesis.tex"), "mine").unwrap();
         std::fs::write(out.join("sample_05.npy"), "mine too").unwrap();
         let e = OutputSet::begin(&out, MARK, ours, false, "--out").err().unwrap().to_string();
         assert!(e.contains("thesis.tex") && e.contains("--force"), "{e}");
         // Files that look like ours in an unmarked folder are the user's too.
-        let only = scratch("lookalike");
+        let tmp = tempfile::tempdir().unwrap();
+        let only = tmp.path().join("out");
         std::fs::create_dir_all(&only).unwrap();
         std::fs::write(only.join("sample_05.npy"), "mine").unwrap();
         assert!(OutputSet::begin(&only, MARK, ours, false, "--out").is_err());

@@ -165,16 +165,10 @@ pub fn refuse_other_kind(
 mod tests {
     use super::*;
 
-    fn scratch(name: &str) -> std::path::PathBuf {
-        let d = std::env::temp_dir().join(format!("diffkfc-own-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&d);
-        std::fs::create_dir_all(&d).unwrap();
-        d
-    }
-
     #[test]
     fn new_empty_and_own_folders_are_written() {
-        let d = scratch("own");
+        let tmp = tempfile::tempdir().unwrap();
+        let d = tmp.path();
         assert!(check(&d.join("new"), Output::Report, false, "--out").unwrap());
         assert!(check(&d, Output::Report, false, "--out").unwrap());
         Output::Report.mark(&d).unwrap();
@@ -185,7 +179,8 @@ mod tests {
 
     #[test]
     fn another_kind_is_refused_unless_forced() {
-        let d = scratch("other");
+        let tmp = tempfile::tempdir().unwrap();
+        let d = tmp.path();
         Output::Run.mark(&d).unwrap();
         std::fs::write(d.join("ckpt-00000010.safetensors"), "x").unwrap();
         let e = check(&d, Output::Evaluator, false, "--out").unwrap_err().to_string();
@@ -199,7 +194,8 @@ mod tests {
 
     #[test]
     fn a_model_is_never_written_by_another_command() {
-        let d = scratch("model");
+        let tmp = tempfile::tempdir().unwrap();
+        let d = tmp.path();
         std::fs::write(d.join("model.safetensors"), "x").unwrap();
         std::fs::write(d.join("config.json"), "{}").unwrap();
         assert_eq!(found(&d), Some(Output::Model));
@@ -216,7 +212,8 @@ mod tests {
 
     #[test]
     fn foreign_files_are_refused_unless_forced() {
-        let d = scratch("foreign");
+        let tmp = tempfile::tempdir().unwrap();
+        let d = tmp.path();
         std::fs::write(d.join("notes.txt"), "mine").unwrap();
         let e = check(&d, Output::Samples, false, "--out").unwrap_err().to_string();
         assert!(e.contains("holds files diffkfc did not write (notes.txt)"), "{e}");
@@ -229,7 +226,8 @@ mod tests {
 
     #[test]
     fn folders_from_before_the_markers_are_recognised() {
-        let d = scratch("legacy");
+        let tmp = tempfile::tempdir().unwrap();
+        let d = tmp.path();
         for n in ["Mean.npy", "Std.npy", "ckpt-00000800.safetensors", "report.json"] {
             std::fs::write(d.join(n), "x").unwrap();
         }

@@ -124,15 +124,10 @@ fn check_claim(dir: &Path, claim: Claim) -> Result<()> {
 mod tests {
     use super::*;
 
-    fn scratch(name: &str) -> PathBuf {
-        let d = std::env::temp_dir().join(format!("diffkfc-lock-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&d);
-        d
-    }
-
     #[test]
     fn a_run_is_held_by_one_training_at_a_time() {
-        let d = scratch("held");
+        let tmp = tempfile::tempdir().unwrap();
+        let d = tmp.path().join("held");
         let first = RunLock::claim(&d, Claim::New { force: false }).unwrap();
         assert!(d.join(MARKER).exists());
         let second = RunLock::claim(&d, Claim::New { force: false }).unwrap_err().to_string();
@@ -145,21 +140,22 @@ mod tests {
 
     #[test]
     fn foreign_files_models_and_missing_runs_are_refused() {
-        let d = scratch("foreign");
+        let tmp = tempfile::tempdir().unwrap();
+        let d = tmp.path().join("foreign");
         std::fs::create_dir_all(&d).unwrap();
         std::fs::write(d.join("config.json"), "mine").unwrap();
         let e = RunLock::claim(&d, Claim::New { force: false }).unwrap_err().to_string();
         assert!(e.contains("not a diffkfc run") && e.contains("config.json"), "{e}");
         assert_eq!(std::fs::read_to_string(d.join("config.json")).unwrap(), "mine");
         RunLock::claim(&d, Claim::New { force: true }).unwrap();
-        let m = scratch("model");
+        let m = tmp.path().join("model");
         std::fs::create_dir_all(&m).unwrap();
         std::fs::write(m.join(MODEL_WEIGHTS), "w").unwrap();
         for claim in [Claim::New { force: true }, Claim::Resume] {
             let e = RunLock::claim(&m, claim).unwrap_err().to_string();
             assert!(e.contains("exported model"), "{e}");
         }
-        let e = RunLock::claim(&scratch("none"), Claim::Resume).unwrap_err().to_string();
+        let e = RunLock::claim(&tmp.path().join("none"), Claim::Resume).unwrap_err().to_string();
         assert!(e.contains("--resume") && e.contains("does not exist"), "{e}");
     }
 }
