@@ -76,7 +76,7 @@ mod tests {
         let q = |f: &dyn Fn(&mut ClipQuery)| {
             let mut q = ClipQuery { split: Some("test".into()), ..Default::default() };
             f(&mut q);
-            find_clips(&d, &q).unwrap()
+            find_clips(d, &q).unwrap()
         };
         assert_eq!(q(&|q| q.actions = vec!["walk_forward".into()]), ["b", "c", "d"]);
         assert_eq!(q(&|q| q.actions = vec!["walk_forward".into(), "wave".into()]), ["b"]);

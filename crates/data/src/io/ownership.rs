@@ -170,26 +170,26 @@ mod tests {
         let tmp = tempfile::tempdir().unwrap();
         let d = tmp.path();
         assert!(check(&d.join("new"), Output::Report, false, "--out").unwrap());
-        assert!(check(&d, Output::Report, false, "--out").unwrap());
-        Output::Report.mark(&d).unwrap();
+        assert!(check(d, Output::Report, false, "--out").unwrap());
+        Output::Report.mark(d).unwrap();
         std::fs::write(d.join("report.json"), "{}").unwrap();
-        assert!(check(&d, Output::Report, false, "--out").unwrap());
-        assert_eq!(found(&d), Some(Output::Report));
+        assert!(check(d, Output::Report, false, "--out").unwrap());
+        assert_eq!(found(d), Some(Output::Report));
     }
 
     #[test]
     fn another_kind_is_refused_unless_forced() {
         let tmp = tempfile::tempdir().unwrap();
         let d = tmp.path();
-        Output::Run.mark(&d).unwrap();
+        Output::Run.mark(d).unwrap();
         std::fs::write(d.join("ckpt-00000010.safetensors"), "x").unwrap();
-        let e = check(&d, Output::Evaluator, false, "--out").unwrap_err().to_string();
+        let e = check(d, Output::Evaluator, false, "--out").unwrap_err().to_string();
         assert!(
             e.contains("holds a training run (diffkfc train), not a text-motion evaluator"),
             "{e}"
         );
         assert!(!e.contains('\n'));
-        assert!(!check(&d, Output::Evaluator, true, "--out").unwrap());
+        assert!(!check(d, Output::Evaluator, true, "--out").unwrap());
     }
 
     #[test]
@@ -198,16 +198,16 @@ mod tests {
         let d = tmp.path();
         std::fs::write(d.join("model.safetensors"), "x").unwrap();
         std::fs::write(d.join("config.json"), "{}").unwrap();
-        assert_eq!(found(&d), Some(Output::Model));
+        assert_eq!(found(d), Some(Output::Model));
         for kind in
             [Output::Run, Output::Evaluator, Output::Report, Output::Samples, Output::Dataset]
         {
             for force in [false, true] {
-                let e = check(&d, kind, force, "--out").unwrap_err().to_string();
+                let e = check(d, kind, force, "--out").unwrap_err().to_string();
                 assert!(e.contains("is an exported model"), "{kind:?} {force}: {e}");
             }
         }
-        assert!(check(&d, Output::Model, false, "--out").unwrap());
+        assert!(check(d, Output::Model, false, "--out").unwrap());
     }
 
     #[test]
@@ -215,9 +215,9 @@ mod tests {
         let tmp = tempfile::tempdir().unwrap();
         let d = tmp.path();
         std::fs::write(d.join("notes.txt"), "mine").unwrap();
-        let e = check(&d, Output::Samples, false, "--out").unwrap_err().to_string();
+        let e = check(d, Output::Samples, false, "--out").unwrap_err().to_string();
         assert!(e.contains("holds files diffkfc did not write (notes.txt)"), "{e}");
-        assert!(!check(&d, Output::Samples, true, "--out").unwrap());
+        assert!(!check(d, Output::Samples, true, "--out").unwrap());
         // A file where a folder should be.
         let f = d.join("notes.txt");
         let e = check(&f, Output::Samples, true, "--out").unwrap_err().to_string();
@@ -231,8 +231,8 @@ mod tests {
         for n in ["Mean.npy", "Std.npy", "ckpt-00000800.safetensors", "report.json"] {
             std::fs::write(d.join(n), "x").unwrap();
         }
-        assert_eq!(found(&d), Some(Output::Evaluator));
+        assert_eq!(found(d), Some(Output::Evaluator));
         std::fs::write(d.join("config.json"), "{}").unwrap();
-        assert_eq!(found(&d), Some(Output::Run));
+        assert_eq!(found(d), Some(Output::Run));
     }
 }
