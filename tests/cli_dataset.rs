@@ -56,6 +56,41 @@ fn clean_dataset_passes_with_statistics() {
     assert_eq!(v["length_histogram"][8][2], 2);
 }
 
+/// A frame far outside the distribution (a yaw-rate spike, as a fast synthetic spin's facing
+/// flip makes) is listed with its clip, frame and feature, and is not a problem.
+#[test]
+fn values_far_from_the_mean_are_listed() {
+    let Some((d, feats)) = base("check-outlier") else {
+        return;
+    };
+    let std = npy::read_f32(d.join("Std.npy")).unwrap().data;
+    let mean = npy::read_f32(d.join("Mean.npy")).unwrap().data;
+    let mut spiked = feats.clone();
+    spiked[40 * 263] = mean[0] + 120.0 * std[0];
+    clip(&d, "000001", &feats, 170, CAP);
+    clip(&d, "000002", &spiked, 170, CAP);
+    std::fs::write(d.join("train.txt"), "000001\n000002\n").unwrap();
+    std::fs::write(d.join("val.txt"), "000001\n").unwrap();
+    std::fs::write(d.join("test.txt"), "000001\n").unwrap();
+    let o = diffkfc(&["data", "check", s(&d)]);
+    assert!(o.status.success(), "{}{}", stdout(&o), stderr(&o));
+    let out = stdout(&o);
+    assert!(out.contains("OK: no problems found"), "{out}");
+    let line = out.lines().find(|l| l.contains("000002.npy")).unwrap_or_else(|| panic!("{out}"));
+    assert!(
+        line.contains("frame 40, feature 0 (root yaw rate") && line.contains(": 120 std"),
+        "{line}"
+    );
+    let o = diffkfc(&["data", "check", s(&d), "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    // The real clip's own largest value (24 std, a fast arm) is not listed.
+    assert_eq!(v["outliers"].as_array().unwrap().len(), 1, "{}", v["outliers"]);
+    assert_eq!(
+        (v["outliers"][0]["frame"].as_u64(), v["outliers"][0]["feature"].as_u64()),
+        (Some(40), Some(0))
+    );
+}
+
 #[test]
 fn every_problem_is_listed() {
     let Some((d, feats)) = base("check-broken") else {

@@ -19,6 +19,25 @@ pub struct Problem {
     pub problem: String,
 }
 
+/// Normalised values (|x - Mean| / Std) this large are listed: a frame with one dominates its
+/// batch's loss. A fast synthetic spin's facing direction flips for a frame (a yaw rate of
+/// 100-190 std, turning every later frame of the recovered body): one such clip in the
+/// reference set's validation split takes its validation loss from 0.12 to 1.57.
+pub const OUTLIER_STDS: f64 = 50.0;
+/// The largest outliers listed.
+const MAX_OUTLIERS: usize = 10;
+
+/// A feature value far outside the dataset's distribution.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct Outlier {
+    pub file: String,
+    pub frame: usize,
+    pub feature: usize,
+    pub group: &'static str,
+    /// |x - Mean| / Std.
+    pub stds: f64,
+}
+
 #[derive(Clone, Debug, Serialize, Default)]
 pub struct SplitStats {
     pub split: String,
@@ -38,6 +57,8 @@ pub struct CheckReport {
     pub skeleton: String,
     pub dim: usize,
     pub problems: Vec<Problem>,
+    /// The largest values at least [`OUTLIER_STDS`] from the mean, largest first; not problems.
+    pub outliers: Vec<Outlier>,
     pub splits: Vec<SplitStats>,
     pub distinct_words: usize,
     /// (first frame, last frame + 1, clips) in bins of 20 frames; the last bin is open.
@@ -54,6 +75,12 @@ impl CheckReport {
         let mut s = String::new();
         for p in &self.problems {
             s += &format!("{}: {}\n", p.file, p.problem);
+        }
+        for o in &self.outliers {
+            s += &format!(
+                "{}: frame {}, feature {} ({}): {:.0} std from the mean, a loss it dominates\n",
+                o.file, o.frame, o.feature, o.group, o.stds
+            );
         }
         s +=
             &format!("dataset {} ({} skeleton, {} features)\n", self.root, self.skeleton, self.dim);
@@ -93,6 +120,7 @@ fn unreadable(root: &Path, e: DataError) -> CheckReport {
         skeleton: "unknown".into(),
         dim: 0,
         problems: vec![Problem { file: root.display().to_string(), problem: e.to_string() }],
+        outliers: vec![],
         splits: vec![],
         distinct_words: 0,
         length_histogram: vec![],
@@ -111,6 +139,7 @@ pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport
     };
     let dim = ds.dim();
     let mut problems = Vec::new();
+    let mut outliers = Vec::new();
     let splits = read_splits(&ds, root, &mut problems);
     let mut report = |file: &Path, problem: String| {
         problems.push(Problem { file: file.display().to_string(), problem })
@@ -128,7 +157,7 @@ pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport
             progress(done, total);
             done += 1;
             let entry = seen.entry(id.clone()).or_insert_with(|| {
-                let frames = check_motion(&ds, &ds.motion_path(id), &mut report);
+                let frames = check_motion(&ds, &ds.motion_path(id), &mut report, &mut outliers);
                 let caps = check_text(&ds.text_path(id), &mut report);
                 if let Some(f) = frames {
                     hist[(f / 20).min(10)] += 1;
@@ -148,6 +177,8 @@ pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport
         stats.push(st);
     }
     progress(total, total);
+    outliers.sort_by(|a: &Outlier, b| b.stds.total_cmp(&a.stds));
+    outliers.truncate(MAX_OUTLIERS);
     let length_histogram = hist
         .iter()
         .enumerate()
@@ -158,6 +189,7 @@ pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport
         skeleton: ds.skeleton.name.to_string(),
         dim,
         problems,
+        outliers,
         splits: stats,
         distinct_words: words.len(),
         length_histogram,
@@ -198,6 +230,7 @@ fn check_motion(
     ds: &Dataset,
     path: &Path,
     report: &mut impl FnMut(&Path, String),
+    outliers: &mut Vec<Outlier>,
 ) -> Option<usize> {
     let dim = ds.dim();
     let a = match npy::read_f32(path) {
@@ -224,7 +257,26 @@ fn check_motion(
         report(path, m.to_string());
         ok = false;
     }
+    if ok {
+        outliers.extend(largest_deviation(ds, path, &a.data));
+    }
     ok.then_some(a.shape[0])
+}
+
+/// The value of `data` (T, D) farthest from the dataset's mean, in its standard deviations,
+/// if at least [`OUTLIER_STDS`].
+fn largest_deviation(ds: &Dataset, path: &Path, data: &[f32]) -> Option<Outlier> {
+    let d = ds.dim();
+    let stds = |(i, &x): (usize, &f32)| (i, ((x - ds.mean[i % d]) / ds.std[i % d]).abs() as f64);
+    let (i, z) = data.iter().enumerate().map(stds).max_by(|a, b| a.1.total_cmp(&b.1))?;
+    let layout = crate::motion::representation::Layout::of(ds.skeleton);
+    (z >= OUTLIER_STDS).then(|| Outlier {
+        file: path.display().to_string(),
+        frame: i / d,
+        feature: i % d,
+        group: crate::motion::magnitude::feature_group(&layout, i % d),
+        stds: z,
+    })
 }
 
 fn check_text(path: &Path, report: &mut impl FnMut(&Path, String)) -> Option<Vec<texts::Caption>> {

@@ -97,6 +97,18 @@ fn check_leg(skel: &Skeleton, j: &Joints) -> Result<(), MagnitudeError> {
     Err(MagnitudeError::Leg { metres: leg, unit })
 }
 
+/// What feature `c` of `layout` is, in the words of error messages and reports.
+pub fn feature_group(layout: &Layout, c: usize) -> &'static str {
+    match c {
+        0 => "root yaw rate (rad per frame)",
+        1 | 2 => "root velocity (per frame)",
+        3 => "root height",
+        c if layout.ric().contains(&c) => "root-relative joint position",
+        c if layout.vel().contains(&c) => "joint velocity",
+        _ => "rotation or contact value",
+    }
+}
+
 /// Feature rows (T, D) within the physical limits above; the error names the frame, the
 /// feature and its group.
 pub fn check_features(skel: &Skeleton, data: &[f32]) -> Result<(), MagnitudeError> {
@@ -104,14 +116,14 @@ pub fn check_features(skel: &Skeleton, data: &[f32]) -> Result<(), MagnitudeErro
     let d = layout.dim();
     let mpu = skel.metres_per_unit;
     let limit = |c: usize| -> (f64, &'static str) {
-        match c {
-            0 => (MAX_YAW_RATE, "root yaw rate (rad per frame)"),
-            1 | 2 => (MAX_ROOT_STEP_M / mpu, "root velocity (per frame)"),
-            3 => (MAX_HEIGHT_M / mpu, "root height"),
-            c if layout.ric().contains(&c) => (MAX_OTHER / mpu, "root-relative joint position"),
-            c if layout.vel().contains(&c) => (MAX_OTHER / mpu, "joint velocity"),
-            _ => (MAX_OTHER, "rotation or contact value"),
-        }
+        let max = match c {
+            0 => MAX_YAW_RATE,
+            1 | 2 => MAX_ROOT_STEP_M / mpu,
+            3 => MAX_HEIGHT_M / mpu,
+            c if layout.ric().contains(&c) || layout.vel().contains(&c) => MAX_OTHER / mpu,
+            _ => MAX_OTHER,
+        };
+        (max, feature_group(&layout, c))
     };
     for (i, &v) in data.iter().enumerate() {
         let (max, what) = limit(i % d);
