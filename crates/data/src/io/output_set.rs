@@ -210,8 +210,7 @@ mod tests {
         let e = OutputSet::begin(&out, MARK, ours, false, "--out").err().unwrap().to_string();
         assert!(e.contains("thesis.tex") && e.contains("--force"), "{e}");
         // Files that look like ours in an unmarked folder are the user's too.
-        let tmp = tempfile::tempdir().unwrap();
-        let only = tmp.path().join("out");
+        let only = tmp.path().join("lookalike");
         std::fs::create_dir_all(&only).unwrap();
         std::fs::write(only.join("sample_05.npy"), "mine").unwrap();
         assert!(OutputSet::begin(&only, MARK, ours, false, "--out").is_err());

@@ -60,6 +60,11 @@ fn stored_names(
     Ok(v)
 }
 
+/// Little-endian f32 bytes (a safetensors F32 tensor's data) as values.
+pub(crate) fn f32s(bytes: &[u8]) -> Vec<f32> {
+    bytes.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+}
+
 /// Shape and values (as f32) of tensor `name`, stored as F32 or F16; errors name `path`.
 fn tensor_values(
     st: &safetensors::SafeTensors,
@@ -69,9 +74,7 @@ fn tensor_values(
     let t =
         st.tensor(name).map_err(|_| ModelError::file(path, format!("tensor {name} missing")))?;
     let values = match t.dtype() {
-        Dtype::F32 => {
-            t.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
-        }
+        Dtype::F32 => f32s(t.data()),
         Dtype::F16 => t
             .data()
             .chunks_exact(2)

@@ -56,12 +56,7 @@ impl Weights<'_> {
         if t.dtype() != safetensors::Dtype::F32 {
             return Err(bad(format!("tensor '{name}' is {:?}, expected F32", t.dtype())));
         }
-        let data = t
-            .data()
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect();
-        Ok((data, t.shape().to_vec()))
+        Ok((crate::run::checkpoint::f32s(t.data()), t.shape().to_vec()))
     }
 
     fn tensor<const D: usize>(&self, name: &str) -> Result<Tensor<D>, TextError> {

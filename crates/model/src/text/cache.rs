@@ -108,12 +108,7 @@ fn read_cached(
     if meta.metadata().as_ref().and_then(|m| m.get("encoder")).is_some_and(|e| e == name) {
         let st = safetensors::SafeTensors::deserialize(&bytes)?;
         for (caption, t) in st.tensors() {
-            let v: Vec<f32> = t
-                .data()
-                .chunks_exact(4)
-                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                .collect();
-            map.insert(caption, v);
+            map.insert(caption, crate::run::checkpoint::f32s(t.data()));
         }
     }
     Ok(map)
