@@ -15,6 +15,19 @@ pub enum Mask {
     Full(Arc<Vec<bool>>),
 }
 
+impl Mask {
+    /// The mask of samples `samples` alone, for queries of `lq` rows and keys of `lk`.
+    pub fn of_samples(&self, samples: std::ops::Range<usize>, lq: usize, lk: usize) -> Mask {
+        let cut =
+            |m: &[bool], per: usize| Arc::new(m[samples.start * per..samples.end * per].to_vec());
+        match self {
+            Mask::None => Mask::None,
+            Mask::Keys(m) => Mask::Keys(cut(m, lk)),
+            Mask::Full(m) => Mask::Full(cut(m, lq * lk)),
+        }
+    }
+}
+
 /// Shapes of one attention call: queries [B, Lq, d], keys and values [B, Lk, d], d = heads x dh;
 /// head h owns channels h*dh .. (h+1)*dh of every row.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -401,14 +401,52 @@ pub fn layer_norm_forward(x: &[f32], gamma: &[f32], beta: &[f32], eps: f32) -> V
     .0
 }
 
+/// Rows whose LayerNorm sums run side by side. Each row's sums still add its elements one after
+/// another (the bits of [`moments`]), but one row's chain of dependent additions left the
+/// adders idle; eight chains fill them.
+const LN_LANES: usize = 8;
+
+/// [`moments`] of the K rows of `x` ([K, d]) at once.
+#[inline(always)]
+#[allow(clippy::needless_range_loop)] // column j of every row: the rows' chains interleave
+fn moments_of<const K: usize>(x: &[f32], d: usize, eps: f32) -> [(f32, f32); K] {
+    let rows: [&[f32]; K] = std::array::from_fn(|r| &x[r * d..(r + 1) * d]);
+    let n = d as f32;
+    // -0.0: where `Iterator::sum` starts.
+    let mut sum = [-0.0f32; K];
+    for j in 0..d {
+        for r in 0..K {
+            sum[r] += rows[r][j];
+        }
+    }
+    let mean = sum.map(|s| s / n);
+    let mut var = [-0.0f32; K];
+    for j in 0..d {
+        for r in 0..K {
+            let t = rows[r][j] - mean[r];
+            var[r] += t * t;
+        }
+    }
+    std::array::from_fn(|r| (mean[r], 1.0 / (var[r] / n + eps).sqrt()))
+}
+
 #[inline(always)]
 fn ln_rows(yc: &mut [f32], xc: &[f32], gamma: &[f32], beta: &[f32], eps: f32) {
     let d = gamma.len();
-    for (yr, xr) in yc.chunks_mut(d).zip(xc.chunks(d)) {
-        let (mean, rstd) = moments(xr, eps);
+    let norm = |yr: &mut [f32], xr: &[f32], (mean, rstd): (f32, f32)| {
         for j in 0..d {
             yr[j] = (xr[j] - mean) * rstd * gamma[j] + beta[j];
         }
+    };
+    let whole = xc.len() / (d * LN_LANES) * (d * LN_LANES);
+    for (yb, xb) in yc[..whole].chunks_mut(d * LN_LANES).zip(xc[..whole].chunks(d * LN_LANES)) {
+        let m = moments_of::<LN_LANES>(xb, d, eps);
+        for ((yr, xr), m) in yb.chunks_mut(d).zip(xb.chunks(d)).zip(m) {
+            norm(yr, xr, m);
+        }
+    }
+    for (yr, xr) in yc[whole..].chunks_mut(d).zip(xc[whole..].chunks(d)) {
+        norm(yr, xr, moments(xr, eps));
     }
 }
 
@@ -467,8 +505,15 @@ fn ln_grad_rows(
     let d = gamma.len();
     let (mut dg, mut db) = (vec![0f32; d], vec![0f32; d]);
     let mut g = vec![0f32; d];
-    for ((dxr, xr), gr) in dxc.chunks_mut(d).zip(xc.chunks(d)).zip(gc.chunks(d)) {
-        let (mean, rstd) = moments(xr, eps);
+    let rows = xc.len() / d;
+    let whole = rows / LN_LANES * LN_LANES;
+    let stats: Vec<(f32, f32)> = xc[..whole * d]
+        .chunks(d * LN_LANES)
+        .flat_map(|xb| moments_of::<LN_LANES>(xb, d, eps))
+        .chain(xc[whole * d..].chunks(d).map(|xr| moments(xr, eps)))
+        .collect();
+    let rows = dxc.chunks_mut(d).zip(xc.chunks(d)).zip(gc.chunks(d)).zip(stats);
+    for (((dxr, xr), gr), (mean, rstd)) in rows {
         let (mut sum_g, mut sum_gx) = (0f32, 0f32);
         for j in 0..d {
             let xhat = (xr[j] - mean) * rstd;

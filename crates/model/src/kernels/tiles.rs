@@ -238,17 +238,46 @@ mod avx512 {
         scale: f32,
         out: *mut f32,
     ) {
-        let sc = _mm512_set1_ps(scale);
-        for j0 in (0..n16).step_by(W) {
-            let mut acc = [_mm512_setzero_ps(); R];
-            for d in 0..P {
-                let b = _mm512_loadu_ps(bt.add(d * n16 + j0));
-                for (r, acc) in acc.iter_mut().enumerate() {
-                    *acc = _mm512_fmadd_ps(_mm512_set1_ps(*a.add(r * P + d)), b, *acc);
+        // Two chunks of keys at a time where there are two: R rows by one chunk are only R
+        // chains of dependent FMAs, too few to fill the FMA units. Each score still sums its
+        // channels in order, so the bits are those of one chunk at a time.
+        let pairs = n16 / (2 * W) * (2 * W);
+        for j0 in (0..pairs).step_by(2 * W) {
+            chunks::<P, 2>(a, bt, n16, j0, scale, out);
+        }
+        if pairs < n16 {
+            chunks::<P, 1>(a, bt, n16, pairs, scale, out);
+        }
+    }
+
+    /// `dots` on the C chunks of keys from column j0.
+    #[target_feature(enable = "avx512f")]
+    #[inline]
+    unsafe fn chunks<const P: usize, const C: usize>(
+        a: *const f32,
+        bt: *const f32,
+        n16: usize,
+        j0: usize,
+        scale: f32,
+        out: *mut f32,
+    ) {
+        let mut acc = [[_mm512_setzero_ps(); C]; R];
+        for d in 0..P {
+            let mut b = [_mm512_setzero_ps(); C];
+            for (c, b) in b.iter_mut().enumerate() {
+                *b = _mm512_loadu_ps(bt.add(d * n16 + j0 + c * W));
+            }
+            for (r, acc) in acc.iter_mut().enumerate() {
+                let x = _mm512_set1_ps(*a.add(r * P + d));
+                for c in 0..C {
+                    acc[c] = _mm512_fmadd_ps(x, b[c], acc[c]);
                 }
             }
-            for (r, acc) in acc.iter().enumerate() {
-                _mm512_storeu_ps(out.add(r * n16 + j0), _mm512_mul_ps(*acc, sc));
+        }
+        let sc = _mm512_set1_ps(scale);
+        for (r, acc) in acc.iter().enumerate() {
+            for (c, acc) in acc.iter().enumerate() {
+                _mm512_storeu_ps(out.add(r * n16 + j0 + c * W), _mm512_mul_ps(*acc, sc));
             }
         }
     }

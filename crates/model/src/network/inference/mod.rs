@@ -13,19 +13,18 @@
 
 mod encoder;
 mod par;
+mod pass;
 mod weights;
 
-use std::ops::Range;
-
 use burn::prelude::*;
+use rayon::prelude::*;
 
-use crate::kernels::rows::{gelu, residual_layer_norm};
-use crate::kernels::{attention_host, temporal_add_rows, AttnShape, ConvShape};
 use crate::network::condition::Condition;
 use crate::network::denoiser::{Denoiser, Encoded};
 use crate::network::sinusoidal::sinusoid_table;
 use encoder::Encoding;
 use par::{at, par_rows, RowsMut};
+use pass::{Buffers, Inputs, Pass, RunMasks};
 use weights::{HostLayer, HostLinear};
 
 /// Whether the host decoder serves sampling on `device`: flex without autodiff (where the
@@ -52,12 +51,6 @@ struct Workspace {
     out: Vec<f32>,
 }
 
-impl Workspace {
-    fn qkv(&mut self, d: usize) -> [RowsMut; 3] {
-        [RowsMut::of(&mut self.q, d), RowsMut::of(&mut self.k, d), RowsMut::of(&mut self.v, d)]
-    }
-}
-
 /// A sample's decoder on the host: the weights and one condition's encoding.
 pub struct DecoderPlan {
     /// The timestep MLP's two layers.
@@ -67,6 +60,8 @@ pub struct DecoderPlan {
     layers: Vec<HostLayer>,
     heads: usize,
     enc: Encoding,
+    /// The runs of samples the passes take, with their masks.
+    runs: Vec<RunMasks>,
     ws: Workspace,
 }
 
@@ -105,6 +100,7 @@ impl DecoderPlan {
             out,
             heads: model.layers.first().map_or(1, |l| l.self_attn.heads),
             layers,
+            runs: runs(&enc),
             enc,
             ws,
         }
@@ -124,10 +120,8 @@ impl DecoderPlan {
         // On a pool thread: each parallel region is then a cheap join, not a hand-over from a
         // thread outside the pool (a futex wake and wait each).
         rayon::scope(|_| {
-            self.input(x_t, &time);
-            for i in 0..self.layers.len() {
-                self.layer(i);
-            }
+            self.frames(x_t);
+            self.layers(&time);
         });
         &self.ws.out
     }
@@ -143,10 +137,9 @@ impl DecoderPlan {
         fc2.applied(&h)
     }
 
-    /// h = [y_t, text token, x_t W_in + b + positions (+ key observations)] per sample
-    /// (`time` [B, d]).
-    fn input(&mut self, x_t: &[f32], time: &[f32]) {
-        let (n, d, l) = (self.enc.n, self.enc.d, self.enc.n + 2);
+    /// x_t . W_in + b [b, N, d] into `frames`, once for the samples that share x_t.
+    fn frames(&mut self, x_t: &[f32]) {
+        let (n, d) = (self.enc.n, self.enc.d);
         let dim = self.x_in.w.len() / d;
         let xb = x_t.len() / (n * dim);
         assert!(
@@ -158,128 +151,49 @@ impl DecoderPlan {
         let x_in = &self.x_in;
         // SAFETY: each task writes its own rows.
         par_rows(xb * n, |r| x_in.apply(at(x_t, &r, dim), unsafe { frames.get(&r) }));
-        let qkv = self.ws.qkv(d);
-        let (h, fr) = (RowsMut::of(&mut self.ws.h, d), &self.ws.frames);
-        let e = &self.enc;
-        let (text, pos, key) = (&e.text_tok, &e.pos, e.key.as_deref());
-        let first = self.layers.first();
-        par_rows(e.batch * l, |r| {
-            // SAFETY: each task writes its own rows.
-            let out = unsafe { h.get(&r) };
-            for (row, o) in r.clone().zip(out.chunks_mut(d)) {
-                let (s, i) = (row / l, row % l);
-                match i {
-                    0 => o.copy_from_slice(&time[s * d..(s + 1) * d]),
-                    1 => o.copy_from_slice(&text[s * d..(s + 1) * d]),
-                    _ => {
-                        let f = i - 2;
-                        let src = &fr[((s % xb) * n + f) * d..((s % xb) * n + f + 1) * d];
-                        let p = &pos[f * d..(f + 1) * d];
-                        o.iter_mut().zip(src).zip(p).for_each(|((o, x), p)| *o = x + p);
-                        if let Some(k) = key {
-                            let k = &k[(s * n + f) * d..(s * n + f + 1) * d];
-                            o.iter_mut().zip(k).for_each(|(o, k)| *o += k);
-                        }
-                    }
-                }
-            }
-            if let Some(layer) = first {
-                layer.project(out, &r, qkv);
-            }
-        });
     }
 
-    /// The shape of an attention of the decoder's tokens to `lk` keys.
-    fn shape(&self) -> impl Fn(usize) -> AttnShape {
-        let (batch, lq, heads, d) = (self.enc.batch, self.enc.n + 2, self.heads, self.enc.d);
-        move |lk| AttnShape { batch, lq, lk, heads, d }
-    }
-
-    /// Decoder layer `i`: h -> h (`DecoderLayer::forward` without dropout).
-    fn layer(&mut self, i: usize) {
-        let (b, d, l) = (self.enc.batch, self.enc.d, self.enc.n + 2);
-        let rows = b * l;
-        let shape = self.shape();
-        let layer = &self.layers[i];
+    /// The layers over every sample: one pass per run of `self.runs`, on a thread each where
+    /// there are several, else one pass whose regions split over the threads.
+    fn layers(&mut self, time: &[f32]) {
+        let d = self.enc.d;
+        let (ffn, width) = (self.layers.first().map_or(d, |l| l.ff1.width()), self.out.width());
+        if self.runs.len() > 1 && self.runs.len() != rayon::current_num_threads() {
+            self.runs = runs(&self.enc);
+        }
         let ws = &mut self.ws;
-        // Self-attention's core over each whole sequence (its projections were the last
-        // region's).
-        let ctx = attention_host(&ws.q, &ws.k, &ws.v, &shape(l), &self.enc.self_pad);
-        // Its output, the temporal convolution, h2 = LN1(h + a), and the cross-attention's
-        // queries.
-        let conv = layer.temporal.as_ref().map(|(w, kernel)| {
-            let s = ConvShape { batch: b, rows: l, skip: 2, d, kernel: *kernel };
-            (w, s)
-        });
-        let (tmp, h2, q) =
-            (RowsMut::of(&mut ws.tmp, d), RowsMut::of(&mut ws.h2, d), RowsMut::of(&mut ws.q, d));
-        let (h, real) = (&ws.h, &self.enc.real);
-        par_rows(rows, |r| {
-            // SAFETY: each task writes its own rows of tmp, h2 and q; h is only read.
-            let (a, y, q) = unsafe { (tmp.get(&r), h2.get(&r), q.get(&r)) };
-            layer.self_out.apply(at(&ctx, &r, d), a);
-            if let Some((w, s)) = &conv {
-                temporal_add_rows(h, w, real, s, r.clone(), a);
-            }
-            residual_layer_norm(at(h, &r, d), a, &layer.ln[0].0, &layer.ln[0].1, y);
-            layer.cross_q.apply(y, q);
-        });
-        let cross = &self.enc.cross[i];
-        let ctx = attention_host(&ws.q, &cross.kv.0, &cross.kv.1, &shape(cross.lk), &cross.mask);
-        // Its output and h = LN2(h2 + c), then the words' queries.
-        let (tmp, h, q) =
-            (RowsMut::of(&mut ws.tmp, d), RowsMut::of(&mut ws.h, d), RowsMut::of(&mut ws.q, d));
-        let h2 = &ws.h2;
-        par_rows(rows, |r| {
-            // SAFETY: each task writes its own rows of tmp, h and q; h2 is only read.
-            let (a, y, q) = unsafe { (tmp.get(&r), h.get(&r), q.get(&r)) };
-            layer.cross_out.apply(at(&ctx, &r, d), a);
-            residual_layer_norm(at(h2, &r, d), a, &layer.ln[1].0, &layer.ln[1].1, y);
-            if let Some([wq, _]) = &layer.words {
-                wq.apply(y, q);
-            }
-        });
-        let words = layer.words.as_ref().and(self.enc.words.get(i));
-        let words = words.map(|m| attention_host(&ws.q, &m.kv.0, &m.kv.1, &shape(m.lk), &m.mask));
-        self.feed_forward(i, words);
+        let bufs = Buffers {
+            h: RowsMut::of(&mut ws.h, d),
+            h2: RowsMut::of(&mut ws.h2, d),
+            q: RowsMut::of(&mut ws.q, d),
+            k: RowsMut::of(&mut ws.k, d),
+            v: RowsMut::of(&mut ws.v, d),
+            tmp: RowsMut::of(&mut ws.tmp, d),
+            ff: RowsMut::of(&mut ws.ff, ffn),
+            out: RowsMut::of(&mut ws.out, width),
+        };
+        let inputs = Inputs {
+            layers: &self.layers,
+            out: &self.out,
+            heads: self.heads,
+            enc: &self.enc,
+            time,
+            frames: &ws.frames,
+        };
+        match self.runs.as_slice() {
+            [all] => Pass::new(&inputs, all, bufs, false).run(),
+            runs => runs.par_iter().for_each(|m| Pass::new(&inputs, m, bufs, true).run()),
+        }
     }
+}
 
-    /// The words' attention output added to h (a plain residual), then the feed-forward block:
-    /// h = LN3(h + W2 gelu(W1 h)), written back into h; then on the same rows the next layer's
-    /// projections, or after the last layer the output.
-    fn feed_forward(&mut self, i: usize, words: Option<Vec<f32>>) {
-        let (n, d) = (self.enc.n, self.enc.d);
-        let rows = self.enc.batch * (n + 2);
-        let layer = &self.layers[i];
-        let next = self.layers.get(i + 1);
-        let ws = &mut self.ws;
-        let (qkv, out) = (ws.qkv(d), RowsMut::of(&mut ws.out, self.out.width()));
-        let f = layer.ff1.width();
-        let (h, tmp, ff, y) = (
-            RowsMut::of(&mut ws.h, d),
-            RowsMut::of(&mut ws.tmp, d),
-            RowsMut::of(&mut ws.ff, f),
-            RowsMut::of(&mut ws.h2, d),
-        );
-        par_rows(rows, |r| {
-            // SAFETY: each task reads and writes only its own rows of every buffer.
-            let (h, a, ff, y) = unsafe { (h.get(&r), tmp.get(&r), ff.get(&r), y.get(&r)) };
-            if let (Some([_, wo]), Some(ctx)) = (&layer.words, &words) {
-                wo.apply(at(ctx, &r, d), a);
-                h.iter_mut().zip(a.iter()).for_each(|(h, a)| *h += a);
-            }
-            layer.ff1.apply(h, ff);
-            gelu(ff);
-            layer.ff2.apply(ff, a);
-            residual_layer_norm(h, a, &layer.ln[2].0, &layer.ln[2].1, y);
-            match next {
-                Some(next) => next.project(y, &r, qkv),
-                // SAFETY: each task writes the output rows of its own frames.
-                None => unsafe { output(&self.out, y, &r, n, out) },
-            }
-        });
-        std::mem::swap(&mut ws.h, &mut ws.h2);
-    }
+/// The runs of samples a call's passes take: one per thread where the batch splits evenly over
+/// the threads (the blocks `par_rows` gives them), else one of all samples.
+fn runs(enc: &Encoding) -> Vec<RunMasks> {
+    let (b, threads) = (enc.batch, rayon::current_num_threads());
+    let per =
+        if threads > 1 && b >= threads && b.is_multiple_of(threads) { b / threads } else { b };
+    (0..b / per).map(|k| RunMasks::new(enc, k * per..(k + 1) * per)).collect()
 }
 
 /// The logistic function as flex computes it (Burn's SiLU is x times it), in both branches.
@@ -289,27 +203,6 @@ fn sigmoid(x: f32) -> f32 {
     } else {
         let e = x.exp();
         e / (1.0 + e)
-    }
-}
-
-/// The output rows [B * N, D] of the token rows `r` of h (`h` holding those rows): their frame
-/// rows . W_out + b, in runs within one sample each (two tokens per sample are not frames).
-///
-/// # Safety
-/// No other task may write the output rows of these frames meanwhile.
-unsafe fn output(lin: &HostLinear, h: &[f32], r: &Range<usize>, n: usize, out: RowsMut) {
-    let (l, d) = (n + 2, h.len() / r.len());
-    let mut row = r.start;
-    while row < r.end {
-        let (s, i) = (row / l, row % l);
-        let end = r.end.min((s + 1) * l);
-        if i < 2 {
-            row = (s * l + 2).min(end);
-            continue;
-        }
-        let frames = s * n + i - 2..s * n + end - s * l - 2;
-        lin.apply(at(h, &(row - r.start..end - r.start), d), out.get(&frames));
-        row = end;
     }
 }
 
@@ -369,9 +262,24 @@ mod tests {
     /// The host path against `Denoiser::encode` and `decode` on the tensor path: the decoder
     /// alone on the tensor encoder's output, and the whole path from the condition, with two
     /// samples sharing x_t as guidance branches do. The same kernels on the same rows in the
-    /// same order: the same bits.
+    /// same order: the same bits. On one, two and three threads: with two, each thread takes
+    /// one sample through the layers (`pass.rs`); otherwise the regions split the rows.
     #[test]
     fn matches_the_tensor_path_bit_for_bit() {
+        for threads in [2, 1, 3] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| {
+                let plan = DecoderPlan::new(&network(&Device::flex()).1, &{
+                    let (cfg, _) = network(&Device::flex());
+                    request(&cfg, 9, &[0, 4]).condition(&Device::flex())
+                });
+                assert_eq!(plan.runs.len(), if threads == 2 { 2 } else { 1 }, "{threads} threads");
+                matches_on_this_pool();
+            });
+        }
+    }
+
+    fn matches_on_this_pool() {
         let dev = Device::flex();
         let (cfg, model) = network(&dev);
         let n = 23;

@@ -18,6 +18,11 @@ impl RowsMut {
         RowsMut(v.as_mut_ptr(), width)
     }
 
+    /// The view from row `rows` on.
+    pub(super) fn offset(self, rows: usize) -> RowsMut {
+        RowsMut(self.0.wrapping_add(rows * self.1), self.1)
+    }
+
     /// Rows `r`.
     ///
     /// # Safety
