@@ -15,6 +15,13 @@ fn clip(root: &Path, id: &str, data: &[f32], frames: usize, caption: &str) {
     std::fs::write(root.join(format!("texts/{id}.txt")), caption).unwrap();
 }
 
+/// The three split files, each listing `ids`' lines.
+fn splits(root: &Path, [train, val, test]: [&str; 3]) {
+    for (name, ids) in [("train", train), ("val", val), ("test", test)] {
+        std::fs::write(root.join(format!("{name}.txt")), ids).unwrap();
+    }
+}
+
 fn base(name: &str) -> Option<(Scratch, Vec<f32>)> {
     let feats =
         npy::read_f32(fixtures::require("humanml3d/new_joint_vecs/012314.npy")?).unwrap().data;
@@ -37,9 +44,7 @@ fn clean_dataset_passes_with_statistics() {
     clip(&d, "000001", &feats, 170, CAP);
     clip(&d, "M000001", &feats, 170, CAP);
     clip(&d, "000002", &feats[..100 * 263], 100, CAP);
-    std::fs::write(d.join("train.txt"), "000001\nM000001\n").unwrap();
-    std::fs::write(d.join("val.txt"), "000002\n").unwrap();
-    std::fs::write(d.join("test.txt"), "000002\n").unwrap();
+    splits(&d, ["000001\nM000001\n", "000002\n", "000002\n"]);
     let o = diffkfc(&["data", "check", s(&d)]);
     assert!(o.status.success(), "{}{}", stdout(&o), stderr(&o));
     let out = stdout(&o);
@@ -69,9 +74,7 @@ fn values_far_from_the_mean_are_listed() {
     spiked[40 * 263] = mean[0] + 120.0 * std[0];
     clip(&d, "000001", &feats, 170, CAP);
     clip(&d, "000002", &spiked, 170, CAP);
-    std::fs::write(d.join("train.txt"), "000001\n000002\n").unwrap();
-    std::fs::write(d.join("val.txt"), "000001\n").unwrap();
-    std::fs::write(d.join("test.txt"), "000001\n").unwrap();
+    splits(&d, ["000001\n000002\n", "000001\n", "000001\n"]);
     let o = diffkfc(&["data", "check", s(&d)]);
     assert!(o.status.success(), "{}{}", stdout(&o), stderr(&o));
     let out = stdout(&o);

@@ -385,13 +385,6 @@ pub fn gelu_backward(h: &[f32], dy: &[f32], m: Option<&[f32]>) -> Vec<f32> {
 /// are added in the same order for any thread count).
 const LN_ROWS: usize = 64;
 
-fn moments(x: &[f32], eps: f32) -> (f32, f32) {
-    let n = x.len() as f32;
-    let mean = x.iter().sum::<f32>() / n;
-    let var = x.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / n;
-    (mean, 1.0 / (var + eps).sqrt())
-}
-
 /// (x - mean) / sqrt(var + eps) * gamma + beta over rows of `gamma.len()` (biased variance).
 pub fn layer_norm_forward(x: &[f32], gamma: &[f32], beta: &[f32], eps: f32) -> Vec<f32> {
     let chunk = gamma.len() * LN_ROWS;
@@ -402,14 +395,15 @@ pub fn layer_norm_forward(x: &[f32], gamma: &[f32], beta: &[f32], eps: f32) -> V
 }
 
 /// Rows whose LayerNorm sums run side by side. Each row's sums still add its elements one after
-/// another (the bits of [`moments`]), but one row's chain of dependent additions left the
-/// adders idle; eight chains fill them.
+/// another (the same bits as one row at a time), but one row's chain of dependent additions
+/// left the adders idle; eight chains fill them.
 const LN_LANES: usize = 8;
 
-/// [`moments`] of the K rows of `x` ([K, d]) at once.
+/// Mean and 1 / sqrt(biased variance + eps) of each of the K rows of `x` ([K, d]), each row's
+/// elements summed in order.
 #[inline(always)]
 #[allow(clippy::needless_range_loop)] // column j of every row: the rows' chains interleave
-fn moments_of<const K: usize>(x: &[f32], d: usize, eps: f32) -> [(f32, f32); K] {
+fn moments<const K: usize>(x: &[f32], d: usize, eps: f32) -> [(f32, f32); K] {
     let rows: [&[f32]; K] = std::array::from_fn(|r| &x[r * d..(r + 1) * d]);
     let n = d as f32;
     // -0.0: where `Iterator::sum` starts.
@@ -440,13 +434,13 @@ fn ln_rows(yc: &mut [f32], xc: &[f32], gamma: &[f32], beta: &[f32], eps: f32) {
     };
     let whole = xc.len() / (d * LN_LANES) * (d * LN_LANES);
     for (yb, xb) in yc[..whole].chunks_mut(d * LN_LANES).zip(xc[..whole].chunks(d * LN_LANES)) {
-        let m = moments_of::<LN_LANES>(xb, d, eps);
+        let m = moments::<LN_LANES>(xb, d, eps);
         for ((yr, xr), m) in yb.chunks_mut(d).zip(xb.chunks(d)).zip(m) {
             norm(yr, xr, m);
         }
     }
     for (yr, xr) in yc[whole..].chunks_mut(d).zip(xc[whole..].chunks(d)) {
-        norm(yr, xr, moments(xr, eps));
+        norm(yr, xr, moments::<1>(xr, d, eps)[0]);
     }
 }
 
@@ -509,8 +503,8 @@ fn ln_grad_rows(
     let whole = rows / LN_LANES * LN_LANES;
     let stats: Vec<(f32, f32)> = xc[..whole * d]
         .chunks(d * LN_LANES)
-        .flat_map(|xb| moments_of::<LN_LANES>(xb, d, eps))
-        .chain(xc[whole * d..].chunks(d).map(|xr| moments(xr, eps)))
+        .flat_map(|xb| moments::<LN_LANES>(xb, d, eps))
+        .chain(xc[whole * d..].chunks(d).map(|xr| moments::<1>(xr, d, eps)[0]))
         .collect();
     let rows = dxc.chunks_mut(d).zip(xc.chunks(d)).zip(gc.chunks(d)).zip(stats);
     for (((dxr, xr), gr), (mean, rstd)) in rows {
@@ -623,5 +617,21 @@ mod tests {
         let mut g = h.clone();
         gelu_inplace(&mut g, None);
         assert_eq!(gelu(&h, None), g);
+    }
+
+    /// Eight rows' LayerNorm statistics side by side are, bit for bit, each row's alone, and
+    /// those of summing the row in order as `Iterator::sum` does.
+    #[test]
+    fn rows_side_by_side_give_each_rows_own_bits() {
+        let d = 37;
+        let x: Vec<f32> =
+            (0..LN_LANES * d).map(|i| ((i * 7919) % 1013) as f32 / 97.0 - 5.0).collect();
+        let together = moments::<LN_LANES>(&x, d, 1e-5);
+        for (r, row) in x.chunks(d).enumerate() {
+            assert_eq!(together[r], moments::<1>(row, d, 1e-5)[0], "row {r}");
+            let mean = row.iter().sum::<f32>() / d as f32;
+            let var = row.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / d as f32;
+            assert_eq!(together[r], (mean, 1.0 / (var + 1e-5).sqrt()), "row {r}");
+        }
     }
 }

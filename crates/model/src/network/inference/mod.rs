@@ -158,7 +158,7 @@ impl DecoderPlan {
     fn layers(&mut self, time: &[f32]) {
         let d = self.enc.d;
         let (ffn, width) = (self.layers.first().map_or(d, |l| l.ff1.width()), self.out.width());
-        if self.runs.len() > 1 && self.runs.len() != rayon::current_num_threads() {
+        if self.runs.len() != run_count(self.enc.batch) {
             self.runs = runs(&self.enc);
         }
         let ws = &mut self.ws;
@@ -190,10 +190,19 @@ impl DecoderPlan {
 /// The runs of samples a call's passes take: one per thread where the batch splits evenly over
 /// the threads (the blocks `par_rows` gives them), else one of all samples.
 fn runs(enc: &Encoding) -> Vec<RunMasks> {
-    let (b, threads) = (enc.batch, rayon::current_num_threads());
-    let per =
-        if threads > 1 && b >= threads && b.is_multiple_of(threads) { b / threads } else { b };
-    (0..b / per).map(|k| RunMasks::new(enc, k * per..(k + 1) * per)).collect()
+    let per = enc.batch / run_count(enc.batch);
+    (0..enc.batch / per).map(|k| RunMasks::new(enc, k * per..(k + 1) * per)).collect()
+}
+
+/// How many runs a batch of `b` samples splits into on this pool: its thread count where it
+/// divides the batch, else 1.
+fn run_count(b: usize) -> usize {
+    let threads = rayon::current_num_threads();
+    if threads > 1 && b >= threads && b.is_multiple_of(threads) {
+        threads
+    } else {
+        1
+    }
 }
 
 /// The logistic function as flex computes it (Burn's SiLU is x times it), in both branches.
@@ -269,10 +278,9 @@ mod tests {
         for threads in [2, 1, 3] {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
             pool.install(|| {
-                let plan = DecoderPlan::new(&network(&Device::flex()).1, &{
-                    let (cfg, _) = network(&Device::flex());
-                    request(&cfg, 9, &[0, 4]).condition(&Device::flex())
-                });
+                let dev = Device::flex();
+                let (cfg, model) = network(&dev);
+                let plan = DecoderPlan::new(&model, &request(&cfg, 9, &[0, 4]).condition(&dev));
                 assert_eq!(plan.runs.len(), if threads == 2 { 2 } else { 1 }, "{threads} threads");
                 matches_on_this_pool();
             });
