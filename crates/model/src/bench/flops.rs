@@ -153,10 +153,14 @@ mod tests {
             n,
             &c.dma_sizes,
         );
-        let work = plan.work();
+        let work = plan.work(false);
         let l = n + 1;
         for w in &work {
             assert_eq!(*w, BlockWork { queries: b, keys: b, scores: b * l });
+        }
+        // The sampling path's encoder scores the text query alone.
+        for w in &plan.work(true) {
+            assert_eq!(*w, BlockWork { queries: b, keys: b, scores: b });
         }
         let (d, f) = (c.d_model as f64, c.ffn as f64);
         let rows = b as f64;
@@ -175,6 +179,8 @@ mod tests {
             n,
             &c.dma_sizes,
         );
-        assert_eq!(forward_planned(&c, b, n, &all.work()), forward(&c, b, n));
+        for query_rows in [false, true] {
+            assert_eq!(forward_planned(&c, b, n, &all.work(query_rows)), forward(&c, b, n));
+        }
     }
 }

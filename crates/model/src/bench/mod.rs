@@ -38,10 +38,12 @@ pub fn request(cfg: &DiffKfcConfig, batch: usize, frames: usize, seed: u64) -> R
     Request { kf, mask, ..Request::text_only(n, d, text, cfg.text_width(), vec![n; batch]) }
 }
 
-/// The encoder blocks' work for `cond` (see `flops::forward_planned`).
+/// The encoder blocks' work for `cond` (see `flops::forward_planned`), on the sampling path's
+/// encoder (`query_rows`) or the tensor path's (`DmaPlan::work`).
 fn block_work(
     cfg: &DiffKfcConfig,
     cond: &crate::Condition,
+    query_rows: bool,
 ) -> Vec<crate::network::keyframe_encoder::BlockWork> {
     let [b, n, _] = cond.kf.dims();
     crate::network::keyframe_encoder::DmaPlan::new(
@@ -51,7 +53,7 @@ fn block_work(
         n,
         &cfg.dma_sizes,
     )
-    .work()
+    .work(query_rows)
 }
 
 /// A [B, N, D] tensor of standard normals from `r`.
@@ -104,7 +106,7 @@ impl TrainStep {
     pub fn flops(&self, cfg: &DiffKfcConfig) -> f64 {
         let cond = self.req.condition(&self.device);
         let [b, n, _] = cond.kf.dims();
-        crate::bench::flops::train_step(cfg, b, n, &block_work(cfg, &cond))
+        crate::bench::flops::train_step(cfg, b, n, &block_work(cfg, &cond, false))
     }
 
     /// One step; returns the loss (its value forces the work to finish).
@@ -181,7 +183,12 @@ impl<'a> Sampling<'a> {
     pub fn flops(&self, cfg: &DiffKfcConfig) -> crate::bench::flops::Flops {
         let cond = guided(&self.req.condition(&self.x.device()));
         let [b, n, _] = cond.kf.dims();
-        crate::bench::flops::forward_planned(cfg, b, n, &block_work(cfg, &cond))
+        crate::bench::flops::forward_planned(
+            cfg,
+            b,
+            n,
+            &block_work(cfg, &cond, self.plan.is_some()),
+        )
     }
 
     /// One guided denoising call as sampling makes it: decoder only (encoder output cached, and

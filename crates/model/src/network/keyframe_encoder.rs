@@ -13,7 +13,7 @@ use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 
-use crate::kernels::{linear, linear_gelu, rows_run, Mask};
+use crate::kernels::{linear, linear_gelu, rows_run, worth_gathering, Mask};
 use crate::network::attention::{Attention, TokenRows};
 use crate::network::condition::Condition;
 
@@ -98,17 +98,26 @@ impl DmaPlan {
     }
 
     /// The rows and attention scores each block runs on the fused CPU path, after its gathers
-    /// (for the FLOP count of what is computed rather than of the dense shapes).
-    pub fn work(&self) -> Vec<BlockWork> {
+    /// (for the FLOP count of what is computed rather than of the dense shapes). The tensor path
+    /// scores every query row; with `query_rows` (the sampling path's encoder,
+    /// `network::inference`) the attention runs on the rows the block gathers.
+    pub fn work(&self, query_rows: bool) -> Vec<BlockWork> {
         let (b, l) = (self.batch, self.frames + 1);
-        let rows = |m: &[bool]| rows_run(m.iter().filter(|&&v| v).count(), m.len());
+        let count = |m: &[bool]| m.iter().filter(|&&v| v).count();
+        let rows = |m: &[bool]| rows_run(count(m), m.len());
         (0..self.active.len())
             .map(|k| {
-                let valid = self.valid_before(k);
+                let (valid, active) = (self.valid_before(k), &self.active[k]);
+                let gathered = query_rows && worth_gathering(count(active), active.len());
                 // Every query sees y_c; the text query sees every valid token, the others a
                 // subset: a sample's seen keys are its valid tokens (what the kernel gathers).
-                let scores = (0..b).map(|s| l * rows(&valid[s * l..(s + 1) * l])).sum();
-                BlockWork { queries: rows(&self.active[k]), keys: rows(valid), scores }
+                let scores = (0..b)
+                    .map(|s| {
+                        let queries = if gathered { count(&active[s * l..(s + 1) * l]) } else { l };
+                        queries * rows(&valid[s * l..(s + 1) * l])
+                    })
+                    .sum();
+                BlockWork { queries: rows(active), keys: rows(valid), scores }
             })
             .collect()
     }

@@ -5,6 +5,7 @@
 use std::sync::Arc;
 
 use burn::prelude::*;
+use rayon::prelude::*;
 
 use super::par::{at, par_rows, RowsMut};
 use super::weights::{HostBlock, HostLinear};
@@ -90,7 +91,7 @@ fn dma_block(
     bl: &HostBlock,
     z: &mut [f32],
     s: AttnShape,
-    blocked: &Arc<Vec<bool>>,
+    blocked: &[bool],
     active: &[bool],
     valid: &[bool],
 ) {
@@ -100,11 +101,9 @@ fn dma_block(
     }
     let (queries, keys) = (rows_of(active), rows_of(valid));
     let [wq, wk, wv] = &bl.qkv;
-    let (q, k, v) =
-        (projected(wq, z, &queries, d), projected(wk, z, &keys, d), projected(wv, z, &keys, d));
-    let ctx = attention_host(&q, &k, &v, &s, &Mask::Full(blocked.clone()));
-    let a = applied_par(&bl.out, &gather(&ctx, &queries, d));
     let zs = gather(z, &queries, d);
+    let (q, k, v) = (applied_par(wq, &zs), projected(wk, z, &keys, d), projected(wv, z, &keys, d));
+    let a = applied_par(&bl.out, &attention_of_rows(&q, &k, &v, s, blocked, &queries));
     let mut cat = Vec::with_capacity(2 * a.len());
     for (a, z) in a.chunks(d).zip(zs.chunks(d)) {
         cat.extend_from_slice(a);
@@ -125,6 +124,41 @@ fn dma_block(
             (&mut z[r * d..(r + 1) * d], &zk[k * d..(k + 1) * d], &zs[k * d..(k + 1) * d]);
         row.iter_mut().zip(new.iter().zip(old)).for_each(|(z, (n, o))| *z += n - o);
     }
+}
+
+/// The attention of the query rows `rows` (ascending, of B * L) alone, their queries `q`
+/// [rows, d] -> [rows, d]: each sample's rows against its keys and values (`k`, `v` [B * L, d])
+/// under their rows of the mask, the samples in parallel. A query row's result does not depend
+/// on the rows computed beside it, and the keys the rows see are those all rows see (an inactive
+/// row sees only the text token, which the text query, always active, sees too): the same bits
+/// as the whole attention's rows, without the inactive rows (most rows of the narrow blocks, and
+/// of a guided batch's keyless branch).
+fn attention_of_rows(
+    q: &[f32],
+    k: &[f32],
+    v: &[f32],
+    s: AttnShape,
+    blocked: &[bool],
+    rows: &[usize],
+) -> Vec<f32> {
+    let (l, d) = (s.lk, s.d);
+    let first = |b: usize| rows.partition_point(|&r| r < b * l);
+    let parts: Vec<Vec<f32>> = (0..s.batch)
+        .into_par_iter()
+        .map(|b| {
+            let span = first(b)..first(b + 1);
+            if span.is_empty() {
+                return Vec::new();
+            }
+            let mine = &rows[span.clone()];
+            let mask = mine.iter().flat_map(|&r| &blocked[r * l..(r + 1) * l]).copied().collect();
+            let shape = AttnShape { batch: 1, lq: mine.len(), ..s };
+            let kv = b * l * d..(b + 1) * l * d;
+            let q = &q[span.start * d..span.end * d];
+            attention_host(q, &k[kv.clone()], &v[kv], &shape, &Mask::Full(Arc::new(mask)))
+        })
+        .collect();
+    parts.concat()
 }
 
 /// [B * N, 2 (D + R)]: each frame's keyed values (masked) and mask, then its root channels and

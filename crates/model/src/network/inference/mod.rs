@@ -249,7 +249,8 @@ mod tests {
     }
 
     /// Two samples (the second with padding frames and its last word slots empty), each keyed on
-    /// its `keyed` frames: sparse keys gather the DMA blocks' rows, dense ones do not.
+    /// its `keyed` frames: sparse keys gather the DMA blocks' rows, dense ones do not, and none
+    /// leave the decoder only the text token to attend to.
     fn request(cfg: &DiffKfcConfig, n: usize, keyed: &[usize]) -> Request {
         let (dim, width) = (cfg.feat_dim, cfg.text_dim * (1 + cfg.text_words));
         let mut text: Vec<f32> =
@@ -292,7 +293,7 @@ mod tests {
         let (cfg, model) = network(&dev);
         let n = 23;
         let dense: Vec<usize> = (0..n).collect();
-        for keyed in [&[0, 9, 16][..], &dense[..]] {
+        for keyed in [&[0, 9, 16][..], &dense[..], &[]] {
             let cond = request(&cfg, n, keyed).condition(&dev);
             let enc = model.encode(&cond);
             let x = Tensor::<3>::random([1, n, cfg.feat_dim], Distribution::Normal(0.0, 1.0), &dev);
