@@ -13,7 +13,7 @@ use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 
-use crate::kernels::{linear, linear_gelu, rows_run, worth_gathering, Mask};
+use crate::kernels::{linear, linear_gelu, rows_run, Mask};
 use crate::network::attention::{Attention, TokenRows};
 use crate::network::condition::Condition;
 
@@ -108,7 +108,8 @@ impl DmaPlan {
         (0..self.active.len())
             .map(|k| {
                 let (valid, active) = (self.valid_before(k), &self.active[k]);
-                let gathered = query_rows && worth_gathering(count(active), active.len());
+                // The rule that gathers the block's rows (`rows_run`) gathers its queries.
+                let gathered = query_rows && rows(active) < active.len();
                 // Every query sees y_c; the text query sees every valid token, the others a
                 // subset: a sample's seen keys are its valid tokens (what the kernel gathers).
                 let scores = (0..b)
