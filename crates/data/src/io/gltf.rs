@@ -2,19 +2,12 @@
 //! rest, common joint names, the motion's bone lengths) as a skin of joint nodes in metres, Y
 //! up; one animation at the skeleton's rate (the root's translation and every joint's rotation,
 //! linear); and a simple body, a box along every bone bound rigidly to it, so that any viewer
-//! shows something. The JSON is gltf-json's; the container is the format's two chunks.
+//! shows something. The JSON is built with serde_json; the container is the format's two
+//! chunks. tests/gltf.rs checks the files with Khronos's validator and Blender's importer.
 
-use std::collections::BTreeMap;
 use std::path::Path;
 
-use gltf_json::accessor::{ComponentType, GenericComponentType, Type};
-use gltf_json::animation::{Channel, Interpolation, Property, Sampler, Target};
-use gltf_json::buffer::{self, View};
-use gltf_json::mesh::{Mode, Primitive, Semantic};
-use gltf_json::scene::UnitQuaternion;
-use gltf_json::validation::{Checked::Valid, USize64};
-use gltf_json::{Accessor, Animation, Index, Mesh, Node, Root, Scene, Skin};
-use serde_json::json;
+use serde_json::{json, Value};
 
 use crate::io::rig;
 use crate::motion::quat::{self, Quat, Vec3};
@@ -25,48 +18,59 @@ use crate::DataError;
 /// Half the width of a bone's box (metres); leaves (head, hands, toes) get a cube of this size.
 const BONE_HALF_WIDTH: f32 = 0.035;
 
-/// The binary buffer as it is filled: views are 4-byte aligned.
-struct Bin {
-    data: Vec<u8>,
+/// glTF's component types (the values of OpenGL's type enumeration).
+const FLOAT: u32 = 5126;
+const UNSIGNED_SHORT: u32 = 5123;
+const UNSIGNED_BYTE: u32 = 5121;
+/// Buffer view targets: vertex attributes and triangle indices.
+const ARRAY_BUFFER: u32 = 34962;
+const ELEMENT_ARRAY_BUFFER: u32 = 34963;
+
+/// The document as it is built: the top-level arrays that refer to each other by index, and
+/// the binary buffer (views 4-byte aligned).
+#[derive(Default)]
+struct Doc {
+    accessors: Vec<Value>,
+    buffer_views: Vec<Value>,
+    nodes: Vec<Value>,
+    meshes: Vec<Value>,
+    skins: Vec<Value>,
+    animations: Vec<Value>,
+    bin: Vec<u8>,
 }
 
-impl Bin {
+/// An f32 as JSON in its own shortest form (`json!` would write the f64 it widens to).
+fn single(v: f32) -> Value {
+    v.to_string().parse::<f64>().map_or(Value::Null, Value::from)
+}
+
+/// Push `item` onto `list` and give its index.
+fn push(list: &mut Vec<Value>, item: Value) -> usize {
+    list.push(item);
+    list.len() - 1
+}
+
+impl Doc {
     /// Append `values` as a view (with `target` for vertex data) and an accessor over it.
-    fn accessor(
-        &mut self,
-        root: &mut Root,
-        values: Accessed,
-        target: Option<buffer::Target>,
-    ) -> Index<Accessor> {
-        while !self.data.len().is_multiple_of(4) {
-            self.data.push(0);
+    fn accessor(&mut self, values: Accessed, target: Option<u32>) -> usize {
+        while !self.bin.len().is_multiple_of(4) {
+            self.bin.push(0);
         }
-        let offset = self.data.len();
-        let (count, component, type_, bounds) = values.write(&mut self.data);
-        let view = root.push(View {
-            buffer: Index::new(0),
-            byte_length: USize64::from(self.data.len() - offset),
-            byte_offset: Some(USize64::from(offset)),
-            byte_stride: None,
-            name: None,
-            target: target.map(Valid),
-            extensions: None,
-            extras: Default::default(),
-        });
-        root.push(Accessor {
-            buffer_view: Some(view),
-            byte_offset: None,
-            count: USize64::from(count),
-            component_type: Valid(GenericComponentType(component)),
-            extensions: None,
-            extras: Default::default(),
-            type_: Valid(type_),
-            min: bounds.as_ref().map(|b| json!(b.0)),
-            max: bounds.map(|b| json!(b.1)),
-            name: None,
-            normalized: false,
-            sparse: None,
-        })
+        let offset = self.bin.len();
+        let (count, component, type_, bounds) = values.write(&mut self.bin);
+        let mut view =
+            json!({"buffer": 0, "byteLength": self.bin.len() - offset, "byteOffset": offset});
+        if let Some(t) = target {
+            view["target"] = json!(t);
+        }
+        let view = push(&mut self.buffer_views, view);
+        let mut acc =
+            json!({"bufferView": view, "componentType": component, "count": count, "type": type_});
+        if let Some((lo, hi)) = bounds {
+            acc["min"] = json!(lo);
+            acc["max"] = json!(hi);
+        }
+        push(&mut self.accessors, acc)
     }
 }
 
@@ -83,15 +87,16 @@ enum Accessed {
 type Bounds = Option<(Vec<f32>, Vec<f32>)>;
 
 impl Accessed {
-    fn write(self, out: &mut Vec<u8>) -> (usize, ComponentType, Type, Bounds) {
+    /// Append the values; give their count, component type, accessor type and bounds.
+    fn write(self, out: &mut Vec<u8>) -> (usize, u32, &'static str, Bounds) {
         match self {
             Accessed::Floats { rows, bounded } => {
                 let width = rows.first().map_or(1, Vec::len);
                 let type_ = match width {
-                    1 => Type::Scalar,
-                    3 => Type::Vec3,
-                    4 => Type::Vec4,
-                    _ => Type::Mat4,
+                    1 => "SCALAR",
+                    3 => "VEC3",
+                    4 => "VEC4",
+                    _ => "MAT4",
                 };
                 let mut lo = vec![f32::INFINITY; width];
                 let mut hi = vec![f32::NEG_INFINITY; width];
@@ -102,15 +107,15 @@ impl Accessed {
                         hi[c] = hi[c].max(*v);
                     }
                 }
-                (rows.len(), ComponentType::F32, type_, bounded.then_some((lo, hi)))
+                (rows.len(), FLOAT, type_, bounded.then_some((lo, hi)))
             }
             Accessed::Indices(ix) => {
                 ix.iter().for_each(|v| out.extend_from_slice(&v.to_le_bytes()));
-                (ix.len(), ComponentType::U16, Type::Scalar, None)
+                (ix.len(), UNSIGNED_SHORT, "SCALAR", None)
             }
             Accessed::Joints(js) => {
                 js.iter().for_each(|j| out.extend_from_slice(j));
-                (js.len(), ComponentType::U8, Type::Vec4, None)
+                (js.len(), UNSIGNED_BYTE, "VEC4", None)
             }
         }
     }
@@ -194,36 +199,20 @@ impl Body {
 }
 
 /// The body as a mesh primitive, every vertex bound wholly to one joint.
-fn body_mesh(root: &mut Root, bin: &mut Bin, b: Body) -> Index<Mesh> {
+fn body_mesh(doc: &mut Doc, b: Body) -> usize {
     let weights: Vec<Vec<f32>> = (0..b.pos.len()).map(|_| vec![1.0, 0.0, 0.0, 0.0]).collect();
-    let vertex = Some(buffer::Target::ArrayBuffer);
     let floats = |rows, bounded| Accessed::Floats { rows, bounded };
-    let mut attributes = BTreeMap::new();
-    for (semantic, values) in [
-        (Semantic::Positions, floats(b.pos, true)),
-        (Semantic::Normals, floats(b.nrm, false)),
-        (Semantic::Joints(0), Accessed::Joints(b.jnt)),
-        (Semantic::Weights(0), floats(weights, false)),
-    ] {
-        attributes.insert(Valid(semantic), bin.accessor(root, values, vertex));
-    }
-    let indices =
-        bin.accessor(root, Accessed::Indices(b.idx), Some(buffer::Target::ElementArrayBuffer));
-    root.push(Mesh {
-        extensions: None,
-        extras: Default::default(),
-        name: Some("body".into()),
-        primitives: vec![Primitive {
-            attributes,
-            extensions: None,
-            extras: Default::default(),
-            indices: Some(indices),
-            material: None,
-            mode: Valid(Mode::Triangles),
-            targets: None,
-        }],
-        weights: None,
-    })
+    let positions = doc.accessor(floats(b.pos, true), Some(ARRAY_BUFFER));
+    let normals = doc.accessor(floats(b.nrm, false), Some(ARRAY_BUFFER));
+    let joints = doc.accessor(Accessed::Joints(b.jnt), Some(ARRAY_BUFFER));
+    let weights = doc.accessor(floats(weights, false), Some(ARRAY_BUFFER));
+    let indices = doc.accessor(Accessed::Indices(b.idx), Some(ELEMENT_ARRAY_BUFFER));
+    let attributes = json!({
+        "POSITION": positions, "NORMAL": normals, "JOINTS_0": joints, "WEIGHTS_0": weights
+    });
+    // Mode left out: triangles, the default.
+    let primitive = json!({"attributes": attributes, "indices": indices});
+    push(&mut doc.meshes, json!({"name": "body", "primitives": [primitive]}))
 }
 
 /// The motion as a `.glb` (see the module's documentation); `name` names the animation.
@@ -232,53 +221,35 @@ pub fn to_glb(skel: &Skeleton, joints: &Joints, name: &str) -> Result<Vec<u8>, D
         return Err(DataError::Invalid("glTF: a motion of at least one frame is needed".into()));
     }
     let posed = rig::pose(skel, joints);
-    let mut root = Root {
-        asset: gltf_json::Asset {
-            copyright: None,
-            extensions: None,
-            extras: Default::default(),
-            generator: Some(format!("diffkfc {}", env!("CARGO_PKG_VERSION"))),
-            min_version: None,
-            version: "2.0".into(),
-        },
-        ..Default::default()
-    };
-    let mut bin = Bin { data: Vec::new() };
-    let (skel_root, at) = joint_nodes(&mut root, &posed, skel.metres_per_unit);
-    let skin = skin(&mut root, &mut bin, &at, skel_root);
-    let mesh = body_mesh(&mut root, &mut bin, body(&posed.parents, &at));
-    let body_node = root.push(Node {
-        name: Some("body".into()),
-        mesh: Some(mesh),
-        skin: Some(skin),
-        ..Default::default()
-    });
-    animate(&mut root, &mut bin, &posed, skel, name);
-    let scene = root.push(Scene {
-        extensions: None,
-        extras: Default::default(),
-        name: Some(name.into()),
-        nodes: vec![skel_root, body_node],
-    });
-    root.scene = Some(scene);
-    while !bin.data.len().is_multiple_of(4) {
-        bin.data.push(0);
+    let mut doc = Doc::default();
+    let (skel_root, at) = joint_nodes(&mut doc, &posed, skel.metres_per_unit);
+    let skin = skin(&mut doc, &at, skel_root);
+    let mesh = body_mesh(&mut doc, body(&posed.parents, &at));
+    let body_node = push(&mut doc.nodes, json!({"name": "body", "mesh": mesh, "skin": skin}));
+    animate(&mut doc, &posed, skel, name);
+    while !doc.bin.len().is_multiple_of(4) {
+        doc.bin.push(0);
     }
-    root.push(gltf_json::Buffer {
-        byte_length: USize64::from(bin.data.len()),
-        name: None,
-        uri: None,
-        extensions: None,
-        extras: Default::default(),
+    let root = json!({
+        "asset": {"generator": format!("diffkfc {}", env!("CARGO_PKG_VERSION")), "version": "2.0"},
+        "scene": 0,
+        "scenes": [{"name": name, "nodes": [skel_root, body_node]}],
+        "nodes": doc.nodes,
+        "meshes": doc.meshes,
+        "skins": doc.skins,
+        "animations": doc.animations,
+        "accessors": doc.accessors,
+        "bufferViews": doc.buffer_views,
+        "buffers": [{"byteLength": doc.bin.len()}],
     });
-    let text = root.to_vec().map_err(|e| DataError::Invalid(format!("glTF: {e}")))?;
-    Ok(container(text, bin.data))
+    let text = serde_json::to_vec(&root).map_err(|e| DataError::Invalid(format!("glTF: {e}")))?;
+    Ok(container(text, doc.bin))
 }
 
 /// One node per joint in the skeleton's order (rest offsets in metres, frame 0's pose), and
 /// the root joint's node and every joint's bind position: the rest pose with the root at the
 /// origin (rest rotations are the identity).
-fn joint_nodes(root: &mut Root, posed: &rig::PosedRig, m: f64) -> (Index<Node>, Vec<Vec3>) {
+fn joint_nodes(doc: &mut Doc, posed: &rig::PosedRig, m: f64) -> (usize, Vec<Vec3>) {
     let n = posed.parents.len();
     let metres = |v: Vec3| -> [f32; 3] { v.map(|x| (x * m) as f32) };
     let mut at = vec![[0.0; 3]; n];
@@ -287,27 +258,25 @@ fn joint_nodes(root: &mut Root, posed: &rig::PosedRig, m: f64) -> (Index<Node>, 
         at[j] = if p < 0 { [0.0; 3] } else { quat::add(at[p as usize], posed.rest[j]) };
     }
     for j in 0..n {
-        let kids: Vec<Index<Node>> = (0..n)
-            .filter(|&c| posed.parents[c] == j as i64)
-            .map(|c| Index::new(c as u32))
-            .collect();
+        let kids: Vec<usize> = (0..n).filter(|&c| posed.parents[c] == j as i64).collect();
         let t = if posed.parents[j] < 0 { posed.root[0] } else { posed.rest[j] };
-        let q = xyzw(posed.local[0][j]);
-        root.push(Node {
-            name: Some(posed.names[j].to_string()),
-            translation: Some(metres(t)),
-            rotation: Some(UnitQuaternion([q[0], q[1], q[2], q[3]])),
-            children: (!kids.is_empty()).then_some(kids),
-            ..Default::default()
+        let mut node = json!({
+            "name": posed.names[j],
+            "translation": metres(t).map(single),
+            "rotation": xyzw(posed.local[0][j]).into_iter().map(single).collect::<Vec<_>>(),
         });
+        if !kids.is_empty() {
+            node["children"] = json!(kids);
+        }
+        push(&mut doc.nodes, node);
     }
     let skel_root = (0..n).find(|&j| posed.parents[j] < 0).unwrap_or(0);
-    (Index::new(skel_root as u32), at.iter().map(|v| quat::scale(*v, m)).collect())
+    (skel_root, at.iter().map(|v| quat::scale(*v, m)).collect())
 }
 
 /// The skin over the joint nodes: their inverse bind matrices (translations to the bind
 /// positions `at`).
-fn skin(root: &mut Root, bin: &mut Bin, at: &[Vec3], skel_root: Index<Node>) -> Index<Skin> {
+fn skin(doc: &mut Doc, at: &[Vec3], skel_root: usize) -> usize {
     let ibm: Vec<Vec<f32>> = at
         .iter()
         .map(|g| {
@@ -317,63 +286,39 @@ fn skin(root: &mut Root, bin: &mut Bin, at: &[Vec3], skel_root: Index<Node>) -> 
             mat
         })
         .collect();
-    let ibm = bin.accessor(root, Accessed::Floats { rows: ibm, bounded: false }, None);
-    root.push(Skin {
-        extensions: None,
-        extras: Default::default(),
-        inverse_bind_matrices: Some(ibm),
-        joints: (0..at.len()).map(|j| Index::new(j as u32)).collect(),
-        name: Some("diffkfc".into()),
-        skeleton: Some(skel_root),
-    })
+    let ibm = doc.accessor(Accessed::Floats { rows: ibm, bounded: false }, None);
+    let joints: Vec<usize> = (0..at.len()).collect();
+    let skin = json!({
+        "name": "diffkfc", "inverseBindMatrices": ibm, "joints": joints, "skeleton": skel_root
+    });
+    push(&mut doc.skins, skin)
 }
 
 /// The animation: the root's translation and every joint's rotation per frame, linear.
-fn animate(root: &mut Root, bin: &mut Bin, posed: &rig::PosedRig, skel: &Skeleton, name: &str) {
+fn animate(doc: &mut Doc, posed: &rig::PosedRig, skel: &Skeleton, name: &str) {
     let m = skel.metres_per_unit;
     let times: Vec<Vec<f32>> =
         (0..posed.root.len()).map(|f| vec![(f as f64 / skel.fps) as f32]).collect();
-    let input = bin.accessor(root, Accessed::Floats { rows: times, bounded: true }, None);
-    let mut samplers = Vec::new();
-    let mut channels = Vec::new();
-    let mut add =
-        |rows: Vec<Vec<f32>>, node: usize, path: Property, bin: &mut Bin, root: &mut Root| {
-            let output = bin.accessor(root, Accessed::Floats { rows, bounded: false }, None);
-            samplers.push(Sampler {
-                extensions: None,
-                extras: Default::default(),
-                input,
-                interpolation: Valid(Interpolation::Linear),
-                output,
-            });
-            channels.push(Channel {
-                sampler: Index::new(samplers.len() as u32 - 1),
-                target: Target {
-                    extensions: None,
-                    extras: Default::default(),
-                    node: Index::new(node as u32),
-                    path: Valid(path),
-                },
-                extensions: None,
-                extras: Default::default(),
-            });
-        };
+    let input = doc.accessor(Accessed::Floats { rows: times, bounded: true }, None);
+    let (mut samplers, mut channels) = (Vec::new(), Vec::new());
+    let mut add = |rows: Vec<Vec<f32>>, node: usize, path: &str, doc: &mut Doc| {
+        let output = doc.accessor(Accessed::Floats { rows, bounded: false }, None);
+        let sampler = push(
+            &mut samplers,
+            json!({"input": input, "interpolation": "LINEAR", "output": output}),
+        );
+        channels.push(json!({"sampler": sampler, "target": {"node": node, "path": path}}));
+    };
     for j in 0..posed.parents.len() {
-        let rows = rotation_rows(posed, j);
-        add(rows, j, Property::Rotation, bin, root);
+        add(rotation_rows(posed, j), j, "rotation", doc);
         if posed.parents[j] < 0 {
             let rows =
                 posed.root.iter().map(|r| r.iter().map(|x| (x * m) as f32).collect()).collect();
-            add(rows, j, Property::Translation, bin, root);
+            add(rows, j, "translation", doc);
         }
     }
-    root.push(Animation {
-        extensions: None,
-        extras: Default::default(),
-        channels,
-        name: Some(name.into()),
-        samplers,
-    });
+    let anim = json!({"name": name, "channels": channels, "samplers": samplers});
+    push(&mut doc.animations, anim);
 }
 
 /// Joint `j`'s rotation per frame as glTF's (x, y, z, w), sign-continuous so that

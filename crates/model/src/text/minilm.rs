@@ -7,11 +7,12 @@ use std::path::{Path, PathBuf};
 use burn::prelude::*;
 
 use super::bert::{Bert, BertConfig};
+use super::wordpiece::WordPiece;
 use super::{TextEncoder, TextError};
 use crate::network::params::host;
 
 pub struct MiniLm {
-    tokenizer: tokenizers::Tokenizer,
+    tokenizer: WordPiece,
     bert: Bert,
     hidden: usize,
     device: Device,
@@ -39,10 +40,7 @@ impl MiniLm {
                 .map_err(|e| TextError::Bad { path: config.clone(), msg: e.to_string() })?,
         )
         .map_err(|e| TextError::Bad { path: config.clone(), msg: e.to_string() })?;
-        let mut tokenizer = tokenizers::Tokenizer::from_file(&tok)
-            .map_err(|e| TextError::Bad { path: tok.clone(), msg: e.to_string() })?;
-        // Pad within a batch to its longest sentence; the attention mask keeps pooling exact.
-        tokenizer.with_padding(Some(tokenizers::PaddingParams::default()));
+        let tokenizer = WordPiece::from_file(&tok)?;
         let bert = Bert::load(&weights, &cfg, device)?;
         Ok(MiniLm { tokenizer, bert, hidden: cfg.hidden_size, device: device.clone() })
     }
@@ -61,9 +59,7 @@ impl TextEncoder for MiniLm {
         if text.trim().is_empty() {
             return Err(TextError::Empty);
         }
-        let enc =
-            self.tokenizer.encode(text, true).map_err(|e| TextError::Tokenizer(e.to_string()))?;
-        Ok(enc.get_ids().to_vec())
+        Ok(self.tokenizer.encode(text))
     }
 
     fn embed_words(&self, texts: &[&str], words: usize) -> Result<Vec<Vec<f32>>, TextError> {
@@ -73,15 +69,19 @@ impl TextEncoder for MiniLm {
         if texts.is_empty() {
             return Ok(vec![]);
         }
-        let encs = self
-            .tokenizer
-            .encode_batch(texts.to_vec(), true)
-            .map_err(|e| TextError::Tokenizer(e.to_string()))?;
-        let (b, l) = (encs.len(), encs[0].get_ids().len());
-        let ids: Vec<i64> =
-            encs.iter().flat_map(|e| e.get_ids().iter().map(|&i| i as i64)).collect();
-        let mask: Vec<f32> =
-            encs.iter().flat_map(|e| e.get_attention_mask().iter().map(|&m| m as f32)).collect();
+        // Padded within the batch to its longest text; the attention mask keeps pooling exact.
+        let encs: Vec<Vec<u32>> = texts.iter().map(|t| self.tokenizer.encode(t)).collect();
+        let (b, l) = (encs.len(), encs.iter().map(Vec::len).max().unwrap_or(0));
+        let pad = self.tokenizer.pad_id();
+        let ids: Vec<i64> = encs
+            .iter()
+            .flat_map(|e| e.iter().copied().chain(std::iter::repeat(pad)).take(l))
+            .map(i64::from)
+            .collect();
+        let mask: Vec<f32> = encs
+            .iter()
+            .flat_map(|e| (0..l).map(move |t| if t < e.len() { 1.0 } else { 0.0 }))
+            .collect();
         let ids = Tensor::<1, Int>::from_ints(ids.as_slice(), &self.device).reshape([b, l]);
         let mask_t = Tensor::<1>::from_floats(mask.as_slice(), &self.device).reshape([b, l]);
         let h = self.bert.forward(ids, mask_t.clone());

@@ -4,6 +4,7 @@
 pub mod bert;
 pub mod cache;
 pub mod minilm;
+pub mod wordpiece;
 
 use std::path::PathBuf;
 
@@ -15,8 +16,6 @@ pub enum TextError {
     Bad { path: PathBuf, msg: String },
     #[error("empty text: a caption needs at least one word")]
     Empty,
-    #[error("tokenizer: {0}")]
-    Tokenizer(String),
 }
 
 pub trait TextEncoder {
