@@ -4,7 +4,7 @@
 //! module path (`model/decoder.layers.0.ffn.weight`); files from before names (`model/0000`,
 //! format 1) still load, by position.
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
 use diffkfc_data::io::ownership::{self, Output};
@@ -40,6 +40,32 @@ pub const WEIGHTS_FILE: &str = "model.safetensors";
 
 fn bytes(v: &[f32]) -> Vec<u8> {
     v.iter().flat_map(|f| f.to_le_bytes()).collect()
+}
+
+/// `safetensors::serialize`, the header's keys then sorted: the crate writes its metadata in a
+/// HashMap's order, which changes from one process to the next, and equal checkpoints should be
+/// equal files. Readers find tensors by name and offset, so the order is free.
+fn serialize(
+    views: Vec<(String, TensorView)>,
+    meta: HashMap<String, String>,
+) -> std::result::Result<Vec<u8>, String> {
+    let mut data = safetensors::serialize(views, Some(meta)).map_err(|e| e.to_string())?;
+    let n = u64::from_le_bytes(data[..8].try_into().expect("8 bytes")) as usize;
+    let mut header: BTreeMap<String, serde_json::Value> =
+        serde_json::from_slice(&data[8..8 + n]).map_err(|e| e.to_string())?;
+    if let Some(m) = header.get_mut("__metadata__") {
+        let sorted: BTreeMap<String, String> =
+            serde_json::from_value(m.take()).map_err(|e| e.to_string())?;
+        *m = serde_json::to_value(sorted).map_err(|e| e.to_string())?;
+    }
+    let text = serde_json::to_vec(&header).map_err(|e| e.to_string())?;
+    // The same entries in another order have the same length; the alignment padding stays.
+    if text.len() > n {
+        return Err(format!("sorted header of {} bytes exceeds the {n} written", text.len()));
+    }
+    data[8..8 + text.len()].copy_from_slice(&text);
+    data[8 + text.len()..8 + n].fill(b' ');
+    Ok(data)
 }
 
 /// Shapes and values of a checkpoint's parameters, in order.
@@ -120,8 +146,7 @@ impl Checkpoint {
             ("names".to_string(), self.names_json()),
         ]);
         let path = dir.join(Self::file_name(self.step));
-        let data =
-            safetensors::serialize(views, Some(meta)).map_err(|e| ModelError::file(&path, e))?;
+        let data = serialize(views, meta).map_err(|e| ModelError::file(&path, e))?;
         diffkfc_data::write_atomic(&path, &data)?;
         Ok(path)
     }
@@ -161,8 +186,7 @@ impl Checkpoint {
             ("names".to_string(), self.names_json()),
         ]);
         let path = dir.join(WEIGHTS_FILE);
-        let data =
-            safetensors::serialize(views, Some(meta)).map_err(|e| ModelError::file(&path, e))?;
+        let data = serialize(views, meta).map_err(|e| ModelError::file(&path, e))?;
         diffkfc_data::write_atomic(&path, &data)?;
         Ok(path)
     }
