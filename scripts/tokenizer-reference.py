@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Hugging Face's own token ids for the texts below (prompts, and the corners of BERT's
-normalisation and word pieces), as the golden file crates/model/tests/tokenizer.rs holds our
+normalisation and word pieces), as the golden file crates/model/tests/text_encoder.rs holds our
 WordPiece tokenizer to.
 
     pip install tokenizers

@@ -5,7 +5,7 @@
 //! a word of its own), greedy longest-match `WordPiece`, and the post-processor's
 //! `[CLS] … [SEP]`, truncated to the file's length. Other pipelines in the file are refused
 //! when it loads. Written for this one family, so the build does without a general tokenizer
-//! library and its regex engine; tests/tokenizer.rs holds it to Hugging Face's output.
+//! library and its regex engine; tests/text_encoder.rs holds it to Hugging Face's output.
 
 use std::collections::HashMap;
 use std::path::Path;
