@@ -149,13 +149,10 @@ fn other_pipelines_are_refused_naming_the_file() {
     assert!(msg.contains("tokenizer.json") && msg.contains("NFKC"), "{msg}");
 }
 
-/// A hand-made vocabulary: greedy longest match, `##` continuations, a word with a missing
-/// piece as one unknown token, punctuation split off, accents stripped, the template around.
-#[test]
-fn word_pieces_by_hand() {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("tokenizer.json");
-    let json = r###"{"truncation": null, "padding": null, "added_tokens": [],
+/// A hand-made BERT `tokenizer.json`.
+fn hand_made() -> serde_json::Value {
+    serde_json::from_str(
+        r###"{"truncation": null, "padding": null, "added_tokens": [],
         "normalizer": {"type": "BertNormalizer", "clean_text": true, "handle_chinese_chars": true,
                        "strip_accents": null, "lowercase": true},
         "pre_tokenizer": {"type": "BertPreTokenizer"},
@@ -163,11 +160,59 @@ fn word_pieces_by_hand() {
         "model": {"type": "WordPiece", "unk_token": "[UNK]", "continuing_subword_prefix": "##",
                   "max_input_chars_per_word": 8,
                   "vocab": {"[UNK]": 0, "[CLS]": 1, "[SEP]": 2, "walk": 3, "##s": 4, "##ing": 5,
-                            "w": 6, "##a": 7, "cafe": 8, ".": 9, "##lk": 10}}}"###;
-    std::fs::write(&path, json).unwrap();
-    let tok = WordPiece::from_file(&path).unwrap();
+                            "w": 6, "##a": 7, "cafe": 8, ".": 9, "##lk": 10}}}"###,
+    )
+    .unwrap()
+}
+
+/// `json` written as a `tokenizer.json` in `dir`, then loaded.
+fn load(dir: &std::path::Path, json: &serde_json::Value) -> Result<WordPiece, TextError> {
+    let path = dir.join("tokenizer.json");
+    std::fs::write(&path, json.to_string()).unwrap();
+    WordPiece::from_file(&path)
+}
+
+/// The hand-made vocabulary: greedy longest match, `##` continuations, a word with a missing
+/// piece as one unknown token, punctuation split off, accents stripped, the template around.
+#[test]
+fn word_pieces_by_hand() {
+    let dir = tempfile::tempdir().unwrap();
+    let tok = load(dir.path(), &hand_made()).unwrap();
     assert_eq!(tok.encode("Walks walking."), [1, 3, 4, 3, 5, 9, 2]);
     assert_eq!(tok.encode("wa"), [1, 6, 7, 2]);
     assert_eq!(tok.encode("CAFÉ walkx"), [1, 8, 0, 2]);
     assert_eq!(tok.encode("walkingss"), [1, 0, 2], "over max_input_chars_per_word");
+}
+
+/// Each part of a BERT file this tokenizer cannot follow is refused, naming the file and the part.
+#[test]
+fn unsupported_settings_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases: [(&str, serde_json::Value, &str); 5] = [
+        ("/model/unk_token", "[NONE]".into(), "is not in the vocabulary"),
+        ("/truncation", serde_json::json!({"max_length": 8, "direction": "Left"}), "direction"),
+        (
+            "/added_tokens",
+            serde_json::json!([{"id": 1, "content": "[CLS]", "lstrip": true}]),
+            "only plain raw-text tokens",
+        ),
+        (
+            "/post_processor",
+            serde_json::json!({"type": "TemplateProcessing", "special_tokens": {},
+                "single": [{"Sequence": {"id": "A"}}, {"Sequence": {"id": "B"}}]}),
+            "two sequences",
+        ),
+        (
+            "/post_processor",
+            serde_json::json!({"type": "TemplateProcessing", "special_tokens": {},
+                "single": [{"SpecialToken": {"id": "[CLS]"}}, {"Sequence": {"id": "A"}}]}),
+            "not among special_tokens",
+        ),
+    ];
+    for (at, value, says) in cases {
+        let mut json = hand_made();
+        *json.pointer_mut(at).unwrap() = value;
+        let msg = load(dir.path(), &json).err().unwrap().to_string();
+        assert!(msg.contains("tokenizer.json") && msg.contains(says), "{at}: {msg}");
+    }
 }
