@@ -237,13 +237,13 @@ pub struct T2mEvaluator {
 }
 
 /// Tensors of a safetensors file by name, as f32.
-struct Weights {
+struct EvaluatorWeights {
     path: PathBuf,
     map: HashMap<String, (Vec<usize>, Vec<f32>)>,
 }
 
-impl Weights {
-    fn read(path: &Path) -> Result<Weights> {
+impl EvaluatorWeights {
+    fn read(path: &Path) -> Result<EvaluatorWeights> {
         let bytes = std::fs::read(path).map_err(|err| EvalError::Io { path: path.into(), err })?;
         let st = safetensors::SafeTensors::deserialize(&bytes)
             .map_err(|e| EvalError::file(path, format!("not a safetensors file ({e})")))?;
@@ -264,7 +264,7 @@ impl Weights {
             };
             map.insert(name, (t.shape().to_vec(), v));
         }
-        Ok(Weights { path: path.into(), map })
+        Ok(EvaluatorWeights { path: path.into(), map })
     }
 
     fn get(&self, name: &str, rank: usize) -> Result<(Vec<usize>, Vec<f32>)> {
@@ -380,7 +380,7 @@ impl T2mEvaluator {
                 ));
             }
         }
-        let w = Weights::read(&dir.join("evaluator.safetensors"))?;
+        let w = EvaluatorWeights::read(&dir.join("evaluator.safetensors"))?;
         let (glove, word_dim) = read_glove(dir)?;
         let read = |n: &str| diffkfc_data::io::npy::read_f32(dir.join(n)).map(|a| a.data);
         let (mean, std) = (read("mean.npy")?, read("std.npy")?);

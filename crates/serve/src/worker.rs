@@ -8,12 +8,12 @@ use std::sync::Arc;
 use crate::engine::Engine;
 use crate::error::{ApiError, ServeError};
 
-type Job = Box<dyn FnOnce(&mut Engine) + Send>;
+type EngineJob = Box<dyn FnOnce(&mut Engine) + Send>;
 
 /// The handle requests use to run work on the model's thread.
 #[derive(Clone)]
 pub struct Worker {
-    tx: SyncSender<Job>,
+    tx: SyncSender<EngineJob>,
     /// Jobs sent and not yet finished (the running one included).
     pending: Arc<AtomicUsize>,
     /// Jobs finished since the start.
@@ -27,7 +27,7 @@ impl Worker {
         load: impl FnOnce() -> Result<Engine, ServeError> + Send + 'static,
         queue: usize,
     ) -> Result<(Worker, crate::api::Limits, usize), ServeError> {
-        let (tx, rx) = mpsc::sync_channel::<Job>(queue);
+        let (tx, rx) = mpsc::sync_channel::<EngineJob>(queue);
         let (ready_tx, ready_rx) = mpsc::channel();
         let pending = Arc::new(AtomicUsize::new(0));
         let done = Arc::new(AtomicUsize::new(0));
@@ -69,7 +69,7 @@ impl Worker {
     ) -> Result<T, ApiError> {
         let (reply, answer) = tokio::sync::oneshot::channel();
         let (pending, done) = (self.pending.clone(), self.done.clone());
-        let job: Job = Box::new(move |e| {
+        let job: EngineJob = Box::new(move |e| {
             let out = f(e);
             pending.fetch_sub(1, Ordering::SeqCst);
             done.fetch_add(1, Ordering::SeqCst);

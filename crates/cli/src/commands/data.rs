@@ -117,7 +117,7 @@ impl SkeletonArg {
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
-enum Up {
+enum InputUp {
     Y,
     /// Z-up input (AMASS / SMPL world), turned to Y-up as HumanML3D does: (x,y,z) -> (-x,z,y).
     Z,
@@ -135,7 +135,7 @@ struct FeaturesArgs {
     fps: Option<f64>,
     /// Up axis of the input.
     #[arg(long, value_enum, default_value = "y")]
-    up: Up,
+    up: InputUp,
     /// Foot-contact threshold (squared displacement per frame).
     #[arg(long, default_value_t = FOOT_CONTACT_THRESHOLD)]
     feet_threshold: f64,
@@ -338,7 +338,7 @@ fn features(a: FeaturesArgs) -> Result<()> {
     let skel = a.skeleton.skeleton();
     let mut joints = load_joints(&a.input, skel, 2)?;
     let frames_in = joints.len();
-    if a.up == Up::Z {
+    if a.up == InputUp::Z {
         rep::z_up_to_y_up(&mut joints);
     }
     if let Some(fps) = a.fps {

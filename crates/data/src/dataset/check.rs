@@ -179,11 +179,6 @@ pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport
     progress(total, total);
     outliers.sort_by(|a: &Outlier, b| b.stds.total_cmp(&a.stds));
     outliers.truncate(MAX_OUTLIERS);
-    let length_histogram = hist
-        .iter()
-        .enumerate()
-        .map(|(i, &n)| (i * 20, (i < 10).then_some(i * 20 + 20), n))
-        .collect();
     CheckReport {
         root: root.display().to_string(),
         skeleton: ds.skeleton.name.to_string(),
@@ -192,8 +187,13 @@ pub fn check(root: &Path, mut progress: impl FnMut(usize, usize)) -> CheckReport
         outliers,
         splits: stats,
         distinct_words: words.len(),
-        length_histogram,
+        length_histogram: length_histogram(&hist),
     }
+}
+
+/// Clip counts per 20 frames (the last bin open-ended) as (from, to, clips).
+fn length_histogram(hist: &[usize; 11]) -> Vec<(usize, Option<usize>, usize)> {
+    hist.iter().enumerate().map(|(i, &n)| (i * 20, (i < 10).then_some(i * 20 + 20), n)).collect()
 }
 
 /// Each split's ids; a split list that cannot be read is a problem.

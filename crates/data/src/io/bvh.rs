@@ -114,24 +114,8 @@ fn parse_hierarchy(hier: &str) -> Result<Vec<BvhJoint>, DataError> {
         let mut it = line.split_whitespace();
         match it.next() {
             Some(kw @ ("ROOT" | "JOINT")) => {
-                if joints.is_empty() && kw != "ROOT" {
-                    return Err(bad("the hierarchy starts with a JOINT, not a ROOT"));
-                }
                 let parent = stack.last().copied().flatten();
-                if parent.is_none() && !joints.is_empty() {
-                    return Err(bad("a second ROOT (one skeleton per file is read)"));
-                }
-                let name = it.collect::<Vec<_>>().join(" ");
-                if name.is_empty() {
-                    return Err(bad("joint without a name"));
-                }
-                joints.push(BvhJoint {
-                    name,
-                    parent,
-                    offset: [0.0; 3],
-                    channels: Vec::new(),
-                    end_site: None,
-                });
+                joints.push(new_joint(kw, it, parent, joints.is_empty())?);
                 pending = Some(joints.len() - 1);
             }
             Some("End") => in_end = true,
@@ -163,6 +147,27 @@ fn parse_hierarchy(hier: &str) -> Result<Vec<BvhJoint>, DataError> {
         return Err(bad("every OFFSET is zero: the hierarchy has no bones"));
     }
     Ok(joints)
+}
+
+/// The joint a `ROOT` or `JOINT` line (`kw`, then its name in `it`) opens under `parent`: a
+/// ROOT first, a JOINT after it, never a second ROOT.
+fn new_joint<'a>(
+    kw: &str,
+    it: impl Iterator<Item = &'a str>,
+    parent: Option<usize>,
+    first: bool,
+) -> Result<BvhJoint, DataError> {
+    if first && kw != "ROOT" {
+        return Err(bad("the hierarchy starts with a JOINT, not a ROOT"));
+    }
+    if parent.is_none() && !first {
+        return Err(bad("a second ROOT (one skeleton per file is read)"));
+    }
+    let name = it.collect::<Vec<_>>().join(" ");
+    if name.is_empty() {
+        return Err(bad("joint without a name"));
+    }
+    Ok(BvhJoint { name, parent, offset: [0.0; 3], channels: Vec::new(), end_site: None })
 }
 
 /// The three finite numbers after `OFFSET`.
@@ -418,6 +423,8 @@ mod tests {
             ("Frames: 2", "Frames: 1", "more frame lines"),
             ("Frames: 2", "Frames: 3", "'Frames: 3' but the file has 2"),
             ("ROOT a", "JOINT a", "not a ROOT"),
+            ("}\nMOTION", "}\nROOT c\n{\n OFFSET 1 0 0\n}\nMOTION", "a second ROOT"),
+            ("JOINT b", "JOINT  ", "joint without a name"),
             ("OFFSET 10 0 0\n  CHANNELS 3 Zrotation Yrotation Xrotation\n  End Site\n  {\n   OFFSET 1 0 0", "OFFSET 0 0 0\n  CHANNELS 3 Zrotation Yrotation Xrotation\n  End Site\n  {\n   OFFSET 0 0 0", "every OFFSET is zero"),
             (
                 "\n1 2 3 0 0 0 0 0 0\n",

@@ -133,7 +133,7 @@ fn xyzw(q: Quat) -> Vec<f32> {
 type Face = ([(usize, f64, f64); 4], Vec3);
 
 /// The body's vertex attributes (positions, normals, joints) and triangle indices.
-struct Body {
+struct Mesh {
     pos: Vec<Vec<f32>>,
     nrm: Vec<Vec<f32>>,
     jnt: Vec<[u8; 4]>,
@@ -142,8 +142,8 @@ struct Body {
 
 /// The body: a box from each joint's parent to it, bound to the parent, and a cube at each leaf
 /// bound to it (positions, normals, joints, indices), in the bind pose `at` (metres).
-fn body(parents: &[i64], at: &[Vec3]) -> Body {
-    let mut body = Body { pos: Vec::new(), nrm: Vec::new(), jnt: Vec::new(), idx: Vec::new() };
+fn body(parents: &[i64], at: &[Vec3]) -> Mesh {
+    let mut body = Mesh { pos: Vec::new(), nrm: Vec::new(), jnt: Vec::new(), idx: Vec::new() };
     let w = BONE_HALF_WIDTH as f64;
     for (j, &p) in parents.iter().enumerate() {
         if p >= 0 {
@@ -156,7 +156,7 @@ fn body(parents: &[i64], at: &[Vec3]) -> Body {
     body
 }
 
-impl Body {
+impl Mesh {
     /// A box of half-width [`BONE_HALF_WIDTH`] from `from` to `to`, bound to joint `bone`.
     fn push_box(&mut self, from: Vec3, to: Vec3, bone: usize) {
         let w = BONE_HALF_WIDTH as f64;
@@ -199,7 +199,7 @@ impl Body {
 }
 
 /// The body as a mesh primitive, every vertex bound wholly to one joint.
-fn body_mesh(doc: &mut Doc, b: Body) -> usize {
+fn body_mesh(doc: &mut Doc, b: Mesh) -> usize {
     let weights: Vec<Vec<f32>> = (0..b.pos.len()).map(|_| vec![1.0, 0.0, 0.0, 0.0]).collect();
     let floats = |rows, bounded| Accessed::Floats { rows, bounded };
     let positions = doc.accessor(floats(b.pos, true), Some(ARRAY_BUFFER));

@@ -27,16 +27,16 @@ pub fn serves(dh: usize) -> bool {
 
 /// One head's operands laid out for the blocks: rows of `P` channels (zero beyond dh), key
 /// columns padded to `n16`, query rows to a multiple of `R`.
-struct Layout {
+struct HeadLayout {
     p: usize,
     n: usize,
     n16: usize,
     lq: usize,
 }
 
-impl Layout {
-    fn new(s: &AttnShape, n: usize, p: usize, r: usize) -> Layout {
-        Layout { p, n, n16: n.div_ceil(W) * W, lq: s.lq.div_ceil(r) * r }
+impl HeadLayout {
+    fn new(s: &AttnShape, n: usize, p: usize, r: usize) -> HeadLayout {
+        HeadLayout { p, n, n16: n.div_ceil(W) * W, lq: s.lq.div_ceil(r) * r }
     }
 
     /// Rows `rows` of a head view ([rows, dh], stride `rs`) as [len, P] rows.
@@ -83,7 +83,7 @@ enum Lse<'a> {
 #[inline(always)]
 fn probabilities(
     sc: &mut [f32],
-    g: &Layout,
+    g: &HeadLayout,
     keys: &HeadKeys,
     s: &AttnShape,
     i0: usize,
@@ -200,7 +200,7 @@ fn head_forward<const P: usize, L: Lanes>(
 ) {
     let (s, dh) = (c.s, c.s.dh());
     let keys = c.keys((b, h), &mut w.gather);
-    let g = Layout::new(s, keys.lk, P, L::R);
+    let g = HeadLayout::new(s, keys.lk, P, L::R);
     g.rows(s.head(c.q, s.lq, b, h).ptr, s.d, s.lq, g.lq, dh, &mut w.q);
     g.columns(keys.k.ptr, keys.k.rs as usize, dh, &mut w.kt);
     g.rows(keys.v.ptr, keys.v.rs as usize, g.n, g.n, dh, &mut w.v);
@@ -228,7 +228,7 @@ fn head_backward<const P: usize, L: Lanes>(
 ) {
     let (s, dh, scale) = (c.s, c.s.dh(), c.s.scale());
     let keys = c.keys((b, h), &mut w.gather);
-    let g = Layout::new(s, keys.lk, P, L::R);
+    let g = HeadLayout::new(s, keys.lk, P, L::R);
     let (n, n16) = (g.n, g.n16);
     g.rows(s.head(c.q, s.lq, b, h).ptr, s.d, s.lq, g.lq, dh, &mut w.q);
     g.rows(s.head(dout, s.lq, b, h).ptr, s.d, s.lq, g.lq, dh, &mut w.g);

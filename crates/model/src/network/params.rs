@@ -12,8 +12,8 @@ pub fn host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
     t.into_data().convert::<f32>().try_into_vec::<f32>().expect("float tensor")
 }
 
-struct Values(Vec<(Vec<usize>, Vec<f32>)>);
-impl ModuleVisitor for Values {
+struct ParamValues(Vec<(Vec<usize>, Vec<f32>)>);
+impl ModuleVisitor for ParamValues {
     fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
         let t = p.val();
         self.0.push((t.dims().to_vec(), host(t)));
@@ -22,7 +22,7 @@ impl ModuleVisitor for Values {
 
 /// (shape, values) of every float parameter.
 pub fn values<M: Module>(m: &M) -> Vec<(Vec<usize>, Vec<f32>)> {
-    let mut v = Values(Vec::new());
+    let mut v = ParamValues(Vec::new());
     m.visit(&mut v);
     v.0
 }

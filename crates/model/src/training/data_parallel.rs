@@ -302,7 +302,7 @@ impl StepSync {
 /// replica descended)), None when its forward pass panicked.
 pub(crate) type ReplicaPart<T> = Option<(T, Option<f64>)>;
 
-type Job<'s> = Box<dyn FnOnce(&mut Replica) + Send + 's>;
+type ReplicaJob<'s> = Box<dyn FnOnce(&mut Replica) + Send + 's>;
 
 /// What `Workers::each` runs on every replica.
 pub(crate) type EachFn<'s, P, T> = Arc<dyn Fn(&mut Replica, P) -> T + Send + Sync + 's>;
@@ -310,7 +310,7 @@ pub(crate) type EachFn<'s, P, T> = Arc<dyn Fn(&mut Replica, P) -> T + Send + Syn
 /// The replicas of a run, each owned by its own thread for the whole run (CubeCL keeps a stream
 /// per thread: a replica's tensors stay on one), running the jobs sent to them.
 pub(crate) struct Workers<'s> {
-    jobs: Vec<mpsc::Sender<Job<'s>>>,
+    jobs: Vec<mpsc::Sender<ReplicaJob<'s>>>,
 }
 
 impl<'s> Workers<'s> {
@@ -318,7 +318,7 @@ impl<'s> Workers<'s> {
         let jobs = reps
             .into_iter()
             .map(|mut r| {
-                let (tx, rx) = mpsc::channel::<Job<'s>>();
+                let (tx, rx) = mpsc::channel::<ReplicaJob<'s>>();
                 scope.spawn(move || rx.into_iter().for_each(|job| job(&mut r)));
                 tx
             })
@@ -340,7 +340,7 @@ impl<'s> Workers<'s> {
         let (tx, rx) = mpsc::channel();
         for (k, (jobs, p)) in self.jobs.iter().zip(payloads).enumerate() {
             let (tx, f) = (tx.clone(), f.clone());
-            let job: Job<'s> = Box::new(move |r| {
+            let job: ReplicaJob<'s> = Box::new(move |r| {
                 let _ = tx.send((k, f(r, p)));
             });
             jobs.send(job).map_err(|_| gone())?;
@@ -357,7 +357,7 @@ impl<'s> Workers<'s> {
     /// `f(replica 0)` on its thread (validation and checkpoints read replica 0).
     pub fn first<T: Send + 's>(&self, f: impl FnOnce(&mut Replica) -> T + Send + 's) -> Result<T> {
         let (tx, rx) = mpsc::channel();
-        let job: Job<'s> = Box::new(move |r| {
+        let job: ReplicaJob<'s> = Box::new(move |r| {
             let _ = tx.send(f(r));
         });
         self.jobs[0].send(job).map_err(|_| gone())?;
