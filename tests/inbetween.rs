@@ -140,7 +140,7 @@ fn the_report_has_every_method_at_every_gap() {
 
 /// `--no-balance`: the pipeline keeps the network's in-betweens. The tiny model misses real keys
 /// by far, so by default its pipeline falls back on the keys' interpolation and its motion
-/// changes (measured: error 0.111 m with the balance, 0.104 m without, interpolation's 0.104 m);
+/// changes (measured: error 0.110 m with the balance, 0.104 m without, interpolation's 0.104 m);
 /// the network alone never passes through the fit.
 #[test]
 fn no_balance_keeps_the_network_in_betweens() {
@@ -174,26 +174,33 @@ fn no_balance_keeps_the_network_in_betweens() {
     }
 }
 
-/// What the committed model measured here (keys every second, seeds 11 and 12): its pipeline's
-/// joint error is 1.13x interpolation's on 012314 and 0.79x on 000021 (root-relative 1.11x and
-/// 0.95x), 0.96x over the two. The guards leave 0.04-0.05 for differences between machines; the
-/// issue's target (below interpolation on both clips) is not met on 012314 (docs/inbetween.md).
+/// What the committed model measured here (keys every second, seed 11): its pipeline's joint
+/// error is 1.11x interpolation's on 012314 and 0.81x on 000021 (root-relative 1.12x and
+/// 0.97x), 0.96x over the two; its toes are planted on 0.57x and 0.63x as many frames as the
+/// clips' (0.33x and 0.59x, mean 0.46x, when the balance judged the whole body at once: 012314
+/// raises its arms where the network does not, and its legs then leaned on the keys' sliding
+/// interpolation too). The guards leave 0.04-0.07 for differences between machines; the issue's
+/// target (below interpolation on both clips) is not met on 012314 (docs/inbetween.md).
 const MAX_MEAN_RATIO: f64 = 1.0;
 const MAX_EACH_RATIO: f64 = 1.18;
+const MIN_MEAN_PLANTED: f64 = 0.56;
 
 #[test]
 fn the_reference_model_keyed_every_second_against_interpolation_on_real_clips() {
     let Some(r) = report_on_fixture_clips("inbetween-real", MODEL, "1") else { return };
-    let mut global = Vec::new();
+    let (mut global, mut planted) = (Vec::new(), Vec::new());
     for c in r["clips"].as_array().unwrap() {
         let g = &c["gaps"][0];
         let ratio =
             |k: &str| g["pipeline"][k].as_f64().unwrap() / g["interpolation"][k].as_f64().unwrap();
+        let share = |m: &str| g[m]["planted_share"].as_f64().unwrap();
+        planted.push(share("pipeline") / share("clip"));
         eprintln!(
-            "{}: pipeline / interpolation {:.3} (root-relative {:.3})",
+            "{}: pipeline / interpolation {:.3} (root-relative {:.3}), planted share / clip's {:.2}",
             c["id"],
             ratio("error_m"),
-            ratio("error_local_m")
+            ratio("error_local_m"),
+            planted.last().unwrap()
         );
         assert!(
             ratio("error_m") <= MAX_EACH_RATIO && ratio("error_local_m") <= MAX_EACH_RATIO,
@@ -202,6 +209,7 @@ fn the_reference_model_keyed_every_second_against_interpolation_on_real_clips() 
         );
         global.push(ratio("error_m"));
     }
-    let mean = global.iter().sum::<f64>() / global.len() as f64;
-    assert!(mean <= MAX_MEAN_RATIO, "mean ratio {mean}");
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    assert!(mean(&global) <= MAX_MEAN_RATIO, "mean ratio {}", mean(&global));
+    assert!(mean(&planted) >= MIN_MEAN_PLANTED, "planted share / clip's: {planted:?}");
 }

@@ -185,8 +185,7 @@ pub fn fit_sample(
     skel: &Skeleton,
     fit: Fit,
 ) -> Fitted {
-    let layout = Layout::of(skel);
-    let (mut features, corrections) = fit_keys(x, req, i, mean, std, &layout, fit);
+    let (mut features, corrections) = fit_keys(x, req, i, mean, std, skel, fit);
     let mut hold = vec![false; req.lengths[i]];
     req.key_frames(i).into_iter().for_each(|f| hold[f] = true);
     let rigid = fit.rigid.then(|| rigid::make_rigid(skel, &mut features, &hold));
@@ -266,9 +265,10 @@ fn fit_keys(
     i: usize,
     mean: &[f32],
     std: &[f32],
-    layout: &Layout,
+    skel: &Skeleton,
     fit: Fit,
 ) -> (Vec<f32>, Vec<Correction>) {
+    let layout = &Layout::of(skel);
     let (n, d, r) = (req.frames, req.dim, ROOT_CHANNELS);
     let len = req.lengths[i];
     let span = |v: &[f32], w: usize| v[i * n * w..(i * n + len) * w].to_vec();
@@ -306,7 +306,7 @@ fn fit_keys(
             let raw = out.clone();
             let corr = warp::warp(layout, &mut out, &targets, FALLOFF);
             let sampled = Sampled { raw: &raw, req, i, mean, std };
-            if fit.balance && lean_on_keys(layout, &mut out, &target, sampled) {
+            if fit.balance && lean_on_keys(skel, &mut out, &target, sampled) {
                 // The blend of two motions through the keys meets them only approximately
                 // (the root integrates its blended velocities): warp again.
                 warp::warp(layout, &mut out, &targets, FALLOFF);
@@ -329,7 +329,8 @@ struct Sampled<'a> {
 /// `balance` on sample `s`: `out` pulled towards the keys' interpolation as far as the network
 /// (and, with the track fit, its first unaided sample) missed the keys `target`. False where
 /// the keys allow no interpolation (nothing changed).
-fn lean_on_keys(layout: &Layout, out: &mut [f32], target: &[f32], s: Sampled) -> bool {
+fn lean_on_keys(skel: &Skeleton, out: &mut [f32], target: &[f32], s: Sampled) -> bool {
+    let layout = &Layout::of(skel);
     let Some(interp) = &s.req.interpolation else { return false };
     let (n, d, len) = (s.req.frames, s.req.dim, s.req.lengths[s.i]);
     let read = |v: &[f32]| {
@@ -338,11 +339,14 @@ fn lean_on_keys(layout: &Layout, out: &mut [f32], target: &[f32], s: Sampled) ->
         x
     };
     let keys = s.req.key_frames(s.i);
-    let mut w = balance::weights(layout, s.raw, target, &keys, len);
-    if let Some(unaided) = &s.req.unaided {
-        let w1 = balance::weights(layout, &read(unaided), target, &keys, len);
-        w.iter_mut().zip(w1).for_each(|(a, b)| *a = a.min(b));
+    let (interp, unaided) = (read(interp), s.req.unaided.as_ref().map(|u| read(u)));
+    for part in balance::parts(skel) {
+        let mut w = balance::weights(layout, (s.raw, target), &part.joints, &keys, len);
+        if let Some(u) = &unaided {
+            let w1 = balance::weights(layout, (u, target), &part.joints, &keys, len);
+            w.iter_mut().zip(w1).for_each(|(a, b)| *a = a.min(b));
+        }
+        balance::pull_towards(layout, out, &interp, &w, &part.channels);
     }
-    balance::pull_towards(layout, out, &read(interp), &w);
     true
 }
