@@ -326,9 +326,10 @@ struct Sampled<'a> {
     std: &'a [f32],
 }
 
-/// `balance` on sample `s`: `out` pulled towards the keys' interpolation as far as the network
-/// (and, with the track fit, its first unaided sample) missed the keys `target`. False where
-/// the keys allow no interpolation (nothing changed).
+/// `balance` on sample `s`: each body part of `out` (`balance::parts`) pulled towards the keys'
+/// interpolation as far as the network (and, with the track fit, its first unaided sample)
+/// missed that part of the keys `target`. False where the keys allow no interpolation (nothing
+/// changed).
 fn lean_on_keys(skel: &Skeleton, out: &mut [f32], target: &[f32], s: Sampled) -> bool {
     let layout = &Layout::of(skel);
     let Some(interp) = &s.req.interpolation else { return false };
