@@ -26,20 +26,17 @@ pub struct Part {
     pub channels: Vec<bool>,
 }
 
-/// The skeleton's lower body (pelvis with the root's channels, legs) and the rest; the whole
-/// body as one part where the skeleton names no lower body.
+/// The skeleton's lower body (pelvis with the root's channels, legs) and upper body; the whole
+/// body as one part where the skeleton names no such halves.
 pub fn parts(skel: &Skeleton) -> Vec<Part> {
-    let all: Vec<usize> = (0..skel.num_joints()).collect();
-    let Some(lower) = skel.part("lower_body") else {
-        return vec![Part { channels: dim_mask(skel, None), joints: all }];
-    };
-    let rest: Vec<usize> = all.into_iter().filter(|j| !lower.joints.contains(j)).collect();
-    let lower_channels = dim_mask(skel, Some(lower.joints));
-    let rest_channels = lower_channels.iter().map(|on| !on).collect();
-    vec![
-        Part { joints: lower.joints.to_vec(), channels: lower_channels },
-        Part { joints: rest, channels: rest_channels },
-    ]
+    let part =
+        |joints: &[usize]| Part { joints: joints.to_vec(), channels: dim_mask(skel, Some(joints)) };
+    match (skel.part("lower_body"), skel.part("upper_body")) {
+        (Some(lower), Some(upper)) => vec![part(lower.joints), part(upper.joints)],
+        _ => {
+            vec![Part { joints: (0..skel.num_joints()).collect(), channels: dim_mask(skel, None) }]
+        }
+    }
 }
 
 /// Mean distance (metres) of the network's root-relative joints (RIC; the root: its height)
@@ -158,7 +155,7 @@ mod tests {
     }
 
     /// Arms missed, legs met: the arms lean on the interpolation, the legs and the path keep
-    /// the network's motion; the two parts cover every channel once.
+    /// the network's motion; the two halves cover every channel once.
     #[test]
     fn each_part_is_trusted_as_far_as_it_met_its_keys() {
         let layout = Layout::of(&T2M);
