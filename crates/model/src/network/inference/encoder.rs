@@ -45,13 +45,25 @@ pub(super) struct Encoding {
 
 /// x [rows, in] . w + b on all threads -> [rows, out].
 fn applied_par(lin: &HostLinear, x: &[f32]) -> Vec<f32> {
-    let (n_in, n_out) = (lin.w.len() / lin.width(), lin.width());
+    applied_each(&[lin], x).pop().expect("one layer")
+}
+
+/// Each of `lins` (of one input width) on x [rows, in], in one parallel region: every thread
+/// applies them all to its block of rows, the blocks `par_rows` gives each alone -> one
+/// [rows, out] per layer.
+fn applied_each(lins: &[&HostLinear], x: &[f32]) -> Vec<Vec<f32>> {
+    let n_in = lins[0].w.len() / lins[0].width();
     let rows = x.len() / n_in;
-    let mut y = vec![0f32; rows * n_out];
-    let dst = RowsMut::of(&mut y, n_out);
-    // SAFETY: each task writes its own rows.
-    par_rows(rows, |r| lin.apply(at(x, &r, n_in), unsafe { dst.get(&r) }));
-    y
+    let mut ys: Vec<Vec<f32>> = lins.iter().map(|l| vec![0f32; rows * l.width()]).collect();
+    let dst: Vec<RowsMut> =
+        ys.iter_mut().zip(lins).map(|(y, l)| RowsMut::of(y, l.width())).collect();
+    par_rows(rows, |r| {
+        for (lin, dst) in lins.iter().zip(&dst) {
+            // SAFETY: each task writes its own rows.
+            lin.apply(at(x, &r, n_in), unsafe { dst.get(&r) });
+        }
+    });
+    ys
 }
 
 /// Rows `rows` of x [_, width].
@@ -74,14 +86,18 @@ fn rows_of(mask: &[bool]) -> Vec<usize> {
     }
 }
 
-/// `lin` of the rows `rows` of z, put back in place among zeros -> [B * L, d].
-fn projected(lin: &HostLinear, z: &[f32], rows: &[usize], d: usize) -> Vec<f32> {
-    let y = applied_par(lin, &gather(z, rows, d));
-    let mut full = vec![0f32; z.len()];
-    for (k, &r) in rows.iter().enumerate() {
-        full[r * d..(r + 1) * d].copy_from_slice(&y[k * d..(k + 1) * d]);
-    }
-    full
+/// Each of `lins` of the rows `rows` of z, put back in place among zeros -> [B * L, d] each.
+fn projected(lins: &[&HostLinear], z: &[f32], rows: &[usize], d: usize) -> Vec<Vec<f32>> {
+    let ys = applied_each(lins, &gather(z, rows, d));
+    ys.iter()
+        .map(|y| {
+            let mut full = vec![0f32; z.len()];
+            for (k, &r) in rows.iter().enumerate() {
+                full[r * d..(r + 1) * d].copy_from_slice(&y[k * d..(k + 1) * d]);
+            }
+            full
+        })
+        .collect()
 }
 
 /// One DMA block on z [B * L, d] (`DmaBlock::forward`): the active rows attend to the valid ones
@@ -102,19 +118,9 @@ fn dma_block(
     let (queries, keys) = (rows_of(active), rows_of(valid));
     let [wq, wk, wv] = &bl.qkv;
     let zs = gather(z, &queries, d);
-    let (q, k, v) = (applied_par(wq, &zs), projected(wk, z, &keys, d), projected(wv, z, &keys, d));
-    let a = applied_par(&bl.out, &attention_of_rows(&q, &k, &v, s, blocked, &queries));
-    let mut cat = Vec::with_capacity(2 * a.len());
-    for (a, z) in a.chunks(d).zip(zs.chunks(d)) {
-        cat.extend_from_slice(a);
-        cat.extend_from_slice(z);
-    }
-    let mut h = applied_par(&bl.mlp1, &applied_par(&bl.fc, &cat));
-    let width = bl.mlp1.width();
-    let hm = RowsMut::of(&mut h, width);
-    // SAFETY: each task writes its own rows.
-    par_rows(queries.len(), |r| gelu(unsafe { hm.get(&r) }));
-    let zk = applied_par(&bl.mlp2, &h);
+    let q = applied_par(wq, &zs);
+    let [k, v]: [Vec<f32>; 2] = projected(&[wk, wv], z, &keys, d).try_into().expect("two");
+    let zk = block_mlp(bl, &attention_of_rows(&q, &k, &v, s, blocked, &queries), &zs);
     if queries.len() == z.len() / d {
         z.copy_from_slice(&zk);
         return;
@@ -124,6 +130,33 @@ fn dma_block(
             (&mut z[r * d..(r + 1) * d], &zk[k * d..(k + 1) * d], &zs[k * d..(k + 1) * d]);
         row.iter_mut().zip(new.iter().zip(old)).for_each(|(z, (n, o))| *z += n - o);
     }
+}
+
+/// The block's rows after attention: mlp2(GELU(mlp1(FC([out(a) || zs])))) of a and zs
+/// [rows, d], each thread chaining them on its block of rows (the blocks `par_rows` gives each
+/// layer alone) -> [rows, d].
+fn block_mlp(bl: &HostBlock, a: &[f32], zs: &[f32]) -> Vec<f32> {
+    let d = bl.out.width();
+    let rows = a.len() / d;
+    let (fc, wide) = (bl.fc.width(), bl.mlp1.width());
+    let mut zk = vec![0f32; rows * d];
+    let dst = RowsMut::of(&mut zk, d);
+    par_rows(rows, |r| {
+        let n = r.len();
+        let (mut o, mut cat) = (vec![0f32; n * d], Vec::with_capacity(2 * n * d));
+        bl.out.apply(at(a, &r, d), &mut o);
+        for (o, z) in o.chunks(d).zip(at(zs, &r, d).chunks(d)) {
+            cat.extend_from_slice(o);
+            cat.extend_from_slice(z);
+        }
+        let (mut f, mut h) = (vec![0f32; n * fc], vec![0f32; n * wide]);
+        bl.fc.apply(&cat, &mut f);
+        bl.mlp1.apply(&f, &mut h);
+        gelu(&mut h);
+        // SAFETY: each task writes its own rows.
+        bl.mlp2.apply(&h, unsafe { dst.get(&r) });
+    });
+    zk
 }
 
 /// The attention of the query rows `rows` (ascending, of B * L) alone, their queries `q`
@@ -207,30 +240,34 @@ fn text(model: &Denoiser, c: &Condition) -> (Vec<f32>, Vec<Memory>) {
         t.iter_mut().zip(&pos).for_each(|(t, p)| *t += p);
     }
     let mask = key_mask(words::padding(&text, b, td, w));
-    let words = model
-        .layers
-        .iter()
-        .filter_map(|l| l.words.as_ref())
-        .map(|a| {
-            let [k, v] = [&a.key, &a.value].map(|l| applied_par(&HostLinear::new(l), &tokens));
-            Memory { kv: (k, v), lk: w, mask: mask.clone() }
-        })
-        .collect();
-    (text_tok, words)
+    let attns = model.layers.iter().filter_map(|l| l.words.as_ref());
+    let lins: Vec<HostLinear> =
+        attns.flat_map(|a| [&a.key, &a.value]).map(HostLinear::new).collect();
+    (text_tok, memories(&lins, &tokens, w, &mask))
 }
 
-/// The keyframe encoder's output [B * (1 + N), d]: the text token and the frames' observations
-/// (with positions) through the DMA blocks, plus the global skip.
+/// Per layer, the keys and values of `tokens` [B * lk, d] through `lins` (each layer's key and
+/// value projections, one after the other), all in one parallel region.
+fn memories(lins: &[HostLinear], tokens: &[f32], lk: usize, mask: &Mask) -> Vec<Memory> {
+    let mut kv = applied_each(&lins.iter().collect::<Vec<_>>(), tokens).into_iter();
+    let mut out = Vec::new();
+    while let (Some(k), Some(v)) = (kv.next(), kv.next()) {
+        out.push(Memory { kv: (k, v), lk, mask: mask.clone() });
+    }
+    out
+}
+
+/// The keyframe encoder's output [B * (1 + N), d]: the text token and the frames' embedded
+/// observations `frames` [B * N, d] (with positions) through the DMA blocks, plus the global skip.
 fn keyframe_encoder(
     model: &Denoiser,
     plan: &DmaPlan,
     text_tok: &[f32],
-    obs: &[f32],
+    frames: &[f32],
     pos: &[f32],
 ) -> Vec<f32> {
     let enc = &model.encoder;
     let (b, n, d) = (plan.batch, plan.frames, model.d_model);
-    let frames = applied_par(&HostLinear::new(&enc.kf_in), obs);
     let l = n + 1;
     let mut z0 = vec![0f32; b * l * d];
     for s in 0..b {
@@ -256,20 +293,21 @@ impl Encoding {
         let d = model.d_model;
         let (text_tok, words) = text(model, c);
         let obs = observations(c, model.encoder.root_channels);
-        let key = model.key_in.as_ref().map(|l| applied_par(&HostLinear::new(l), &obs));
+        // The frames' embedding and the decoder's key input read the same rows: one region.
+        let embeds: Vec<HostLinear> = std::iter::once(&model.encoder.kf_in)
+            .chain(&model.key_in)
+            .map(HostLinear::new)
+            .collect();
+        let mut embedded = applied_each(&embeds.iter().collect::<Vec<_>>(), &obs).into_iter();
+        let (frames, key) = (embedded.next().expect("kf_in"), embedded.next());
         let pos = position_table(n, d);
         let plan = DmaPlan::new(&c.kf_frames, &c.real, b, n, &model.dma_sizes);
-        let tokens = keyframe_encoder(model, &plan, &text_tok, &obs, &pos);
+        let tokens = keyframe_encoder(model, &plan, &text_tok, &frames, &pos);
         let key_pad = key_mask(plan.final_valid().iter().map(|v| !v).collect());
-        let cross = model
-            .layers
-            .iter()
-            .map(|layer| {
-                let [k, v] = [&layer.cross_attn.key, &layer.cross_attn.value]
-                    .map(|l| applied_par(&HostLinear::new(l), &tokens));
-                Memory { kv: (k, v), lk: n + 1, mask: key_pad.clone() }
-            })
-            .collect();
+        let attns = model.layers.iter().map(|l| &l.cross_attn);
+        let lins: Vec<HostLinear> =
+            attns.flat_map(|a| [&a.key, &a.value]).map(HostLinear::new).collect();
+        let cross = memories(&lins, &tokens, n + 1, &key_pad);
         Encoding {
             batch: b,
             n,
