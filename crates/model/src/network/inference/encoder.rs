@@ -52,7 +52,10 @@ fn applied_par(lin: &HostLinear, x: &[f32]) -> Vec<f32> {
 /// applies them all to its block of rows, the blocks `par_rows` gives each alone -> one
 /// [rows, out] per layer.
 fn applied_each(lins: &[&HostLinear], x: &[f32]) -> Vec<Vec<f32>> {
-    let n_in = lins[0].w.len() / lins[0].width();
+    let Some(first) = lins.first() else {
+        return Vec::new();
+    };
+    let n_in = first.w.len() / first.width();
     let rows = x.len() / n_in;
     let mut ys: Vec<Vec<f32>> = lins.iter().map(|l| vec![0f32; rows * l.width()]).collect();
     let dst: Vec<RowsMut> =
