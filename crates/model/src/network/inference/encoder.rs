@@ -2,6 +2,7 @@
 //! token, the keyframe encoder's DMA blocks, the cross-attention keys and values of its output,
 //! the word tokens' keys and values, the masks) with the same kernels, once per sample.
 
+use std::borrow::Borrow;
 use std::sync::Arc;
 
 use burn::prelude::*;
@@ -51,15 +52,16 @@ fn applied_par(lin: &HostLinear, x: &[f32]) -> Vec<f32> {
 /// Each of `lins` (of one input width) on x [rows, in], in one parallel region: every thread
 /// applies them all to its block of rows, the blocks `par_rows` gives each alone -> one
 /// [rows, out] per layer.
-fn applied_each(lins: &[&HostLinear], x: &[f32]) -> Vec<Vec<f32>> {
-    let Some(first) = lins.first() else {
+fn applied_each<L: Borrow<HostLinear> + Sync>(lins: &[L], x: &[f32]) -> Vec<Vec<f32>> {
+    let Some(first) = lins.first().map(Borrow::borrow) else {
         return Vec::new();
     };
     let n_in = first.w.len() / first.width();
     let rows = x.len() / n_in;
+    let lins: Vec<&HostLinear> = lins.iter().map(Borrow::borrow).collect();
     let mut ys: Vec<Vec<f32>> = lins.iter().map(|l| vec![0f32; rows * l.width()]).collect();
     let dst: Vec<RowsMut> =
-        ys.iter_mut().zip(lins).map(|(y, l)| RowsMut::of(y, l.width())).collect();
+        ys.iter_mut().zip(&lins).map(|(y, l)| RowsMut::of(y, l.width())).collect();
     par_rows(rows, |r| {
         for (lin, dst) in lins.iter().zip(&dst) {
             // SAFETY: each task writes its own rows.
@@ -252,7 +254,7 @@ fn text(model: &Denoiser, c: &Condition) -> (Vec<f32>, Vec<Memory>) {
 /// Per layer, the keys and values of `tokens` [B * lk, d] through `lins` (each layer's key and
 /// value projections, one after the other), all in one parallel region.
 fn memories(lins: &[HostLinear], tokens: &[f32], lk: usize, mask: &Mask) -> Vec<Memory> {
-    let mut kv = applied_each(&lins.iter().collect::<Vec<_>>(), tokens).into_iter();
+    let mut kv = applied_each(lins, tokens).into_iter();
     let mut out = Vec::new();
     while let (Some(k), Some(v)) = (kv.next(), kv.next()) {
         out.push(Memory { kv: (k, v), lk, mask: mask.clone() });
@@ -301,7 +303,7 @@ impl Encoding {
             .chain(&model.key_in)
             .map(HostLinear::new)
             .collect();
-        let mut embedded = applied_each(&embeds.iter().collect::<Vec<_>>(), &obs).into_iter();
+        let mut embedded = applied_each(&embeds, &obs).into_iter();
         let (frames, key) = (embedded.next().expect("kf_in"), embedded.next());
         let pos = position_table(n, d);
         let plan = DmaPlan::new(&c.kf_frames, &c.real, b, n, &model.dma_sizes);
